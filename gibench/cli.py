@@ -1,0 +1,265 @@
+"""The ``gibench`` command line.
+
+    gibench algorithms
+    gibench render SCENE --algorithm NAME [--spp N] [--seed S] [--set k=v ...] --out FILE.exr
+    gibench reference SCENE --transport full|direct [--spp N] [--passes P]
+    gibench compare IMAGE REFERENCE [--reference-variance V] [--test-variance V] [--json]
+    gibench run [SUITE] [--no-mitsuba-timing]
+    gibench report [--run RUN_ID] [--out FILE.html]
+
+Errors in the input (a bad scene, a missing file, an image with NaN, an
+unknown algorithm or parameter) print one line, ``gibench: error: <cause>``,
+and exit with status 2; ``run`` exits with 1 when a check failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from . import registry
+from .provenance import REPO_ROOT, git_commit, machine, utc_now, versions
+
+OUT_ROOT = REPO_ROOT / "reports" / "out"
+RESULTS = OUT_ROOT / "results.jsonl"
+SUITES = REPO_ROOT / "suites"
+
+
+class CLIError(Exception):
+    pass
+
+
+def _parse_sets(items) -> dict:
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise CLIError(f"--set expects key=value, got '{item}'")
+        k, v = item.split("=", 1)
+        out[k.strip()] = v.strip()
+    return out
+
+
+def cmd_algorithms(args) -> int:
+    for algo in registry.algorithms():
+        print(f"{algo.name}  —  {algo.summary} ({algo.section}; transport: {algo.transport})")
+        print(algo.param_table())
+        print()
+    return 0
+
+
+def cmd_render(args) -> int:
+    from .imageio import check_finite, write_exr
+    from .loader import load_scene
+    from .runner import render_timed
+
+    algo = registry.get(args.algorithm)
+    values = _parse_sets(args.set)
+    if args.spp is not None:
+        if algo.spp_param is None:
+            raise CLIError(f"{algo.name} takes no --spp")
+        values[algo.spp_param] = args.spp
+    params = algo.parse_params(values)
+    scene = load_scene(args.scene)
+    result, timing = render_timed(algo, scene, params, seed=args.seed, repeats=args.repeats)
+    check_finite(result.image, name=f"{algo.name} output")
+    out = Path(args.out)
+    write_exr(out, result.image)
+    sidecar = {"scene": str(args.scene), "algorithm": algo.name, "params": params, "seed": args.seed,
+               "time": timing, "counters": result.counters, "versions": versions(),
+               "commit": git_commit(), "machine": machine(), "created": utc_now(),
+               "variance": None}
+    if result.variance is not None:
+        var_path = out.with_suffix(".var.exr")
+        write_exr(var_path, result.variance)
+        sidecar["variance"] = str(var_path)
+    out.with_suffix(".json").write_text(json.dumps(sidecar, indent=2))
+    print(f"{out}: {scene.camera.film.width}x{scene.camera.film.height}, "
+          f"median {timing['own_median_s'] * 1e3:.1f} ms over {timing['repeats']} repeats "
+          f"(warm-up {timing['warmup_s']:.2f} s), counters {result.counters}")
+    return 0
+
+
+def cmd_reference(args) -> int:
+    from references.reference import get_reference
+
+    ref = get_reference(args.scene, transport=args.transport, spp=args.spp, passes=args.passes,
+                        seed=args.seed, render_missing=True, force=args.force)
+    m = ref.manifest
+    print(f"{ref.directory}: {m.get('transport')} ({m.get('integrator', {}).get('type')}), "
+          f"{m.get('spp')} spp in {m.get('passes')} passes, variant {m.get('variant')}, "
+          f"{(m.get('wall_time_s') or {}).get('total', float('nan')):.2f} s")
+    return 0
+
+
+def _find_variance(image: Path) -> Path | None:
+    for cand in (image.with_suffix(".var.exr"), image.parent / "variance.exr"):
+        if cand != image and cand.is_file() and image.name != "variance.exr":
+            return cand
+    return None
+
+
+def cmd_compare(args) -> int:
+    from reports.metrics import compare
+
+    from .imageio import read_exr
+
+    test_path, ref_path = Path(args.image), Path(args.reference)
+    if ref_path.is_dir():
+        ref_path = ref_path / "image.exr"
+    test = read_exr(test_path)
+    ref = read_exr(ref_path)
+    rv = Path(args.reference_variance) if args.reference_variance else _find_variance(ref_path)
+    tv = Path(args.test_variance) if args.test_variance else _find_variance(test_path)
+    metrics = compare(ref, test, reference_variance=read_exr(rv) if rv else None,
+                      test_variance=read_exr(tv) if tv else None)
+    if args.json:
+        print(json.dumps(metrics, indent=2, default=str))
+        return 0
+    print(f"test      {test_path}" + (f" (variance {tv})" if tv else ""))
+    print(f"reference {ref_path}" + (f" (variance {rv})" if rv else " (no variance: no Z-test)"))
+    for k, v in metrics.items():
+        if k in ("ztest", "conventions"):
+            continue
+        print(f"  {k:<12} {v:.6g}" if isinstance(v, float) else f"  {k:<12} {v}")
+    z = metrics.get("ztest")
+    if z:
+        print(f"  Z-test       {'pass' if z['passed'] else 'FAIL'}: {z['fraction']:.5f} consistent "
+              f"(need {z['min_fraction']}, alpha {z['alpha']}, Šidák over {z['n']} entries)")
+    for k, v in metrics["conventions"].items():
+        print(f"  [{k}: {v}]")
+    return 0
+
+
+def _resolve_suite(name: str) -> Path:
+    p = Path(name)
+    if p.exists():
+        return p
+    cand = SUITES / (name if name.endswith(".toml") else f"{name}.toml")
+    return cand if cand.exists() else p
+
+
+def cmd_run(args) -> int:
+    from reports.html import write_report
+    from reports.results import ResultStore, new_run_id
+
+    from .suite import load_suite, run_suite
+
+    suite = load_suite(_resolve_suite(args.suite))
+    store = ResultStore(Path(args.results))
+    run_id = new_run_id()
+    print(f"gibench run {run_id}: suite '{suite.name}' ({len(suite.cases)} cases) from {suite.path}")
+    records = run_suite(suite, store, run_id=run_id, out_root=Path(args.results).parent,
+                        mitsuba_timing=not args.no_mitsuba_timing, reference_store=args.store)
+    out = Path(args.report) if args.report else Path(args.results).parent / "report.html"
+    write_report(records, out, root=REPO_ROOT, title=f"gibench — suite {suite.name}")
+    n_err = sum(1 for r in records if r.get("error"))
+    failed = [(r["scene"], c["name"]) for r in records for c in r.get("checks", []) if not c["passed"]]
+    print(f"results: {args.results} (run {run_id})")
+    print(f"report:  {out}")
+    if n_err or failed:
+        for scene, name in failed:
+            print(f"FAILED: {scene}: {name}")
+        print(f"{len(failed)} failed checks, {n_err} cases with errors")
+        return 1
+    checks = sum(len(r.get("checks", [])) for r in records)
+    print(f"all {checks} checks passed")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from reports.html import write_report
+    from reports.results import ResultStore
+
+    store = ResultStore(Path(args.results))
+    run_id = args.run or store.latest_run_id()
+    if run_id is None:
+        raise CLIError(f"{args.results}: no results yet (run 'gibench run' first)")
+    records = store.load(run_id)
+    if not records:
+        raise CLIError(f"{args.results}: no records for run '{run_id}'")
+    out = Path(args.out) if args.out else Path(args.results).parent / "report.html"
+    write_report(records, out, root=REPO_ROOT, title=f"gibench — run {run_id}")
+    print(f"report: {out}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="gibench", description="Validation and benchmarking harness "
+                                "for global-illumination algorithms, against Mitsuba 3 references.")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("algorithms", help="list registered algorithms and their parameters")
+    s.set_defaults(func=cmd_algorithms)
+
+    s = sub.add_parser("render", help="render a scene with an own algorithm")
+    s.add_argument("scene")
+    s.add_argument("--algorithm", "-a", required=True)
+    s.add_argument("--spp", type=int)
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--set", action="append", metavar="KEY=VALUE", help="algorithm parameter")
+    s.add_argument("--repeats", type=int, default=3, help="timed renders after the warm-up")
+    s.add_argument("--out", "-o", required=True, help="output EXR (a .json sidecar is written beside it)")
+    s.set_defaults(func=cmd_render)
+
+    s = sub.add_parser("reference", help="render (or reuse) a Mitsuba reference")
+    s.add_argument("scene")
+    s.add_argument("--transport", choices=("full", "direct"), default="full")
+    s.add_argument("--spp", type=int, default=1024)
+    s.add_argument("--passes", type=int, default=8)
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--force", action="store_true", help="re-render even if a valid entry exists")
+    s.set_defaults(func=cmd_reference)
+
+    s = sub.add_parser("compare", help="image metrics of IMAGE against REFERENCE")
+    s.add_argument("image")
+    s.add_argument("reference", help="an EXR, or a reference store directory")
+    s.add_argument("--reference-variance")
+    s.add_argument("--test-variance")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_compare)
+
+    s = sub.add_parser("run", help="run a suite against the stored references and write the report")
+    s.add_argument("suite", nargs="?", default="default")
+    s.add_argument("--results", default=str(RESULTS))
+    s.add_argument("--report", help="HTML output (default: beside the results)")
+    s.add_argument("--store", help="reference store directory (default: references/store)")
+    s.add_argument("--no-mitsuba-timing", action="store_true",
+                   help="skip timing Mitsuba on the same scenes")
+    s.set_defaults(func=cmd_run)
+
+    s = sub.add_parser("report", help="write the HTML report of a stored run")
+    s.add_argument("--run", help="run id (default: the latest)")
+    s.add_argument("--results", default=str(RESULTS))
+    s.add_argument("--out")
+    s.set_defaults(func=cmd_report)
+    return p
+
+
+def main(argv=None) -> int:
+    from references.reference import ReferenceMissing
+    from references.reference import SceneError as MitsubaSceneError
+    from reports.results import ResultStoreWarning  # noqa: F401  (warnings are shown as they are)
+
+    from .imageio import ImageError
+    from .loader import SceneError
+    from .meshes import MeshError
+    from .suite import SuiteError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (CLIError, SceneError, MitsubaSceneError, ImageError, MeshError, SuiteError,
+            registry.ParamError, ReferenceMissing, NotImplementedError, ValueError,
+            FileNotFoundError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"gibench: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("gibench: interrupted (results already appended are kept)", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,116 @@
+"""HDR image input/output (OpenEXR) and image sanity checks.
+
+Images in gibench are linear-radiance ``float32`` arrays of shape ``(H, W, 3)``
+(linear sRGB primaries).  EXR I/O goes through the ``openexr`` package rather
+than Mitsuba's writer, which can hang with one Dr.Jit thread.  Writes are
+atomic (temporary file, then rename), so an interrupted run never leaves a
+truncated image behind.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+__all__ = ["ImageError", "read_exr", "write_exr", "check_finite", "as_rgb"]
+
+
+class ImageError(ValueError):
+    """An image that cannot be used: missing, unreadable, wrong shape, non-finite."""
+
+
+def as_rgb(image, *, name: str = "image") -> np.ndarray:
+    """Return ``image`` as a C-contiguous float32 ``(H, W, 3)`` array.
+
+    A ``(H, W)`` or ``(H, W, 1)`` array is broadcast to three channels.
+    Raises :class:`ImageError` naming ``name`` for any other shape.
+    """
+    a = np.asarray(image, dtype=np.float32)
+    if a.ndim == 2:
+        a = a[:, :, None]
+    if a.ndim != 3 or a.shape[2] not in (1, 3):
+        raise ImageError(f"{name}: expected shape (H, W, 3), got {a.shape}")
+    if a.shape[2] == 1:
+        a = np.repeat(a, 3, axis=2)
+    return np.ascontiguousarray(a)
+
+
+def check_finite(image, *, name: str = "image") -> None:
+    """Raise :class:`ImageError` if ``image`` holds NaN or Inf values.
+
+    The message names the image, the counts and the first offending pixel
+    (x, y), so the cause can be found.
+    """
+    a = np.asarray(image)
+    bad = ~np.isfinite(a)
+    if bad.any():
+        n_nan = int(np.isnan(a).sum())
+        n_inf = int(np.isinf(a).sum())
+        idx = np.argwhere(bad)[0]
+        raise ImageError(
+            f"{name}: {n_nan} NaN and {n_inf} Inf values "
+            f"(first at pixel x={idx[1]}, y={idx[0]})"
+        )
+
+
+def write_exr(path, image, *, metadata: dict | None = None) -> Path:
+    """Write a float32 RGB EXR (ZIP compression) atomically and return its path.
+
+    ``metadata`` string values are stored as EXR header attributes.
+    Non-finite values are written as they are (the EXR records what was
+    computed); callers that must refuse them call :func:`check_finite` first.
+    """
+    path = Path(path)
+    a = as_rgb(image, name=str(path))
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for key, value in (metadata or {}).items():
+        header[str(key)] = str(value)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp.exr", dir=path.parent)
+    os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)       # mkstemp makes 0600; give the usual file mode
+    try:
+        with OpenEXR.File(header, {"RGB": a}) as f:
+            f.write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def read_exr(path, *, allow_nonfinite: bool = True) -> np.ndarray:
+    """Read an RGB EXR as a float32 ``(H, W, 3)`` array.
+
+    Raises :class:`ImageError` naming the file if it is missing, is not a
+    readable EXR, or has no R, G, B channels; with ``allow_nonfinite=False``
+    also if it holds NaN or Inf.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ImageError(f"{path}: no such image file")
+    try:
+        with OpenEXR.File(str(path)) as f:
+            channels = f.channels()
+            if "RGB" in channels:
+                a = np.asarray(channels["RGB"].pixels, dtype=np.float32)
+            elif all(c in channels for c in "RGB"):
+                a = np.stack([np.asarray(channels[c].pixels, dtype=np.float32) for c in "RGB"], axis=-1)
+            elif "Y" in channels:
+                a = np.asarray(channels["Y"].pixels, dtype=np.float32)
+            else:
+                raise ImageError(f"{path}: EXR has no RGB or Y channels (has {sorted(channels)})")
+    except ImageError:
+        raise
+    except Exception as exc:  # OpenEXR raises bare RuntimeError/OSError
+        raise ImageError(f"{path}: not a readable EXR file ({exc})") from None
+    a = as_rgb(a, name=str(path))
+    if not allow_nonfinite:
+        check_finite(a, name=str(path))
+    return a

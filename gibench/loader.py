@@ -1,0 +1,487 @@
+"""Mitsuba 3 XML scene loader (a documented subset) → :class:`gibench.scene.Scene`.
+
+The reference renders the very same file with ``mi.load_file``; this loader
+builds the one scene model the own algorithms read.  It understands:
+
+===============  ==============================================================
+element          supported
+===============  ==============================================================
+scene            ``version`` 2.x / 3.x
+default          ``name``/``value``; ``$name`` is substituted in every attribute
+integrator       any type (read for the reference's transport; own algorithms ignore it)
+sensor           ``perspective``: fov, fov_axis, near_clip, far_clip, to_world
+                 (focus_distance is accepted and ignored: a pinhole has no focus)
+film             ``hdrfilm``: width, height, rfilter, pixel_format, component_format
+rfilter          ``box``, ``gaussian`` (stddev)
+sampler          any type: sample_count (seed, jitter accepted)
+transform        lookat, translate, rotate, scale, matrix — composed in order
+values           rgb, float, integer, boolean, string, point, vector, ref / id
+shape            sphere (center/radius or to_world), rectangle, cube, obj, ply
+                 (filename relative to the scene file), flip_normals, face_normals
+bsdf             diffuse, conductor, dielectric, roughconductor, twosided
+emitter          point, directional, spot; ``area`` inside a shape
+===============  ==============================================================
+
+Anything else raises :class:`SceneError` with one line naming the element, the
+file and the line.  Properties that do not change what is rendered by the own
+algorithms and that Mitsuba accepts (``id`` names, film pixel formats, a
+sampler's seed) are accepted; any other property is an error, so nothing in a
+file is silently ignored.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+from lxml import etree
+
+from . import transforms as tf
+from .meshes import MeshError, angle_weighted_normals, cube, load_mesh_file, rectangle
+from .scene import Camera, Film, Light, Material, Scene, Shape
+
+__all__ = ["SceneError", "load_scene", "SUPPORTED"]
+
+SUPPORTED = {
+    "shape": ("sphere", "rectangle", "cube", "obj", "ply"),
+    "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "twosided"),
+    "emitter": ("point", "directional", "spot", "area"),
+    "sensor": ("perspective",),
+    "film": ("hdrfilm",),
+    "rfilter": ("box", "gaussian"),
+}
+
+_VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
+
+# Properties each plugin accepts: name -> what the own algorithms do with it.
+_PROPS = {
+    ("sensor", "perspective"): {"fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance"},
+    ("film", "hdrfilm"): {"width", "height", "pixel_format", "component_format"},
+    ("rfilter", "box"): set(),
+    ("rfilter", "gaussian"): {"stddev"},
+    ("shape", "sphere"): {"center", "radius", "to_world", "flip_normals"},
+    ("shape", "rectangle"): {"to_world", "flip_normals"},
+    ("shape", "cube"): {"to_world", "flip_normals"},
+    ("shape", "obj"): {"filename", "to_world", "flip_normals", "face_normals"},
+    ("shape", "ply"): {"filename", "to_world", "flip_normals", "face_normals"},
+    ("bsdf", "diffuse"): {"reflectance"},
+    ("bsdf", "twosided"): set(),
+    ("bsdf", "conductor"): {"material", "eta", "k", "specular_reflectance"},
+    ("bsdf", "dielectric"): {"int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"},
+    ("bsdf", "roughconductor"): {"material", "eta", "k", "specular_reflectance", "alpha", "alpha_u",
+                                 "alpha_v", "distribution", "sample_visible"},
+    ("emitter", "point"): {"intensity", "position", "to_world"},
+    ("emitter", "directional"): {"irradiance", "direction", "to_world"},
+    ("emitter", "spot"): {"intensity", "cutoff_angle", "beam_width", "to_world"},
+    ("emitter", "area"): {"radiance"},
+}
+
+
+class SceneError(ValueError):
+    """A scene file that is malformed or outside the supported subset.
+
+    The message is one line: ``file:line: <element type="...">: cause``.
+    """
+
+
+class _Ctx:
+    def __init__(self, path: Path):
+        self.path = path
+        self.defaults: dict[str, str] = {}
+        self.ids: dict[str, etree._Element] = {}
+        self.files: list[Path] = []
+
+    def error(self, el, msg: str) -> SceneError:
+        line = getattr(el, "sourceline", None) or "?"
+        tag = el.tag if isinstance(el.tag, str) else "?"
+        typ = el.get("type")
+        desc = f'<{tag} type="{typ}">' if typ else f"<{tag}>"
+        return SceneError(f"{self.path}:{line}: {desc}: {msg}")
+
+    def attr(self, el, key: str, default=None):
+        v = el.get(key)
+        if v is None:
+            return default
+        return self.subst(el, v)
+
+    def subst(self, el, v: str) -> str:
+        def rep(m):
+            name = m.group(1)
+            if name not in self.defaults:
+                raise self.error(el, f"'${name}' has no <default> value")
+            return self.defaults[name]
+        return re.sub(r"\$([A-Za-z_][A-Za-z0-9_]*)", rep, v)
+
+
+# ---------------------------------------------------------------- values ---
+
+def _floats(ctx, el, text: str, n: int | None = None) -> np.ndarray:
+    try:
+        vals = np.array([float(x) for x in re.split(r"[\s,]+", text.strip()) if x], dtype=np.float64)
+    except ValueError:
+        raise ctx.error(el, f"cannot parse numbers from '{text}'") from None
+    if n is not None and len(vals) != n:
+        raise ctx.error(el, f"expected {n} numbers, got {len(vals)} in '{text}'")
+    return vals
+
+
+def _vec3(ctx, el, key: str = "value") -> np.ndarray:
+    """A 3-vector from ``value="x, y, z"`` or x/y/z attributes (missing ones are 0)."""
+    v = ctx.attr(el, key)
+    if v is not None:
+        vals = _floats(ctx, el, v)
+        if len(vals) == 1:
+            return np.repeat(vals, 3)
+        if len(vals) != 3:
+            raise ctx.error(el, f"expected 3 numbers in {key}='{v}'")
+        return vals
+    return np.array([float(ctx.attr(el, a, "0")) for a in "xyz"])
+
+
+def _transform(ctx, el) -> np.ndarray:
+    m = np.eye(4)
+    for op in el:
+        if not isinstance(op.tag, str):
+            continue
+        try:
+            if op.tag == "translate":
+                m = tf.translate(_vec3(ctx, op)) @ m
+            elif op.tag == "scale":
+                v = ctx.attr(op, "value")
+                s = _floats(ctx, op, v) if v is not None else np.array(
+                    [float(ctx.attr(op, a, "1")) for a in "xyz"])
+                if len(s) not in (1, 3):
+                    raise ctx.error(op, f"expected 1 or 3 numbers in value='{v}'")
+                m = tf.scale(s if len(s) == 3 else np.repeat(s, 3)) @ m
+            elif op.tag == "rotate":
+                axis = _vec3(ctx, op) if op.get("value") is not None else np.array(
+                    [float(ctx.attr(op, a, "0")) for a in "xyz"])
+                m = tf.rotate(axis, float(ctx.attr(op, "angle", "0"))) @ m
+            elif op.tag == "lookat":
+                o = _floats(ctx, op, ctx.attr(op, "origin", ""), 3)
+                t = _floats(ctx, op, ctx.attr(op, "target", ""), 3)
+                u = _floats(ctx, op, ctx.attr(op, "up", "0, 1, 0"), 3)
+                m = tf.look_at(o, t, u) @ m
+            elif op.tag == "matrix":
+                vals = _floats(ctx, op, ctx.attr(op, "value", ""))
+                if len(vals) == 9:
+                    mm = np.eye(4)
+                    mm[:3, :3] = vals.reshape(3, 3)
+                elif len(vals) == 16:
+                    mm = vals.reshape(4, 4)
+                else:
+                    raise ctx.error(op, f"matrix needs 9 or 16 values, got {len(vals)}")
+                m = mm @ m
+            else:
+                raise ctx.error(op, "unsupported transform operation "
+                                    "(supported: translate, rotate, scale, lookat, matrix)")
+        except ValueError as exc:
+            if isinstance(exc, SceneError):
+                raise
+            raise ctx.error(op, str(exc)) from None
+    return m
+
+
+def _value(ctx, el):
+    tag = el.tag
+    if tag == "transform":
+        return _transform(ctx, el)
+    v = ctx.attr(el, "value")
+    if tag in ("point", "vector"):
+        return _vec3(ctx, el)
+    if v is None:
+        raise ctx.error(el, "missing 'value' attribute")
+    if tag == "float":
+        return float(_floats(ctx, el, v, 1)[0])
+    if tag == "integer":
+        try:
+            return int(v)
+        except ValueError:
+            raise ctx.error(el, f"'{v}' is not an integer") from None
+    if tag == "boolean":
+        if v.lower() not in ("true", "false"):
+            raise ctx.error(el, f"'{v}' is not a boolean (true/false)")
+        return v.lower() == "true"
+    if tag == "string":
+        return v
+    if tag == "rgb":
+        vals = _floats(ctx, el, v)
+        if len(vals) == 1:
+            vals = np.repeat(vals, 3)
+        if len(vals) != 3:
+            raise ctx.error(el, f"rgb needs 1 or 3 values, got {len(vals)}")
+        return vals
+    raise ctx.error(el, "unsupported value element")
+
+
+class _Plugin:
+    """One plugin element: its type, properties (with source elements) and children."""
+
+    def __init__(self, ctx: _Ctx, el, kind: str):
+        self.ctx, self.el, self.kind = ctx, el, kind
+        self.type = ctx.attr(el, "type")
+        if self.type is None:
+            raise ctx.error(el, "missing 'type' attribute")
+        if kind in SUPPORTED and self.type not in SUPPORTED[kind]:
+            raise ctx.error(el, f"unsupported {kind} type '{self.type}' "
+                                f"(supported: {', '.join(SUPPORTED[kind])})")
+        self.props: dict[str, object] = {}
+        self.children: list[tuple[str | None, etree._Element]] = []
+        allowed = _PROPS.get((kind, self.type))
+        for c in el:
+            if not isinstance(c.tag, str):
+                continue
+            if c.tag in _VALUE_TAGS:
+                name = ctx.attr(c, "name")
+                if name is None:
+                    raise ctx.error(c, "missing 'name' attribute")
+                if allowed is not None and name not in allowed:
+                    raise ctx.error(c, f"unsupported property '{name}' of {kind} '{self.type}' "
+                                       f"(supported: {', '.join(sorted(allowed)) or 'none'})")
+                self.props[name] = _value(ctx, c)
+            elif c.tag == "ref":
+                ref_id = ctx.attr(c, "id")
+                if ref_id not in ctx.ids:
+                    raise ctx.error(c, f"reference to unknown id '{ref_id}'")
+                self.children.append((ctx.attr(c, "name"), ctx.ids[ref_id]))
+            else:
+                self.children.append((ctx.attr(c, "name"), c))
+
+    def get(self, name, default=None):
+        return self.props.get(name, default)
+
+    def child_elements(self, tag: str):
+        return [c for _, c in self.children if c.tag == tag]
+
+    def unexpected_children(self, allowed: tuple[str, ...]):
+        for _, c in self.children:
+            if c.tag not in allowed:
+                raise self.ctx.error(c, f"unsupported element inside {self.kind} '{self.type}'")
+
+
+def _rgb(ctx, plugin, name, default):
+    v = plugin.get(name, default)
+    if isinstance(v, float | int):
+        v = np.repeat(float(v), 3)
+    v = np.asarray(v, dtype=np.float64)
+    if v.shape != (3,):
+        raise ctx.error(plugin.el, f"'{name}' must be an rgb or float value")
+    return v
+
+
+# ----------------------------------------------------------------- parts ---
+
+def _material(ctx, el, materials: list, cache: dict) -> int:
+    # Key by the element's path in the document: lxml proxies are transient,
+    # so id(el) can be reused by another element once a proxy is freed.
+    key = el.getroottree().getpath(el)
+    if key in cache:
+        return cache[key]
+    p = _Plugin(ctx, el, "bsdf")
+    twosided = False
+    if p.type == "twosided":
+        inner = p.child_elements("bsdf")
+        p.unexpected_children(("bsdf",))
+        if len(inner) != 1:
+            raise ctx.error(el, "twosided needs exactly one nested bsdf")
+        p = _Plugin(ctx, inner[0], "bsdf")
+        if p.type == "twosided":
+            raise ctx.error(inner[0], "nested twosided bsdf")
+        twosided = True
+    p.unexpected_children(())
+    refl = tuple(_rgb(ctx, p, "reflectance", 0.5)) if p.type == "diffuse" else (0.0, 0.0, 0.0)
+    params = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in p.props.items()}
+    materials.append(Material(kind=p.type, reflectance=refl, twosided=twosided, params=params,
+                              name=ctx.attr(el, "id", "") or ""))
+    cache[key] = len(materials) - 1
+    return cache[key]
+
+
+def _shape(ctx, el, materials, cache, default_mat) -> Shape:
+    p = _Plugin(ctx, el, "shape")
+    p.unexpected_children(("bsdf", "emitter"))
+    m = p.get("to_world", np.eye(4))
+    bsdfs = p.child_elements("bsdf")
+    if len(bsdfs) > 1:
+        raise ctx.error(el, "a shape takes at most one bsdf")
+    mat = _material(ctx, bsdfs[0], materials, cache) if bsdfs else default_mat()
+    emit = None
+    for e in p.child_elements("emitter"):
+        ep = _Plugin(ctx, e, "emitter")
+        if ep.type != "area":
+            raise ctx.error(e, "only an 'area' emitter can be attached to a shape")
+        ep.unexpected_children(())
+        emit = _rgb(ctx, ep, "radiance", 1.0)
+    flip = bool(p.get("flip_normals", False))
+    name = ctx.attr(el, "id", "") or ""
+    if p.type == "sphere":
+        center = np.asarray(p.get("center", np.zeros(3)), dtype=np.float64)
+        radius = float(p.get("radius", 1.0))
+        s = tf.uniform_scale_factor(m)
+        if s is None:
+            raise ctx.error(el, "sphere to_world must be a similarity transform (uniform scale)")
+        return Shape(kind="sphere", material=mat, name=name, source="sphere",
+                     center=tf.transform_points(m, center), radius=radius * s,
+                     flip_normals=flip, emitter_radiance=emit)
+    if p.type in ("rectangle", "cube"):
+        v, f, n = rectangle() if p.type == "rectangle" else cube()
+    else:
+        fn = p.get("filename")
+        if fn is None:
+            raise ctx.error(el, "missing 'filename' string")
+        path = (ctx.path.parent / fn).resolve()
+        try:
+            v, f, n = load_mesh_file(path)
+        except MeshError as exc:
+            raise ctx.error(el, str(exc)) from None
+        ctx.files.append(path)
+        if n is None and not p.get("face_normals", False):
+            n = angle_weighted_normals(v, f)
+        if p.get("face_normals", False):
+            n = None
+    v_world = tf.transform_points(m, v)
+    n_world = None if n is None else tf.transform_normals(m, n)
+    if np.linalg.det(m[:3, :3]) < 0:
+        f = f[:, ::-1].copy()          # a mirroring transform flips the winding; keep normals outward
+    return Shape(kind="mesh", material=mat, name=name, source=p.type, vertices=v_world,
+                 faces=f, normals=n_world, flip_normals=flip, emitter_radiance=emit)
+
+
+def _light(ctx, el) -> Light:
+    p = _Plugin(ctx, el, "emitter")
+    p.unexpected_children(())
+    m = p.get("to_world", np.eye(4))
+    name = ctx.attr(el, "id", "") or ""
+    if p.type == "area":
+        raise ctx.error(el, "an area emitter must be nested in a shape")
+    if p.type == "point":
+        pos = p.get("position")
+        pos = tf.transform_points(m, np.zeros(3)) if pos is None else np.asarray(pos)
+        return Light("point", _rgb(ctx, p, "intensity", 1.0), position=pos, name=name)
+    if p.type == "directional":
+        d = p.get("direction")
+        d = tf.transform_vectors(m, [0.0, 0.0, 1.0]) if d is None else np.asarray(d, dtype=np.float64)
+        if np.linalg.norm(d) == 0:
+            raise ctx.error(el, "directional emitter has a zero direction")
+        return Light("directional", _rgb(ctx, p, "irradiance", 1.0), direction=d / np.linalg.norm(d),
+                     name=name)
+    cutoff = float(p.get("cutoff_angle", 20.0))
+    beam = float(p.get("beam_width", cutoff * 0.75))
+    d = tf.transform_vectors(m, [0.0, 0.0, 1.0])
+    return Light("spot", _rgb(ctx, p, "intensity", 1.0), position=tf.transform_points(m, np.zeros(3)),
+                 direction=d / np.linalg.norm(d), cutoff_angle=cutoff, beam_width=beam, name=name)
+
+
+def _camera(ctx, el) -> Camera:
+    p = _Plugin(ctx, el, "sensor")
+    p.unexpected_children(("film", "sampler"))
+    film, spp = Film(), 4
+    for f in p.child_elements("film"):
+        fp = _Plugin(ctx, f, "film")
+        fp.unexpected_children(("rfilter",))
+        rf, rfp = "gaussian", {}
+        for r in fp.child_elements("rfilter"):
+            rp = _Plugin(ctx, r, "rfilter")
+            rp.unexpected_children(())
+            rf, rfp = rp.type, dict(rp.props)
+        film = Film(int(fp.get("width", 768)), int(fp.get("height", 576)), rf, rfp)
+        if film.width <= 0 or film.height <= 0:
+            raise ctx.error(f, f"film size must be positive, got {film.width}x{film.height}")
+    for s in p.child_elements("sampler"):
+        sp = _Plugin(ctx, s, "sampler")
+        spp = int(sp.get("sample_count", 4))
+    axis = p.get("fov_axis", "x")
+    if axis not in ("x", "y", "diagonal", "smaller", "larger"):
+        raise ctx.error(el, f"unknown fov_axis '{axis}' (x, y, diagonal, smaller, larger)")
+    if "fov" not in p.props:
+        raise ctx.error(el, "perspective sensor needs 'fov' (focal_length is not supported)")
+    return Camera(to_world=p.get("to_world", np.eye(4)), fov=float(p.get("fov")), fov_axis=axis,
+                  near_clip=float(p.get("near_clip", 1e-2)), far_clip=float(p.get("far_clip", 1e4)),
+                  film=film, sample_count=spp)
+
+
+def _integrator(ctx, el) -> dict:
+    """Read the integrator (and nested ones) into a plain dict; not validated against a list."""
+    out = {"type": ctx.attr(el, "type")}
+    for c in el:
+        if not isinstance(c.tag, str):
+            continue
+        if c.tag == "integrator":
+            out.setdefault("nested", []).append(_integrator(ctx, c))
+        elif c.tag in _VALUE_TAGS and c.tag != "transform":
+            v = _value(ctx, c)
+            out[ctx.attr(c, "name")] = v.tolist() if isinstance(v, np.ndarray) else v
+    return out
+
+
+# ------------------------------------------------------------------ entry ---
+
+def load_scene(path) -> Scene:
+    """Parse a Mitsuba 3 XML scene file into a :class:`~gibench.scene.Scene`.
+
+    Raises
+    ------
+    SceneError
+        One line naming the file, the line and the element, for a missing file,
+        malformed XML, an unsupported plugin or property, or a missing mesh.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SceneError(f"{path}: scene file not found")
+    try:
+        root = etree.parse(str(path), etree.XMLParser(remove_comments=True)).getroot()
+    except etree.XMLSyntaxError as exc:
+        line = exc.lineno if exc.lineno is not None else "?"
+        raise SceneError(f"{path}:{line}: malformed XML: {exc.msg}") from None
+    ctx = _Ctx(path)
+    if root.tag != "scene":
+        raise ctx.error(root, "the root element must be <scene>")
+    version = root.get("version", "3.0.0")
+    if not re.match(r"^[23]\.", version):
+        raise ctx.error(root, f"unsupported scene version '{version}' (2.x or 3.x)")
+
+    # Pass 1: defaults and ids (Mitsuba resolves <default> before anything else).
+    for c in root:
+        if isinstance(c.tag, str) and c.tag == "default":
+            name, value = c.get("name"), c.get("value")
+            if name is None or value is None:
+                raise ctx.error(c, "<default> needs 'name' and 'value'")
+            ctx.defaults.setdefault(name, value)
+    for c in root.iter():
+        if isinstance(c.tag, str) and c.get("id") is not None and c.tag != "ref":
+            ctx.ids[ctx.attr(c, "id")] = c
+
+    materials: list[Material] = []
+    cache: dict = {}
+    default_mat_index: list[int] = []
+
+    def default_mat() -> int:
+        if not default_mat_index:
+            materials.append(Material(kind="diffuse", reflectance=(0.5, 0.5, 0.5), name="(default)"))
+            default_mat_index.append(len(materials) - 1)
+        return default_mat_index[0]
+
+    camera, shapes, lights, integrator = None, [], [], {"type": "path"}
+    for c in root:
+        if not isinstance(c.tag, str) or c.tag == "default":
+            continue
+        if c.tag == "integrator":
+            integrator = _integrator(ctx, c)
+        elif c.tag == "sensor":
+            if camera is not None:
+                raise ctx.error(c, "more than one sensor")
+            camera = _camera(ctx, c)
+        elif c.tag == "bsdf":
+            _material(ctx, c, materials, cache)
+        elif c.tag == "shape":
+            shapes.append(_shape(ctx, c, materials, cache, default_mat))
+        elif c.tag == "emitter":
+            lights.append(_light(ctx, c))
+        else:
+            raise ctx.error(c, f"unsupported element '{c.tag}' at scene level "
+                               "(supported: default, integrator, sensor, bsdf, shape, emitter)")
+    if camera is None:
+        raise ctx.error(root, "the scene has no sensor")
+    return Scene(path=path, camera=camera, shapes=shapes, materials=materials, lights=lights,
+                 integrator=integrator, files=ctx.files)

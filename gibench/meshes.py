@@ -1,0 +1,102 @@
+"""Triangle meshes for the scene model: Mitsuba's built-in ``rectangle`` and
+``cube``, and ``obj``/``ply`` files (read with trimesh).
+
+Vertex normals follow Mitsuba: normals stored in the file are used; a mesh
+without them gets angle-weighted vertex normals unless ``face_normals`` is set,
+in which case shading uses the geometric normal (``normals=None``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["rectangle", "cube", "load_mesh_file", "angle_weighted_normals", "MeshError"]
+
+
+class MeshError(ValueError):
+    """A mesh file that is missing or cannot be read."""
+
+
+def rectangle() -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Mitsuba's rectangle: [-1, 1]² in the z = 0 plane, normal +z."""
+    v = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], dtype=np.float64)
+    f = np.array([[0, 1, 2], [2, 3, 0]], dtype=np.int64)
+    return v, f, None
+
+
+def cube() -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Mitsuba's cube: [-1, 1]³, outward-facing, flat-shaded (24 vertices, 12 triangles)."""
+    verts, faces = [], []
+    for axis in range(3):
+        for sign in (-1.0, 1.0):
+            u, w = [a for a in range(3) if a != axis]
+            quad = []
+            for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+                p = np.zeros(3)
+                p[axis], p[u], p[w] = sign, a, b
+                quad.append(p)
+            base = len(verts)
+            verts.extend(quad)
+            tri = [[base, base + 1, base + 2], [base + 2, base + 3, base]]
+            # Orient so the winding normal points outward (+sign along axis).
+            n = np.cross(quad[1] - quad[0], quad[2] - quad[0])
+            if n[axis] * sign < 0:
+                tri = [t[::-1] for t in tri]
+            faces.extend(tri)
+    return np.array(verts), np.array(faces, dtype=np.int64), None
+
+
+def angle_weighted_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Vertex normals as the angle-weighted sum of adjacent face normals."""
+    n = np.zeros_like(v)
+    p = v[f]                                        # (F, 3, 3)
+    fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    fn_len = np.linalg.norm(fn, axis=1, keepdims=True)
+    fn = np.divide(fn, fn_len, out=np.zeros_like(fn), where=fn_len > 0)
+    for k in range(3):
+        e1 = p[:, (k + 1) % 3] - p[:, k]
+        e2 = p[:, (k + 2) % 3] - p[:, k]
+        c = np.einsum("ij,ij->i", e1, e2) / np.maximum(
+            np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1), 1e-300)
+        ang = np.arccos(np.clip(c, -1.0, 1.0))
+        np.add.at(n, f[:, k], fn * ang[:, None])
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, ln, out=np.zeros_like(n), where=ln > 0)
+
+
+def load_mesh_file(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """Read an OBJ or PLY file: (vertices, faces, normals-from-the-file or None)."""
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise MeshError(f"mesh file not found: {path}")
+    ext = path.suffix.lower().lstrip(".")
+    loader = trimesh.exchange.load.mesh_loaders.get(ext)
+    if loader is None:
+        raise MeshError(f"unsupported mesh file type '.{ext}': {path}")
+    try:
+        with open(path, "rb") as fh:
+            kw = loader(fh, file_type=ext)
+    except Exception as exc:
+        raise MeshError(f"cannot read mesh file {path}: {exc}") from None
+    # The format loaders return one geometry or a dict of them (OBJ objects).
+    parts = list(kw["geometry"].values()) if "geometry" in kw else [kw]
+    vs, fs, ns, base = [], [], [], 0
+    for g in parts:
+        gv = np.asarray(g.get("vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
+        gf = np.asarray(g.get("faces", np.zeros((0, 3))), dtype=np.int64)
+        if gf.ndim != 2 or (len(gf) and gf.shape[1] != 3):
+            raise MeshError(f"mesh file {path} has non-triangular faces")
+        gn = g.get("vertex_normals")
+        vs.append(gv)
+        fs.append(gf.reshape(-1, 3) + base)
+        ns.append(None if gn is None else np.asarray(gn, dtype=np.float64).reshape(-1, 3))
+        base += len(gv)
+    v, f = np.concatenate(vs), np.concatenate(fs)
+    if len(f) == 0:
+        raise MeshError(f"mesh file {path} has no triangles")
+    normals = np.concatenate(ns) if all(n is not None and len(n) == len(vv) for n, vv in zip(ns, vs)) else None
+    return v, f, normals

@@ -1,0 +1,148 @@
+"""The scene model: the one representation every own algorithm reads.
+
+A scene file (Mitsuba 3 XML subset, see :mod:`gibench.loader`) becomes a
+:class:`Scene`: a camera with its film, shapes with materials (and area
+emitters), and the delta lights.  Everything is in world space, float64, linear
+sRGB.  The model holds what the scene file says and nothing an algorithm adds:
+Phong coefficients, sample counts and the like are algorithm parameters.
+
+Shapes are either analytic spheres or triangle meshes; ``rectangle`` and
+``cube`` arrive as the triangle meshes Mitsuba itself builds for them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Film", "Camera", "Material", "Shape", "Light", "Scene"]
+
+
+@dataclass(frozen=True)
+class Film:
+    width: int = 768
+    height: int = 576
+    rfilter: str = "gaussian"          # 'box' or 'gaussian' (Mitsuba's hdrfilm default)
+    rfilter_params: dict = field(default_factory=dict)
+
+    @property
+    def aspect(self) -> float:
+        return self.width / self.height
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Perspective pinhole camera (Mitsuba ``perspective``)."""
+
+    to_world: np.ndarray               # 4x4 camera-to-world; camera +z forward, +y up, +x left
+    fov: float = 90.0                  # degrees, along ``fov_axis``
+    fov_axis: str = "x"
+    near_clip: float = 1e-2
+    far_clip: float = 1e4
+    film: Film = field(default_factory=Film)
+    sample_count: int = 4              # the scene's sampler sample_count
+
+    @property
+    def origin(self) -> np.ndarray:
+        return self.to_world[:3, 3].copy()
+
+    @property
+    def tan_half_fov_x(self) -> float:
+        """tan of half the horizontal field of view, resolving ``fov_axis`` as Mitsuba does."""
+        t = np.tan(np.deg2rad(self.fov) / 2.0)
+        aspect = self.film.aspect
+        axis = self.fov_axis
+        if axis == "smaller":
+            axis = "y" if aspect > 1.0 else "x"
+        elif axis == "larger":
+            axis = "x" if aspect > 1.0 else "y"
+        if axis == "x":
+            return float(t)
+        if axis == "y":
+            return float(t * aspect)
+        # diagonal: tan(fov/2) spans half the diagonal
+        return float(t * aspect / np.hypot(aspect, 1.0))
+
+    def __repr__(self) -> str:
+        return (f"Camera(origin={np.round(self.origin, 4).tolist()}, fov={self.fov} ({self.fov_axis}), "
+                f"film={self.film.width}x{self.film.height}, spp={self.sample_count})")
+
+
+@dataclass(frozen=True)
+class Material:
+    """A BSDF as the scene file gives it.
+
+    ``kind`` is the Mitsuba plugin name (``diffuse``, ``conductor``,
+    ``dielectric``, ``roughconductor``); ``reflectance`` is the diffuse albedo
+    (RGB) for ``diffuse``; the rest of the plugin's parameters stay in
+    ``params`` for the algorithms that model them.
+    """
+
+    kind: str = "diffuse"
+    reflectance: tuple = (0.5, 0.5, 0.5)
+    twosided: bool = False
+    params: dict = field(default_factory=dict)
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class Shape:
+    """A sphere (``center``/``radius``) or a triangle mesh (``vertices``/``faces``)."""
+
+    kind: str                          # 'sphere' or 'mesh'
+    material: int                      # index into Scene.materials
+    name: str = ""
+    source: str = ""                   # plugin type: sphere, rectangle, cube, obj, ply
+    center: np.ndarray | None = None
+    radius: float = 0.0
+    vertices: np.ndarray | None = None  # (V, 3) world space
+    faces: np.ndarray | None = None     # (F, 3) int
+    normals: np.ndarray | None = None   # (V, 3) shading normals, or None for face normals
+    flip_normals: bool = False
+    emitter_radiance: np.ndarray | None = None  # RGB radiance of an area emitter, or None
+
+    @property
+    def is_emitter(self) -> bool:
+        return self.emitter_radiance is not None
+
+    def __repr__(self) -> str:
+        if self.kind == "sphere":
+            geo = f"center={np.round(self.center, 4).tolist()}, radius={self.radius:g}"
+        else:
+            geo = f"{len(self.faces)} triangles"
+        em = ", emitter" if self.is_emitter else ""
+        return f"Shape({self.source} '{self.name}', {geo}, material={self.material}{em})"
+
+
+@dataclass(frozen=True)
+class Light:
+    """A delta light: ``point`` (intensity, W/sr), ``spot`` (intensity, cone) or ``directional`` (irradiance)."""
+
+    kind: str
+    radiant: np.ndarray                # RGB intensity (point, spot) or irradiance (directional)
+    position: np.ndarray | None = None
+    direction: np.ndarray | None = None  # direction the light travels (directional) or spot axis
+    cutoff_angle: float = 20.0         # spot: degrees
+    beam_width: float = 15.0           # spot: degrees (Mitsuba default: 3/4 of cutoff)
+    name: str = ""
+
+
+@dataclass
+class Scene:
+    path: Path
+    camera: Camera
+    shapes: list[Shape]
+    materials: list[Material]
+    lights: list[Light]
+    integrator: dict = field(default_factory=lambda: {"type": "path"})
+    files: list[Path] = field(default_factory=list)  # files the scene reads (meshes)
+
+    @property
+    def emitters(self) -> list[Shape]:
+        return [s for s in self.shapes if s.is_emitter]
+
+    def __repr__(self) -> str:
+        return (f"Scene('{self.path}', {len(self.shapes)} shapes, {len(self.lights)} delta lights, "
+                f"{len(self.emitters)} area emitters, {self.camera!r})")

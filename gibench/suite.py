@@ -1,0 +1,244 @@
+"""Suite manifests and the ``gibench run`` pipeline.
+
+A suite manifest (TOML, in ``suites/``) lists groups of scenes × algorithm
+configurations × reference transport × expectations::
+
+    [suite]
+    name = "default"
+    reference_spp = 1024        # Mitsuba samples per pixel of every reference
+    reference_passes = 8        # independent passes (for the variance of the mean)
+    repeats = 3                 # timed renders per configuration (after a warm-up)
+
+    [[group]]
+    scenes = ["spheres/lit_sphere.xml"]      # relative to the manifest
+    algorithm = "raycast"
+    transport = "direct"                     # which reference to compare with
+    [[group.config]]
+    label = "4x4 strata"
+    params = { spp = 16 }
+    expect = "ztest"          # 'ztest': the Z-test must pass; 'report': error
+                              # reported only; 'model-error': the algorithm
+                              # computes less transport than the reference
+    tolerances = { relmse = 1e-3 }           # optional upper bounds on metrics
+
+Data flows one way: scene file → scene model → own render (image + counters)
+and stored Mitsuba reference → metrics → one JSON record per case in the
+results store → report.  Every record is appended as soon as its case ends,
+so an interrupted run keeps what it finished.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+import tomllib
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import registry
+from .imageio import ImageError, write_exr
+from .loader import SceneError, load_scene
+from .provenance import REPO_ROOT, git_commit, machine, utc_now, versions
+from .runner import render_timed
+
+__all__ = ["Case", "Suite", "load_suite", "run_suite", "SuiteError", "EXPECTATIONS"]
+
+EXPECTATIONS = ("ztest", "report", "model-error")
+TRANSPORTS = ("direct", "full")
+
+
+class SuiteError(ValueError):
+    """A malformed suite manifest."""
+
+
+@dataclass(frozen=True)
+class Case:
+    scene: Path                  # absolute path of the scene file
+    scene_id: str                # e.g. 'cornell/cornell_point'
+    algorithm: str
+    params: dict                 # as written in the manifest (strings allowed)
+    transport: str
+    label: str
+    expect: str
+    tolerances: dict = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        h = hashlib.sha1(json.dumps(self.params, sort_keys=True).encode()).hexdigest()[:8]
+        return f"{self.scene_id.replace('/', '__')}__{self.algorithm}__{h}"
+
+
+@dataclass(frozen=True)
+class Suite:
+    name: str
+    path: Path
+    cases: tuple[Case, ...]
+    reference_spp: int = 1024
+    reference_passes: int = 8
+    repeats: int = 3
+    description: str = ""
+
+
+def _need(table: dict, key: str, where: str, typ=None):
+    if key not in table:
+        raise SuiteError(f"{where}: missing '{key}'")
+    v = table[key]
+    if typ is not None and not isinstance(v, typ):
+        raise SuiteError(f"{where}: '{key}' must be {typ.__name__}, got {type(v).__name__}")
+    return v
+
+
+def load_suite(path) -> Suite:
+    """Read and check a suite manifest: every scene file exists, every algorithm and
+    parameter is known, expectations and transports are valid."""
+    path = Path(path)
+    if path.is_dir():
+        path = path / "suite.toml"
+    if not path.is_file():
+        raise SuiteError(f"{path}: suite manifest not found")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise SuiteError(f"{path}: malformed TOML: {exc}") from None
+    head = data.get("suite", {})
+    cases = []
+    suites_root = path.parent
+    for gi, group in enumerate(data.get("group", [])):
+        where = f"{path}: group {gi + 1}"
+        algo = registry.get(_need(group, "algorithm", where, str))
+        transport = group.get("transport", algo.transport)
+        if transport not in TRANSPORTS:
+            raise SuiteError(f"{where}: transport must be one of {TRANSPORTS}, got {transport!r}")
+        for scene in _need(group, "scenes", where, list):
+            scene_path = (suites_root / scene).resolve()
+            if not scene_path.is_file():
+                raise SuiteError(f"{where}: scene file not found: {scene_path}")
+            scene_id = str(Path(scene).with_suffix("")).replace("\\", "/")
+            for ci, cfg in enumerate(group.get("config", [{}])):
+                cw = f"{where}, config {ci + 1}"
+                params = dict(cfg.get("params", {}))
+                algo.parse_params(params)            # validates names and types now
+                expect = cfg.get("expect", group.get("expect", "report"))
+                if expect not in EXPECTATIONS:
+                    raise SuiteError(f"{cw}: expect must be one of {EXPECTATIONS}, got {expect!r}")
+                tol = dict(group.get("tolerances", {}), **cfg.get("tolerances", {}))
+                cases.append(Case(scene=scene_path, scene_id=scene_id, algorithm=algo.name,
+                                  params=params, transport=cfg.get("transport", transport),
+                                  label=cfg.get("label", f"{algo.name} {params}"),
+                                  expect=expect, tolerances=tol))
+    if not cases:
+        raise SuiteError(f"{path}: the suite has no cases ([[group]] with scenes and an algorithm)")
+    return Suite(name=head.get("name", path.parent.name), path=path, cases=tuple(cases),
+                 reference_spp=int(head.get("reference_spp", 1024)),
+                 reference_passes=int(head.get("reference_passes", 8)),
+                 repeats=int(head.get("repeats", 3)), description=head.get("description", ""))
+
+
+def _rel(p: Path) -> str:
+    try:
+        return str(Path(p).resolve().relative_to(REPO_ROOT))
+    except ValueError:
+        return str(p)
+
+
+def _checks(case: Case, metrics: dict) -> list[dict]:
+    checks = []
+    if case.expect == "ztest":
+        z = metrics.get("ztest") or {}
+        checks.append({"name": f"Z-test vs Mitsuba {case.transport}", "expected": "pass",
+                       "passed": bool(z.get("passed")),
+                       "detail": f"{z.get('fraction', float('nan')):.5f} of entries consistent "
+                                 f"(need {z.get('min_fraction')})"})
+    for name, bound in case.tolerances.items():
+        value = metrics.get(name)
+        ok = value is not None and value <= bound
+        checks.append({"name": f"{name} <= {bound:g}", "expected": "pass", "passed": bool(ok),
+                       "detail": f"{name} = {value:.4g}" if value is not None else f"{name} missing"})
+    return checks
+
+
+def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_timing: bool,
+             timing_cache: dict, reference_store=None, log=print) -> dict:
+    """Run one case and return its result record (never raises for a bad case:
+    the record's ``error`` names the cause)."""
+    from references.reference import DEFAULT_STORE, get_reference, time_mitsuba
+    from reports.metrics import compare
+
+    record = {"run_id": run_id, "suite": suite.name, "scene": case.scene_id,
+              "scene_file": _rel(case.scene), "algorithm": case.algorithm, "label": case.label,
+              "params": case.params, "transport": case.transport, "expect": case.expect,
+              "model_error": case.expect == "model-error", "error": None,
+              "versions": versions(), "commit": git_commit(), "machine": machine(),
+              "created": utc_now()}
+    try:
+        algo = registry.get(case.algorithm)
+        params = algo.parse_params(case.params)
+        record["params"] = params
+        scene = load_scene(case.scene)
+        ref = get_reference(case.scene, transport=case.transport, spp=suite.reference_spp,
+                            passes=suite.reference_passes, store=reference_store or DEFAULT_STORE)
+        record["reference"] = {"key": ref.key, "dir": _rel(ref.directory),
+                               "image": _rel(ref.directory / "image.exr"),
+                               "variance": _rel(ref.directory / "variance.exr"),
+                               "spp": ref.manifest.get("spp"), "variant": ref.manifest.get("variant"),
+                               "integrator": case.transport}
+        result, timing = render_timed(algo, scene, params, repeats=suite.repeats)
+        image_path = out_dir / f"{case.name}.exr"
+        write_exr(image_path, result.image)
+        record["image"] = _rel(image_path)
+        record["variance"] = None
+        if result.variance is not None:
+            var_path = out_dir / f"{case.name}.var.exr"
+            write_exr(var_path, result.variance)
+            record["variance"] = _rel(var_path)
+        record["counters"] = result.counters
+        record["metrics"] = compare(ref.image, result.image, reference_variance=ref.variance,
+                                    test_variance=result.variance, allow_nonfinite=True)
+        if mitsuba_timing:
+            spp = params.get(algo.spp_param, 1) if algo.spp_param else 1
+            key = (str(case.scene), case.transport, spp)
+            if key not in timing_cache:
+                timing_cache[key] = time_mitsuba(case.scene, transport=case.transport, spp=spp,
+                                                 repeats=suite.repeats)
+            mt = timing_cache[key]
+            timing.update(mitsuba_median_s=mt["median_s"], mitsuba_spp=mt["spp"],
+                          mitsuba_variant=mt.get("variant"),
+                          ratio=timing["own_median_s"] / mt["median_s"] if mt["median_s"] > 0 else None)
+        record["time"] = timing
+        m = record["metrics"]
+        if m["nan_count"] or m["inf_count"]:
+            record["checks"] = [{"name": "finite image", "expected": "pass", "passed": False,
+                                 "detail": f"{m['nan_count']} NaN, {m['inf_count']} Inf"}]
+        else:
+            record["checks"] = [] if case.expect == "model-error" else _checks(case, m)
+    except (SceneError, ImageError, registry.ParamError, NotImplementedError, ValueError,
+            RuntimeError, OSError) as exc:
+        record["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        if log:
+            log(f"  error: {record['error']}")
+            if "GIBENCH_TRACEBACK" in __import__("os").environ:
+                traceback.print_exc(file=sys.stderr)
+    return record
+
+
+def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timing: bool = True,
+              reference_store=None, log=print) -> list[dict]:
+    """Run every case, appending each record to ``store`` as it completes."""
+    out_dir = out_root / "runs" / run_id
+    timing_cache: dict = {}
+    records = []
+    for i, case in enumerate(suite.cases):
+        log(f"[{i + 1}/{len(suite.cases)}] {case.scene_id}: {case.label} vs {case.transport}")
+        rec = run_case(case, suite, run_id=run_id, out_dir=out_dir, mitsuba_timing=mitsuba_timing,
+                       timing_cache=timing_cache, reference_store=reference_store, log=log)
+        store.append(rec)
+        records.append(rec)
+        if not rec.get("error"):
+            m, t = rec["metrics"], rec["time"]
+            verdict = "; ".join(f"{c['name']}: {'ok' if c['passed'] else 'FAILED'}" for c in rec["checks"])
+            ratio = f", {t['ratio']:.2f}x Mitsuba" if t.get("ratio") else ""
+            log(f"  relMSE {m['relmse']:.3g}, FLIP {m['flip']:.3g}, own {t['own_median_s'] * 1e3:.1f} ms"
+                f"{ratio}" + (f" -- {verdict}" if verdict else " -- reported"))
+    return records

@@ -1,0 +1,127 @@
+"""Flatten the scene model into the plain arrays the numba kernels take.
+
+Primitives are numbered spheres first, then triangles; ``prim_shape`` maps a
+primitive to its shape (the index used for shape-id images).  Area emitters
+become per-emitter triangle lists with an area CDF for uniform area sampling.
+Light ``kind`` codes: 0 point, 1 directional, 2 spot.  Material ``kind``
+codes: 0 diffuse; anything else is refused by the local-illumination
+algorithms that cannot model it.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from gibench.scene import Scene
+
+__all__ = ["SceneArrays", "flatten", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT"]
+
+LIGHT_POINT, LIGHT_DIRECTIONAL, LIGHT_SPOT = 0, 1, 2
+
+
+class SceneArrays(NamedTuple):
+    """A named tuple of arrays: numba passes it to kernels as one typed argument."""
+
+    sph_center: np.ndarray      # (S, 3)
+    sph_radius: np.ndarray      # (S,)
+    tri_v: np.ndarray           # (T, 3, 3) world-space vertices
+    tri_n: np.ndarray           # (T, 3, 3) vertex shading normals (zeros if none)
+    tri_has_n: np.ndarray       # (T,) 1 where the triangle has shading normals
+    prim_shape: np.ndarray      # (S + T,) shape index
+    shape_material: np.ndarray  # (N,)
+    shape_flip: np.ndarray      # (N,) 1 where flip_normals
+    shape_emit: np.ndarray      # (N, 3) area-emitter radiance (0 if none)
+    mat_kind: np.ndarray        # (M,)
+    mat_rho: np.ndarray         # (M, 3)
+    mat_twosided: np.ndarray    # (M,)
+    light_kind: np.ndarray      # (L,)
+    light_pos: np.ndarray       # (L, 3)
+    light_dir: np.ndarray       # (L, 3) direction of travel / spot axis
+    light_rad: np.ndarray       # (L, 3) intensity or irradiance
+    light_cos_cutoff: np.ndarray
+    light_cos_beam: np.ndarray
+    light_cutoff: np.ndarray    # radians
+    light_inv_tw: np.ndarray    # 1 / (cutoff - beam width), radians
+    em_offset: np.ndarray       # (E + 1,) ranges into em_tri / em_cdf
+    em_tri: np.ndarray          # (K,) triangle index (into tri_*)
+    em_cdf: np.ndarray          # (K,) cumulative area fraction within its emitter
+    em_area: np.ndarray         # (E,)
+    em_shape: np.ndarray        # (E,)
+
+    @property
+    def n_spheres(self) -> int:
+        return len(self.sph_radius)
+
+
+MATERIAL_CODES = {"diffuse": 0, "conductor": 1, "dielectric": 2, "roughconductor": 3}
+
+
+def flatten(scene: Scene) -> SceneArrays:
+    spheres = [s for s in scene.shapes if s.kind == "sphere"]
+    meshes = [s for s in scene.shapes if s.kind == "mesh"]
+    index = {id(s): i for i, s in enumerate(scene.shapes)}
+    prim_shape = [index[id(s)] for s in spheres]
+    tri_v, tri_n, tri_has_n = [], [], []
+    tri_base = {}
+    for s in meshes:
+        tri_base[id(s)] = sum(len(t) for t in tri_v)
+        tri_v.append(s.vertices[s.faces])
+        if s.normals is not None:
+            tri_n.append(s.normals[s.faces])
+            tri_has_n.append(np.ones(len(s.faces), np.int64))
+        else:
+            tri_n.append(np.zeros((len(s.faces), 3, 3)))
+            tri_has_n.append(np.zeros(len(s.faces), np.int64))
+        prim_shape += [index[id(s)]] * len(s.faces)
+    tri_v = np.concatenate(tri_v) if tri_v else np.zeros((0, 3, 3))
+    tri_n = np.concatenate(tri_n) if tri_n else np.zeros((0, 3, 3))
+    tri_has_n = np.concatenate(tri_has_n) if tri_has_n else np.zeros(0, np.int64)
+
+    em_offset, em_tri, em_cdf, em_area, em_shape = [0], [], [], [], []
+    for s in scene.emitters:
+        if s.kind != "mesh":
+            raise NotImplementedError(
+                f"scene_arrays.flatten: area emitter on a {s.source} ('{s.name}') cannot be "
+                "sampled yet; only triangle-mesh emitters (rectangle, cube, obj, ply) are")
+        p = s.vertices[s.faces]
+        a = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+        em_tri.extend(tri_base[id(s)] + np.arange(len(a)))
+        em_cdf.extend(np.cumsum(a) / a.sum())
+        em_area.append(a.sum())
+        em_shape.append(index[id(s)])
+        em_offset.append(len(em_tri))
+
+    lights = scene.lights
+    f64 = lambda x, shape: np.asarray(x, dtype=np.float64).reshape(shape)  # noqa: E731
+    kinds = {"point": LIGHT_POINT, "directional": LIGHT_DIRECTIONAL, "spot": LIGHT_SPOT}
+    cutoff = np.deg2rad([l.cutoff_angle for l in lights])
+    beam = np.deg2rad([l.beam_width for l in lights])
+    return SceneArrays(
+        sph_center=f64([s.center for s in spheres], (-1, 3)),
+        sph_radius=f64([s.radius for s in spheres], (-1,)),
+        tri_v=np.ascontiguousarray(tri_v, dtype=np.float64),
+        tri_n=np.ascontiguousarray(tri_n, dtype=np.float64),
+        tri_has_n=tri_has_n,
+        prim_shape=np.asarray(prim_shape, dtype=np.int64),
+        shape_material=np.asarray([s.material for s in scene.shapes], dtype=np.int64),
+        shape_flip=np.asarray([int(s.flip_normals) for s in scene.shapes], dtype=np.int64),
+        shape_emit=f64([s.emitter_radiance if s.is_emitter else np.zeros(3) for s in scene.shapes], (-1, 3)),
+        mat_kind=np.asarray([MATERIAL_CODES[m.kind] for m in scene.materials], dtype=np.int64),
+        mat_rho=f64([m.reflectance for m in scene.materials], (-1, 3)),
+        mat_twosided=np.asarray([int(m.twosided) for m in scene.materials], dtype=np.int64),
+        light_kind=np.asarray([kinds[l.kind] for l in lights], dtype=np.int64),
+        light_pos=f64([l.position if l.position is not None else np.zeros(3) for l in lights], (-1, 3)),
+        light_dir=f64([l.direction if l.direction is not None else np.zeros(3) for l in lights], (-1, 3)),
+        light_rad=f64([l.radiant for l in lights], (-1, 3)),
+        light_cos_cutoff=np.cos(cutoff).reshape(-1),
+        light_cos_beam=np.cos(beam).reshape(-1),
+        light_cutoff=cutoff.reshape(-1),
+        light_inv_tw=np.where(cutoff > beam, 1.0 / np.maximum(cutoff - beam, 1e-12), np.inf).reshape(-1),
+        em_offset=np.asarray(em_offset, dtype=np.int64),
+        em_tri=np.asarray(em_tri, dtype=np.int64),
+        em_cdf=np.asarray(em_cdf, dtype=np.float64),
+        em_area=np.asarray(em_area, dtype=np.float64),
+        em_shape=np.asarray(em_shape, dtype=np.int64),
+    )

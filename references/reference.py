@@ -1,0 +1,825 @@
+"""Mitsuba 3 ground-truth references: render, store, verify and reuse.
+
+A reference renders *the same scene file* the renderers under test read, with
+a small set of documented overrides applied at the XML level (everything else,
+including ``<default>`` elements and ``$name`` substitutions, is kept and left
+for Mitsuba to resolve):
+
+* the ``<integrator>`` is replaced according to ``transport``:
+  ``"full"`` -> ``path`` with ``max_depth`` taken from the file's own
+  integrator if that is ``path`` and sets ``max_depth`` (else -1, unbounded);
+  ``"direct"`` -> ``direct``.  A ``hide_emitters`` flag on the file's
+  integrator is carried over (it changes what the image should show);
+* every top-level sensor's ``<sampler>`` is replaced by ``independent`` with
+  the per-pass sample count and the seed;
+* the film's ``<rfilter>`` is replaced by ``box`` (``rfilter="box"``, default;
+  ``rfilter="scene"`` keeps the file's filter -- Mitsuba's default is a
+  Gaussian), and ``pixel_format=rgb``, ``component_format=float32`` are forced.
+
+Every override is recorded in the entry's ``manifest.json``.
+
+The image is the mean of ``passes`` independent passes (distinct seeds) and
+the stored variance is the per-pixel variance *of that mean*: the unbiased
+sample variance over passes divided by ``passes`` (as Mitsuba's own render
+tests keep a ``_var.exr``).
+
+Entries live in ``references/store/<first 16 hex of key>/`` as ``image.exr``,
+``variance.exr`` and ``manifest.json``.  The key is a sha256 over the scene
+bytes, the bytes of every file the scene references by ``filename``, the
+transport, spp, passes, seed, rfilter choice, variant family and
+:data:`STORE_FORMAT`.  A stored entry is used only if its key and file hashes
+match and its images are readable and finite; otherwise it is re-rendered
+(with a one-line message on stderr) or, with ``render_missing=False``,
+:class:`ReferenceMissing` is raised.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import hashlib
+import json
+import os
+import platform
+import re
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from lxml import etree
+
+from gibench.imageio import ImageError, as_rgb, check_finite, read_exr, write_exr
+
+from .mitsuba_env import load_mitsuba, mitsuba_versions
+
+__all__ = [
+    "STORE_FORMAT",
+    "DEFAULT_STORE",
+    "Reference",
+    "ReferenceMissing",
+    "SceneError",
+    "get_reference",
+    "reference_key",
+    "scene_dependencies",
+    "prepare_scene_xml",
+    "load_scene",
+    "time_mitsuba",
+    "render_depth",
+]
+
+#: Version of the store layout and render procedure; part of every key.
+STORE_FORMAT = 1
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_STORE = Path(__file__).resolve().parent / "store"
+
+TRANSPORTS = ("full", "direct")
+RFILTERS = ("box", "scene")
+
+#: Upper bound on the lanes (pixels x samples) of one ``mi.render`` call while
+#: building a reference; larger passes are split into several launches with
+#: their own seeds (the LLVM backend holds one wavefront in memory).
+LANE_BUDGET = 1 << 22
+
+IMAGE_FILE = "image.exr"
+VARIANCE_FILE = "variance.exr"
+MANIFEST_FILE = "manifest.json"
+
+
+class SceneError(RuntimeError):
+    """A scene file that does not exist, is not valid XML or Mitsuba cannot load."""
+
+
+class ReferenceMissing(RuntimeError):
+    """No usable stored reference and rendering was not allowed."""
+
+
+@dataclasses.dataclass(repr=False)
+class Reference:
+    """A stored Mitsuba reference.
+
+    Attributes
+    ----------
+    key : str
+        Full sha256 cache key.
+    directory : Path
+        Store entry directory.
+    image : np.ndarray
+        Mean radiance over passes, float32 ``(H, W, 3)``.
+    variance : np.ndarray
+        Per-pixel variance of ``image`` (of the mean), float32 ``(H, W, 3)``.
+    manifest : dict
+        Contents of ``manifest.json``.
+    """
+
+    key: str
+    directory: Path
+    image: np.ndarray
+    variance: np.ndarray
+    manifest: dict
+
+    def __repr__(self) -> str:
+        m = self.manifest
+        return (f"Reference({m.get('scene')!r}, {m.get('transport')}, {m.get('spp')} spp/"
+                f"{m.get('passes')} passes, {m.get('width')}x{m.get('height')}, "
+                f"key={self.key[:16]})")
+
+
+# ---------------------------------------------------------------------------
+# Small helpers
+# ---------------------------------------------------------------------------
+
+
+def _sha256_file(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _first_line(exc: BaseException) -> str:
+    for line in str(exc).splitlines():
+        if line.strip():
+            return line.strip()
+    return type(exc).__name__
+
+
+def _display_path(path: Path) -> str:
+    """Path relative to the repository root if inside it, else absolute."""
+    p = Path(path).resolve()
+    try:
+        return str(p.relative_to(REPO_ROOT))
+    except ValueError:
+        return str(p)
+
+
+def _scene_file(scene_path) -> Path:
+    p = Path(scene_path).expanduser()
+    if not p.is_file():
+        raise SceneError(f"{p}: no such scene file")
+    return p.resolve()
+
+
+def _parse(path: Path) -> etree._ElementTree:
+    try:
+        tree = etree.parse(str(path), etree.XMLParser(remove_blank_text=False))
+    except (etree.XMLSyntaxError, OSError) as exc:
+        raise SceneError(f"{path}: not a valid XML scene file: {_first_line(exc)}") from None
+    if tree.getroot().tag != "scene":
+        raise SceneError(f"{path}: root element is <{tree.getroot().tag}>, expected <scene>")
+    return tree
+
+
+def _defaults(root) -> dict[str, str]:
+    return {d.get("name"): d.get("value") for d in root.iter("default") if d.get("name")}
+
+
+def _substitute(value: str | None, defaults: dict[str, str]) -> str | None:
+    """Resolve ``$name`` with the file's ``<default>`` values (for recording/hashing)."""
+    if value is None or "$" not in value:
+        return value
+    return re.sub(r"\$(\w+)", lambda m: defaults.get(m.group(1), m.group(0)), value)
+
+
+def _properties(el) -> dict:
+    """``{name: value}`` of an element's direct property children (resolved)."""
+    defaults = _defaults(el.getroottree().getroot())
+    out = {}
+    for child in el:
+        if not isinstance(child.tag, str):
+            continue
+        name = child.get("name")
+        if name is not None and child.get("value") is not None:
+            out[name] = _substitute(child.get("value"), defaults)
+    return out
+
+
+def _as_number(value):
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            return value
+
+
+def _variant_family(variant: str) -> str:
+    parts = [p for p in variant.split("_") if p not in ("scalar", "llvm", "cuda", "ad")]
+    return "_".join(parts)
+
+
+def _derive_seed(seed: int, pass_index: int, chunk: int) -> int:
+    """Deterministic 31-bit seed for one launch of one pass."""
+    digest = hashlib.sha256(f"gibench-reference:{seed}:{pass_index}:{chunk}".encode()).digest()
+    return int.from_bytes(digest[:4], "little") & 0x7FFFFFFF
+
+
+def _sync(dr) -> None:
+    sync = getattr(dr, "sync_thread", None)
+    if sync is not None:
+        sync()
+
+
+def _render_once(mi, dr, scene, spp: int, seed: int) -> np.ndarray:
+    """``mi.render`` and wait until the work is finished; returns (H, W, C) float32."""
+    img = mi.render(scene, spp=spp, seed=seed)
+    dr.eval(img)
+    _sync(dr)
+    return np.array(img, dtype=np.float32)
+
+
+# ---------------------------------------------------------------------------
+# Scene dependencies and key
+# ---------------------------------------------------------------------------
+
+
+def scene_dependencies(scene_path) -> list[dict]:
+    """Files a scene references by ``filename`` (attributes or ``<string>``).
+
+    Relative names are resolved against the scene file's directory (and, for
+    nested ``<include>`` files, the including file's directory); ``$name``
+    substitutions are resolved with the file's ``<default>`` values.  Included
+    XML files are followed.  Returns ``[{name, path, sha256}]`` sorted by name,
+    with ``path``/``sha256`` None for files that cannot be found.
+    """
+    scene = _scene_file(scene_path)
+    found: dict[str, dict] = {}
+
+    def visit(xml_path: Path, depth: int) -> None:
+        root = _parse(xml_path).getroot()
+        defaults = _defaults(root)
+        for el in root.iter():
+            if not isinstance(el.tag, str):
+                continue
+            if el.tag == "string" and el.get("name") == "filename":
+                raw = el.get("value")
+            elif el.get("filename") is not None:
+                raw = el.get("filename")
+            else:
+                continue
+            name = _substitute(raw, defaults)
+            if not name or name in found:
+                continue
+            candidates = [Path(name)] if os.path.isabs(name) else [
+                scene.parent / name, xml_path.parent / name]
+            path = next((c for c in candidates if c.is_file()), None)
+            found[name] = {"name": name, "path": str(path) if path else None,
+                           "sha256": _sha256_file(path) if path else None}
+            if el.tag == "include" and path is not None and depth < 16:
+                visit(path, depth + 1)
+
+    visit(scene, 0)
+    return [found[k] for k in sorted(found)]
+
+
+def reference_key(scene_path, *, transport: str = "full", spp: int = 1024, passes: int = 8,
+                  seed: int = 0, rfilter: str = "box", variant_family: str = "rgb") -> str:
+    """Full sha256 cache key of a reference (see module docstring)."""
+    scene = _scene_file(scene_path)
+    payload = {
+        "store_format": STORE_FORMAT,
+        "scene_sha256": _sha256_file(scene),
+        "dependencies": [[d["name"], d["sha256"]] for d in scene_dependencies(scene)],
+        "transport": transport,
+        "spp": int(spp),
+        "passes": int(passes),
+        "seed": int(seed),
+        "rfilter": rfilter,
+        "variant_family": variant_family,
+    }
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+
+
+# ---------------------------------------------------------------------------
+# XML overrides and loading
+# ---------------------------------------------------------------------------
+
+
+def _make(tag: str, attrib: dict | None = None, children=()) -> etree._Element:
+    el = etree.Element(tag, {k: str(v) for k, v in (attrib or {}).items()})
+    for c in children:
+        el.append(c)
+    return el
+
+
+def _prop(tag: str, name: str, value) -> etree._Element:
+    if isinstance(value, bool):
+        value = "true" if value else "false"
+    return _make(tag, {"name": name, "value": value})
+
+
+def _replace_integrator(root, new: etree._Element) -> dict:
+    """Swap the top-level integrator(s) for ``new``; return the file's one as a dict."""
+    old = [c for c in root if c.tag == "integrator"]
+    before = {"type": old[0].get("type"), **_properties(old[0])} if old else None
+    index = list(root).index(old[0]) if old else None
+    for c in old:
+        root.remove(c)
+    if index is None:  # after any <default>s, before the rest
+        index = sum(1 for c in root if c.tag == "default")
+    root.insert(index, new)
+    return before
+
+
+def _override_sensors(root, sampler_factory, rfilter: str) -> dict:
+    """Apply sampler and film overrides to every top-level sensor."""
+    sensors = [c for c in root if c.tag == "sensor"]
+    if not sensors:
+        raise SceneError("scene has no <sensor>")
+    record = {}
+    for i, sensor in enumerate(sensors):
+        rec = {}
+        old = [c for c in sensor if c.tag == "sampler"]
+        rec["sampler"] = {"from": ({"type": old[0].get("type"), **_properties(old[0])}
+                                   if old else None)}
+        position = list(sensor).index(old[0]) if old else len(sensor)
+        for c in old:
+            sensor.remove(c)
+        new_sampler = sampler_factory()
+        sensor.insert(position, new_sampler)
+        rec["sampler"]["to"] = {"type": new_sampler.get("type"),
+                                **{c.get("name"): _as_number(c.get("value")) for c in new_sampler}}
+
+        films = [c for c in sensor if c.tag == "film"]
+        if films:
+            film = films[0]
+        else:
+            film = _make("film", {"type": "hdrfilm"})
+            sensor.append(film)
+        rec["film"] = {"type": film.get("type"), "added": not films}
+        fprops = _properties(film)
+        filters = [c for c in film if c.tag == "rfilter"]
+        file_filter = ({"type": filters[0].get("type"), **_properties(filters[0])}
+                       if filters else "film default (gaussian)")
+        if rfilter == "box":
+            for c in filters:
+                film.remove(c)
+            film.append(_make("rfilter", {"type": "box"}))
+            rec["rfilter"] = {"from": file_filter, "to": {"type": "box"}}
+        else:
+            rec["rfilter"] = {"from": file_filter, "to": "kept"}
+        for name, value in (("pixel_format", "rgb"), ("component_format", "float32")):
+            for c in [c for c in film if c.get("name") == name]:
+                film.remove(c)
+            film.append(_prop("string", name, value))
+            rec[name] = {"from": fprops.get(name, "film default"), "to": value}
+        record[f"sensor[{i}]"] = rec
+    return record
+
+
+def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int = 1,
+                      seed: int = 0, rfilter: str = "box", integrator: dict | None = None,
+                      sampler: dict | None = None) -> tuple[str, dict, dict]:
+    """Apply the reference overrides to a scene file.
+
+    Parameters
+    ----------
+    scene_path
+        Mitsuba 3 XML scene.
+    transport
+        ``"full"`` or ``"direct"`` (ignored when ``integrator`` is given).
+    spp_per_pass, seed
+        Sample count and seed of the ``independent`` sampler put in each sensor.
+    rfilter
+        ``"box"`` (replace the film's filter) or ``"scene"`` (keep it).
+    integrator, sampler
+        Optional explicit ``{"type": ..., name: value}`` replacements
+        (used by :func:`render_depth`).
+
+    Returns
+    -------
+    xml : str
+        The modified scene as a string (load with :func:`load_scene`).
+    integrator : dict
+        The integrator that will be used (type and properties).
+    overrides : dict
+        Record of every override (``from``/``to``) for the manifest.
+    """
+    if transport not in TRANSPORTS:
+        raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
+    if rfilter not in RFILTERS:
+        raise ValueError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
+    scene = _scene_file(scene_path)
+    tree = _parse(scene)
+    root = tree.getroot()
+    defaults = _defaults(root)
+    own = [c for c in root if c.tag == "integrator"]
+    own = own[0] if own else None
+
+    if integrator is not None:
+        spec = dict(integrator)
+        new = _make("integrator", {"type": spec.pop("type")})
+        for name, value in spec.items():
+            tag = ("boolean" if isinstance(value, bool) else "integer" if isinstance(value, int)
+                   else "float" if isinstance(value, float) else "string")
+            new.append(_prop(tag, name, value))
+        used = dict(integrator)
+    else:
+        hide = None
+        if own is not None:
+            for c in own:
+                if c.get("name") == "hide_emitters" and c.tag == "boolean":
+                    hide = c.get("value")
+        if transport == "full":
+            raw_depth = None
+            if own is not None and own.get("type") == "path":
+                for c in own:
+                    if c.get("name") == "max_depth" and c.get("value") is not None:
+                        raw_depth = c.get("value")
+            new = _make("integrator", {"type": "path"},
+                        [_prop("integer", "max_depth", raw_depth if raw_depth is not None else -1)])
+            used = {"type": "path",
+                    "max_depth": _as_number(_substitute(raw_depth, defaults)) if raw_depth else -1}
+        else:
+            new = _make("integrator", {"type": "direct"})
+            used = {"type": "direct"}
+        if hide is not None:
+            new.append(_prop("boolean", "hide_emitters", hide))
+            used["hide_emitters"] = _substitute(hide, defaults)
+    before = _replace_integrator(root, new)
+    overrides = {"integrator": {"from": before, "to": used}}
+
+    if sampler is None:
+        def sampler_factory():
+            return _make("sampler", {"type": "independent"},
+                         [_prop("integer", "sample_count", spp_per_pass),
+                          _prop("integer", "seed", seed)])
+    else:
+        def sampler_factory():
+            spec = dict(sampler)
+            el = _make("sampler", {"type": spec.pop("type")})
+            for name, value in spec.items():
+                tag = "boolean" if isinstance(value, bool) else "integer"
+                el.append(_prop(tag, name, value))
+            return el
+    try:
+        overrides.update(_override_sensors(root, sampler_factory, rfilter))
+    except SceneError as exc:
+        raise SceneError(f"{scene}: {exc}") from None
+    xml = etree.tostring(tree, encoding="unicode")
+    return xml, used, overrides
+
+
+def load_scene(mi, scene_path, xml: str):
+    """Load modified scene XML with relative names resolved against the scene's directory.
+
+    The scene's directory is prepended to Mitsuba's file resolver for the
+    duration of the load and the resolver is restored afterwards.  Raises
+    :class:`SceneError` naming the file and the first line of Mitsuba's reason.
+    """
+    scene_path = Path(scene_path).resolve()
+    get_resolver = getattr(mi, "file_resolver", None) or (
+        lambda: mi.Thread.thread().file_resolver())
+    resolver = get_resolver()
+    saved = [str(resolver[i]) for i in range(len(resolver))]
+    resolver.prepend(str(scene_path.parent))
+    try:
+        return mi.load_string(xml)
+    except Exception as exc:
+        raise SceneError(f"{scene_path}: Mitsuba cannot load the scene: {_first_line(exc)}") from None
+    finally:
+        resolver.clear()
+        for p in saved:
+            resolver.append(p)
+
+
+# ---------------------------------------------------------------------------
+# Store entries
+# ---------------------------------------------------------------------------
+
+
+class _Invalid(Exception):
+    """Why a store entry cannot be used."""
+
+
+def _load_entry(directory: Path, key: str) -> Reference:
+    if not directory.is_dir():
+        raise _Invalid("no stored entry")
+    try:
+        manifest = json.loads((directory / MANIFEST_FILE).read_text())
+    except FileNotFoundError:
+        raise _Invalid(f"{MANIFEST_FILE} missing") from None
+    except (OSError, ValueError) as exc:
+        raise _Invalid(f"{MANIFEST_FILE} unreadable ({_first_line(exc)})") from None
+    if not isinstance(manifest, dict) or manifest.get("key") != key:
+        raise _Invalid("stale entry (stored key differs)")
+    arrays = {}
+    for fname, field in ((IMAGE_FILE, "image_sha256"), (VARIANCE_FILE, "variance_sha256")):
+        path = directory / fname
+        if not path.is_file():
+            raise _Invalid(f"{fname} missing")
+        if _sha256_file(path) != manifest.get(field):
+            raise _Invalid(f"{fname} sha256 does not match the manifest (corrupt or changed)")
+        try:
+            arrays[fname] = read_exr(path, allow_nonfinite=False)
+        except ImageError as exc:
+            raise _Invalid(f"{fname} unusable: {exc}") from None
+    image, variance = arrays[IMAGE_FILE], arrays[VARIANCE_FILE]
+    shape = (manifest.get("height"), manifest.get("width"), 3)
+    if image.shape != shape or variance.shape != shape:
+        raise _Invalid(f"image shapes {image.shape}/{variance.shape} differ from manifest {shape}")
+    if (variance < 0).any():
+        raise _Invalid(f"{VARIANCE_FILE} holds negative values")
+    return Reference(key=key, directory=directory, image=image, variance=variance,
+                     manifest=manifest)
+
+
+def _remove_stale_temporaries(store: Path, max_age_s: float = 86400.0) -> None:
+    """Delete ``.tmp-*``/``.old-*`` directories left by killed runs (older than a day)."""
+    now = time.time()
+    for pattern in (".tmp-*", ".old-*"):
+        for p in store.glob(pattern):
+            try:
+                if p.is_dir() and now - p.stat().st_mtime > max_age_s:
+                    shutil.rmtree(p, ignore_errors=True)
+            except OSError:
+                pass
+
+
+def _install(tmp: Path, final: Path) -> None:
+    """Move a complete entry into place; the old entry is removed only afterwards."""
+    trash = None
+    if final.exists():
+        trash = Path(tempfile.mkdtemp(prefix=f".old-{final.name}-", dir=final.parent))
+        os.rename(final, trash / "entry")
+    try:
+        os.rename(tmp, final)
+    except OSError:
+        if trash is not None and not final.exists():
+            os.rename(trash / "entry", final)  # put the previous entry back
+        raise
+    finally:
+        if trash is not None:
+            shutil.rmtree(trash, ignore_errors=True)
+
+
+def _render_reference(scene: Path, key: str, directory: Path, *, transport: str, spp: int,
+                      passes: int, seed: int, rfilter: str) -> Reference:
+    mi = load_mitsuba()
+    import drjit as dr
+
+    t_start = time.perf_counter()
+    spp_pass = spp // passes
+    xml, integrator, overrides = prepare_scene_xml(
+        scene, transport=transport, spp_per_pass=spp_pass, seed=seed, rfilter=rfilter)
+    deps = scene_dependencies(scene)
+    t0 = time.perf_counter()
+    mscene = load_scene(mi, scene, xml)
+    load_s = time.perf_counter() - t0
+    width, height = (int(v) for v in mscene.sensors()[0].film().crop_size())
+    chunk = max(1, min(spp_pass, LANE_BUDGET // max(1, width * height)))
+
+    mean = m2 = None
+    pass_times, seeds = [], []
+    for p in range(passes):
+        t0 = time.perf_counter()
+        acc, done, pass_seeds = None, 0, []
+        while done < spp_pass:
+            n = min(chunk, spp_pass - done)
+            s = _derive_seed(seed, p, len(pass_seeds))
+            img = as_rgb(_render_once(mi, dr, mscene, n, s)[..., :3], name=str(scene))
+            img64 = img.astype(np.float64) * n
+            acc = img64 if acc is None else acc + img64
+            done += n
+            pass_seeds.append(s)
+        x = acc / spp_pass
+        pass_times.append(time.perf_counter() - t0)
+        seeds.append(pass_seeds)
+        if mean is None:  # Welford's update, float64
+            mean, m2 = x.copy(), np.zeros_like(x)
+        else:
+            delta = x - mean
+            mean += delta / (p + 1)
+            m2 += delta * (x - mean)
+    image = mean.astype(np.float32)
+    variance = (m2 / (passes - 1) / passes).astype(np.float32)
+    try:
+        check_finite(image, name=f"{scene}: Mitsuba reference image")
+        check_finite(variance, name=f"{scene}: Mitsuba reference variance")
+    except ImageError as exc:
+        raise RuntimeError(str(exc)) from None
+    total_s = time.perf_counter() - t_start
+
+    versions = mitsuba_versions()
+    manifest = {
+        "store_format": STORE_FORMAT,
+        "key": key,
+        "scene": _display_path(scene),
+        "scene_sha256": _sha256_file(scene),
+        "dependencies": [{"name": d["name"],
+                          "path": _display_path(Path(d["path"])) if d["path"] else None,
+                          "sha256": d["sha256"]} for d in deps],
+        "transport": transport,
+        "integrator": integrator,
+        "overrides": overrides,
+        "rfilter": rfilter,
+        "spp": spp,
+        "passes": passes,
+        "spp_per_pass": spp_pass,
+        "seed": seed,
+        "render_seeds": seeds,
+        "variance": "per-pixel variance of the mean image: unbiased sample variance over "
+                    "passes / passes",
+        "mitsuba": versions["mitsuba"],
+        "drjit": versions["drjit"],
+        "variant": versions["variant"],
+        "variant_family": _variant_family(versions["variant"]),
+        "libllvm": versions["libllvm"],
+        "wall_time_s": {"total": total_s, "load": load_s,
+                        "pass_median": statistics.median(pass_times), "passes": pass_times},
+        "host": {"machine": platform.machine(), "cpus": os.cpu_count()},
+        "width": width,
+        "height": height,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    }
+
+    directory.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_temporaries(directory.parent)
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{directory.name}-", dir=directory.parent))
+    tmp.chmod(0o755)                    # mkdtemp makes 0700; store entries are shared files
+    try:
+        meta = {"gibench_key": key, "gibench_scene": manifest["scene"]}
+        write_exr(tmp / IMAGE_FILE, image, metadata=meta)
+        write_exr(tmp / VARIANCE_FILE, variance, metadata=meta)
+        manifest["image_sha256"] = _sha256_file(tmp / IMAGE_FILE)
+        manifest["variance_sha256"] = _sha256_file(tmp / VARIANCE_FILE)
+        (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
+        try:
+            _install(tmp, directory)
+        except OSError:
+            # Another process may have installed the same entry meanwhile.
+            try:
+                return _load_entry(directory, key)
+            except _Invalid:
+                raise RuntimeError(f"{scene}: could not install reference entry "
+                                   f"{_display_path(directory)}") from None
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return Reference(key=key, directory=directory, image=image, variance=variance,
+                     manifest=manifest)
+
+
+def _check_args(transport, spp, passes, seed, rfilter) -> None:
+    if transport not in TRANSPORTS:
+        raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
+    if rfilter not in RFILTERS:
+        raise ValueError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
+    for name, v in (("spp", spp), ("passes", passes), ("seed", seed)):
+        if not isinstance(v, (int, np.integer)) or isinstance(v, bool):
+            raise TypeError(f"{name} must be an integer, got {v!r}")
+    if passes < 2:
+        raise ValueError(f"passes must be >= 2 to estimate a variance, got {passes}")
+    if spp < 1 or spp % passes:
+        raise ValueError(f"spp ({spp}) must be a positive multiple of passes ({passes})")
+    if seed < 0:
+        raise ValueError(f"seed must be >= 0, got {seed}")
+
+
+def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passes: int = 8,
+                  seed: int = 0, rfilter: str = "box", store=DEFAULT_STORE,
+                  render_missing: bool = True, force: bool = False) -> Reference:
+    """Return the Mitsuba reference of a scene, rendering it if needed.
+
+    Parameters
+    ----------
+    scene_path
+        Mitsuba 3 XML scene file.
+    transport
+        ``"full"`` (path tracing) or ``"direct"`` (direct illumination only).
+    spp
+        Total samples per pixel; must be a multiple of ``passes``.
+    passes
+        Independent passes (>= 2) the variance is estimated from.
+    seed
+        Base seed; per-pass seeds are derived from it.
+    rfilter
+        ``"box"`` (default) or ``"scene"`` (keep the file's reconstruction filter).
+    store
+        Store directory (default ``references/store``).
+    render_missing
+        If False, raise :class:`ReferenceMissing` instead of rendering.
+    force
+        Re-render even when a valid entry exists (the old entry is replaced
+        only once the new one is complete).
+
+    Returns
+    -------
+    Reference
+        Image, variance of the mean, manifest.
+
+    Raises
+    ------
+    SceneError
+        Missing scene file or a scene Mitsuba cannot load.
+    ReferenceMissing
+        No usable entry and ``render_missing=False``.
+    """
+    _check_args(transport, spp, passes, seed, rfilter)
+    scene = _scene_file(scene_path)
+    mi = load_mitsuba()
+    family = _variant_family(mi.variant())
+    key = reference_key(scene, transport=transport, spp=spp, passes=passes, seed=seed,
+                        rfilter=rfilter, variant_family=family)
+    directory = Path(store) / key[:16]
+    cause = "re-render requested (force)"
+    if not force:
+        try:
+            return _load_entry(directory, key)
+        except _Invalid as exc:
+            cause = str(exc)
+    where = _display_path(directory)
+    if not render_missing:
+        raise ReferenceMissing(f"{scene}: no usable reference in {where} ({cause})")
+    print(f"gibench: rendering reference for {_display_path(scene)} ({transport}, {spp} spp): "
+          f"{where}: {cause}", file=sys.stderr, flush=True)
+    return _render_reference(scene, key, directory, transport=transport, spp=spp,
+                             passes=passes, seed=seed, rfilter=rfilter)
+
+
+# ---------------------------------------------------------------------------
+# Timing and depth
+# ---------------------------------------------------------------------------
+
+
+def time_mitsuba(scene_path, *, transport: str, spp: int, seed: int = 0, repeats: int = 3,
+                 rfilter: str = "box") -> dict:
+    """Time Mitsuba rendering a scene with the reference overrides.
+
+    The scene is loaded once; one untimed warm-up render (JIT compilation)
+    is followed by ``repeats`` timed renders of ``spp`` samples per pixel in
+    one ``mi.render`` call each, the clock (``time.perf_counter``) stopped
+    after ``dr.sync_thread()``.
+
+    Returns
+    -------
+    dict
+        ``median_s``, ``times_s``, ``spp``, ``variant``, ``warmup_s`` (plus
+        ``transport``, ``width``, ``height``, ``scene``).
+    """
+    if transport not in TRANSPORTS:
+        raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
+    if repeats < 1 or spp < 1:
+        raise ValueError(f"repeats and spp must be >= 1, got {repeats}, {spp}")
+    scene = _scene_file(scene_path)
+    mi = load_mitsuba()
+    import drjit as dr
+
+    xml, _, _ = prepare_scene_xml(scene, transport=transport, spp_per_pass=spp, seed=seed,
+                                  rfilter=rfilter)
+    mscene = load_scene(mi, scene, xml)
+    t0 = time.perf_counter()
+    dr.eval(mi.render(mscene, spp=spp, seed=seed))
+    _sync(dr)
+    warmup = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        dr.eval(mi.render(mscene, spp=spp, seed=seed))
+        _sync(dr)
+        times.append(time.perf_counter() - t0)
+    width, height = (int(v) for v in mscene.sensors()[0].film().crop_size())
+    return {"median_s": statistics.median(times), "times_s": times, "spp": spp,
+            "variant": mi.variant(), "warmup_s": warmup, "transport": transport,
+            "width": width, "height": height, "scene": _display_path(scene)}
+
+
+def render_depth(scene_path) -> np.ndarray:
+    """Depth image of a scene's first sensor at pixel centres, float32 ``(H, W)``.
+
+    Uses Mitsuba's ``aov`` integrator (``aovs="dd.y:depth"``), a
+    ``stratified`` sampler with one un-jittered sample per pixel (the pixel
+    centre) and a box filter.
+
+    Notes
+    -----
+    The value is the ray parameter *t* of the first hit along the unit camera
+    ray, and Mitsuba's perspective sensor starts that ray at the near clip
+    plane (origin moved forward by ``near_clip / cos``).  So
+    ``depth = distance_from_eye - near_clip / cos(theta)`` where theta is the
+    angle between the ray and the optical axis; callers comparing with
+    eye-distances must subtract ``near_clip / cos``.  Pixels whose ray hits
+    nothing are 0.
+    """
+    scene = _scene_file(scene_path)
+    mi = load_mitsuba()
+    import drjit as dr
+
+    xml, _, _ = prepare_scene_xml(
+        scene, integrator={"type": "aov", "aovs": "dd.y:depth"},
+        sampler={"type": "stratified", "sample_count": 1, "jitter": False}, rfilter="box")
+    mscene = load_scene(mi, scene, xml)
+    img = _render_once(mi, dr, mscene, 1, 0)
+    names = list(mscene.integrator().aov_names())
+    if not names or img.ndim != 3 or img.shape[2] < len(names):
+        raise RuntimeError(f"{scene}: unexpected AOV output {img.shape} for channels {names}")
+    # The AOV channels come last, after any colour channels of a nested integrator.
+    index = img.shape[2] - len(names) + next(
+        (i for i, n in enumerate(names) if n.startswith("dd.y")), 0)
+    return np.ascontiguousarray(img[:, :, index], dtype=np.float32)

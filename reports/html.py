@@ -1,0 +1,385 @@
+"""A self-contained HTML report page for a list of result records.
+
+Images are embedded as base64 PNG ``data:`` URIs and the CSS is inline, so the
+page is one file that can be mailed or archived.  Records follow the schema
+``gibench run`` appends to the results store (see :mod:`reports.results`);
+every key except ``scene`` and ``algorithm`` may be missing or None and shows
+as "—".  Missing or unreadable image files become a placeholder naming the
+file.
+
+Display conventions: reference and own image of a record are tone-mapped with
+:func:`reports.tonemap.tonemap_srgb` at one common exposure chosen so the 99th
+percentile of the reference's largest channel maps to white.  The error map
+shows ``|own − ref| / (ref + 0.01)`` averaged over channels, with the fixed
+colour range [0, 1] (colormap ``inferno``; non-finite errors show as 1).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+import os
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+import matplotlib.image as mpimg
+import numpy as np
+
+from gibench.imageio import ImageError, read_exr
+from reports.tonemap import tonemap_srgb
+
+__all__ = ["write_report", "fmt"]
+
+DASH = "—"
+ERR_RANGE = (0.0, 1.0)
+ERR_EPS = 0.01
+CMAP = "inferno"
+MAX_DISPLAY_PX = 512
+METRIC_ORDER = ["mse", "rmse", "relmse", "mae", "bias", "psnr", "ssim", "flip", "delta_e2000",
+                "nan_count", "inf_count", "noise_floor"]
+METRIC_NAMES = {"mse": "MSE", "rmse": "RMSE", "relmse": "rel. MSE", "mae": "MAE", "bias": "bias",
+                "psnr": "PSNR [dB]", "ssim": "SSIM", "flip": "FLIP", "delta_e2000": "ΔE2000",
+                "nan_count": "NaN pixels", "inf_count": "Inf pixels", "noise_floor": "noise floor"}
+TIMING_NOTE = "warm-up excluded; medians of {n} repeats; 2-core shared machine: compare ratios"
+
+CSS = """
+body{font:14px/1.45 system-ui,-apple-system,"Segoe UI",sans-serif;color:#222;margin:0 auto;max-width:1400px;padding:1em 2em}
+h1{margin:.2em 0}h2{border-bottom:2px solid #ddd;padding-bottom:.2em;margin-top:2em}h3{margin:1.2em 0 .4em}
+table{border-collapse:collapse;margin:.4em 0}th,td{padding:.2em .6em;border-bottom:1px solid #e4e4e4;text-align:left;vertical-align:top}
+th{background:#f4f4f4}td.n{text-align:right;font-variant-numeric:tabular-nums}
+.meta td:first-child{color:#666}.small{font-size:12px;color:#666}
+.pass{color:#187a2f;font-weight:600}.fail,.errtext{color:#c0392b;font-weight:600}
+.tag{display:inline-block;border-radius:3px;padding:0 .4em;font-size:12px;background:#eee;color:#444;margin-left:.4em}
+.tag.model{background:#fff3cd;color:#7a5b00}.tag.err{background:#f8d7da;color:#a12622}
+.record{border:1px solid #e4e4e4;border-radius:6px;padding:.6em 1em;margin:1em 0}
+.images{display:flex;flex-wrap:wrap;gap:1em}.images figure{margin:0}
+.images img.im{width:256px;image-rendering:pixelated;display:block;background:#000}
+figcaption{font-size:12px;color:#555;max-width:256px}
+.placeholder{width:256px;height:160px;display:flex;align-items:center;justify-content:center;text-align:center;
+ background:repeating-linear-gradient(45deg,#f6f6f6,#f6f6f6 8px,#eee 8px,#eee 16px);color:#a12622;font-size:12px;word-break:break-all;padding:.5em;box-sizing:border-box}
+.tables{display:flex;flex-wrap:wrap;gap:2em}
+pre.errtext{white-space:pre-wrap;background:#fdf0f0;padding:.6em;border-radius:4px}
+"""
+
+
+# --- formatting -------------------------------------------------------------------------------
+
+def fmt(x, unit: str = "") -> str:
+    """Format a number for display (3–4 significant digits, scientific when small or huge)."""
+    if x is None or x == "":
+        return DASH
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, (int, np.integer)):
+        s = f"{int(x):,}"
+    elif isinstance(x, (float, np.floating)):
+        x = float(x)
+        if not math.isfinite(x):
+            s = "nan" if math.isnan(x) else ("inf" if x > 0 else "-inf")
+        elif x == 0:
+            s = "0"
+        elif abs(x) < 1e-3 or abs(x) >= 1e6:
+            s = f"{x:.3e}"
+        elif abs(x) >= 1000:
+            s = f"{x:.0f}"
+        else:
+            s = f"{x:.4g}"
+    else:
+        return html.escape(str(x))
+    return s + (f" {unit}" if unit else "")
+
+
+def _d(x) -> dict:
+    return x if isinstance(x, dict) else {}
+
+
+def _e(x) -> str:
+    return DASH if x is None or x == "" else html.escape(str(x))
+
+
+def _num(x):
+    return x if isinstance(x, (int, float)) and not isinstance(x, bool) else None
+
+
+def _kv_table(items, cls="meta") -> str:
+    rows = "".join(f"<tr><td>{_e(k)}</td><td>{v}</td></tr>" for k, v in items)
+    return f'<table class="{cls}">{rows}</table>' if rows else DASH
+
+
+def _label(r: dict) -> str:
+    return r.get("label") or r.get("algorithm") or DASH
+
+
+def _checks(r: dict) -> list[dict]:
+    c = r.get("checks")
+    return [x for x in c if isinstance(x, dict)] if isinstance(c, list) else []
+
+
+def _scene(r: dict) -> str:
+    return str(r.get("scene") or DASH)
+
+
+def _slug(s: str) -> str:
+    return "scene-" + "".join(c if c.isalnum() else "-" for c in str(s))
+
+
+# --- images -----------------------------------------------------------------------------------
+
+def _png(arr, **kw) -> str:
+    buf = io.BytesIO()
+    mpimg.imsave(buf, arr, format="png", **kw)
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _shrink(a: np.ndarray) -> np.ndarray:
+    """Box-filter ``a`` by an integer factor so its longer side is at most MAX_DISPLAY_PX."""
+    f = math.ceil(max(a.shape[:2]) / MAX_DISPLAY_PX)
+    if f <= 1:
+        return a
+    h, w = a.shape[0] // f * f, a.shape[1] // f * f
+    return a[:h, :w].reshape(h // f, f, w // f, f, *a.shape[2:]).mean(axis=(1, 3))
+
+
+def _figure(src: str | None, alt: str, caption: str, problem: str = "") -> str:
+    body = (f'<img class="im" src="{src}" alt="{alt}">' if src
+            else f'<div class="placeholder">{html.escape(problem)}</div>')
+    return f"<figure>{body}<figcaption>{caption}</figcaption></figure>"
+
+
+def _colorbar() -> str:
+    bar = np.tile(np.linspace(*ERR_RANGE, 256), (10, 1))
+    return (f'<span class="small">{fmt(ERR_RANGE[0])} <img src="{_png(bar, cmap=CMAP, vmin=ERR_RANGE[0], vmax=ERR_RANGE[1])}" '
+            f'alt="colour bar" style="width:160px;height:10px;vertical-align:middle"> ≥ {fmt(ERR_RANGE[1])}</span>')
+
+
+class _Images:
+    """Reads EXRs once per report; a failed read gives (None, one-line reason)."""
+
+    def __init__(self, root: Path):
+        self.root, self.cache = Path(root), {}
+
+    def get(self, rel, what: str):
+        if not rel:
+            return None, f"no {what} image recorded"
+        p = Path(rel) if Path(rel).is_absolute() else self.root / rel
+        if p not in self.cache:
+            try:
+                self.cache[p] = (read_exr(p), "")
+            except ImageError as exc:
+                reason = f"missing {what} image file: {rel}" if not p.is_file() else str(exc)
+                self.cache[p] = (None, reason)
+        return self.cache[p]
+
+
+def _image_row(r: dict, images: _Images, colorbar: str) -> str:
+    ref, ref_err = images.get(_d(r.get("reference")).get("image"), "reference")
+    own, own_err = images.get(r.get("image"), "own")
+    base = ref if ref is not None else own
+    exposure = 1.0
+    if base is not None:
+        finite = base.max(axis=2)[np.isfinite(base).all(axis=2)]
+        p99 = float(np.percentile(finite, 99)) if finite.size else 0.0
+        exposure = 1.0 / p99 if p99 > 0 else 1.0
+    tm = f"sRGB, common exposure ×{fmt(exposure)} (reference 99th percentile → white)"
+    figs = [_figure(_png(_shrink(tonemap_srgb(ref, exposure=exposure))) if ref is not None else None,
+                    "reference", f"reference — {tm}", ref_err),
+            _figure(_png(_shrink(tonemap_srgb(own, exposure=exposure))) if own is not None else None,
+                    "own image", f"{html.escape(_label(r))} — {tm}", own_err)]
+    cap = f"|own − ref| / (ref + {ERR_EPS}), mean over channels, range [0, 1]<br>{colorbar}"
+    if ref is None or own is None:
+        figs.append(_figure(None, "error map", cap, "no error map: " + (ref_err or own_err)))
+    elif ref.shape != own.shape:
+        figs.append(_figure(None, "error map", cap, f"no error map: shape {own.shape[:2]} ≠ reference {ref.shape[:2]}"))
+    else:
+        with np.errstate(all="ignore"):
+            err = (np.abs(own.astype(np.float64) - ref) / (np.abs(ref) + ERR_EPS)).mean(axis=2)
+        err = np.nan_to_num(err, nan=ERR_RANGE[1], posinf=ERR_RANGE[1])
+        figs.append(_figure(_png(_shrink(err), cmap=CMAP, vmin=ERR_RANGE[0], vmax=ERR_RANGE[1]), "error map", cap))
+    return f'<div class="images">{"".join(figs)}</div>'
+
+
+# --- tables -----------------------------------------------------------------------------------
+
+def _ztest_cell(r: dict) -> str:
+    z = _d(_d(r.get("metrics")).get("ztest"))
+    if not z:
+        return DASH
+    frac = _num(z.get("fraction"))
+    s = f"{100 * frac:.1f}%" if frac is not None else DASH
+    if r.get("model_error"):
+        return s + ' <span class="tag model">not judged</span>'
+    passed = z.get("passed")
+    if passed is None:
+        return s
+    return s + (' <span class="pass">pass</span>' if passed else ' <span class="fail">fail</span>')
+
+
+def _checks_cell(r: dict) -> str:
+    checks = _checks(r)
+    if not checks:
+        return DASH
+    n_ok = sum(1 for c in checks if c.get("passed") is True)
+    n_bad = len(checks) - n_ok
+    return (f'<span class="pass">{n_ok} ✓</span>' if n_ok else "") + \
+           (f' <span class="fail">{n_bad} ✗</span>' if n_bad else "")
+
+
+def _tags(r: dict) -> str:
+    t = ""
+    if r.get("model_error"):
+        t += '<span class="tag model">model error (reported, not judged)</span>'
+    if r.get("error"):
+        t += '<span class="tag err">run failed</span>'
+    return t
+
+
+def _summary(records: list[dict]) -> str:
+    head = ("<tr><th>Scene</th><th>Algorithm</th><th>Transport</th><th>Rel. MSE</th><th>FLIP</th>"
+            "<th>Z-test</th><th>Checks</th><th>Own [s]</th><th>Mitsuba [s]</th><th>Ratio</th></tr>")
+    rows = []
+    for r in records:
+        m, t = _d(r.get("metrics")), _d(r.get("time"))
+        rows.append(
+            f'<tr><td><a href="#{_slug(_scene(r))}">{_e(_scene(r))}</a></td>'
+            f"<td>{_e(_label(r))}{_tags(r)}</td><td>{_e(r.get('transport'))}</td>"
+            f'<td class="n">{fmt(m.get("relmse"))}</td><td class="n">{fmt(m.get("flip"))}</td>'
+            f"<td>{_ztest_cell(r)}</td><td>{_checks_cell(r)}</td>"
+            f'<td class="n">{fmt(t.get("own_median_s"))}</td><td class="n">{fmt(t.get("mitsuba_median_s"))}</td>'
+            f'<td class="n">{fmt(t.get("ratio"))}</td></tr>')
+    return f"<table>{head}{''.join(rows)}</table>"
+
+
+def _metrics_table(r: dict) -> str:
+    m = _d(r.get("metrics"))
+    keys = METRIC_ORDER + [k for k in m if k not in METRIC_ORDER and k not in ("ztest", "conventions")]
+    items = [(METRIC_NAMES.get(k, k), fmt(m.get(k))) for k in keys]
+    z = _d(m.get("ztest"))
+    if z:
+        detail = (f"{_ztest_cell(r)}<br><span class='small'>per-pixel significance {fmt(z.get('significance'))}, "
+                  f"α = {fmt(z.get('alpha'))}, required fraction {fmt(z.get('min_fraction'))}, "
+                  f"n = {fmt(z.get('n'))}</span>")
+    else:
+        detail = DASH
+    items.append(("Z-test", detail))
+    conv = _d(m.get("conventions"))
+    note = ("<p class='small'>Conventions: " + "; ".join(f"{_e(k)}: {_e(v)}" for k, v in conv.items()) + "</p>"
+            if conv else "")
+    return _kv_table(items) + note
+
+
+def _time_table(r: dict) -> str:
+    t = _d(r.get("time"))
+    times = t.get("own_times_s")
+    times_s = ", ".join(fmt(x) for x in times) if isinstance(times, list) and times else DASH
+    return _kv_table([
+        ("own median", fmt(t.get("own_median_s"), "s")), ("own repeats", times_s + (" s" if times_s != DASH else "")),
+        ("compile", fmt(t.get("compile_s"), "s")), ("Mitsuba median", fmt(t.get("mitsuba_median_s"), "s")),
+        ("Mitsuba spp", fmt(t.get("mitsuba_spp"))), ("ratio own/Mitsuba", fmt(t.get("ratio")))])
+
+
+def _checks_table(r: dict) -> str:
+    checks = _checks(r)
+    if not checks:
+        return ""
+    rows = "".join(
+        f"<tr><td>{_e(c.get('name'))}</td><td>{_e(c.get('expected'))}</td><td>"
+        + ('<span class="pass">✓</span>' if c.get("passed") is True else '<span class="fail">✗</span>')
+        + f"</td><td>{_e(c.get('detail'))}</td></tr>" for c in checks)
+    return f"<h4>Checks</h4><table><tr><th>Check</th><th>Expected</th><th></th><th>Detail</th></tr>{rows}</table>"
+
+
+def _record(r: dict, images: _Images, colorbar: str) -> str:
+    ref = _d(r.get("reference"))
+    ref_desc = (f"reference {_e(ref.get('key'))}: Mitsuba {_e(ref.get('integrator'))}, "
+                f"{fmt(ref.get('spp'))} spp, {_e(ref.get('variant'))}" if ref else "no reference recorded")
+    params = _d(r.get("params"))
+    out = [f'<div class="record"><h3>{_e(_label(r))}{_tags(r)}</h3>',
+           f"<p class='small'>algorithm {_e(r.get('algorithm'))}; transport {_e(r.get('transport'))}; {ref_desc}"
+           + (f"; params: {_e(', '.join(f'{k}={v}' for k, v in params.items()))}" if params else "") + "</p>"]
+    if r.get("error"):
+        out.append(f'<pre class="errtext">{_e(r.get("error"))}</pre>')
+    else:
+        out.append(_image_row(r, images, colorbar))
+    counters = _d(r.get("counters"))
+    out.append('<div class="tables">'
+               f"<div><h4>Metrics</h4>{_metrics_table(r)}</div>"
+               f"<div><h4>Counters</h4>{_kv_table((k, fmt(v)) for k, v in counters.items())}</div>"
+               f"<div><h4>Time</h4>{_time_table(r)}</div></div>")
+    out.append(_checks_table(r) + "</div>")
+    return "".join(out)
+
+
+def _timing(records: list[dict]) -> str:
+    rows, repeats = [], Counter()
+    for r in sorted(records, key=lambda r: (_scene(r), str(r.get("transport")))):
+        t = _d(r.get("time"))
+        if t.get("own_median_s") is None and t.get("mitsuba_median_s") is None:
+            continue
+        if isinstance(t.get("own_times_s"), list):
+            repeats[len(t["own_times_s"])] += 1
+        spp = f" ({fmt(t.get('mitsuba_spp'))} spp)" if t.get("mitsuba_spp") is not None else ""
+        rows.append(f"<tr><td>{_e(_scene(r))}</td><td>{_e(r.get('transport'))}</td><td>{_e(_label(r))}</td>"
+                    f'<td class="n">{fmt(t.get("own_median_s"), "s")}</td>'
+                    f'<td class="n">{fmt(t.get("mitsuba_median_s"), "s")}{spp}</td>'
+                    f'<td class="n">{fmt(t.get("ratio"))}</td></tr>')
+    if not rows:
+        return "<p>No timings recorded.</p>"
+    ks = sorted(repeats)
+    n = f"{ks[0]}–{ks[-1]}" if len(ks) > 1 else str(ks[0]) if ks else "N"
+    return ("<table><tr><th>Scene</th><th>Transport</th><th>Algorithm</th><th>Own median</th>"
+            "<th>Mitsuba median</th><th>Ratio own/Mitsuba</th></tr>" + "".join(rows) + "</table>"
+            f"<p class='small'>{TIMING_NOTE.format(n=n)}. Own and Mitsuba medians were timed in the same run "
+            "on the same scene and transport.</p>")
+
+
+def _header(records: list[dict], title: str) -> str:
+    first = records[0] if records else {}
+    runs = list(dict.fromkeys(str(r["run_id"]) for r in records if r.get("run_id")))
+    fmt_dict = lambda d: ", ".join(f"{k} {v}" for k, v in _d(d).items()) or DASH  # noqa: E731
+    return (f"<h1>{_e(title)}</h1>" + _kv_table([
+        ("run", _e(", ".join(runs))), ("commit", _e(first.get("commit"))), ("date", _e(first.get("created"))),
+        ("suite", _e(", ".join(dict.fromkeys(str(r["suite"]) for r in records if r.get("suite"))))),
+        ("machine", _e(fmt_dict(first.get("machine")))), ("versions", _e(fmt_dict(first.get("versions")))),
+        ("records", str(len(records)))]))
+
+
+# --- page -------------------------------------------------------------------------------------
+
+def render_report(records: list[dict], *, root, title: str = "gibench report") -> str:
+    """The report page for ``records`` as an HTML string (image paths relative to ``root``)."""
+    records = [r for r in records if isinstance(r, dict)]
+    images, colorbar = _Images(Path(root)), _colorbar()
+    scenes: dict[str, list[dict]] = {}
+    for r in records:
+        scenes.setdefault(_scene(r), []).append(r)
+    sections = []
+    for scene, recs in scenes.items():
+        files = ", ".join(dict.fromkeys(str(r["scene_file"]) for r in recs if r.get("scene_file")))
+        sections.append(f'<h2 id="{_slug(scene)}">{_e(scene)}</h2><p class="small">{_e(files)}</p>'
+                        + "".join(_record(r, images, colorbar) for r in recs))
+    return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            f"<title>{_e(title)}</title><style>{CSS}</style></head><body>"
+            + _header(records, title)
+            + "<h2>Summary</h2>" + _summary(records)
+            + "<h2>Timing</h2>" + _timing(records)
+            + "".join(sections) + "</body></html>\n")
+
+
+def write_report(records: list[dict], out_path, *, root, title: str = "gibench report") -> Path:
+    """Write the self-contained report page for ``records`` to ``out_path`` atomically."""
+    out_path = Path(out_path)
+    text = render_report(records, root=root, title=title)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=out_path.name + ".", suffix=".tmp", dir=out_path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, out_path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return out_path

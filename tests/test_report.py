@@ -1,0 +1,169 @@
+"""Tests for the results store (reports.results) and the HTML report (reports.html)."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+
+from gibench.imageio import write_exr
+from reports.html import fmt, write_report
+from reports.results import ResultStore, ResultStoreWarning, new_run_id
+
+
+# --- results store ----------------------------------------------------------------------------
+
+def _records(run_id):
+    return [
+        {"run_id": run_id, "scene": "cornell/cornell_point", "algorithm": "raycast",
+         "metrics": {"relmse": 1.5e-4, "psnr": math.inf, "nan_count": 0},
+         "time": {"own_times_s": [0.1, 0.2, 0.3]}, "model_error": False, "error": None},
+        {"run_id": run_id, "scene": "cornell/cornell_area", "algorithm": "pt", "metrics": {"bias": -math.inf},
+         "label": "pt, 16 spp ✓"},
+        {"run_id": run_id, "scene": "spheres/two", "algorithm": "pt", "image": "reports/out/a.exr"},
+    ]
+
+
+def test_store_round_trip_keeps_inf_and_writes_strict_json(tmp_path):
+    store = ResultStore(tmp_path / "results.jsonl", root=tmp_path)
+    recs = _records("r1")
+    for r in recs:
+        store.append(r)
+    assert store.load() == recs
+    assert store.load()[0]["metrics"]["psnr"] == math.inf
+    assert store.load()[1]["metrics"]["bias"] == -math.inf
+    lines = (tmp_path / "results.jsonl").read_text().splitlines()
+    assert len(lines) == 3
+    for line in lines:  # strict JSON: no bare Infinity / NaN tokens
+        json.loads(line, parse_constant=lambda c: pytest.fail(f"non-strict JSON constant {c}"))
+
+
+def test_store_nan_and_numpy_values(tmp_path):
+    store = ResultStore(tmp_path / "r.jsonl")
+    store.append({"run_id": "r", "scene": "s", "algorithm": "a",
+                  "x": float("nan"), "n": np.int64(3), "f": np.float32(0.5), "arr": np.array([1.0, np.inf])})
+    (rec,) = store.load()
+    assert math.isnan(rec["x"]) and rec["n"] == 3 and rec["f"] == 0.5 and rec["arr"] == [1.0, math.inf]
+
+
+def test_truncated_last_line_is_skipped_with_warning(tmp_path):
+    path = tmp_path / "results.jsonl"
+    store = ResultStore(path)
+    recs = _records("r1")
+    for r in recs[:2]:
+        store.append(r)
+    line = json.dumps({"run_id": "r1", "scene": "x", "algorithm": "y", "metrics": {"mse": 1.0}})
+    with open(path, "a") as f:  # a crash in the middle of writing the third record
+        f.write(line[: len(line) // 2])
+    with pytest.warns(ResultStoreWarning, match=r"results\.jsonl:3"):
+        loaded = store.load()
+    assert loaded == recs[:2]
+    # A later append must not be glued onto the broken line: the new record survives.
+    store.append(recs[2])
+    with pytest.warns(ResultStoreWarning, match=r"results\.jsonl:3: skipping malformed record"):
+        assert store.load() == recs
+    assert len(path.read_text().splitlines()) == 4
+
+
+def test_load_filters_by_run_and_lists_runs(tmp_path):
+    store = ResultStore(tmp_path / "results.jsonl")
+    assert store.load() == [] and store.runs() == [] and store.latest_run_id() is None
+    a, b = new_run_id(), new_run_id()
+    assert a != b and re.fullmatch(r"\d{8}T\d{6}Z-[0-9a-f]{6}", a)
+    for r in _records(a) + _records(b)[:1]:
+        store.append(r)
+    assert [r["scene"] for r in store.load(b)] == ["cornell/cornell_point"]
+    assert len(store.load(a)) == 3 and store.load("nope") == []
+    assert store.runs() == [a, b] and store.latest_run_id() == b
+
+
+def test_resolve_and_relative(tmp_path):
+    store = ResultStore(tmp_path / "r.jsonl", root=tmp_path)
+    assert store.resolve("reports/out/x.exr") == tmp_path / "reports/out/x.exr"
+    assert store.relative(tmp_path / "a" / "b.exr") == "a/b.exr"
+    assert ResultStore("r.jsonl").resolve("reports").is_dir()  # default root is the repository
+
+
+# --- HTML report ------------------------------------------------------------------------------
+
+def _full_record(run_id, scene, algorithm, ref, img, **kw):
+    rec = {
+        "run_id": run_id, "suite": "cornell", "scene": scene, "scene_file": f"suites/{scene}.xml",
+        "algorithm": algorithm, "label": f"{algorithm}, 4x4 stratified", "params": {"spp": 16},
+        "transport": "direct",
+        "reference": {"key": "abc123", "dir": "references/store/abc123", "image": ref, "variance": None,
+                      "spp": 4096, "variant": "llvm_ad_rgb", "integrator": "direct"},
+        "image": img, "variance": None,
+        "metrics": {"mse": 1.2e-5, "rmse": 3.4e-3, "relmse": 2.345e-4, "mae": 0.0021, "bias": -1e-6,
+                    "psnr": 48.71, "ssim": 0.9931, "flip": 0.01234, "delta_e2000": 0.5, "nan_count": 0,
+                    "inf_count": 0, "noise_floor": 1e-4,
+                    "ztest": {"passed": True, "fraction": 0.987, "significance": 0.001, "alpha": 0.01,
+                              "min_fraction": 0.95, "n": 4096},
+                    "conventions": {"flip": "LDR FLIP on tonemap_srgb exposure 1"}},
+        "time": {"own_median_s": 0.5, "own_times_s": [0.49, 0.5, 0.52], "compile_s": 3.1,
+                 "mitsuba_median_s": 0.2, "mitsuba_spp": 16, "ratio": 2.5},
+        "counters": {"camera_rays": 65536, "shadow_rays": 131072},
+        "checks": [{"name": "Z-test vs Mitsuba direct", "expected": "pass", "passed": True, "detail": "98.7%"}],
+        "model_error": False, "error": None,
+        "versions": {"mitsuba": "3.6.4", "numpy": "2.1"}, "commit": "deadbeef",
+        "machine": {"cpu": "2-core"}, "created": "2026-11-23T16:30:00Z",
+    }
+    rec.update(kw)
+    return rec
+
+
+@pytest.fixture
+def report_records(tmp_path):
+    rng = np.random.default_rng(1)
+    ref = rng.uniform(0.1, 2.0, (16, 24, 3)).astype(np.float32)
+    write_exr(tmp_path / "references/store/abc123/image.exr", ref)
+    write_exr(tmp_path / "reports/out/runs/r1/raycast.exr", ref * 1.05)
+    write_exr(tmp_path / "reports/out/runs/r1/pt.exr", ref + np.float32(np.nan) * (rng.uniform(size=ref.shape) < 0.01))
+    refrel = "references/store/abc123/image.exr"
+    return [
+        _full_record("r1", "cornell/cornell_point", "raycast", refrel, "reports/out/runs/r1/raycast.exr"),
+        _full_record("r1", "cornell/cornell_point", "pt", refrel, "reports/out/runs/r1/pt.exr",
+                     transport="full", model_error=True),
+        _full_record("r1", "spheres/two_spheres", "raycast", refrel, "reports/out/runs/r1/gone.exr"),
+        _full_record("r1", "spheres/broken", "whitted", refrel, None,
+                     error="RuntimeError: kernel launch failed <bad>", metrics=None, time=None),
+        {"scene": "spheres/minimal", "algorithm": "pt", "time": {"ratio": None}, "checks": None},
+    ]
+
+
+def test_report_is_self_contained_and_complete(tmp_path, report_records):
+    out = write_report(report_records, tmp_path / "out" / "report.html", root=tmp_path, title="Test <report>")
+    assert out == tmp_path / "out" / "report.html"
+    assert [p.name for p in out.parent.iterdir()] == ["report.html"]  # no temp file left behind
+    text = out.read_text(encoding="utf-8")
+    srcs = re.findall(r"""\b(?:src|href)\s*=\s*["']?([^"'\s>]*)""", text, flags=re.I)
+    assert srcs and all(s.startswith(("data:", "#")) for s in srcs), srcs
+    assert "http" not in "".join(srcs) and "url(" not in text and "@import" not in text
+    # two reference + two own images and two error maps rendered from the EXRs
+    assert len(re.findall(r'class="im" src="data:image/png;base64,', text)) >= 5
+    for scene in ("cornell/cornell_point", "spheres/two_spheres", "spheres/broken", "spheres/minimal"):
+        assert scene in text
+    assert "2.5" in text and "Test &lt;report&gt;" in text
+    assert "RuntimeError: kernel launch failed &lt;bad&gt;" in text
+    assert "missing own image file: reports/out/runs/r1/gone.exr" in text
+    assert "model error (reported, not judged)" in text
+    assert "warm-up excluded; medians of 3 repeats; 2-core shared machine: compare ratios" in text
+    assert "deadbeef" in text and "98.7%" in text and "LDR FLIP on tonemap_srgb exposure 1" in text
+
+
+def test_report_missing_reference_and_empty(tmp_path):
+    recs = [{"scene": "a/b", "algorithm": "x", "reference": {"image": "nope/ref.exr"}, "image": "nope/own.exr",
+             "metrics": {"relmse": "inf", "ztest": {"fraction": None}}, "counters": {}, "checks": [None]}]
+    text = write_report(recs, tmp_path / "r.html", root=tmp_path).read_text()
+    assert "missing reference image file: nope/ref.exr" in text and "a/b" in text
+    assert "<h2>Summary</h2>" in write_report([], tmp_path / "e.html", root=tmp_path).read_text()
+
+
+@pytest.mark.parametrize("x, s", [(None, "—"), (2.5, "2.5"), (0.012345, "0.01235"), (1.5e-5, "1.500e-05"),
+                                  (48.7123, "48.71"), (12345.6, "12346"), (0, "0"), (65536, "65,536"),
+                                  (math.inf, "inf"), (True, "yes")])
+def test_fmt(x, s):
+    assert fmt(x) == s
