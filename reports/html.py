@@ -209,7 +209,8 @@ def _ztest_cell(r: dict) -> str:
         return DASH
     frac = _num(z.get("fraction"))
     s = f"{100 * frac:.1f}%" if frac is not None else DASH
-    if r.get("model_error"):
+    if r.get("model_error") or r.get("expect") == "report":
+        # Only cases whose manifest expects the Z-test to pass are judged by it.
         return s + ' <span class="tag model">not judged</span>'
     passed = z.get("passed")
     if passed is None:
@@ -258,7 +259,7 @@ def _metrics_table(r: dict) -> str:
     items = [(METRIC_NAMES.get(k, k), fmt(m.get(k))) for k in keys]
     z = _d(m.get("ztest"))
     if z:
-        detail = (f"{_ztest_cell(r)}<br><span class='small'>per-pixel significance {fmt(z.get('significance'))}, "
+        detail = (f"{_ztest_cell(r)}<br><span class='small'>per-entry significance {fmt(z.get('significance'))}, "
                   f"α = {fmt(z.get('alpha'))}, required fraction {fmt(z.get('min_fraction'))}, "
                   f"n = {fmt(z.get('n'))}</span>")
     else:
