@@ -46,9 +46,7 @@ want=$(sha256sum pyproject.toml | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     echo "setup: installing Python packages into .venv"
     .venv/bin/python -m pip install -q --upgrade pip
-    # 'compat' editable mode: a plain path entry, so the top-level packages
-    # (gibench, impl, references, reports) import the same way from any directory.
-    .venv/bin/python -m pip install -q -e ".[test]" --config-settings editable_mode=compat
+    .venv/bin/python -m pip install -q -e ".[test]"
     echo "$want" > "$stamp"
 fi
 echo "setup: ready (.venv/bin/gibench)"
