@@ -2,7 +2,7 @@
 
     gibench algorithms
     gibench render SCENE --algorithm NAME [--spp N] [--seed S] [--set k=v ...] --out FILE.exr
-    gibench reference SCENE --transport full|direct [--spp N] [--passes P]
+    gibench reference SCENE --transport full|direct|whitted [--spp N] [--passes P]
     gibench compare IMAGE REFERENCE [--reference-variance V] [--test-variance V] [--json]
     gibench run [SUITE] [--no-mitsuba-timing]
     gibench report [--run RUN_ID] [--out FILE.html]
@@ -205,7 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("reference", help="render (or reuse) a Mitsuba reference")
     s.add_argument("scene")
-    s.add_argument("--transport", choices=("full", "direct"), default="full")
+    s.add_argument("--transport", choices=("full", "direct", "whitted"), default="full",
+                   help="full: Mitsuba path; direct: Mitsuba direct; whitted: delta bounces, then direct light")
     s.add_argument("--spp", type=int, default=1024)
     s.add_argument("--passes", type=int, default=8)
     s.add_argument("--seed", type=int, default=0)

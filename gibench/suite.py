@@ -46,7 +46,7 @@ from .runner import render_timed
 __all__ = ["Case", "Suite", "load_suite", "run_suite", "SuiteError", "EXPECTATIONS"]
 
 EXPECTATIONS = ("ztest", "report", "model-error")
-TRANSPORTS = ("direct", "full")
+TRANSPORTS = ("direct", "full", "whitted")
 
 
 class SuiteError(ValueError):
@@ -79,6 +79,8 @@ class Suite:
     reference_passes: int = 8
     repeats: int = 3
     description: str = ""
+    studies: Path | None = None      # hard-case studies configuration (gibench.studies)
+    pivots: dict = field(default_factory=dict)   # report layout of each study's table
 
 
 def _need(table: dict, key: str, where: str, typ=None):
@@ -128,12 +130,19 @@ def load_suite(path) -> Suite:
                                   params=params, transport=cfg.get("transport", transport),
                                   label=cfg.get("label", f"{algo.name} {params}"),
                                   expect=expect, tolerances=tol))
-    if not cases:
-        raise SuiteError(f"{path}: the suite has no cases ([[group]] with scenes and an algorithm)")
+    studies = None
+    if "studies" in head:
+        studies = (suites_root / head["studies"]).resolve()
+        if not studies.is_file():
+            raise SuiteError(f"{path}: studies configuration not found: {studies}")
+    if not cases and studies is None:
+        raise SuiteError(f"{path}: the suite has no cases ([[group]] with scenes and an algorithm) "
+                         "and no studies")
     return Suite(name=head.get("name", path.parent.name), path=path, cases=tuple(cases),
                  reference_spp=int(head.get("reference_spp", 1024)),
                  reference_passes=int(head.get("reference_passes", 8)),
-                 repeats=int(head.get("repeats", 3)), description=head.get("description", ""))
+                 repeats=int(head.get("repeats", 3)), description=head.get("description", ""),
+                 studies=studies, pivots=dict(data.get("pivot", {})))
 
 
 def _rel(p: Path) -> str:
@@ -223,6 +232,27 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
     return record
 
 
+def run_studies(suite: Suite, *, run_id: str, log=print) -> list[dict]:
+    """The suite's hard-case studies, one record (``kind = "study"``) per table."""
+    from . import studies as st
+
+    base = {"run_id": run_id, "suite": suite.name, "kind": "study", "algorithm": "study",
+            "versions": versions(), "commit": git_commit(), "machine": machine(), "created": utc_now()}
+    try:
+        tables = st.run_studies(suite.studies)
+    except (ValueError, RuntimeError, OSError) as exc:
+        log(f"  studies failed: {exc}")
+        return [dict(base, study="studies", scene="studies", error=f"{type(exc).__name__}: {exc}")]
+    records = []
+    for name, rows in tables.items():
+        title, description = st.TABLES.get(name, (name, ""))
+        log(f"[study] {name}: {len(rows)} rows")
+        records.append(dict(base, study=name, scene=f"study/{name}", label=title, title=title,
+                            description=description, rows=rows, pivot=suite.pivots.get(name, {}),
+                            error=None))
+    return records
+
+
 def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timing: bool = True,
               reference_store=None, log=print) -> list[dict]:
     """Run every case, appending each record to ``store`` as it completes."""
@@ -241,4 +271,8 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
             ratio = f", {t['ratio']:.2f}x Mitsuba" if t.get("ratio") else ""
             log(f"  relMSE {m['relmse']:.3g}, FLIP {m['flip']:.3g}, own {t['own_median_s'] * 1e3:.1f} ms"
                 f"{ratio}" + (f" -- {verdict}" if verdict else " -- reported"))
+    if suite.studies is not None:
+        for rec in run_studies(suite, run_id=run_id, log=log):
+            store.append(rec)
+            records.append(rec)
     return records

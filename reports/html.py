@@ -51,6 +51,7 @@ h1{margin:.2em 0}h2{border-bottom:2px solid #ddd;padding-bottom:.2em;margin-top:
 table{border-collapse:collapse;margin:.4em 0}th,td{padding:.2em .6em;border-bottom:1px solid #e4e4e4;text-align:left;vertical-align:top}
 th{background:#f4f4f4}td.n{text-align:right;font-variant-numeric:tabular-nums}
 .meta td:first-child{color:#666}.small{font-size:12px;color:#666}
+.data td{font-variant-numeric:tabular-nums;font-size:13px}
 .pass{color:#187a2f;font-weight:600}.fail,.errtext{color:#c0392b;font-weight:600}
 .tag{display:inline-block;border-radius:3px;padding:0 .4em;font-size:12px;background:#eee;color:#444;margin-left:.4em}
 .tag.model{background:#fff3cd;color:#7a5b00}.tag.err{background:#f8d7da;color:#a12622}
@@ -349,9 +350,46 @@ def _header(records: list[dict], title: str) -> str:
 
 # --- page -------------------------------------------------------------------------------------
 
+def _pivot(rows: list[dict], spec: dict) -> str:
+    """Rows as a table: one line per ``index`` combination, one column per value of
+    ``columns``, cells the ``values`` joined by " / " (all rows when no spec)."""
+    if not spec:
+        keys = list(dict.fromkeys(k for r in rows for k in r))
+        head = "".join(f"<th>{_e(k)}</th>" for k in keys)
+        body = "".join("<tr>" + "".join(f"<td>{fmt(r.get(k)) if not isinstance(r.get(k), str) else _e(r[k])}</td>"
+                                        for k in keys) + "</tr>" for r in rows)
+        return f"<table class='data'><tr>{head}</tr>{body}</table>"
+    index, col, values = list(spec.get("index", [])), spec.get("columns"), list(spec.get("values", []))
+    cols = list(dict.fromkeys(r.get(col) for r in rows))
+    lines: dict[tuple, dict] = {}
+    for r in rows:
+        cell = " / ".join(_e(r[v]) if isinstance(r.get(v), str) else fmt(r.get(v)) for v in values)
+        lines.setdefault(tuple(r.get(k) for k in index), {})[r.get(col)] = cell
+    head = "".join(f"<th>{_e(k)}</th>" for k in index) + "".join(f"<th>{_e(col)} = {fmt(c)}</th>" for c in cols)
+    body = "".join("<tr>" + "".join(f"<td>{_e(v) if isinstance(v, str) else fmt(v)}</td>" for v in key)
+                   + "".join(f"<td>{cells.get(c, DASH)}</td>" for c in cols) + "</tr>"
+                   for key, cells in lines.items())
+    note = f"<p class='small'>cells: {_e(' / '.join(values))}</p>" if values else ""
+    return f"<table class='data'><tr>{head}</tr>{body}</table>{note}"
+
+
+def _study(r: dict) -> str:
+    if r.get("error"):
+        return f"<h3>{_e(r.get('title') or r.get('study'))}</h3><p class='fail'>{_e(r['error'])}</p>"
+    rows = [x for x in r.get("rows") or [] if isinstance(x, dict)]
+    return (f"<h3 id='{_slug('study-' + str(r.get('study')))}'>{_e(r.get('title') or r.get('study'))}</h3>"
+            f"<p>{_e(r.get('description', ''))}</p>{_pivot(rows, _d(r.get('pivot')))}"
+            f"<p class='small'>{len(rows)} rows; study '{_e(r.get('study'))}'</p>")
+
+
 def render_report(records: list[dict], *, root, title: str = "gibench report") -> str:
-    """The report page for ``records`` as an HTML string (image paths relative to ``root``)."""
+    """The report page for ``records`` as an HTML string (image paths relative to ``root``).
+
+    Records of ``kind == "study"`` (hard-case tables) get their own section.
+    """
     records = [r for r in records if isinstance(r, dict)]
+    studies = [r for r in records if r.get("kind") == "study"]
+    records = [r for r in records if r.get("kind") != "study"]
     images, colorbar = _Images(Path(root)), _colorbar()
     scenes: dict[str, list[dict]] = {}
     for r in records:
@@ -363,10 +401,11 @@ def render_report(records: list[dict], *, root, title: str = "gibench report") -
                         + "".join(_record(r, images, colorbar) for r in recs))
     return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             f"<title>{_e(title)}</title><style>{CSS}</style></head><body>"
-            + _header(records, title)
-            + "<h2>Summary</h2>" + _summary(records)
-            + "<h2>Timing</h2>" + _timing(records)
-            + "".join(sections) + "</body></html>\n")
+            + _header(records or studies, title)
+            + ("<h2>Summary</h2>" + _summary(records) + "<h2>Timing</h2>" + _timing(records) if records else "")
+            + "".join(sections)
+            + ("<h2>Studies</h2>" + "".join(_study(r) for r in studies) if studies else "")
+            + "</body></html>\n")
 
 
 def write_report(records: list[dict], out_path, *, root, title: str = "gibench report") -> Path:

@@ -147,3 +147,20 @@ algorithm = "raycast"
     assert len(entries) == 1
     code2, _, _ = run_cli(capsys, "report", "--results", results, "--out", tmp_path / "again.html")
     assert code2 == 0 and (tmp_path / "again.html").stat().st_size > 1000
+
+
+@pytest.mark.mitsuba
+def test_run_hard_writes_study_tables(tmp_path, capsys):
+    """`gibench run hard`: the hard-case studies become records and report tables."""
+    results = tmp_path / "results.jsonl"
+    code, out, err = run_cli(capsys, "run", "hard", "--results", results)
+    assert code == 0, out + err
+    records = ResultStore(results).load()
+    names = {r["study"] for r in records if r.get("kind") == "study"}
+    assert {"distant_sphere", "self_intersection", "grazing_sphere", "grazing_plane",
+            "distant_sphere_mitsuba"} <= names
+    ds = next(r for r in records if r.get("study") == "distant_sphere")
+    assert ds["pivot"]["columns"] == "distance" and len(ds["rows"]) > 50
+    report = (tmp_path / "report.html").read_text()
+    assert "Distant sphere silhouette" in report and "distance = 1.000e+12" in report
+    assert "cells: wrong_frac / wrong_outside_band" in report
