@@ -353,7 +353,7 @@ def _header(records: list[dict], title: str) -> str:
 def _pivot(rows: list[dict], spec: dict) -> str:
     """Rows as a table: one line per ``index`` combination, one column per value of
     ``columns``, cells the ``values`` joined by " / " (all rows when no spec)."""
-    if not spec:
+    if not spec.get("columns"):
         keys = list(dict.fromkeys(k for r in rows for k in r))
         head = "".join(f"<th>{_e(k)}</th>" for k in keys)
         body = "".join("<tr>" + "".join(f"<td>{fmt(r.get(k)) if not isinstance(r.get(k), str) else _e(r[k])}</td>"
@@ -373,12 +373,49 @@ def _pivot(rows: list[dict], spec: dict) -> str:
     return f"<table class='data'><tr>{head}</tr>{body}</table>{note}"
 
 
+def _plot(rows: list[dict], spec: dict) -> str:
+    """A line plot of ``y`` against ``x`` with one line per ``series`` combination
+    (log axes on request), as an embedded PNG; rows missing x or y are skipped."""
+    from matplotlib.figure import Figure
+
+    x, ys, series = spec["x"], spec["y"], list(spec.get("series", []))
+    ys = [ys] if isinstance(ys, str) else list(ys)
+    fig = Figure(figsize=(4.2 * len(ys), 3.2), dpi=100)
+    for i, y in enumerate(ys):
+        ax = fig.add_subplot(1, len(ys), i + 1)
+        lines: dict[tuple, list] = {}
+        for r in rows:
+            xv, yv = _num(r.get(x)), _num(r.get(y))
+            if xv is not None and yv is not None and math.isfinite(xv) and math.isfinite(yv):
+                lines.setdefault(tuple(r.get(k) for k in series), []).append((xv, yv))
+        for key, pts in lines.items():
+            pts.sort()
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", ms=3,
+                    label=", ".join(map(str, key)) or y)
+        if spec.get("logx"):
+            ax.set_xscale("log")
+        if spec.get("logy"):
+            ax.set_yscale("log")
+        ax.set_xlabel(x)
+        ax.set_ylabel(y)
+        ax.grid(True, alpha=0.3)
+        if lines:
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    src = "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+    return f"<img alt='{_e(spec.get('title', y))}' src='{src}'>"
+
+
 def _study(r: dict) -> str:
     if r.get("error"):
         return f"<h3>{_e(r.get('title') or r.get('study'))}</h3><p class='fail'>{_e(r['error'])}</p>"
     rows = [x for x in r.get("rows") or [] if isinstance(x, dict)]
+    plots = [p for p in (_d(r.get("pivot")).get("plots") or []) if isinstance(p, dict) and "x" in p and "y" in p]
     return (f"<h3 id='{_slug('study-' + str(r.get('study')))}'>{_e(r.get('title') or r.get('study'))}</h3>"
-            f"<p>{_e(r.get('description', ''))}</p>{_pivot(rows, _d(r.get('pivot')))}"
+            f"<p>{_e(r.get('description', ''))}</p>" + "".join(_plot(rows, p) for p in plots)
+            + f"{_pivot(rows, _d(r.get('pivot')))}"
             f"<p class='small'>{len(rows)} rows; study '{_e(r.get('study'))}'</p>")
 
 
@@ -402,7 +439,8 @@ def render_report(records: list[dict], *, root, title: str = "gibench report") -
     return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             f"<title>{_e(title)}</title><style>{CSS}</style></head><body>"
             + _header(records or studies, title)
-            + ("<h2>Summary</h2>" + _summary(records) + "<h2>Timing</h2>" + _timing(records) if records else "")
+            + ("<h2>Summary</h2>" + _summary(records) + "<h2>Timing</h2>" + _timing(records)
+               if records or not studies else "")
             + "".join(sections)
             + ("<h2>Studies</h2>" + "".join(_study(r) for r in studies) if studies else "")
             + "</body></html>\n")

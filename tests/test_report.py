@@ -167,3 +167,21 @@ def test_report_missing_reference_and_empty(tmp_path):
                                   (math.inf, "inf"), (True, "yes")])
 def test_fmt(x, s):
     assert fmt(x) == s
+
+
+def test_study_records_become_tables_and_plots(tmp_path):
+    rows = [{"mode": m, "triangles": t, "error": e / t ** 0.5, "time": 1e-3 * t}
+            for m, e in (("flat", 1.0), ("phong", 0.2)) for t in (10, 100, 1000)]
+    pivot = {"index": ["mode"], "columns": "triangles", "values": ["error"],
+             "plots": [{"x": "triangles", "y": ["error", "time"], "series": ["mode"], "logx": True}]}
+    study = {"kind": "study", "study": "shading", "title": "Shading error", "description": "d",
+             "rows": rows, "pivot": pivot, "run_id": "r1"}
+    page = write_report([study], tmp_path / "r.html", root=tmp_path).read_text()
+    assert "<h2>Studies</h2>" in page and "Shading error" in page
+    assert "triangles = 1,000" in page                       # the pivot's columns
+    assert page.count("data:image/png;base64,") == 1          # one figure, two panels
+    assert "<h2>Summary</h2>" not in page                     # no render records
+    bare = dict(study, pivot={})                              # no layout: every row, every key
+    page = write_report([bare], tmp_path / "b.html", root=tmp_path).read_text()
+    table = page[page.index("<table class='data'>"):]
+    assert table[:table.index("</table>")].count("<tr>") == len(rows) + 1
