@@ -19,6 +19,9 @@ values           rgb, float, integer, boolean, string, point, vector, ref / id
 shape            sphere (center/radius or to_world), rectangle, cube, obj, ply
                  (filename relative to the scene file), flip_normals, face_normals
 bsdf             diffuse, conductor, dielectric, roughconductor, twosided
+texture          ``checkerboard`` (color0, color1, to_uv) nested in a diffuse bsdf
+                 as its ``reflectance``, on ``rectangle`` shapes only (their uv
+                 is Mitsuba's: the local [-1, 1]² square mapped to [0, 1]²)
 emitter          point, directional, spot; ``area`` inside a shape
 ===============  ==============================================================
 
@@ -50,7 +53,11 @@ SUPPORTED = {
     "sensor": ("perspective",),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian"),
+    "texture": ("checkerboard",),
 }
+
+#: Shapes whose uv parameterisation the loader reproduces (for textures).
+_UV_SHAPES = ("rectangle",)
 
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
 
@@ -75,6 +82,7 @@ _PROPS = {
     ("emitter", "directional"): {"irradiance", "direction", "to_world"},
     ("emitter", "spot"): {"intensity", "cutoff_angle", "beam_width", "to_world"},
     ("emitter", "area"): {"radiance"},
+    ("texture", "checkerboard"): {"color0", "color1", "to_uv"},
 }
 
 
@@ -289,13 +297,43 @@ def _material(ctx, el, materials: list, cache: dict) -> int:
         if p.type == "twosided":
             raise ctx.error(inner[0], "nested twosided bsdf")
         twosided = True
-    p.unexpected_children(())
-    refl = tuple(_rgb(ctx, p, "reflectance", 0.5)) if p.type == "diffuse" else (0.0, 0.0, 0.0)
+    texture = None
+    if p.type == "diffuse":
+        p.unexpected_children(("texture",))
+        texture = _texture(ctx, p)
+    else:
+        p.unexpected_children(())
+    if texture is not None:
+        refl = tuple(0.5 * (np.asarray(texture["color0"]) + np.asarray(texture["color1"])))
+    else:
+        refl = tuple(_rgb(ctx, p, "reflectance", 0.5)) if p.type == "diffuse" else (0.0, 0.0, 0.0)
     params = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in p.props.items()}
     materials.append(Material(kind=p.type, reflectance=refl, twosided=twosided, params=params,
-                              name=ctx.attr(el, "id", "") or ""))
+                              name=ctx.attr(el, "id", "") or "", texture=texture))
     cache[key] = len(materials) - 1
     return cache[key]
+
+
+def _texture(ctx, bsdf) -> dict | None:
+    """The ``reflectance`` texture nested in a diffuse bsdf, or None."""
+    found = [(name, c) for name, c in bsdf.children if c.tag == "texture"]
+    if not found:
+        return None
+    if len(found) > 1:
+        raise ctx.error(found[1][1], "a diffuse bsdf takes at most one texture")
+    name, el = found[0]
+    if name != "reflectance":
+        raise ctx.error(el, f"a texture of a diffuse bsdf must be named 'reflectance', got '{name}'")
+    if "reflectance" in bsdf.props:
+        raise ctx.error(el, "'reflectance' is given both as a value and as a texture")
+    t = _Plugin(ctx, el, "texture")
+    t.unexpected_children(())
+    m = np.asarray(t.get("to_uv", np.eye(4)), dtype=np.float64)
+    # Mitsuba reads a 4x4 to_uv as a 2D affine map: the upper-left 2x2 block and
+    # the first two entries of the translation column.
+    to_uv = np.array([[m[0, 0], m[0, 1], m[0, 3]], [m[1, 0], m[1, 1], m[1, 3]], [0.0, 0.0, 1.0]])
+    return {"type": t.type, "color0": tuple(_rgb(ctx, t, "color0", 0.4)),
+            "color1": tuple(_rgb(ctx, t, "color1", 0.2)), "to_uv": to_uv.tolist()}
 
 
 def _shape(ctx, el, materials, cache, default_mat) -> Shape:
@@ -315,6 +353,10 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
         emit = _rgb(ctx, ep, "radiance", 1.0)
     flip = bool(p.get("flip_normals", False))
     name = ctx.attr(el, "id", "") or ""
+    tex = materials[mat].texture
+    if tex is not None and p.type not in _UV_SHAPES:
+        raise ctx.error(el, f"a {tex['type']} texture on a {p.type} is not supported: the loader "
+                            f"reproduces Mitsuba's uv only for {', '.join(_UV_SHAPES)}")
     if p.type == "sphere":
         center = np.asarray(p.get("center", np.zeros(3)), dtype=np.float64)
         radius = float(p.get("radius", 1.0))
@@ -324,8 +366,11 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
         return Shape(kind="sphere", material=mat, name=name, source="sphere",
                      center=tf.transform_points(m, center), radius=radius * s,
                      flip_normals=flip, emitter_radiance=emit)
+    uvs = None
     if p.type in ("rectangle", "cube"):
         v, f, n = rectangle() if p.type == "rectangle" else cube()
+        if p.type == "rectangle":
+            uvs = 0.5 * (v[:, :2] + 1.0)      # Mitsuba: local (x, y) ∈ [-1, 1]² -> uv ∈ [0, 1]²
     else:
         fn = p.get("filename")
         if fn is None:
@@ -345,7 +390,7 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
     if np.linalg.det(m[:3, :3]) < 0:
         f = f[:, ::-1].copy()          # a mirroring transform flips the winding; keep normals outward
     return Shape(kind="mesh", material=mat, name=name, source=p.type, vertices=v_world,
-                 faces=f, normals=n_world, flip_normals=flip, emitter_radiance=emit)
+                 faces=f, normals=n_world, flip_normals=flip, emitter_radiance=emit, uvs=uvs)
 
 
 def _light(ctx, el) -> Light:

@@ -78,6 +78,12 @@ class Material:
     ``dielectric``, ``roughconductor``); ``reflectance`` is the diffuse albedo
     (RGB) for ``diffuse``; the rest of the plugin's parameters stay in
     ``params`` for the algorithms that model them.
+
+    ``texture`` is set when the diffuse reflectance is a texture instead of a
+    colour: ``{"type": "checkerboard", "color0": (r, g, b), "color1": (r, g, b),
+    "to_uv": 3x3 list}`` (Mitsuba's ``checkerboard``; ``to_uv`` is the 2D
+    affine map applied to the shape's uv).  ``reflectance`` then holds the
+    texture's mean, (color0 + color1) / 2, for algorithms that want one colour.
     """
 
     kind: str = "diffuse"
@@ -85,6 +91,7 @@ class Material:
     twosided: bool = False
     params: dict = field(default_factory=dict)
     name: str = ""
+    texture: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -100,6 +107,7 @@ class Shape:
     vertices: np.ndarray | None = None  # (V, 3) world space
     faces: np.ndarray | None = None     # (F, 3) int
     normals: np.ndarray | None = None   # (V, 3) shading normals, or None for face normals
+    uvs: np.ndarray | None = None       # (V, 2) texture coordinates, or None (see the loader)
     flip_normals: bool = False
     emitter_radiance: np.ndarray | None = None  # RGB radiance of an area emitter, or None
 

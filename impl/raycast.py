@@ -21,7 +21,9 @@ emitter and pixel sample (stratified when it is a square).
 
 Leaves out: indirect light, specular reflection and transmission of other
 surfaces (see ``whitted``), glossy microfacet BSDFs.  Materials other than
-``diffuse`` raise ``NotImplementedError``.
+``diffuse`` raise ``NotImplementedError``; a diffuse reflectance may be a
+``checkerboard`` texture (looked up at the hit's uv, :mod:`impl.lighting`).
+The shared direct-lighting helpers live in :mod:`impl.lighting`.
 
 Parameters
 ----------
@@ -51,167 +53,12 @@ from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
 from .camera import camera_params, eye_ray
-from .intersect import any_hit, closest_hit
-from .phong import attenuation, phong_brdf_cos
+from .intersect import closest_hit
+from .lighting import diffuse_albedo, direct_light, surface
 from .rng import uniform
-from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
+from .scene_arrays import SceneArrays, flatten
 
 __all__ = ["render", "cast_primary", "ALGORITHM"]
-
-#: Shadow-ray origins move off the surface by this much times (1 + |p|_max).
-SHADOW_EPSILON = 1e-7
-
-
-@njit(inline="always", cache=True)
-def _surface(prim, b1, b2, px, py, pz, ns, sph_center, sph_radius, tri_v, tri_n, tri_has_n, flip):
-    """Geometric and shading normals of a hit (the costly part, only for the kept hit)."""
-    if prim < ns:
-        r = sph_radius[prim]
-        gx = (px - sph_center[prim, 0]) / r
-        gy = (py - sph_center[prim, 1]) / r
-        gz = (pz - sph_center[prim, 2]) / r
-        sx, sy, sz = gx, gy, gz
-    else:
-        j = prim - ns
-        v = tri_v[j]
-        e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
-        e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
-        gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
-        gx, gy, gz = gx * inv, gy * inv, gz * inv
-        if tri_has_n[j]:
-            b0 = 1.0 - b1 - b2
-            n = tri_n[j]
-            sx = b0 * n[0, 0] + b1 * n[1, 0] + b2 * n[2, 0]
-            sy = b0 * n[0, 1] + b1 * n[1, 1] + b2 * n[2, 1]
-            sz = b0 * n[0, 2] + b1 * n[1, 2] + b2 * n[2, 2]
-            inv = 1.0 / math.sqrt(sx * sx + sy * sy + sz * sz)
-            sx, sy, sz = sx * inv, sy * inv, sz * inv
-        else:
-            sx, sy, sz = gx, gy, gz
-    if flip:
-        gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-    return gx, gy, gz, sx, sy, sz
-
-
-@njit(cache=True)
-def _sample_emitter(e, u1, u2, em_offset, em_tri, em_cdf, tri_v):
-    """Uniform point on emitter ``e`` by area: (x, y, z, triangle index)."""
-    lo, hi = em_offset[e], em_offset[e + 1] - 1
-    # Binary search the area CDF with u1, then reuse the remainder of u1.
-    a, b = lo, hi
-    while a < b:
-        mid = (a + b) // 2
-        if em_cdf[mid] < u1:
-            a = mid + 1
-        else:
-            b = mid
-    prev = em_cdf[a - 1] if a > lo else 0.0
-    width = em_cdf[a] - prev
-    u1 = min(max((u1 - prev) / width, 0.0), 1.0) if width > 0.0 else 0.5
-    v = tri_v[em_tri[a]]
-    # Square to triangle: b0 = 1 − √u1, b1 = u2 √u1.
-    su = math.sqrt(u1)
-    w1, w2 = u2 * su, 1.0 - su
-    w0 = 1.0 - w1 - w2
-    x = w2 * v[0, 0] + w0 * v[1, 0] + w1 * v[2, 0]
-    y = w2 * v[0, 1] + w0 * v[1, 1] + w1 * v[2, 1]
-    z = w2 * v[0, 2] + w0 * v[1, 2] + w1 * v[2, 2]
-    return x, y, z, em_tri[a]
-
-
-@njit(cache=True)
-def _direct(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
-            A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-            seed, pixel, sample):
-    """Phong-model direct light from every light at one point: (r, g, b, shadow rays)."""
-    r = g = b = 0.0
-    nshadow = 0
-    ns = A.sph_radius.shape[0]
-    eps = SHADOW_EPSILON * (1.0 + max(abs(px), abs(py), abs(pz)))
-    # Delta lights: point, spot, directional (thesis 1.4.1).
-    for li in range(A.light_kind.shape[0]):
-        kind = A.light_kind[li]
-        if kind == LIGHT_DIRECTIONAL:
-            lx, ly, lz = -A.light_dir[li, 0], -A.light_dir[li, 1], -A.light_dir[li, 2]
-            dist = np.inf
-            fatt = 1.0
-            falloff = 1.0
-        else:
-            lx = A.light_pos[li, 0] - px
-            ly = A.light_pos[li, 1] - py
-            lz = A.light_pos[li, 2] - pz
-            dist = math.sqrt(lx * lx + ly * ly + lz * lz)
-            lx, ly, lz = lx / dist, ly / dist, lz / dist
-            fatt = attenuation(dist, c1, c2, c3, fclamp)
-            falloff = 1.0
-            if kind == LIGHT_SPOT:
-                # Mitsuba's spot: 1 inside beam_width, linear in angle to 0 at cutoff_angle.
-                cos_t = -(lx * A.light_dir[li, 0] + ly * A.light_dir[li, 1] + lz * A.light_dir[li, 2])
-                if cos_t <= A.light_cos_cutoff[li]:
-                    continue
-                if cos_t < A.light_cos_beam[li]:
-                    falloff = (A.light_cutoff[li] - math.acos(min(cos_t, 1.0))) * A.light_inv_tw[li]
-        kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
-        if kd == 0.0 and spec == 0.0:
-            continue
-        if shadows:
-            side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
-            ox, oy, oz = px + side * eps * gx, py + side * eps * gy, pz + side * eps * gz
-            nshadow += 1
-            if any_hit(ox, oy, oz, lx, ly, lz, 0.0, dist * (1.0 - 1e-9) - eps,
-                       A.sph_center, A.sph_radius, A.tri_v):
-                continue
-        w = fatt * falloff
-        r += w * A.light_rad[li, 0] * (kd * rho_r + spec)
-        g += w * A.light_rad[li, 1] * (kd * rho_g + spec)
-        b += w * A.light_rad[li, 2] * (kd * rho_b + spec)
-    # Area lights (thesis 1.4.1): uniform area sampling, estimator L_e A cosθ_y f_att(d) · bracket.
-    n_em = A.em_area.shape[0]
-    if n_em > 0 and light_samples > 0:
-        q = int(math.sqrt(light_samples) + 0.5)
-        stratified = q * q == light_samples
-        for e in range(n_em):
-            sh = A.em_shape[e]
-            flip = A.shape_flip[sh]
-            er = eg = eb = 0.0
-            for k in range(light_samples):
-                dim = 2 + 2 * (e * light_samples + k)
-                u1 = uniform(seed, pixel, sample, dim)
-                u2 = uniform(seed, pixel, sample, dim + 1)
-                if stratified:
-                    u1 = (k % q + u1) / q
-                    u2 = (k // q + u2) / q
-                yx, yy, yz, tri = _sample_emitter(e, u1, u2, A.em_offset, A.em_tri, A.em_cdf, A.tri_v)
-                lx, ly, lz = yx - px, yy - py, yz - pz
-                dist = math.sqrt(lx * lx + ly * ly + lz * lz)
-                if dist == 0.0:
-                    continue
-                lx, ly, lz = lx / dist, ly / dist, lz / dist
-                nyx, nyy, nyz, _a, _b, _c = _surface(ns + tri, 0.0, 0.0, yx, yy, yz, ns, A.sph_center,
-                                                     A.sph_radius, A.tri_v, A.tri_n, A.tri_has_n, flip)
-                cos_y = -(nyx * lx + nyy * ly + nyz * lz)
-                if cos_y <= 0.0:        # area emitters radiate from their front side only
-                    continue
-                kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
-                if kd == 0.0 and spec == 0.0:
-                    continue
-                if shadows:
-                    side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
-                    ox, oy, oz = px + side * eps * gx, py + side * eps * gy, pz + side * eps * gz
-                    nshadow += 1
-                    if any_hit(ox, oy, oz, lx, ly, lz, 0.0, dist * (1.0 - 1e-7) - eps,
-                               A.sph_center, A.sph_radius, A.tri_v):
-                        continue
-                w = cos_y * attenuation(dist, c1, c2, c3, fclamp)
-                er += w * (kd * rho_r + spec)
-                eg += w * (kd * rho_g + spec)
-                eb += w * (kd * rho_b + spec)
-            scale = A.em_area[e] / light_samples
-            r += scale * er * A.shape_emit[sh, 0]
-            g += scale * eg * A.shape_emit[sh, 1]
-            b += scale * eb * A.shape_emit[sh, 2]
-    return r, g, b, nshadow
 
 
 @njit(cache=True)
@@ -224,7 +71,7 @@ def _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, ka, ambient, k
     ns = A.sph_radius.shape[0]
     shape = A.prim_shape[prim]
     px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
-    gx, gy, gz, sx, sy, sz = _surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
+    gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
                                       A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
     vx, vy, vz = -dx, -dy, -dz
     r = g = b = 0.0
@@ -239,9 +86,9 @@ def _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, ka, ambient, k
         cos_v = -cos_v
     if cos_v <= 0.0:
         return r, g, b, 0
-    rho_r, rho_g, rho_b = A.mat_rho[mat, 0], A.mat_rho[mat, 1], A.mat_rho[mat, 2]
+    rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
     amb = ambient * ka
-    dr_, dg_, db_, nsh = _direct(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
+    dr_, dg_, db_, nsh = direct_light(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                                  A, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
                                  seed, pixel, sample)
     return r + amb * rho_r + dr_, g + amb * rho_g + dg_, b + amb * rho_b + db_, nsh

@@ -4,8 +4,10 @@ Primitives are numbered spheres first, then triangles; ``prim_shape`` maps a
 primitive to its shape (the index used for shape-id images).  Area emitters
 become per-emitter triangle lists with an area CDF for uniform area sampling.
 Light ``kind`` codes: 0 point, 1 directional, 2 spot.  Material ``kind``
-codes: 0 diffuse; anything else is refused by the local-illumination
-algorithms that cannot model it.
+codes: 0 diffuse, 1 conductor, 2 dielectric, 3 roughconductor; an algorithm
+refuses the kinds it cannot model.  Textured diffuse reflectance: ``mat_tex``
+code 0 none, 1 checkerboard (colours and the 2x3 ``to_uv`` map per material),
+looked up at the triangle's interpolated ``tri_uv``.
 """
 
 from __future__ import annotations
@@ -16,9 +18,11 @@ import numpy as np
 
 from gibench.scene import Scene
 
-__all__ = ["SceneArrays", "flatten", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT"]
+__all__ = ["SceneArrays", "flatten", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
+           "TEX_NONE", "TEX_CHECKERBOARD", "MATERIAL_CODES"]
 
 LIGHT_POINT, LIGHT_DIRECTIONAL, LIGHT_SPOT = 0, 1, 2
+TEX_NONE, TEX_CHECKERBOARD = 0, 1
 
 
 class SceneArrays(NamedTuple):
@@ -49,6 +53,12 @@ class SceneArrays(NamedTuple):
     em_cdf: np.ndarray          # (K,) cumulative area fraction within its emitter
     em_area: np.ndarray         # (E,)
     em_shape: np.ndarray        # (E,)
+    tri_uv: np.ndarray          # (T, 3, 2) vertex texture coordinates (zeros if none)
+    tri_has_uv: np.ndarray      # (T,) 1 where the triangle has texture coordinates
+    mat_tex: np.ndarray         # (M,) texture code of the diffuse reflectance
+    mat_tex_c0: np.ndarray      # (M, 3) checkerboard color0
+    mat_tex_c1: np.ndarray      # (M, 3) checkerboard color1
+    mat_tex_uv: np.ndarray      # (M, 2, 3) 2D affine to_uv map (first two rows)
 
     @property
     def n_spheres(self) -> int:
@@ -63,11 +73,17 @@ def flatten(scene: Scene) -> SceneArrays:
     meshes = [s for s in scene.shapes if s.kind == "mesh"]
     index = {id(s): i for i, s in enumerate(scene.shapes)}
     prim_shape = [index[id(s)] for s in spheres]
-    tri_v, tri_n, tri_has_n = [], [], []
+    tri_v, tri_n, tri_has_n, tri_uv, tri_has_uv = [], [], [], [], []
     tri_base = {}
     for s in meshes:
         tri_base[id(s)] = sum(len(t) for t in tri_v)
         tri_v.append(s.vertices[s.faces])
+        if s.uvs is not None:
+            tri_uv.append(s.uvs[s.faces])
+            tri_has_uv.append(np.ones(len(s.faces), np.int64))
+        else:
+            tri_uv.append(np.zeros((len(s.faces), 3, 2)))
+            tri_has_uv.append(np.zeros(len(s.faces), np.int64))
         if s.normals is not None:
             tri_n.append(s.normals[s.faces])
             tri_has_n.append(np.ones(len(s.faces), np.int64))
@@ -78,6 +94,8 @@ def flatten(scene: Scene) -> SceneArrays:
     tri_v = np.concatenate(tri_v) if tri_v else np.zeros((0, 3, 3))
     tri_n = np.concatenate(tri_n) if tri_n else np.zeros((0, 3, 3))
     tri_has_n = np.concatenate(tri_has_n) if tri_has_n else np.zeros(0, np.int64)
+    tri_uv = np.concatenate(tri_uv) if tri_uv else np.zeros((0, 3, 2))
+    tri_has_uv = np.concatenate(tri_has_uv) if tri_has_uv else np.zeros(0, np.int64)
 
     em_offset, em_tri, em_cdf, em_area, em_shape = [0], [], [], [], []
     for s in scene.emitters:
@@ -92,6 +110,13 @@ def flatten(scene: Scene) -> SceneArrays:
         em_area.append(a.sum())
         em_shape.append(index[id(s)])
         em_offset.append(len(em_tri))
+
+    tex_codes = {"checkerboard": TEX_CHECKERBOARD}
+    mats = scene.materials
+    mat_tex = [tex_codes[m.texture["type"]] if m.texture else TEX_NONE for m in mats]
+    mat_tex_c0 = [m.texture["color0"] if m.texture else (0.0, 0.0, 0.0) for m in mats]
+    mat_tex_c1 = [m.texture["color1"] if m.texture else (0.0, 0.0, 0.0) for m in mats]
+    mat_tex_uv = [np.asarray(m.texture["to_uv"])[:2] if m.texture else np.eye(3)[:2] for m in mats]
 
     lights = scene.lights
     f64 = lambda x, shape: np.asarray(x, dtype=np.float64).reshape(shape)  # noqa: E731
@@ -124,4 +149,10 @@ def flatten(scene: Scene) -> SceneArrays:
         em_cdf=np.asarray(em_cdf, dtype=np.float64),
         em_area=np.asarray(em_area, dtype=np.float64),
         em_shape=np.asarray(em_shape, dtype=np.int64),
+        tri_uv=np.ascontiguousarray(tri_uv, dtype=np.float64),
+        tri_has_uv=tri_has_uv,
+        mat_tex=np.asarray(mat_tex, dtype=np.int64),
+        mat_tex_c0=f64(mat_tex_c0, (-1, 3)),
+        mat_tex_c1=f64(mat_tex_c1, (-1, 3)),
+        mat_tex_uv=f64(mat_tex_uv, (-1, 2, 3)),
     )

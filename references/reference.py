@@ -8,8 +8,13 @@ for Mitsuba to resolve):
 * the ``<integrator>`` is replaced according to ``transport``:
   ``"full"`` -> ``path`` with ``max_depth`` taken from the file's own
   integrator if that is ``path`` and sets ``max_depth`` (else -1, unbounded);
-  ``"direct"`` -> ``direct``.  A ``hide_emitters`` flag on the file's
-  integrator is carried over (it changes what the image should show);
+  ``"direct"`` -> ``direct``; ``"whitted"`` -> the Python integrator
+  ``whitted`` of :mod:`references.whitted_integrator` (delta chains, then
+  direct light from every emitter) with ``max_depth`` =
+  :data:`WHITTED_MAX_DEPTH` (the own ``whitted``'s default) and
+  ``lobe_choice`` = :data:`WHITTED_LOBE_CHOICE`.  A ``hide_emitters`` flag on
+  the file's integrator is carried over (it changes what the image should
+  show);
 * every top-level sensor's ``<sampler>`` is replaced by ``independent`` with
   the per-pass sample count and the seed;
 * the film's ``<rfilter>`` is replaced by ``box`` (``rfilter="box"``, default;
@@ -27,10 +32,12 @@ Entries live in ``references/store/<first 16 hex of key>/`` as ``image.exr``,
 ``variance.exr`` and ``manifest.json``.  The key is a sha256 over the scene
 bytes, the bytes of every file the scene references by ``filename``, the
 transport, spp, passes, seed, rfilter choice, variant family and
-:data:`STORE_FORMAT`.  A stored entry is used only if its key and file hashes
-match and its images are readable and finite; otherwise it is re-rendered
-(with a one-line message on stderr) or, with ``render_missing=False``,
-:class:`ReferenceMissing` is raised.
+:data:`STORE_FORMAT` (for ``"whitted"`` also :data:`WHITTED_MAX_DEPTH` and
+:data:`WHITTED_LOBE_CHOICE`; the sha256 of the integrator's source file is
+recorded in the manifest, not keyed).  A stored entry is used only if its key
+and file hashes match and its images are readable and finite; otherwise it is
+re-rendered (with a one-line message on stderr) or, with
+``render_missing=False``, :class:`ReferenceMissing` is raised.
 """
 
 from __future__ import annotations
@@ -59,6 +66,9 @@ from .mitsuba_env import load_mitsuba, mitsuba_versions
 __all__ = [
     "STORE_FORMAT",
     "DEFAULT_STORE",
+    "TRANSPORTS",
+    "WHITTED_MAX_DEPTH",
+    "WHITTED_LOBE_CHOICE",
     "Reference",
     "ReferenceMissing",
     "SceneError",
@@ -77,7 +87,17 @@ STORE_FORMAT = 1
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_STORE = Path(__file__).resolve().parent / "store"
 
-TRANSPORTS = ("full", "direct")
+TRANSPORTS = ("full", "direct", "whitted")
+
+#: ``max_depth`` of the ``whitted`` reference integrator (rays along a chain,
+#: eye ray = 1); equal to the own ``whitted`` algorithm's default.
+WHITTED_MAX_DEPTH = 10
+
+#: How the ``whitted`` reference follows one of a dielectric's two lobes (see
+#: :mod:`references.whitted_integrator`: Fresnel-proportional choice leaves
+#: rare deep branches unseen and their variance unestimated).
+WHITTED_LOBE_CHOICE = "uniform"
+
 RFILTERS = ("box", "scene")
 
 #: Upper bound on the lanes (pixels x samples) of one ``mi.render`` call while
@@ -293,6 +313,9 @@ def reference_key(scene_path, *, transport: str = "full", spp: int = 1024, passe
         "rfilter": rfilter,
         "variant_family": variant_family,
     }
+    if transport == "whitted":         # other transports keep their existing keys
+        payload["whitted_max_depth"] = WHITTED_MAX_DEPTH
+        payload["whitted_lobe_choice"] = WHITTED_LOBE_CHOICE
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
 
@@ -383,7 +406,7 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
     scene_path
         Mitsuba 3 XML scene.
     transport
-        ``"full"`` or ``"direct"`` (ignored when ``integrator`` is given).
+        ``"full"``, ``"direct"`` or ``"whitted"`` (ignored when ``integrator`` is given).
     spp_per_pass, seed
         Sample count and seed of the ``independent`` sampler put in each sensor.
     rfilter
@@ -436,6 +459,14 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
                         [_prop("integer", "max_depth", raw_depth if raw_depth is not None else -1)])
             used = {"type": "path",
                     "max_depth": _as_number(_substitute(raw_depth, defaults)) if raw_depth else -1}
+        elif transport == "whitted":
+            new = _make("integrator", {"type": "whitted"},
+                        [_prop("integer", "max_depth", WHITTED_MAX_DEPTH),
+                         _prop("string", "lobe_choice", WHITTED_LOBE_CHOICE)])
+            source = Path(__file__).resolve().parent / "whitted_integrator.py"
+            used = {"type": "whitted", "max_depth": WHITTED_MAX_DEPTH,
+                    "lobe_choice": WHITTED_LOBE_CHOICE,
+                    "source": _display_path(source), "source_sha256": _sha256_file(source)}
         else:
             new = _make("integrator", {"type": "direct"})
             used = {"type": "direct"}
@@ -473,6 +504,9 @@ def load_scene(mi, scene_path, xml: str):
     duration of the load and the resolver is restored afterwards.  Raises
     :class:`SceneError` naming the file and the first line of Mitsuba's reason.
     """
+    from .whitted_integrator import register as register_whitted
+
+    register_whitted(mi)                # the "whitted" transport's integrator, per variant
     scene_path = Path(scene_path).resolve()
     get_resolver = getattr(mi, "file_resolver", None) or (
         lambda: mi.Thread.thread().file_resolver())
@@ -692,7 +726,8 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     scene_path
         Mitsuba 3 XML scene file.
     transport
-        ``"full"`` (path tracing) or ``"direct"`` (direct illumination only).
+        ``"full"`` (path tracing), ``"direct"`` (direct illumination only) or
+        ``"whitted"`` (delta chains + direct light, :mod:`references.whitted_integrator`).
     spp
         Total samples per pixel; must be a multiple of ``passes``.
     passes

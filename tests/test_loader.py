@@ -20,6 +20,9 @@ def test_suite_has_the_promised_scenes():
     names = {f"{p.parent.name}/{p.stem}" for p in SCENES}
     assert {"cornell/cornell_box", "cornell/cornell_point", "spheres/lit_sphere",
             "spheres/spot_directional"} <= names
+    # The scenes of the Whitted ray tracer (tests/test_whitted.py).
+    assert {"spheres/mirror_sphere", "spheres/glass_sphere", "spheres/nested_glass",
+            "spheres/whitted_classic", "spheres/sphere_grid", "cornell/cornell_mirror_glass"} <= names
 
 
 @pytest.mark.parametrize("path", SCENES, ids=SCENE_IDS)
@@ -168,3 +171,83 @@ def test_inline_bsdfs_stay_with_their_shapes():
         sphere, ground = scene.shapes
         assert scene.materials[sphere.material].reflectance == (0.8, 0.45, 0.2)
         assert scene.materials[ground.material].reflectance == (0.5, 0.5, 0.5)
+
+
+# ------------------------------------------------------------ checkerboard ---
+
+CHECKER = """<shape type="rectangle" id="floor">
+        <transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/></transform>
+        <bsdf type="diffuse">
+            <texture type="{type}" name="{name}">
+                <rgb name="color0" value="0.9, 0.1, 0.1"/>
+                <rgb name="color1" value="0.1, 0.2, 0.8"/>
+                <transform name="to_uv"><scale x="5" y="3"/><translate x="0.3" y="-0.1"/></transform>
+            </texture>
+        </bsdf>
+    </shape>"""
+
+
+def test_checkerboard_texture_is_parsed(tmp_path):
+    scene = load_scene(_write(tmp_path, MINIMAL.format(body=CHECKER.format(type="checkerboard",
+                                                                             name="reflectance"))))
+    floor = scene.shapes[0]
+    tex = scene.materials[floor.material].texture
+    assert tex["type"] == "checkerboard"
+    assert tex["color0"] == (0.9, 0.1, 0.1) and tex["color1"] == (0.1, 0.2, 0.8)
+    np.testing.assert_allclose(tex["to_uv"], [[5, 0, 0.3], [0, 3, -0.1], [0, 0, 1]])
+    np.testing.assert_allclose(scene.materials[floor.material].reflectance, (0.5, 0.15, 0.45))
+    # Mitsuba's rectangle uv: local (x, y) in [-1, 1]^2 -> ((x + 1) / 2, (y + 1) / 2).
+    np.testing.assert_allclose(floor.uvs, [[0, 0], [1, 0], [1, 1], [0, 1]])
+
+
+@pytest.mark.mitsuba
+def test_checkerboard_lookup_matches_mitsubas_texture(tmp_path, mitsuba):
+    """The albedo the own algorithms look up at a rectangle hit equals Mitsuba's
+    checkerboard evaluated at the uv Mitsuba's rectangle gives that point."""
+    from impl.lighting import diffuse_albedo
+    from impl.scene_arrays import flatten
+
+    mi = mitsuba
+    path = _write(tmp_path, MINIMAL.format(body=CHECKER.format(type="checkerboard", name="reflectance")))
+    scene = load_scene(path)
+    A = flatten(scene)
+    floor = scene.shapes[0]
+    mi_scene = mi.load_file(str(path))
+    mi_shape = mi_scene.shapes()[0]
+    rng = np.random.default_rng(11)
+    print("seed 11")
+    uv = rng.uniform(0.0, 1.0, size=(400, 2))
+    si = mi_shape.eval_parameterization(mi.Point2f(uv[:, 0], uv[:, 1]))
+    theirs = np.array(mi_shape.bsdf().eval_diffuse_reflectance(si)).reshape(3, -1).T
+    p_world = np.array(si.p).reshape(3, -1).T
+    for k in range(len(uv)):
+        # Find our triangle and barycentrics of the same world point.
+        for j, face in enumerate(floor.faces):
+            v = floor.vertices[face]
+            m = np.stack([v[1] - v[0], v[2] - v[0]], axis=1)
+            (b1, b2), *_ = np.linalg.lstsq(m, p_world[k] - v[0], rcond=None)
+            if b1 >= -1e-9 and b2 >= -1e-9 and b1 + b2 <= 1 + 1e-9:
+                break
+        ours = diffuse_albedo(A, floor.material, j, b1, b2)
+        np.testing.assert_allclose(ours, theirs[k], atol=1e-6, err_msg=f"uv {uv[k]}")
+    assert len(np.unique(theirs[:, 0])) == 2          # both colours were sampled
+
+
+def test_unsupported_texture_type_gives_one_line_error(tmp_path):
+    p = _write(tmp_path, MINIMAL.format(body=CHECKER.format(type="bitmap", name="reflectance")))
+    with pytest.raises(SceneError) as e:
+        load_scene(p)
+    msg = str(e.value)
+    assert "\n" not in msg and f"{p}:8:" in msg
+    assert "unsupported texture type 'bitmap' (supported: checkerboard)" in msg
+
+
+def test_texture_only_as_reflectance_of_a_rectangle(tmp_path):
+    p = _write(tmp_path, MINIMAL.format(body=CHECKER.format(type="checkerboard", name="albedo")))
+    with pytest.raises(SceneError, match="must be named 'reflectance'"):
+        load_scene(p)
+    body = CHECKER.format(type="checkerboard", name="reflectance").replace(
+        '<shape type="rectangle" id="floor">', '<shape type="sphere" id="ball">').replace(
+        '<transform name="to_world"><scale value="3"/><rotate x="1" angle="-90"/></transform>', "")
+    with pytest.raises(SceneError, match="checkerboard texture on a sphere is not supported"):
+        load_scene(_write(tmp_path, MINIMAL.format(body=body), "ball.xml"))

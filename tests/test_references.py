@@ -234,6 +234,10 @@ def test_bad_arguments(scene, store):
 
 @pytest.mark.mitsuba
 def test_unloadable_scene_names_file_and_reason(tmp_path, store):
+    # The mesh must exist, or Mitsuba's parallel loader may report the missing
+    # mesh instead of the bad plugin, depending on thread timing.
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "quad.obj").write_text(QUAD_OBJ)
     bad = tmp_path / "bad.xml"
     bad.write_text(SCENE_XML.format(max_depth=3).replace('type="sphere"', 'type="no_such_plugin"'))
     with pytest.raises(SceneError) as info:

@@ -1,0 +1,570 @@
+"""Whitted ray tracing — registered as ``whitted``.
+
+The recursive ray tracer of Whitted (T. Whitted, "An improved illumination
+model for shaded display", CACM 23(6), 1980, :doi:`10.1145/358876.358882`)
+as the thesis describes it: the four kinds of rays of 2.2 (eye, shadow,
+reflection, transmission rays), the ray tree of 2.2.1 (every hit on a
+specular surface spawns a reflection and, if transparent, a transmission
+ray; the tree is followed until no ray remains), the reflection direction
+R = I − 2(N·I)N and Snell's law with total internal reflection of 2.4.4, and
+the adaptive tree depth of Hall's model (2.4.5.5 and 2.6: a branch is cut
+when its largest possible contribution to the pixel falls below a threshold;
+R. A. Hall and D. P. Greenberg, "A testbed for realistic image synthesis",
+IEEE CG&A 3(8), 1983).
+
+What it computes
+----------------
+For every eye ray, the ray tree over *delta* (perfectly specular) surfaces:
+
+* ``conductor`` (Mitsuba semantics): mirror reflection weighted by
+  ``specular_reflectance`` × the conductor Fresnel reflectance of the complex
+  index ``eta + i k`` (RGB); ``material="none"`` (the default) is an ideal
+  mirror, Fresnel = 1.  One-sided: seen from behind it is black.
+* ``dielectric``: the exact unpolarised Fresnel reflectance F splits the ray
+  *deterministically* into a reflected branch (weight F ×
+  ``specular_reflectance``) and a transmitted branch (weight (1 − F) ×
+  ``specular_transmittance`` × η_ti²; the η_ti² = (n_i / n_t)² factor is the
+  radiance scaling of Mitsuba's Radiance transport mode: solid angle is
+  compressed when light enters a denser medium).  Normals point outward, so a
+  ray enters when cos θ_i = N·(−I) > 0; ``eta = int_ior / ext_ior``.
+  Total internal reflection leaves the reflected branch only (F = 1).
+* At the first non-delta (``diffuse``) hit of a branch: the direct light of
+  every emitter — delta lights and area emitters (``light_samples`` shadow
+  rays each) — with the Phong/Lambert model of ``raycast``
+  (:mod:`impl.lighting`), and the branch ends.
+* Emission ``L_e`` of area emitters met by eye rays and by every ray of a
+  delta chain (front side only, as Mitsuba's ``area``).
+
+So with the default parameters it estimates exactly what the matched Mitsuba
+reference ``whitted`` (:mod:`references.whitted_integrator`) computes, which
+follows one of the two branches at random instead of splitting.
+
+Ray tree
+--------
+Depth counts rays along a branch: an eye ray has depth 1, a ray spawned at a
+hit of a depth-d ray has depth d + 1, and rays deeper than ``max_depth`` are
+not traced (``max_depth = 1`` is ray casting; Mitsuba's ``path`` with
+``max_depth = m + 1`` truncates paths at the same length).  A child whose
+weight — the product of the Fresnel/reflectance weights along its branch —
+has every RGB channel below ``hall_threshold`` is cut (Hall's criterion);
+``hall_threshold = 0`` follows every branch with a non-zero weight.  The
+default 1e-5 keeps the cut-off bias (≤ 1e-5 × the radiance of a cut ray) below
+the Z-test's noise floor against Mitsuba: measured, 1e-5 and 0 give the same
+Z-test fractions on the whitted scenes of ``suites/``, while 1e-4 already
+loses pixels of ~1e-5 lit only through three internal reflections
+(``glass_sphere`` at 36 spp: 0.99943 → 0.99875 of the entries consistent);
+1e-5 cuts the secondary rays of ``nested_glass`` from 400k to 135k.  The tree
+is walked depth-first with an explicit per-pixel stack of pending rays
+(origin, direction, RGB weight, depth, ray type, IOR of the medium it travels
+in), never by recursion.
+
+Counters: rays by type (``eye_rays``, ``shadow_rays``, ``reflection_rays``,
+``transmission_rays``), ``hall_cuts`` and ``depth_cuts`` (branches not
+traced), ``tir`` (total internal reflections), ``ior_mismatches`` (a ray hits
+a dielectric from a medium whose IOR differs from the interface's: the
+scene's indices are mutually inconsistent, as Mitsuba's manual warns),
+``diffuse_hits`` (branch leaves lit by shadow rays) and
+``tree_depth_histogram`` (index d: eye rays whose deepest traced ray had
+depth d).  AOVs ``hall_cut_weight`` / ``depth_cut_weight``: per pixel, the
+mean over samples of the summed largest-channel weight of the cut branches;
+the bias of cutting is at most that weight times the largest radiance a cut
+ray can carry.
+
+Pixel sampling as in ``raycast``: ``spp = 1`` traces the pixel centre,
+``spp = k²`` a k×k jittered grid (box filter), returning the variance of the
+pixel mean.
+
+Leaves out: indirect diffuse light (no interreflection between diffuse
+surfaces), light transported *through* or *off* specular surfaces to a
+diffuse one (caustics: shadow rays are blocked by glass), glossy BSDFs
+(``roughconductor`` and other materials raise ``NotImplementedError``),
+absorbing media inside dielectrics, named conductor IOR spectra.
+
+Parameters
+----------
+==============  ======  =======  =============================================
+name            type    default  meaning
+==============  ======  =======  =============================================
+spp             int     1        pixel samples: 1 = centre, k² = k×k strata
+max_depth       int     10       deepest ray of a branch (eye ray = 1)
+hall_threshold  float   1e-5     cut a branch whose weight is below this
+light_samples   int     16       shadow rays per area emitter per diffuse hit
+ka              float   0        ambient coefficient k_a (× ρ)
+ambient         float   0        ambient intensity I_a
+ks              float   0        Phong specular coefficient at diffuse hits
+shininess       float   32       Phong exponent n
+c1, c2, c3      float   0, 0, 1  f_att = 1 / (c1 + c2 d + c3 d²)
+fatt_clamp      bool    false    clamp f_att to 1, as the thesis does
+shadows         bool    true     cast shadow rays
+==============  ======  =======  =============================================
+
+Example::
+
+    from gibench import registry
+    from gibench.loader import load_scene
+    algo = registry.get("whitted")
+    res = algo.render(load_scene("suites/spheres/whitted_classic.xml"),
+                      algo.parse_params({"spp": 16}), seed=0)
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from gibench.registry import Algorithm, Param, RenderResult, register
+from gibench.scene import Scene
+
+from .camera import camera_params, eye_ray
+from .fresnel import fresnel_conductor, fresnel_dielectric, lookup_ior, reflect, refract
+from .intersect import closest_hit
+from .lighting import SHADOW_EPSILON, diffuse_albedo, direct_light, surface
+from .rng import uniform
+from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten
+
+__all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "ALGORITHM"]
+
+MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
+MAT_CONDUCTOR = MATERIAL_CODES["conductor"]
+MAT_DIELECTRIC = MATERIAL_CODES["dielectric"]
+
+RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION = 0, 1, 2
+
+#: Names of the per-pixel integer counters, in kernel order.
+COUNTERS = ("eye_rays", "shadow_rays", "reflection_rays", "transmission_rays", "hall_cuts",
+            "depth_cuts", "tir", "ior_mismatches", "diffuse_hits")
+_C_EYE, _C_SHADOW, _C_REFL, _C_TRANS, _C_HALL, _C_DEPTH, _C_TIR, _C_IOR, _C_DIFFUSE = range(9)
+
+#: Two IORs closer than this count as the same medium (Mitsuba stores them as float32).
+IOR_TOLERANCE = 1e-5
+
+
+class SpecularArrays(NamedTuple):
+    """Per-material parameters of the delta BSDFs (numba takes it as one argument)."""
+
+    spec_refl: np.ndarray       # (M, 3) specular_reflectance
+    spec_trans: np.ndarray      # (M, 3) specular_transmittance (dielectric)
+    cond_eta: np.ndarray        # (M, 3) conductor: real part of the relative IOR
+    cond_k: np.ndarray          # (M, 3) conductor: imaginary part
+    diel_eta: np.ndarray        # (M,) dielectric: int_ior / ext_ior
+    diel_int: np.ndarray        # (M,) dielectric: int_ior
+    diel_ext: np.ndarray        # (M,) dielectric: ext_ior
+
+
+def _rgb_param(params: dict, name: str, default: float, where: str) -> np.ndarray:
+    v = params.get(name, default)
+    a = np.asarray(v, dtype=np.float64).reshape(-1)
+    if a.shape == (1,):
+        a = np.repeat(a, 3)
+    if a.shape != (3,):
+        raise ValueError(f"{where}: '{name}' must be a float or rgb value, got {v!r}")
+    return a
+
+
+def material_arrays(scene: Scene) -> SpecularArrays:
+    """Check every shape's material and decode the delta-BSDF parameters.
+
+    Raises
+    ------
+    NotImplementedError
+        A material the algorithm does not model (naming the shape and the
+        material), a named conductor (``material="Au"``: spectral IOR tables
+        are not tabulated here; give ``eta`` and ``k``), a two-sided dielectric.
+    ValueError
+        Conflicting or malformed parameters (e.g. both ``material`` and
+        ``eta`` on a conductor, an unknown IOR name).
+    """
+    M = len(scene.materials)
+    spec_refl = np.ones((M, 3))
+    spec_trans = np.ones((M, 3))
+    cond_eta = np.zeros((M, 3))
+    cond_k = np.ones((M, 3))
+    diel_eta = np.ones(M)
+    diel_int = np.ones(M)
+    diel_ext = np.ones(M)
+    users = {}
+    for shape in scene.shapes:
+        users.setdefault(shape.material, shape.name or shape.source)
+    for i, m in enumerate(scene.materials):
+        if i not in users:
+            continue
+        where = f"whitted: shape '{users[i]}'"
+        if m.kind not in ("diffuse", "conductor", "dielectric"):
+            raise NotImplementedError(
+                f"{where} has a '{m.kind}' BSDF, which the Whitted ray tracer does not model "
+                "(diffuse, conductor and dielectric are modelled)")
+        p = m.params
+        if m.kind == "conductor":
+            material = p.get("material", "none")
+            if "eta" in p and material != "none":
+                raise ValueError(f"{where}: conductor gives both 'material' ('{material}') and "
+                                 "'eta'; give one of them (as Mitsuba requires)")
+            if material != "none" and "eta" not in p:
+                raise NotImplementedError(
+                    f"{where}: conductor material '{material}' is not tabulated (its spectral "
+                    "IOR is not modelled); give 'eta' and 'k' as rgb values, or material='none'")
+            cond_eta[i] = _rgb_param(p, "eta", 0.0, where)
+            cond_k[i] = _rgb_param(p, "k", 1.0, where)
+            spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
+        elif m.kind == "dielectric":
+            if m.twosided:
+                raise NotImplementedError(f"{where}: a two-sided dielectric is not modelled")
+            # Mitsuba's defaults: BK7 glass inside, air outside.
+            n_int = lookup_ior(p.get("int_ior", "bk7"), what=f"{where}: int_ior")
+            n_ext = lookup_ior(p.get("ext_ior", "air"), what=f"{where}: ext_ior")
+            if n_int <= 0.0 or n_ext <= 0.0:
+                raise ValueError(f"{where}: indices of refraction must be positive "
+                                 f"(int_ior={n_int}, ext_ior={n_ext})")
+            diel_int[i], diel_ext[i], diel_eta[i] = n_int, n_ext, n_int / n_ext
+            spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
+            spec_trans[i] = _rgb_param(p, "specular_transmittance", 1.0, where)
+    return SpecularArrays(spec_refl, spec_trans, cond_eta, cond_k, diel_eta, diel_int, diel_ext)
+
+
+# ------------------------------------------------------------------ kernels ---
+
+@njit(inline="always", cache=True)
+def _push(stack_f, stack_i, sp, px, py, pz, gx, gy, gz, eps, dx, dy, dz, wr, wg, wb, depth, kind,
+          medium):
+    """Put a child ray on the stack, its origin moved off the surface to the side it leaves on."""
+    side = 1.0 if gx * dx + gy * dy + gz * dz >= 0.0 else -1.0
+    stack_f[sp, 0] = px + side * eps * gx
+    stack_f[sp, 1] = py + side * eps * gy
+    stack_f[sp, 2] = pz + side * eps * gz
+    stack_f[sp, 3] = dx
+    stack_f[sp, 4] = dy
+    stack_f[sp, 5] = dz
+    stack_f[sp, 6] = wr
+    stack_f[sp, 7] = wg
+    stack_f[sp, 8] = wb
+    stack_f[sp, 9] = medium
+    stack_i[sp, 0] = depth
+    stack_i[sp, 1] = kind
+    return sp + 1
+
+
+@njit(inline="always", cache=True)
+def _admit(wr, wg, wb, depth, max_depth, hall_threshold, counts, cut_w):
+    """Whether a child branch of weight w and depth ``depth`` is traced; counts the cuts."""
+    wmax = max(wr, wg, wb)
+    if wmax <= 0.0:                  # contributes exactly nothing
+        return False
+    if depth > max_depth:
+        counts[_C_DEPTH] += 1
+        cut_w[1] += wmax
+        return False
+    if wmax < hall_threshold:        # Hall: largest possible contribution below the threshold
+        counts[_C_HALL] += 1
+        cut_w[0] += wmax
+        return False
+    return True
+
+
+@njit(cache=True)
+def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: SpecularArrays, max_depth,
+          hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
+          seed, pixel, sample, spp, stack_f, stack_i, counts, hist, cut_w):
+    """Radiance (r, g, b) of one eye ray by walking its ray tree with an explicit stack."""
+    ns = A.sph_radius.shape[0]
+    r = g = b = 0.0
+    sp = 0
+    # The eye ray: unit weight, depth 1, medium unknown (0).
+    stack_f[0, 0] = ox
+    stack_f[0, 1] = oy
+    stack_f[0, 2] = oz
+    stack_f[0, 3] = dx
+    stack_f[0, 4] = dy
+    stack_f[0, 5] = dz
+    stack_f[0, 6] = 1.0
+    stack_f[0, 7] = 1.0
+    stack_f[0, 8] = 1.0
+    stack_f[0, 9] = 0.0
+    stack_i[0, 0] = 1
+    stack_i[0, 1] = RAY_EYE
+    sp = 1
+    leaf = 0
+    deepest = 0
+    while sp > 0:
+        sp -= 1
+        rox, roy, roz = stack_f[sp, 0], stack_f[sp, 1], stack_f[sp, 2]
+        rdx, rdy, rdz = stack_f[sp, 3], stack_f[sp, 4], stack_f[sp, 5]
+        wr, wg, wb = stack_f[sp, 6], stack_f[sp, 7], stack_f[sp, 8]
+        medium = stack_f[sp, 9]
+        depth = stack_i[sp, 0]
+        kind = stack_i[sp, 1]
+        if kind == RAY_EYE:
+            counts[_C_EYE] += 1
+            t0, t1 = tmin, tmax
+        else:
+            counts[_C_REFL if kind == RAY_REFLECTION else _C_TRANS] += 1
+            t0, t1 = 0.0, np.inf
+        if depth > deepest:
+            deepest = depth
+
+        t, prim, b1, b2 = closest_hit(rox, roy, roz, rdx, rdy, rdz, t0, t1,
+                                      A.sph_center, A.sph_radius, A.tri_v)
+        if prim < 0:
+            continue                     # no environment light: the branch ends in black
+        shape = A.prim_shape[prim]
+        px, py, pz = rox + t * rdx, roy + t * rdy, roz + t * rdz
+        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
+                                         A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+        vx, vy, vz = -rdx, -rdy, -rdz
+        cos_v = sx * vx + sy * vy + sz * vz
+        # Emitted radiance L_e of an area emitter (front side only).
+        if cos_v > 0.0:
+            r += wr * A.shape_emit[shape, 0]
+            g += wg * A.shape_emit[shape, 1]
+            b += wb * A.shape_emit[shape, 2]
+        mat = A.shape_material[shape]
+        mkind = A.mat_kind[mat]
+        eps = SHADOW_EPSILON * (1.0 + max(abs(px), abs(py), abs(pz)))
+
+        if mkind == MAT_DIELECTRIC:
+            # Fresnel split at a smooth interface (thesis 2.4.4), Mitsuba's sign conventions.
+            eta = S.diel_eta[mat]
+            if medium > 0.0:
+                expected = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+                if abs(medium - expected) > IOR_TOLERANCE:
+                    counts[_C_IOR] += 1
+            F, cos_t, eta_it, eta_ti = fresnel_dielectric(cos_v, eta)
+            if F == 1.0 and cos_t == 0.0:
+                counts[_C_TIR] += 1
+            here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+            there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
+            # Transmitted branch: (1 − F) T_s η_ti² (radiance scaling), pushed first so the
+            # reflected branch is walked first.
+            if F < 1.0:
+                scale = (1.0 - F) * eta_ti * eta_ti
+                twr = wr * scale * S.spec_trans[mat, 0]
+                twg = wg * scale * S.spec_trans[mat, 1]
+                twb = wb * scale * S.spec_trans[mat, 2]
+                if _admit(twr, twg, twb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                    tx, ty, tz = refract(rdx, rdy, rdz, sx, sy, sz, cos_v, cos_t, eta_ti)
+                    sp = _push(stack_f, stack_i, sp, px, py, pz, gx, gy, gz, eps, tx, ty, tz,
+                               twr, twg, twb, depth + 1, RAY_TRANSMISSION, there)
+            rwr = wr * F * S.spec_refl[mat, 0]
+            rwg = wg * F * S.spec_refl[mat, 1]
+            rwb = wb * F * S.spec_refl[mat, 2]
+            if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
+                sp = _push(stack_f, stack_i, sp, px, py, pz, gx, gy, gz, eps, qx, qy, qz,
+                           rwr, rwg, rwb, depth + 1, RAY_REFLECTION, here)
+            continue
+
+        # Opaque one-sided BSDFs: a two-sided one is seen from the front on both sides.
+        if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+            cos_v = -cos_v
+        if cos_v <= 0.0:
+            continue
+
+        if mkind == MAT_CONDUCTOR:
+            # Mirror reflection R = I − 2(N·I)N weighted by specular_reflectance × F_conductor.
+            fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
+            fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
+            fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
+            rwr = wr * fr * S.spec_refl[mat, 0]
+            rwg = wg * fg * S.spec_refl[mat, 1]
+            rwb = wb * fb * S.spec_refl[mat, 2]
+            if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
+                sp = _push(stack_f, stack_i, sp, px, py, pz, gx, gy, gz, eps, qx, qy, qz,
+                           rwr, rwg, rwb, depth + 1, RAY_REFLECTION, medium)
+            continue
+
+        # Diffuse: direct light from every emitter, and the branch ends (thesis 2.2).
+        rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+        amb = ambient * ka
+        # Leaf k of sample s draws the light samples of "sample" s + k·spp: leaf 0
+        # uses raycast's numbers, the others are independent of them.
+        lr, lg, lb, nsh = direct_light(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+                                       rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3, fclamp,
+                                       shadows, light_samples, seed, pixel, sample + leaf * spp)
+        leaf += 1
+        counts[_C_SHADOW] += nsh
+        counts[_C_DIFFUSE] += 1
+        r += wr * (amb * rho_r + lr)
+        g += wg * (amb * rho_g + lg)
+        b += wb * (amb * rho_b + lb)
+    hist[deepest] += 1
+    return r, g, b
+
+
+@njit(cache=True)
+def _pixel(cam, A: SceneArrays, S: SpecularArrays, x, y, spp, max_depth, hall_threshold, ka,
+           ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
+           mean, var, counts, hist, cut):
+    """One pixel: its samples' ray trees, Welford mean and variance of the mean, counters.
+
+    A function of its own so that the stack and every accumulator are private
+    to the thread that runs the pixel (a prange body's locals can be hoisted
+    and shared).  Writes row ``pixel`` of the per-pixel outputs.
+    """
+    W = int(cam[14])
+    pixel = y * W + x
+    k = int(math.sqrt(spp) + 0.5)
+    # Depth-first: below the popped ray of depth d wait at most one sibling per
+    # level 2..d, plus its two children, so max_depth + 1 slots suffice.
+    stack_f = np.empty((max_depth + 2, 10))
+    stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
+    cnt = np.zeros(len(COUNTERS), dtype=np.int64)
+    hst = np.zeros(max_depth + 1, dtype=np.int64)
+    cut_w = np.zeros(2)
+    m0 = m1 = m2 = 0.0
+    s0 = s1 = s2 = 0.0
+    for s in range(spp):
+        if spp == 1:
+            fx = 0.5
+            fy = 0.5
+        else:                            # k×k jittered strata
+            fx = (s % k + uniform(seed, pixel, s, 0)) / k
+            fy = (s // k + uniform(seed, pixel, s, 1)) / k
+        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
+        r, g, b = _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, max_depth, hall_threshold,
+                        ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
+                        seed, pixel, s, spp, stack_f, stack_i, cnt, hst, cut_w)
+        # Welford's running mean and sum of squared deviations.
+        c = s + 1.0
+        d0 = r - m0
+        d1 = g - m1
+        d2 = b - m2
+        m0 += d0 / c
+        m1 += d1 / c
+        m2 += d2 / c
+        s0 += d0 * (r - m0)
+        s1 += d1 * (g - m1)
+        s2 += d2 * (b - m2)
+    norm = 1.0 / (spp * (spp - 1.0)) if spp > 1 else 0.0   # variance of the mean
+    mean[y, x, 0] = m0
+    mean[y, x, 1] = m1
+    mean[y, x, 2] = m2
+    var[y, x, 0] = s0 * norm
+    var[y, x, 1] = s1 * norm
+    var[y, x, 2] = s2 * norm
+    for i in range(cnt.shape[0]):
+        counts[pixel, i] = cnt[i]
+    for i in range(hst.shape[0]):
+        hist[pixel, i] = hst[i]
+    cut[y, x, 0] = cut_w[0] / spp
+    cut[y, x, 1] = cut_w[1] / spp
+
+
+@njit(parallel=True, cache=True)
+def _render_kernel(cam, A: SceneArrays, S: SpecularArrays, spp, max_depth, hall_threshold, ka,
+                   ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
+                   mean, var, counts, hist, cut):
+    W, H = int(cam[14]), int(cam[15])
+    for pixel in prange(W * H):
+        _pixel(cam, A, S, pixel % W, pixel // W, spp, max_depth, hall_threshold, ka, ambient, ks,
+               shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, mean, var, counts,
+               hist, cut)
+
+
+@njit(cache=True)
+def _trace_one(ox, oy, oz, dx, dy, dz, A: SceneArrays, S: SpecularArrays, max_depth,
+               hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+               light_samples, seed, counts, hist, cut_w):
+    stack_f = np.empty((max_depth + 2, 10))
+    stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
+    return _tree(ox, oy, oz, dx, dy, dz, 0.0, np.inf, A, S, max_depth, hall_threshold, ka,
+                 ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, 0, 0, 1,
+                 stack_f, stack_i, counts, hist, cut_w)
+
+
+# ------------------------------------------------------------- orchestration ---
+
+def _check(params: dict) -> None:
+    spp = params["spp"]
+    k = int(round(math.sqrt(spp)))
+    if spp < 1 or k * k != spp:
+        raise ValueError(f"whitted: spp must be 1 (pixel centre) or a square k² (k×k strata), got {spp}")
+    if params["max_depth"] < 1:
+        raise ValueError(f"whitted: max_depth must be >= 1 (1 = eye rays only), got {params['max_depth']}")
+    if not params["hall_threshold"] >= 0.0:
+        raise ValueError(f"whitted: hall_threshold must be >= 0, got {params['hall_threshold']}")
+    if params["light_samples"] < 0:
+        raise ValueError("whitted: light_samples must be >= 0")
+
+
+def _local_args(p: dict) -> tuple:
+    return (p["ka"], p["ambient"], p["ks"], p["shininess"], p["c1"], p["c2"], p["c3"],
+            p["fatt_clamp"], p["shadows"], p["light_samples"])
+
+
+def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
+    """Render ``scene`` with the Whitted ray tracer; ``params`` as from ``ALGORITHM.parse_params``."""
+    _check(params)
+    S = material_arrays(scene)
+    A = flatten(scene)
+    cam = camera_params(scene.camera)
+    H, W = scene.camera.film.height, scene.camera.film.width
+    spp, max_depth = params["spp"], params["max_depth"]
+    mean = np.zeros((H, W, 3))
+    var = np.zeros((H, W, 3))
+    counts = np.zeros((H * W, len(COUNTERS)), dtype=np.int64)
+    hist = np.zeros((H * W, max_depth + 1), dtype=np.int64)
+    cut = np.zeros((H, W, 2))
+    _render_kernel(cam, A, S, spp, max_depth, float(params["hall_threshold"]), *_local_args(params),
+                   seed, mean, var, counts, hist, cut)
+    totals = counts.sum(axis=0)
+    counters = {name: int(v) for name, v in zip(COUNTERS, totals)}
+    counters["tree_depth_histogram"] = [int(v) for v in hist.sum(axis=0)]
+    return RenderResult(image=mean.astype(np.float32),
+                        variance=var.astype(np.float32) if spp > 1 else None,
+                        counters=counters,
+                        aovs={"hall_cut_weight": cut[..., 0].astype(np.float32),
+                              "depth_cut_weight": cut[..., 1].astype(np.float32)})
+
+
+def trace(scene: Scene, origin, direction, params: dict | None = None, *, seed: int = 0):
+    """Radiance along one ray (tmin = 0) and the counters of its tree: ``(rgb, counters)``.
+
+    For tests and debugging; ``params`` are algorithm parameters (defaults
+    filled in).  The direction is normalised here.
+    """
+    p = ALGORITHM.parse_params(params or {})
+    _check(p)
+    S = material_arrays(scene)
+    A = flatten(scene)
+    o = np.asarray(origin, dtype=np.float64)
+    d = np.asarray(direction, dtype=np.float64)
+    d = d / np.linalg.norm(d)
+    counts = np.zeros(len(COUNTERS), dtype=np.int64)
+    hist = np.zeros(p["max_depth"] + 1, dtype=np.int64)
+    cut_w = np.zeros(2)
+    rgb = _trace_one(o[0], o[1], o[2], d[0], d[1], d[2], A, S, p["max_depth"],
+                     float(p["hall_threshold"]), *_local_args(p), seed, counts, hist, cut_w)
+    counters = {name: int(v) for name, v in zip(COUNTERS, counts)}
+    counters["tree_depth_histogram"] = [int(v) for v in hist]
+    counters["hall_cut_weight"] = float(cut_w[0])
+    counters["depth_cut_weight"] = float(cut_w[1])
+    return np.array(rgb), counters
+
+
+ALGORITHM = register(Algorithm(
+    name="whitted",
+    summary="Whitted ray tracing: eye, shadow, reflection and Fresnel-split transmission rays, "
+            "ray tree with Hall's adaptive depth",
+    section="thesis 2.2, 2.2.1, 2.4.4, 2.4.5.5; Whitted 1980",
+    transport="whitted",
+    params=(
+        Param("spp", int, 1, "pixel samples: 1 = pixel centre, k² = k×k jittered strata (box filter)"),
+        Param("max_depth", int, 10, "deepest ray of a tree branch (eye ray = 1; 1 = ray casting)"),
+        Param("hall_threshold", float, 1e-5, "cut a branch whose weight (every RGB channel) is below this"),
+        Param("light_samples", int, 16, "shadow rays per area emitter per diffuse hit"),
+        Param("ka", float, 0.0, "ambient coefficient k_a (times the diffuse colour)"),
+        Param("ambient", float, 0.0, "ambient intensity I_a"),
+        Param("ks", float, 0.0, "Phong specular coefficient k_s at diffuse hits"),
+        Param("shininess", float, 32.0, "Phong exponent n"),
+        Param("c1", float, 0.0, "f_att constant term"),
+        Param("c2", float, 0.0, "f_att linear term"),
+        Param("c3", float, 1.0, "f_att quadratic term"),
+        Param("fatt_clamp", bool, False, "clamp f_att to 1 (thesis 1.4.2.3)"),
+        Param("shadows", bool, True, "cast shadow rays"),
+    ),
+    render=render,
+))
