@@ -314,6 +314,13 @@ def _record(r: dict, images: _Images, colorbar: str) -> str:
     return "".join(out)
 
 
+def _rays_per_s(r: dict):
+    """Own rays of every type (counters named ``*_rays``) per second of the median render."""
+    rays = sum(v for k, v in _d(r.get("counters")).items() if k.endswith("_rays") and isinstance(v, int))
+    t = _num(_d(r.get("time")).get("own_median_s"))
+    return rays / t if rays and t else None
+
+
 def _timing(records: list[dict]) -> str:
     rows, repeats = [], Counter()
     for r in sorted(records, key=lambda r: (_scene(r), str(r.get("transport")))):
@@ -326,13 +333,15 @@ def _timing(records: list[dict]) -> str:
         rows.append(f"<tr><td>{_e(_scene(r))}</td><td>{_e(r.get('transport'))}</td><td>{_e(_label(r))}</td>"
                     f'<td class="n">{fmt(t.get("own_median_s"), "s")}</td>'
                     f'<td class="n">{fmt(t.get("mitsuba_median_s"), "s")}{spp}</td>'
-                    f'<td class="n">{fmt(t.get("ratio"))}</td></tr>')
+                    f'<td class="n">{fmt(t.get("ratio"))}</td>'
+                    f'<td class="n">{fmt(_rays_per_s(r))}</td></tr>')
     if not rows:
         return "<p>No timings recorded.</p>"
     ks = sorted(repeats)
     n = f"{ks[0]}–{ks[-1]}" if len(ks) > 1 else str(ks[0]) if ks else "N"
     return ("<table><tr><th>Scene</th><th>Transport</th><th>Algorithm</th><th>Own median</th>"
-            "<th>Mitsuba median</th><th>Ratio own/Mitsuba</th></tr>" + "".join(rows) + "</table>"
+            "<th>Mitsuba median</th><th>Ratio own/Mitsuba</th><th>Own rays/s</th></tr>"
+            + "".join(rows) + "</table>"
             f"<p class='small'>{TIMING_NOTE.format(n=n)}. Own and Mitsuba medians were timed in the same run "
             "on the same scene and transport.</p>")
 
