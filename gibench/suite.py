@@ -79,7 +79,8 @@ class Suite:
     reference_passes: int = 8
     repeats: int = 3
     description: str = ""
-    studies: Path | None = None      # hard-case studies configuration (gibench.studies)
+    studies: Path | None = None      # studies configuration (TOML)
+    studies_module: str = "gibench.studies"      # the module whose run_studies/TABLES run it
     pivots: dict = field(default_factory=dict)   # report layout of each study's table
 
 
@@ -142,7 +143,8 @@ def load_suite(path) -> Suite:
                  reference_spp=int(head.get("reference_spp", 1024)),
                  reference_passes=int(head.get("reference_passes", 8)),
                  repeats=int(head.get("repeats", 3)), description=head.get("description", ""),
-                 studies=studies, pivots=dict(data.get("pivot", {})))
+                 studies=studies, studies_module=head.get("studies_module", "gibench.studies"),
+                 pivots=dict(data.get("pivot", {})))
 
 
 def _rel(p: Path) -> str:
@@ -233,8 +235,15 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
 
 
 def run_studies(suite: Suite, *, run_id: str, log=print) -> list[dict]:
-    """The suite's hard-case studies, one record (``kind = "study"``) per table."""
-    from . import studies as st
+    """The suite's studies, one record (``kind = "study"``) per table.
+
+    ``suite.studies_module`` names the module that runs them: its
+    ``run_studies(config_path) -> {name: rows}`` and ``TABLES = {name: (title,
+    description)}``.
+    """
+    import importlib
+
+    st = importlib.import_module(suite.studies_module)
 
     base = {"run_id": run_id, "suite": suite.name, "kind": "study", "algorithm": "study",
             "versions": versions(), "commit": git_commit(), "machine": machine(), "created": utc_now()}

@@ -41,3 +41,4 @@ _source_keyed_cache_dir()
 
 from . import raycast  # noqa: E402,F401  (registers 'raycast')
 from . import whitted  # noqa: E402,F401  (registers 'whitted')
+from . import radiosity  # noqa: E402,F401  (registers 'radiosity')

@@ -1,0 +1,317 @@
+"""Radiosity — registered as ``radiosity`` (thesis chapter 3).
+
+What it computes
+----------------
+The rendering equation (thesis 3.2) restricted to Lambertian surfaces and
+constant radiosity per patch becomes the linear system of 3.2.3,
+
+    B_i = E_i + ρ_i Σ_j F_ij B_j ,
+
+solved once for the whole scene (view-independent), then displayed from the
+scene's camera.  The pipeline (thesis 3.3):
+
+1. mesh every planar shape into patches (:mod:`impl.patches`; ``patch_size``
+   or ``patches``); emitters get E = π L_e, every patch its diffuse ρ (RGB);
+2. form factors (:mod:`impl.form_factors`): ``contour`` (hemisphere / Nusselt
+   analog, 3.4.1, closed form × shadow-ray visibility), ``hemicube`` (3.4.2,
+   ray-cast item buffers) or ``montecarlo`` (area-to-area ray shooting);
+3. solve (:mod:`impl.radiosity_solvers`): ``jacobi``, ``gauss-seidel``,
+   ``progressive`` refinement or the ``direct`` dense solve;
+4. display: eye rays (pixel centres, or k×k jittered strata with a box filter
+   as in ``raycast``) find the visible point; its radiance is B/π, with B
+   constant per patch (``flat``) or interpolated from vertex radiosities
+   (``gouraud``).  An emitter shows B/π = L_e + its reflected light, as
+   Mitsuba's emitters do (the reflected part is tiny for a ceiling light).
+
+Full diffuse interreflection: compared with Mitsuba's path tracer (``full``).
+Mitsuba's ``max_depth`` cuts paths; ``max_bounces = max_depth − 1`` (Jacobi
+for exactly that many bounces, the Neumann series) reproduces that cut, while
+the default −1 solves the full system.
+
+Caching: the mesh's form factors and the solution are cached within the
+process, keyed by a hash of the patch geometry, reflectances and emission and
+by the parameters that affect them; with ``reuse=true`` re-rendering with
+another ``display`` or ``spp`` only redoes the view (off by default, so a
+timed render is the whole method).  Counters report ``formfactor_s``,
+``solve_s`` (as measured when first computed) and ``view_s`` separately, and
+``solve_cached`` says whether this call reused them.
+
+Leaves out: spheres, non-diffuse and two-sided materials (refused with
+``NotImplementedError`` naming the shape), textures (the mean reflectance),
+delta lights (point/spot/directional, refused), adaptive subdivision and
+discontinuity meshing, so shadows are as sharp as the patches are small and
+coarse patches straddling a wall leak light (a study in
+:mod:`gibench.studies_radiosity`).
+
+Parameters
+----------
+============  ======  ============  ===========================================
+name          type    default       meaning
+============  ======  ============  ===========================================
+formfactor    str     contour       contour | hemicube | montecarlo
+hemicube_res  int     64            hemicube top-face resolution (even)
+ff_points     int     1             k: k×k quadrature points on patch i (1 = centre)
+vis_rays      int     4             contour: shadow rays per pair (k²; 0 = none)
+mc_samples    int     1024          montecarlo: rays per patch
+patches       int     256           target patch count (when patch_size = 0)
+patch_size    float   0             target patch edge length (overrides patches)
+solver        str     gauss-seidel  jacobi | gauss-seidel | progressive | direct
+tol           float   1e-8          relative residual to stop at
+max_iter      int     10000         iteration cap (progressive: N shots each)
+max_bounces   int     -1            ≥ 0: Neumann series of that many bounces
+display       str     gouraud       flat | gouraud
+spp           int     1             1 = pixel centre, k² = k×k jittered strata
+ambient       bool    true          progressive: add the ambient term to the display
+============  ======  ============  ===========================================
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import OrderedDict
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from gibench.registry import Algorithm, Param, RenderResult, register
+from gibench.scene import Scene
+
+from .camera import camera_params, eye_ray
+from .form_factors import METHODS, FormFactors, form_factors
+from .patches import PatchMesh, closest_face, locate, mesh_scene, vertex_radiosity
+from .radiosity_solvers import SOLVERS, SolveResult, neumann, residual, solve
+from .rng import uniform
+
+__all__ = ["render", "solve_scene", "display", "Solution", "clear_cache", "ALGORITHM",
+           "DISPLAYS"]
+
+DISPLAYS = ("flat", "gouraud")
+
+#: Most recent form-factor matrices and solutions kept (each F is N² float64).
+CACHE_SIZE = 4
+_FF_CACHE: OrderedDict = OrderedDict()
+_SOLVE_CACHE: OrderedDict = OrderedDict()
+
+_FF_KEYS = ("formfactor", "hemicube_res", "ff_points", "vis_rays", "mc_samples")
+_SOLVE_KEYS = ("solver", "tol", "max_iter", "max_bounces")
+
+
+class Solution(NamedTuple):
+    """A view-independent radiosity solution."""
+
+    mesh: PatchMesh
+    ff: FormFactors
+    result: SolveResult
+    B_display: np.ndarray       # B (+ the ambient term for progressive partial solutions)
+    cached: bool
+
+    def __repr__(self) -> str:
+        return (f"Solution({self.mesh!r}, ff={self.ff.method} {self.ff.seconds:.3f} s, "
+                f"{self.result!r}, cached={self.cached})")
+
+
+def clear_cache() -> None:
+    """Forget every cached form-factor matrix and solution."""
+    _FF_CACHE.clear()
+    _SOLVE_CACHE.clear()
+
+
+def _remember(cache: OrderedDict, key, value):
+    cache[key] = value
+    cache.move_to_end(key)
+    while len(cache) > CACHE_SIZE:
+        cache.popitem(last=False)
+
+
+def _check_lights(scene: Scene) -> None:
+    if scene.lights:
+        kinds = ", ".join(sorted({l.kind for l in scene.lights}))
+        raise NotImplementedError(f"radiosity: the scene has delta lights ({kinds}); radiosity models "
+                                  "area emitters on diffuse polygons only")
+
+
+def _check(params: dict) -> None:
+    spp = params["spp"]
+    k = int(round(math.sqrt(spp)))
+    if spp < 1 or k * k != spp:
+        raise ValueError(f"radiosity: spp must be 1 (pixel centre) or a square k² (k×k strata), got {spp}")
+    if params["ff_points"] < 1:
+        raise ValueError(f"radiosity: ff_points must be >= 1, got {params['ff_points']}")
+    if params["patches"] < 0 or params["patch_size"] < 0:
+        raise ValueError("radiosity: patches and patch_size must be >= 0")
+
+
+def solve_scene(scene: Scene, params: dict, *, seed: int = 0, mesh: PatchMesh | None = None) -> Solution:
+    """Mesh, form factors and solve (cached); ``params`` as parsed by the registry."""
+    _check(params)
+    M = mesh if mesh is not None else mesh_scene(scene, patch_size=params["patch_size"],
+                                                 patches=params["patches"])
+    _check_lights(scene)
+    digest = M.digest()
+    ff_key = (digest,) + tuple(params[k] for k in _FF_KEYS) + ((seed,) if params["formfactor"] == "montecarlo" else ())
+    solve_key = ff_key + tuple(params[k] for k in _SOLVE_KEYS)
+    if params["reuse"] and solve_key in _SOLVE_CACHE:
+        sol = _SOLVE_CACHE[solve_key]
+        return sol._replace(cached=True)
+    ff = _FF_CACHE.get(ff_key) if params["reuse"] else None
+    if ff is None:
+        ff = form_factors(M, params["formfactor"], hemicube_res=params["hemicube_res"],
+                          points=params["ff_points"], vis_rays=params["vis_rays"],
+                          mc_samples=params["mc_samples"], seed=seed)
+        _remember(_FF_CACHE, ff_key, ff)
+    if params["max_bounces"] >= 0:
+        t0 = time.perf_counter()
+        B = neumann(ff.F, M.rho, M.emit, params["max_bounces"])
+        dt = time.perf_counter() - t0
+        r = residual(ff.F, M.rho, M.emit, B)
+        res = SolveResult(B=B, ambient=np.zeros_like(B), iterations=params["max_bounces"], shots=0,
+                          residuals=np.array([r]), times=np.array([dt]), seconds=dt, converged=False,
+                          solver=f"neumann-{params['max_bounces']}")
+    else:
+        res = solve(ff.F, M.rho, M.emit, M.area, params["solver"], tol=params["tol"],
+                    max_iter=params["max_iter"])
+    B_disp = res.B + (res.ambient if params["ambient"] else 0.0)
+    sol = Solution(mesh=M, ff=ff, result=res, B_display=B_disp, cached=False)
+    _remember(_SOLVE_CACHE, solve_key, sol)
+    return sol
+
+
+# ---------------------------------------------------------------- display ---
+
+@njit(cache=True)
+def _shade(M: PatchMesh, B, V, gouraud, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Displayed radiance B/π of the first front-facing surface along an eye ray."""
+    t, f = closest_face(M, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    if f < 0:
+        return 0.0, 0.0, 0.0
+    if dx * M.face_n[f, 0] + dy * M.face_n[f, 1] + dz * M.face_n[f, 2] >= 0.0:
+        return 0.0, 0.0, 0.0                       # back of a one-sided surface: black
+    patch, v0, v1, v2, v3, w0, w1, w2, w3 = locate(M, f, ox + t * dx, oy + t * dy, oz + t * dz)
+    inv_pi = 1.0 / math.pi
+    if not gouraud:
+        return B[patch, 0] * inv_pi, B[patch, 1] * inv_pi, B[patch, 2] * inv_pi
+    r = (w0 * V[v0, 0] + w1 * V[v1, 0] + w2 * V[v2, 0] + w3 * V[v3, 0]) * inv_pi
+    g = (w0 * V[v0, 1] + w1 * V[v1, 1] + w2 * V[v2, 1] + w3 * V[v3, 1]) * inv_pi
+    b = (w0 * V[v0, 2] + w1 * V[v1, 2] + w2 * V[v2, 2] + w3 * V[v3, 2]) * inv_pi
+    return r, g, b
+
+
+@njit(cache=True)
+def _pixel(cam, M: PatchMesh, B, V, gouraud, x, y, spp, seed):
+    """Mean and variance of the mean of one pixel (a function of its own so that
+    the accumulators are private to the thread running the pixel)."""
+    pixel = y * int(cam[14]) + x
+    k = int(math.sqrt(spp) + 0.5)
+    m0 = m1 = m2 = 0.0
+    s0 = s1 = s2 = 0.0
+    for s in range(spp):
+        if spp == 1:
+            fx = 0.5
+            fy = 0.5
+        else:
+            fx = (s % k + uniform(seed, pixel, s, 0)) / k
+            fy = (s // k + uniform(seed, pixel, s, 1)) / k
+        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
+        r, g, b = _shade(M, B, V, gouraud, ox, oy, oz, dx, dy, dz, tmin, tmax)
+        c = s + 1.0
+        d0, d1, d2 = r - m0, g - m1, b - m2
+        m0 += d0 / c
+        m1 += d1 / c
+        m2 += d2 / c
+        s0 += d0 * (r - m0)
+        s1 += d1 * (g - m1)
+        s2 += d2 * (b - m2)
+    norm = 1.0 / (spp * (spp - 1.0)) if spp > 1 else 0.0
+    return m0, m1, m2, s0 * norm, s1 * norm, s2 * norm
+
+
+@njit(parallel=True, cache=True)
+def _display_kernel(cam, M: PatchMesh, B, V, gouraud, spp, seed, mean, var):
+    W, H = int(cam[14]), int(cam[15])
+    for pixel in prange(W * H):
+        x = pixel % W
+        y = pixel // W
+        out = _pixel(cam, M, B, V, gouraud, x, y, spp, seed)
+        mean[y, x, 0] = out[0]
+        mean[y, x, 1] = out[1]
+        mean[y, x, 2] = out[2]
+        var[y, x, 0] = out[3]
+        var[y, x, 1] = out[4]
+        var[y, x, 2] = out[5]
+
+
+def display(scene: Scene, sol: Solution, *, mode: str = "gouraud", spp: int = 1, seed: int = 0):
+    """Image (H, W, 3), variance of the pixel mean (or None) and the view time."""
+    if mode not in DISPLAYS:
+        raise ValueError(f"radiosity: display must be one of {', '.join(DISPLAYS)}, got {mode!r}")
+    t0 = time.perf_counter()
+    M = sol.mesh
+    B = np.ascontiguousarray(sol.B_display)
+    V = vertex_radiosity(M, B) if mode == "gouraud" else np.zeros((1, 3))
+    cam = camera_params(scene.camera)
+    H, W = scene.camera.film.height, scene.camera.film.width
+    mean = np.zeros((H, W, 3))
+    var = np.zeros((H, W, 3))
+    _display_kernel(cam, M, B, V, mode == "gouraud", spp, seed, mean, var)
+    return mean, (var if spp > 1 else None), time.perf_counter() - t0
+
+
+def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
+    t0 = time.perf_counter()
+    sol = solve_scene(scene, params, seed=seed)
+    t_solve_call = time.perf_counter() - t0
+    mean, var, view_s = display(scene, sol, mode=params["display"], spp=params["spp"], seed=seed)
+    res = sol.result
+    r = res.residuals
+    drop = (r[-1] / r[0]) ** (1.0 / max(res.iterations, 1)) if r[0] > 0 and r[-1] > 0 else 0.0
+    decades = math.log10(r[0] / r[-1]) if r[0] > 0 and r[-1] > 0 else float("nan")
+    H, W = mean.shape[:2]
+    counters = {
+        "patches": sol.mesh.n_patches,
+        "formfactor_rays": sol.ff.rays,
+        "camera_rays": int(W * H * params["spp"]),
+        "formfactor_s": sol.ff.seconds,
+        "solve_s": res.seconds,
+        "view_s": view_s,
+        "solve_call_s": t_solve_call,
+        "solve_cached": sol.cached,
+        "solve_iterations": res.iterations,
+        "solve_shots": res.shots,
+        "solve_residual": float(r[-1]),
+        "residual_factor_per_iteration": float(drop),
+        "residual_decades_per_s": float(decades / res.seconds) if res.seconds > 0 else float("nan"),
+        "solve_converged": res.converged,
+    }
+    return RenderResult(image=mean.astype(np.float32),
+                        variance=var.astype(np.float32) if var is not None else None,
+                        counters=counters)
+
+
+ALGORITHM = register(Algorithm(
+    name="radiosity",
+    summary="Radiosity: patches, form factors (contour / hemicube / Monte Carlo), iterative solvers, "
+            "flat or Gouraud display (full diffuse interreflection)",
+    section="thesis 3.2.3-3.4",
+    transport="full",
+    params=(
+        Param("formfactor", str, "contour", "form-factor method", choices=METHODS),
+        Param("hemicube_res", int, 64, "hemicube top-face resolution (even)"),
+        Param("ff_points", int, 1, "k: k×k quadrature points on the emitting patch (1 = centre)"),
+        Param("vis_rays", int, 4, "contour: shadow rays per patch pair (square; 0 = no occlusion test)"),
+        Param("mc_samples", int, 1024, "montecarlo: rays shot per patch"),
+        Param("patches", int, 256, "target patch count (used when patch_size = 0)"),
+        Param("patch_size", float, 0.0, "target patch edge length (0 = use patches)"),
+        Param("solver", str, "gauss-seidel", "linear solver", choices=SOLVERS),
+        Param("tol", float, 1e-8, "relative residual to stop at"),
+        Param("max_iter", int, 10000, "iteration cap (progressive: N shots per iteration)"),
+        Param("max_bounces", int, -1, ">= 0: Neumann series with this many bounces (Mitsuba max_depth - 1)"),
+        Param("display", str, "gouraud", "radiosity display", choices=DISPLAYS),
+        Param("spp", int, 1, "pixel samples: 1 = pixel centre, k² = k×k jittered strata (box filter)"),
+        Param("ambient", bool, True, "progressive: add the ambient term to the displayed radiosity"),
+        Param("reuse", bool, False, "reuse this process's cached form factors and solution (a view-only "
+                                    "re-render); off, every render is timed from meshing to pixels"),
+    ),
+    render=render,
+))

@@ -1,0 +1,159 @@
+"""Radiosity (thesis ch. 3): solvers against the direct solve and the furnace,
+the whole pipeline on a furnace scene, refusals, caching, and convergence to
+Mitsuba's path tracer as the patches are refined."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import impl.radiosity as radiosity  # noqa: F401  (registers 'radiosity')
+from gibench import registry
+from gibench.loader import load_scene
+from impl.form_factors import form_factors
+from impl.radiosity_solvers import SOLVERS, residual, solve
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_form_factors import closed_box  # noqa: E402
+
+SUITES = Path(__file__).resolve().parent.parent / "suites"
+RADIOSITY = registry.get("radiosity")
+SEED = 7
+ITERATIVE = [s for s in SOLVERS if s != "direct"]
+
+
+def render(scene, **params):
+    return RADIOSITY.render(scene, RADIOSITY.parse_params(params))
+
+
+@pytest.fixture(scope="module")
+def occluded_box():
+    M = closed_box(4, block=True)
+    F = form_factors(M, "hemicube", hemicube_res=32).F
+    rng = np.random.default_rng(SEED)
+    rho = rng.uniform(0.2, 0.9, (M.n_patches, 3))
+    E = np.zeros((M.n_patches, 3))
+    E[rng.choice(M.n_patches, 5, replace=False)] = rng.uniform(1, 10, (5, 3))
+    return M, F, rho, E
+
+
+@pytest.mark.parametrize("solver", ITERATIVE)
+def test_iterative_solvers_reach_the_direct_solution(occluded_box, solver):
+    M, F, rho, E = occluded_box
+    ref = solve(F, rho, E, M.area, "direct")
+    assert residual(F, rho, E, ref.B) < 1e-13
+    res = solve(F, rho, E, M.area, solver, tol=1e-12)
+    err = np.abs(res.B - ref.B).max() / np.abs(ref.B).max()
+    print(f"seed {SEED}: {solver}: {res.iterations} iterations, residual {res.residuals[-1]:.2e}, "
+          f"rel. error {err:.2e}, {res.seconds * 1e3:.2f} ms")
+    assert res.converged and err < 1e-6
+    assert len(res.residuals) == len(res.times) == res.iterations + 1
+    assert np.all(np.diff(res.times) >= 0)
+
+
+@pytest.mark.parametrize("rho", [0.5, 0.9, 0.99])
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_white_furnace_box(rho, solver):
+    """A closed box, uniform emission E and reflectance ρ: B = E / (1 − ρ) exactly
+    (the contour form factors of an empty box close to 1e-15)."""
+    M = closed_box(3)
+    F = form_factors(M, "contour").F
+    E = np.full((M.n_patches, 3), 2.0)
+    R = np.full((M.n_patches, 3), rho)
+    res = solve(F, R, E, M.area, solver, tol=1e-12, max_iter=20000)
+    err = np.abs(res.B - 2.0 / (1.0 - rho)).max() / (2.0 / (1.0 - rho))
+    print(f"furnace rho={rho}: {solver}: {res.iterations} iterations ({res.shots} shots), rel. error {err:.2e}")
+    assert res.converged and err < 1e-6
+    if solver != "direct":
+        assert res.iterations < 20000
+
+
+def test_progressive_ambient_term_improves_partial_solutions():
+    M = closed_box(3)
+    F = form_factors(M, "contour").F
+    E = np.zeros((M.n_patches, 3))
+    E[0] = 10.0
+    R = np.full((M.n_patches, 3), 0.8)
+    exact = solve(F, R, E, M.area, "direct").B
+    part = solve(F, R, E, M.area, "progressive", tol=1e-12, max_iter=1)
+    assert not part.converged
+    e_plain = np.abs(part.B - exact).mean()
+    e_amb = np.abs(part.B + part.ambient - exact).mean()
+    print(f"after {part.shots} shots: mean error {e_plain:.3g} without, {e_amb:.3g} with the ambient term")
+    assert e_amb < 0.5 * e_plain
+
+
+FURNACE_XML = """<scene version="3.0.0">
+    <sensor type="perspective">
+        <float name="fov" value="80"/>
+        <transform name="to_world"><lookat origin="0.2, 0.1, 0.5" target="-0.3, -0.2, -1" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="32"/><integer name="height" value="24"/></film>
+    </sensor>
+    <shape type="cube">
+        <boolean name="flip_normals" value="true"/>
+        <bsdf type="diffuse"><rgb name="reflectance" value="{rho}, {rho}, {rho}"/></bsdf>
+        <emitter type="area"><rgb name="radiance" value="1, 0.5, 0.25"/></emitter>
+    </shape>
+</scene>"""
+
+
+@pytest.mark.parametrize("display", ["flat", "gouraud"])
+def test_furnace_scene_displays_le_over_one_minus_rho(tmp_path, display):
+    """Inside a closed emitting box every pixel shows B/π = L_e / (1 − ρ)."""
+    p = tmp_path / "furnace.xml"
+    p.write_text(FURNACE_XML.format(rho=0.75))
+    img = render(load_scene(p), display=display, patches=100, solver="gauss-seidel", tol=1e-12).image
+    expected = np.array([1.0, 0.5, 0.25]) / 0.25
+    assert np.abs(img - expected).max() / expected.max() < 1e-5
+
+
+def test_refuses_spheres_and_non_diffuse(tmp_path):
+    with pytest.raises(NotImplementedError, match="radiosity: shape 'sphere' is a sphere"):
+        render(load_scene(SUITES / "spheres" / "lit_sphere.xml"))
+    p = tmp_path / "metal.xml"
+    p.write_text(FURNACE_XML.format(rho=0.5).replace(
+        '<bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.5, 0.5"/></bsdf>', '<bsdf type="conductor"/>'))
+    with pytest.raises(NotImplementedError, match="'conductor' BSDF"):
+        render(load_scene(p))
+    with pytest.raises(ValueError, match="square"):
+        render(load_scene(SUITES / "cornell" / "cornell_box.xml"), spp=3)
+
+
+def test_solution_is_cached_and_view_independent():
+    scene = load_scene(SUITES / "cornell" / "cornell_box.xml")
+    radiosity.clear_cache()
+    a = render(scene, patches=64, display="flat")
+    b = render(scene, patches=64, display="gouraud", spp=4, reuse=True)
+    assert not a.counters["solve_cached"] and b.counters["solve_cached"]
+    fresh = render(scene, patches=64, display="gouraud", spp=4)      # reuse is off by default
+    assert not fresh.counters["solve_cached"]
+    assert a.counters["solve_s"] == b.counters["solve_s"]
+    for key in ("formfactor_s", "solve_s", "view_s", "solve_iterations", "solve_residual",
+                "residual_decades_per_s", "patches"):
+        assert key in a.counters
+    assert a.counters["solve_converged"] and a.counters["solve_residual"] <= 1e-8
+    c = render(scene, patches=64, display="flat", solver="jacobi", reuse=True)
+    assert not c.counters["solve_cached"]
+    np.testing.assert_allclose(c.image, a.image, rtol=1e-5, atol=1e-6)
+
+
+# ------------------------------------------------ against Mitsuba references ---
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("scene", ["cornell/cornell_box.xml", "cornell/diffuse_room.xml"])
+def test_error_falls_with_patch_refinement_against_mitsuba_full(scene):
+    from references.reference import get_reference
+    from reports.metrics import mae, relmse
+
+    ref = get_reference(SUITES / scene, transport="full", spp=1024, passes=8)
+    sc = load_scene(SUITES / scene)
+    rows = []
+    for n in (64, 256, 1024):
+        img = render(sc, patches=n, spp=4).image
+        rows.append((n, relmse(ref.image, img), mae(ref.image, img)))
+    print(scene, rows)
+    rel = [r[1] for r in rows]
+    abs_ = [r[2] for r in rows]
+    assert rel[0] > rel[1] > rel[2] and abs_[0] > abs_[1] > abs_[2], rows
+    assert rel[2] < 0.5 * rel[0]
