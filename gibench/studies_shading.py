@@ -1,0 +1,204 @@
+"""Studies of the polygon pipeline: shading error vs tessellation, z-fighting, visibility.
+
+Each study returns its table as a list of flat dicts of scalars (every
+parameter and every measured number in each row), like :mod:`gibench.studies`.
+
+========================  ====================================================
+study                     what it measures
+========================  ====================================================
+``shading_convergence``   error of flat / Gouraud / Phong shading of a
+                          tessellated sphere against the exact per-pixel
+                          Phong model on the analytic sphere (ray casting,
+                          same parameters, shadows off), with triangle count
+                          and render time, per mode × tessellation
+``zfighting``             pixels where the farther of two nearly coplanar
+                          surfaces wins, per depth format × near plane
+``visibility``            agreement of the shape-id and depth AOVs of
+                          ``zbuffer`` and ``depthsort`` with ray casting of
+                          the same meshes, per scene
+========================  ====================================================
+
+Error metric of ``shading_convergence``: relMSE (ε = 0.01, linear radiance,
+:func:`reports.metrics.relmse`) and the mean absolute relative error over
+the pixels whose centre ray hits the sphere in both images and whose 3×3
+neighbourhood is all sphere in the reference (silhouette pixels left out:
+the inscribed polyhedron's outline is a geometry error, not a shading one).
+Times are medians of ``repeats`` renders after an untimed warm-up.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+
+from impl import depth_sort, raycast, zbuffer
+from impl.raycast import cast_primary
+from impl.tessellate import sphere_triangle_count, tessellated_scene
+from reports.metrics import relmse
+
+from .loader import load_scene
+from .provenance import REPO_ROOT
+
+__all__ = ["STUDIES", "TABLES", "boundary_mask", "shading_convergence", "zfighting", "visibility", "run_studies"]
+
+SUITES = REPO_ROOT / "suites"
+ALGORITHMS = {"zbuffer": zbuffer.ALGORITHM, "depthsort": depth_sort.ALGORITHM}
+
+
+def _scene(scene):
+    p = Path(scene)
+    return load_scene(p if p.is_absolute() else SUITES / p)
+
+
+def boundary_mask(shape_id: np.ndarray) -> np.ndarray:
+    """Pixels whose 3×3 neighbourhood holds more than one shape id (silhouettes and shape borders)."""
+    H, W = shape_id.shape
+    p = np.pad(shape_id, 1, mode="edge")
+    out = np.zeros((H, W), bool)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            out |= p[1 + dy:1 + dy + H, 1 + dx:1 + dx + W] != shape_id
+    return out
+
+
+def _timed(fn, repeats):
+    fn()                                           # warm-up: JIT compilation, caches
+    times = []
+    out = None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return out, statistics.median(times)
+
+
+def shading_convergence(*, scene="spheres/lit_sphere.xml", tessellations=(8, 16, 32, 64, 128),
+                        modes=("flat", "gouraud", "phong"), algorithm="zbuffer", ks=0.0, shininess=32.0,
+                        ka=0.0, ambient=0.0, repeats=3) -> list[dict]:
+    """Rows (mode, tessellation, triangles, relmse, mean_rel_err, time_ms, pixels) per mode × tessellation."""
+    sc = _scene(scene)
+    phong = {"ks": ks, "shininess": shininess, "ka": ka, "ambient": ambient}
+    rc = raycast.ALGORITHM
+    exact = rc.render(sc, rc.parse_params(dict(phong, shadows=False)), seed=0).image.astype(np.float64)
+    _, ref_id = cast_primary(sc)
+    spheres = [i for i, s in enumerate(sc.shapes) if s.kind == "sphere"]
+    if not spheres:
+        raise ValueError(f"shading_convergence: {scene} has no sphere")
+    interior = np.isin(ref_id, spheres) & ~boundary_mask(ref_id)
+    algo = ALGORITHMS[algorithm]
+    rows = []
+    for n in tessellations:
+        for mode in modes:
+            params = algo.parse_params(dict(phong, shading=mode, tessellation=n))
+            res, t = _timed(lambda: algo.render(sc, params, seed=0), repeats)
+            mask = interior & (res.aovs["shape_id"] == ref_id)
+            img = res.image.astype(np.float64)
+            ref_px, img_px = exact[mask][:, None, :], img[mask][:, None, :]
+            scale = np.maximum(ref_px, 1e-3 * exact.max())
+            rows.append({"scene": str(scene), "algorithm": algorithm, "mode": mode, "tessellation": int(n),
+                         "triangles": sphere_triangle_count(n) * len(spheres), "ks": ks,
+                         "relmse": float(relmse(ref_px, img_px)),
+                         "mean_rel_err": float(np.mean(np.abs(img_px - ref_px) / scale)),
+                         "time_ms": 1e3 * t, "pixels": int(mask.sum())})
+    return rows
+
+
+def zfighting(*, scene="spheres/coplanar.xml", nears=(1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0), far=None,
+              depths=("float32", "fixed24", "fixed16")) -> list[dict]:
+    """Rows (depth, near, far, fight_pixels, fight_frac, predicted_dz_max) per depth format × near plane.
+
+    The scene's shapes are drawn in file order (farther surface first); a
+    *z-fighting pixel* is one whose pixel-centre ray hits the nearer surface
+    (ray casting) but the z-buffer keeps the farther one.  ``predicted_dz_max``
+    is the depth resolution at the largest visible distance z_max,
+    Δz ≈ z_max² (f − n) / (f n) · δ_w with δ_w the buffer's step (2⁻²⁴ relative
+    near 1 for float32, 1/(2^b − 1) for b-bit fixed point).
+    """
+    base = _scene(scene)
+    algo = zbuffer.ALGORITHM
+    rows = []
+    for near in nears:
+        cam = dataclasses.replace(base.camera, near_clip=float(near),
+                                  far_clip=float(far) if far is not None else base.camera.far_clip)
+        sc = dataclasses.replace(base, camera=cam)
+        depth_rc, ref_id = cast_primary(sc)
+        zmax = float(np.max(depth_rc[np.isfinite(depth_rc)]))
+        nearer = ref_id == len(sc.shapes) - 1       # the last shape: the nearer surface
+        for fmt in depths:
+            res = algo.render(sc, algo.parse_params({"depth": fmt, "shading": "flat"}), seed=0)
+            fight = nearer & (res.aovs["shape_id"] != ref_id)
+            step = {"float32": 2.0 ** -24, "fixed24": 1.0 / (2 ** 24 - 1), "fixed16": 1.0 / (2 ** 16 - 1)}[fmt]
+            f, n = cam.far_clip, cam.near_clip
+            rows.append({"scene": str(scene), "depth": fmt, "near": float(near), "far": float(f),
+                         "fight_pixels": int(fight.sum()), "nearer_pixels": int(nearer.sum()),
+                         "fight_frac": float(fight.sum() / max(nearer.sum(), 1)),
+                         "predicted_dz_max": zmax ** 2 * (f - n) / (f * n) * step})
+    return rows
+
+
+def visibility(*, scenes=("spheres/lit_sphere.xml", "spheres/spot_directional.xml", "spheres/meshes.xml",
+                          "cornell/cornell_point.xml", "cornell/cornell_box.xml", "spheres/cyclic_overlap.xml",
+                          "spheres/interpenetrating.xml"),
+               algorithms=("zbuffer", "depthsort"), tessellation=64, cull=True) -> list[dict]:
+    """Rows (scene, algorithm, identical, identical_off_boundary, depth_max_rel, depth_frac_1e-4) against
+    ray casting of the same tessellated scene at pixel centres."""
+    rows = []
+    for scene in scenes:
+        sc = _scene(scene)
+        d_rc, id_rc = cast_primary(tessellated_scene(sc, tessellation))
+        inner = ~boundary_mask(id_rc)
+        for name in algorithms:
+            algo = ALGORITHMS[name]
+            res = algo.render(sc, algo.parse_params({"tessellation": tessellation, "cull": cull}), seed=0)
+            same = res.aovs["shape_id"] == id_rc
+            both = same & np.isfinite(d_rc)
+            rel = np.abs(res.aovs["depth"][both] - d_rc[both]) / d_rc[both]
+            rows.append({"scene": str(scene), "algorithm": name, "tessellation": tessellation, "cull": cull,
+                         "identical": float(same.mean()), "identical_off_boundary": float(same[inner].mean()),
+                         "depth_max_rel": float(rel.max()) if rel.size else 0.0,
+                         "depth_frac_1e-4": float(np.mean(rel <= 1e-4)) if rel.size else 1.0,
+                         "splits": int(res.counters.get("splits", 0))})
+    return rows
+
+
+#: name → (title, description, function)
+STUDIES = {
+    "shading_convergence": ("Shading error vs tessellation",
+                            "Flat, Gouraud and Phong shading of a UV-sphere mesh against the exact per-pixel "
+                            "Phong model on the analytic sphere (ray casting, shadows off): relMSE and mean "
+                            "relative error over interior sphere pixels, triangles and render time (thesis 1.5).",
+                            shading_convergence),
+    "zfighting": ("Z-fighting vs near plane and depth format",
+                  "Two surfaces 0.01 apart seen at a slant: pixels where the z-buffer keeps the farther one, "
+                  "per depth format (float32, 24- and 16-bit fixed point) and near clip distance (thesis 1.3.1).",
+                  zfighting),
+    "visibility": ("Visibility against ray casting",
+                   "Shape id and depth at pixel centres of zbuffer and depthsort against ray casting the same "
+                   "meshes (thesis 1.3.1, 1.3.2, 1.3.3).",
+                   visibility),
+}
+TABLES = {k: v[:2] for k, v in STUDIES.items()}
+
+
+def run_studies(config: dict | str | Path | None = None, *, only=None) -> dict[str, list[dict]]:
+    """Run the studies: ``config`` maps a study name to its keyword arguments
+    (default: every study with its defaults), or is a TOML file of such tables
+    (``suites/visibility/studies.toml``); ``{"enabled": False}`` skips one."""
+    if isinstance(config, (str, Path)):
+        import tomllib
+
+        config = tomllib.loads(Path(config).read_text())
+    config = {k: {} for k in STUDIES} if config is None else config
+    out = {}
+    for name, kwargs in config.items():
+        if name not in STUDIES:
+            raise ValueError(f"unknown study '{name}' (valid: {', '.join(STUDIES)})")
+        kwargs = dict(kwargs)
+        if not kwargs.pop("enabled", True) or (only is not None and name not in only):
+            continue
+        out[name] = STUDIES[name][2](**kwargs)
+    return out
