@@ -66,7 +66,7 @@ __all__ = [
     "like",
     "ray_sphere", "ray_sphere_algebraic", "ray_sphere_geometric", "ray_sphere_stable",
     "ray_plane", "polygon_plane", "ray_polygon", "ray_triangle", "ray_box", "ray_box_inv",
-    "closest_hit", "any_hit",
+    "closest_hit", "any_hit", "ray_sphere_form", "closest_hit_form", "any_hit_form",
     "SPHERE_FORMS", "ray_sphere_batch", "ray_triangle_batch", "ray_box_batch",
 ]
 
@@ -422,6 +422,52 @@ def any_hit(ox, oy, oz, dx, dy, dz, tmin, tmax, sph_center, sph_radius, tri_v):
     for j in range(tri_v.shape[0]):
         t, b1, b2 = ray_triangle(ox, oy, oz, dx, dy, dz, tri_v[j], tmin, tmax)
         if t > 0.0:
+            return True
+    return False
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def ray_sphere_form(form, ox, oy, oz, dx, dy, dz, cx, cy, cz, r, tmin, tmax):
+    """The ray–sphere test of form code ``form`` (index into :data:`SPHERE_FORMS`:
+    0 algebraic, 1 geometric, 2 stable)."""
+    if form == 2:
+        return ray_sphere_stable(ox, oy, oz, dx, dy, dz, cx, cy, cz, r, tmin, tmax)
+    if form == 0:
+        return ray_sphere_algebraic(ox, oy, oz, dx, dy, dz, cx, cy, cz, r, tmin, tmax)
+    return ray_sphere_geometric(ox, oy, oz, dx, dy, dz, cx, cy, cz, r, tmin, tmax)
+
+
+@njit(cache=True)
+def closest_hit_form(form, ox, oy, oz, dx, dy, dz, tmin, tmax, sph_center, sph_radius, tri_v):
+    """:func:`closest_hit` with the ray–sphere form chosen by ``form`` (see
+    :func:`ray_sphere_form`); the precision follows the arguments' dtype."""
+    best_t, best_p = tmax, -1
+    bb1 = bb2 = like(tri_v, 0.0)
+    zero = like(tri_v, 0.0)
+    ns = sph_radius.shape[0]
+    for i in range(ns):
+        t = ray_sphere_form(form, ox, oy, oz, dx, dy, dz, sph_center[i, 0], sph_center[i, 1],
+                            sph_center[i, 2], sph_radius[i], tmin, best_t)
+        if t > zero:
+            best_t, best_p = t, i
+    for j in range(tri_v.shape[0]):
+        t, b1, b2 = ray_triangle(ox, oy, oz, dx, dy, dz, tri_v[j], tmin, best_t)
+        if t > zero:
+            best_t, best_p, bb1, bb2 = t, ns + j, b1, b2
+    return best_t, best_p, bb1, bb2
+
+
+@njit(cache=True)
+def any_hit_form(form, ox, oy, oz, dx, dy, dz, tmin, tmax, sph_center, sph_radius, tri_v):
+    """:func:`any_hit` with the ray–sphere form chosen by ``form``."""
+    zero = like(tri_v, 0.0)
+    for i in range(sph_radius.shape[0]):
+        if ray_sphere_form(form, ox, oy, oz, dx, dy, dz, sph_center[i, 0], sph_center[i, 1],
+                           sph_center[i, 2], sph_radius[i], tmin, tmax) > zero:
+            return True
+    for j in range(tri_v.shape[0]):
+        t, b1, b2 = ray_triangle(ox, oy, oz, dx, dy, dz, tri_v[j], tmin, tmax)
+        if t > zero:
             return True
     return False
 

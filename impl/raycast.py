@@ -39,7 +39,16 @@ shininess      float   32       Phong exponent n
 c1, c2, c3     float   0, 0, 1  f_att = 1 / (c1 + c2 d + c3 d²)
 fatt_clamp     bool    false    clamp f_att to 1, as the thesis does
 shadows        bool    true     cast shadow rays
+intersect      str     stable   ray–sphere form of every sphere test
+precision      str     float64  precision of the intersection arithmetic
+offset         str     robust   epsilon | normal | robust: how shadow rays
+                                leave the surface
+epsilon        float   1e-4     ε of offset=epsilon / normal (scene units)
 =============  ======  =======  ==============================================
+
+The last four are the ray configuration of :mod:`impl.rays` (shared with
+``whitted``, which documents them in full).  Before they existed shadow rays
+left the surface p + 1e-7·(1 + max|p_i|)·n.
 """
 
 from __future__ import annotations
@@ -54,7 +63,9 @@ from gibench.scene import Scene
 
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
-from .lighting import diffuse_albedo, direct_light, surface
+from .lighting import diffuse_albedo, direct_light_rays, surface
+from .rays import PARAMS as RAY_PARAMS
+from .rays import RayConfig, hit, ray_config, refine, round_ray
 from .rng import uniform
 from .scene_arrays import SceneArrays, flatten
 
@@ -62,15 +73,16 @@ __all__ = ["render", "cast_primary", "ALGORITHM"]
 
 
 @njit(cache=True)
-def _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, ka, ambient, ks, shininess,
-              c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, sample):
+def _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, R: RayConfig, ka, ambient, ks,
+              shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, sample):
     """Radiance along one eye ray: emitted + ambient + Phong direct; (r, g, b, shadow rays)."""
-    t, prim, b1, b2 = closest_hit(ox, oy, oz, dx, dy, dz, tmin, tmax, A.sph_center, A.sph_radius, A.tri_v)
+    ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
+    t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if prim < 0:
         return 0.0, 0.0, 0.0, 0
     ns = A.sph_radius.shape[0]
     shape = A.prim_shape[prim]
-    px, py, pz = ox + t * dx, oy + t * dy, oz + t * dz
+    px, py, pz = refine(R, prim, ox + t * dx, oy + t * dy, oz + t * dz)
     gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
                                       A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
     vx, vy, vz = -dx, -dy, -dz
@@ -88,14 +100,14 @@ def _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, ka, ambient, k
         return r, g, b, 0
     rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
     amb = ambient * ka
-    dr_, dg_, db_, nsh = direct_light(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
-                                 A, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                                 seed, pixel, sample)
+    dr_, dg_, db_, nsh = direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+                                           rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3,
+                                           fclamp, shadows, light_samples, seed, pixel, sample, R)
     return r + amb * rho_r + dr_, g + amb * rho_g + dg_, b + amb * rho_b + db_, nsh
 
 
 @njit(cache=True)
-def _pixel(cam, A: SceneArrays, x, y, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+def _pixel(cam, A: SceneArrays, R: RayConfig, x, y, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
            light_samples, seed):
     """Mean and variance of the mean of one pixel's samples, and its shadow-ray count.
 
@@ -119,7 +131,7 @@ def _pixel(cam, A: SceneArrays, x, y, spp, ka, ambient, ks, shininess, c1, c2, c
             fx = (s % k + uniform(seed, pixel, s, 0)) / k
             fy = (s // k + uniform(seed, pixel, s, 1)) / k
         ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-        r, g, b, n = _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A, ka, ambient, ks, shininess,
+        r, g, b, n = _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A, R, ka, ambient, ks, shininess,
                                c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, s)
         nsh += n
         # Welford's running mean and sum of squared deviations.
@@ -138,13 +150,13 @@ def _pixel(cam, A: SceneArrays, x, y, spp, ka, ambient, ks, shininess, c1, c2, c
 
 
 @njit(parallel=True, cache=True)
-def _render_kernel(cam, A: SceneArrays, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+def _render_kernel(cam, A: SceneArrays, R: RayConfig, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
                    light_samples, seed, mean, var, shadow_count):
     W, H = int(cam[14]), int(cam[15])
     for pixel in prange(W * H):
         x = pixel % W
         y = pixel // W
-        out = _pixel(cam, A, x, y, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+        out = _pixel(cam, A, R, x, y, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
                      light_samples, seed)
         mean[y, x, 0] = out[0]
         mean[y, x, 1] = out[1]
@@ -201,7 +213,8 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     mean = np.zeros((H, W, 3))
     var = np.zeros((H, W, 3))
     shadow = np.zeros((H, W), dtype=np.int64)
-    _render_kernel(cam, A, spp, params["ka"], params["ambient"], params["ks"], params["shininess"],
+    R = ray_config(A, params, algorithm="raycast")
+    _render_kernel(cam, A, R, spp, params["ka"], params["ambient"], params["ks"], params["shininess"],
                    params["c1"], params["c2"], params["c3"], params["fatt_clamp"], params["shadows"],
                    params["light_samples"], seed, mean, var, shadow)
     counters = {"camera_rays": int(W * H * spp), "shadow_rays": int(shadow.sum())}
@@ -227,6 +240,7 @@ ALGORITHM = register(Algorithm(
         Param("c3", float, 1.0, "f_att quadratic term"),
         Param("fatt_clamp", bool, False, "clamp f_att to 1 (thesis 1.4.2.3)"),
         Param("shadows", bool, True, "cast shadow rays"),
+        *RAY_PARAMS,
     ),
     render=render,
 ))

@@ -1,0 +1,195 @@
+"""How the ray tracers intersect and spawn rays: ray–sphere form, precision, offset.
+
+The three choices of thesis 2.3.3–2.3.4 that decide a ray tracer's numerical
+robustness, shared by ``whitted`` and ``raycast`` (their parameters
+``intersect``, ``precision``, ``offset`` and ``epsilon``):
+
+=========  ==========================  =======  ===================================
+parameter  values                      default  meaning
+=========  ==========================  =======  ===================================
+intersect  algebraic|geometric|stable  stable   ray–sphere form of *every* sphere
+                                                test (eye, secondary, shadow rays;
+                                                :mod:`impl.intersect`)
+precision  float32|float64             float64  precision of the intersection
+                                                arithmetic
+offset     epsilon|normal|robust       robust   how secondary and shadow rays leave
+                                                a surface (:mod:`impl.offset`)
+epsilon    float                       1e-4     ε of ``epsilon`` and ``normal``
+                                                (scene units)
+=========  ==========================  =======  ===================================
+
+Precision.  With ``float32`` every ray is rounded to float32 before it is
+intersected (origin and direction; the ray tracer then shades the rounded
+ray, so the hit point lies on the ray that was intersected), the primitives
+are float32 copies of the scene's coordinates, and the kernels of
+:mod:`impl.intersect` compute in float32, as do the sphere-hit refinement
+(:func:`refine`) and the offset; ``t`` and the barycentrics come back as
+float64.  The shading — hit point ``o + t d``, normals, Fresnel,
+lights — stays float64: the precision problems of thesis 2.3.4 (a sphere lost
+to cancellation, the hit point's error that causes shadow acne) are those of
+the intersection computation, and keeping shading in float64 isolates them
+from the (much smaller) rounding of the radiance sums.
+
+Offset.  A ray leaving the surface at ``p`` on the side of the geometric
+normal ``n`` (flipped for transmission and for a light behind the surface):
+
+* ``epsilon`` — origin ``p``, hits with ``t <= epsilon`` ignored (t_min ε
+  along the ray; thesis 2.3.4);
+* ``normal`` — origin ``p + epsilon·n``, t_min = 0;
+* ``robust`` — origin moved by 256 ulps of each coordinate along ``n``
+  (Wächter & Binder 2019, :func:`impl.offset.offset_ray`), computed in the
+  chosen precision, t_min = 0.  No parameter: the offset follows the
+  magnitude of ``p``.
+
+Shadow rays go from their offset origin ``o`` to the light point ``y`` and
+stop at ``|y − o|·(1 − s)`` (``s`` = 1e-9 for point/spot lights and 1e-7 for
+area emitters in float64, 1e-4 in float32, where the emitter's own ``t``
+carries a relative error of several float32 ulps).
+
+Before issue 3 the ray tracers used a fixed rule: origin
+``p + 1e-7·(1 + max|p_i|)·n`` (:func:`impl.offset.offset_scaled`), stable
+form, float64, no refinement — still the offset rule of
+:func:`impl.lighting.direct_light` for its other callers
+(:func:`legacy_config`), whose shadow rays are now also aimed from the offset
+origin.
+
+Performance: the precision is the dtype of :class:`RayConfig`'s primitive
+arrays, so each precision is its own compiled specialisation (a run-time
+precision branch made the default 1.6× slower; so did a separate call path
+for the stable form).  Measured on ``suites/spheres/glass_sphere.xml`` at
+16 spp (2-core shared VM, medians of 9 renders, old and new alternated):
+wall time 0.21–0.26 s before and after; single-thread CPU time 0.37 s before,
+0.40 s after (+6 %: the refinement and the offsets' extra arithmetic).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from gibench.registry import Param
+
+from .intersect import SPHERE_FORMS, any_hit_form, closest_hit_form, like
+from .offset import STRATEGIES, spawn
+
+__all__ = ["RayConfig", "ray_config", "legacy_config", "PARAMS", "INTERSECT", "PRECISIONS",
+           "OFFSETS", "hit", "refine", "occluded", "leave", "round_ray"]
+
+INTERSECT = SPHERE_FORMS                       # ("algebraic", "geometric", "stable")
+PRECISIONS = ("float32", "float64")
+OFFSETS = ("epsilon", "normal", "robust")
+#: The offset names as :func:`impl.offset.spawn` strategy codes.
+_OFFSET_CODE = {"epsilon": STRATEGIES.index("tmin"), "normal": STRATEGIES.index("normal"),
+                "robust": STRATEGIES.index("robust")}
+_SCALED = STRATEGIES.index("scaled")
+
+#: The parameter-table rows of the ray tracers that take a ray configuration.
+PARAMS = (
+    Param("intersect", str, "stable", "ray-sphere form of every sphere test (eye, secondary, "
+          "shadow rays)", choices=INTERSECT),
+    Param("precision", str, "float64", "precision of the intersection arithmetic (rays and "
+          "primitives rounded to it; shading stays float64)", choices=PRECISIONS),
+    Param("offset", str, "robust", "how secondary and shadow rays leave a surface: t_min = ε, "
+          "origin + ε·n, or Wächter-Binder ulp offset", choices=OFFSETS),
+    Param("epsilon", float, 1e-4, "ε of offset=epsilon (t_min) and offset=normal (scene units)"),
+)
+
+
+class RayConfig(NamedTuple):
+    """The ray configuration as numba kernel input (one typed argument).
+
+    The precision is the dtype of the primitive arrays: float64 configurations
+    carry the scene's own arrays, float32 ones rounded copies, so numba compiles
+    one specialisation of each kernel per precision and neither carries the
+    other's code (the form and offset strategy are run-time codes).
+    """
+
+    form: int                   # ray–sphere form code (index into SPHERE_FORMS)
+    strategy: int               # impl.offset.spawn strategy code
+    eps: float                  # its ε
+    shrink_point: float         # shadow rays to point/spot lights end at d·(1 − shrink)
+    shrink_area: float          # shadow rays to area emitters end at d·(1 − shrink)
+    sph_center: np.ndarray      # (S, 3) the primitives in the intersection precision
+    sph_radius: np.ndarray      # (S,)
+    tri_v: np.ndarray           # (T, 3, 3)
+
+
+def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
+    """The :class:`RayConfig` of parameters ``intersect``, ``precision``, ``offset``
+    and ``epsilon`` for the flattened scene ``A``."""
+    eps = float(params["epsilon"])
+    if not (eps >= 0.0 and np.isfinite(eps)):
+        raise ValueError(f"{algorithm}: epsilon must be finite and >= 0, got {eps}")
+    single = params["precision"] == "float32"
+    F = np.float32 if single else np.float64
+    return RayConfig(form=SPHERE_FORMS.index(params["intersect"]),
+                     strategy=_OFFSET_CODE[params["offset"]], eps=eps,
+                     shrink_point=1e-4 if single else 1e-9,
+                     shrink_area=1e-4 if single else 1e-7,
+                     sph_center=np.ascontiguousarray(A.sph_center, dtype=F),
+                     sph_radius=np.ascontiguousarray(A.sph_radius, dtype=F),
+                     tri_v=np.ascontiguousarray(A.tri_v, dtype=F))
+
+
+@njit(cache=True)
+def legacy_config(A, eps):
+    """The rule before issue 3: stable form, float64, origin p + eps·(1 + max|p_i|)·n."""
+    return RayConfig(2, _SCALED, eps, 1e-9, 1e-7, A.sph_center, A.sph_radius, A.tri_v)
+
+
+@njit(inline="always", cache=True)
+def round_ray(R: RayConfig, ox, oy, oz, dx, dy, dz):
+    """The ray as the intersection sees it: rounded to R's precision (float64 values)."""
+    g = R.sph_radius
+    return (float(like(g, ox)), float(like(g, oy)), float(like(g, oz)),
+            float(like(g, dx)), float(like(g, dy)), float(like(g, dz)))
+
+
+@njit(inline="always", cache=True)
+def hit(R: RayConfig, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Closest hit ``(t, prim, b1, b2)`` (float64 t and barycentrics) in R's form and precision."""
+    g = R.sph_radius
+    t, prim, b1, b2 = closest_hit_form(R.form, like(g, ox), like(g, oy), like(g, oz),
+                                       like(g, dx), like(g, dy), like(g, dz),
+                                       like(g, tmin), like(g, tmax),
+                                       R.sph_center, R.sph_radius, R.tri_v)
+    return float(t), prim, float(b1), float(b2)
+
+
+@njit(inline="always", cache=True)
+def refine(R: RayConfig, prim, px, py, pz):
+    """The hit point p = o + t d refined, in R's precision (pbrt's "refine sphere
+    intersection point"): on a sphere, projected onto it, p = c + r (p − c)/|p − c|,
+    which leaves an error of a few ulps of p instead of ~u·|o| + u·t (the offsets'
+    256 ulps clear the former, not the latter: measured on ``nested_glass``, the
+    robust offset without it lets ~5 % of the transmitted rays re-hit their own
+    sphere).  Triangle hits are returned unchanged."""
+    g = R.sph_radius
+    if prim >= g.shape[0]:
+        return px, py, pz
+    cx, cy, cz, r = R.sph_center[prim, 0], R.sph_center[prim, 1], R.sph_center[prim, 2], g[prim]
+    qx, qy, qz = like(g, px) - cx, like(g, py) - cy, like(g, pz) - cz
+    k = r / math.sqrt(qx * qx + qy * qy + qz * qz)
+    return float(cx + k * qx), float(cy + k * qy), float(cz + k * qz)
+
+
+@njit(inline="always", cache=True)
+def occluded(R: RayConfig, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Whether anything lies on the ray within (tmin, tmax), in R's form and precision."""
+    g = R.sph_radius
+    return any_hit_form(R.form, like(g, ox), like(g, oy), like(g, oz), like(g, dx), like(g, dy),
+                        like(g, dz), like(g, tmin), like(g, tmax),
+                        R.sph_center, R.sph_radius, R.tri_v)
+
+
+@njit(inline="always", cache=True)
+def leave(R: RayConfig, px, py, pz, nx, ny, nz):
+    """Origin and t_min ``(ox, oy, oz, tmin)`` of a ray leaving p on the side of the
+    unit normal n, by R's strategy, computed in R's precision (float64 results)."""
+    g = R.sph_radius
+    ox, oy, oz, t0 = spawn(R.strategy, like(g, px), like(g, py), like(g, pz),
+                           like(g, nx), like(g, ny), like(g, nz), like(g, R.eps))
+    return float(ox), float(oy), float(oz), float(t0)
