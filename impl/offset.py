@@ -16,7 +16,7 @@ tmin       origin p, hits below ``tmin = eps`` ignored   eps (absolute)
 normal     origin p + eps·n, tmin = 0                    eps (absolute)
 scaled     origin p + eps·(1 + max|p_i|)·n, tmin = 0     eps (relative; the
                                                          rule of
-                                                         ``impl.raycast``)
+                                                         ``direct_light``)
 robust     origin moved by integer ulps ∝ n, tmin = 0    none (Wächter &
                                                          Binder 2019)
 =========  ===========================================  =====================
@@ -172,7 +172,7 @@ def offset_normal(px, py, pz, nx, ny, nz, eps):
 def offset_scaled(px, py, pz, nx, ny, nz, eps):
     """Origin p + eps·(1 + max|p_i|)·n: an offset relative to the magnitude of p
     (so that it stays above the rounding error, about u·|p|, far from the
-    origin), as ``impl.raycast`` does with ``SHADOW_EPSILON``; use it with tmin = 0."""
+    origin), as ``impl.lighting.direct_light`` does with ``SHADOW_EPSILON``; use it with tmin = 0."""
     m = max(abs(px), abs(py), abs(pz))
     return offset_normal(px, py, pz, nx, ny, nz, eps * (like(px, 1.0) + m))
 
