@@ -241,7 +241,6 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     from references.reference import ReferenceMissing
     from references.reference import SceneError as MitsubaSceneError
-    from reports.results import ResultStoreWarning  # noqa: F401  (warnings are shown as they are)
 
     from .imageio import ImageError
     from .loader import SceneError

@@ -25,7 +25,21 @@ import math
 
 from numba import njit
 
-__all__ = ["attenuation", "phong_brdf_cos"]
+from gibench.registry import Param
+
+__all__ = ["attenuation", "phong_brdf_cos", "PHONG_PARAMS"]
+
+#: The model's coefficients as algorithm parameters (they are not scene content).
+PHONG_PARAMS = (
+    Param("ka", float, 0.0, "ambient coefficient k_a (times the diffuse colour)"),
+    Param("ambient", float, 0.0, "ambient intensity I_a"),
+    Param("ks", float, 0.0, "specular coefficient k_s"),
+    Param("shininess", float, 32.0, "Phong exponent n"),
+    Param("c1", float, 0.0, "f_att constant term"),
+    Param("c2", float, 0.0, "f_att linear term"),
+    Param("c3", float, 1.0, "f_att quadratic term"),
+    Param("fatt_clamp", bool, False, "clamp f_att to 1 (thesis 1.4.2.3)"),
+)
 
 INV_PI = 1.0 / math.pi
 

@@ -82,7 +82,7 @@ from .camera import camera_params, eye_ray
 from .form_factors import METHODS, FormFactors, form_factors
 from .patches import PatchMesh, closest_face, locate, mesh_scene, vertex_radiosity
 from .radiosity_solvers import SOLVERS, SolveResult, neumann, residual, solve
-from .rng import uniform
+from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
 
 __all__ = ["render", "solve_scene", "display", "Solution", "clear_cache", "ALGORITHM",
            "DISPLAYS"]
@@ -133,10 +133,7 @@ def _check_lights(scene: Scene) -> None:
 
 
 def _check(params: dict) -> None:
-    spp = params["spp"]
-    k = int(round(math.sqrt(spp)))
-    if spp < 1 or k * k != spp:
-        raise ValueError(f"radiosity: spp must be 1 (pixel centre) or a square k² (k×k strata), got {spp}")
+    check_spp(params["spp"], "radiosity")
     if params["ff_points"] < 1:
         raise ValueError(f"radiosity: ff_points must be >= 1, got {params['ff_points']}")
     if params["patches"] < 0 or params["patch_size"] < 0:
@@ -203,28 +200,16 @@ def _pixel(cam, M: PatchMesh, B, V, gouraud, x, y, spp, seed):
     """Mean and variance of the mean of one pixel (a function of its own so that
     the accumulators are private to the thread running the pixel)."""
     pixel = y * int(cam[14]) + x
-    k = int(math.sqrt(spp) + 0.5)
+    k = strata(spp)
     m0 = m1 = m2 = 0.0
-    s0 = s1 = s2 = 0.0
+    q0 = q1 = q2 = 0.0
     for s in range(spp):
-        if spp == 1:
-            fx = 0.5
-            fy = 0.5
-        else:
-            fx = (s % k + uniform(seed, pixel, s, 0)) / k
-            fy = (s // k + uniform(seed, pixel, s, 1)) / k
+        fx, fy = pixel_sample(spp, k, s, seed, pixel)
         ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
         r, g, b = _shade(M, B, V, gouraud, ox, oy, oz, dx, dy, dz, tmin, tmax)
-        c = s + 1.0
-        d0, d1, d2 = r - m0, g - m1, b - m2
-        m0 += d0 / c
-        m1 += d1 / c
-        m2 += d2 / c
-        s0 += d0 * (r - m0)
-        s1 += d1 * (g - m1)
-        s2 += d2 * (b - m2)
-    norm = 1.0 / (spp * (spp - 1.0)) if spp > 1 else 0.0
-    return m0, m1, m2, s0 * norm, s1 * norm, s2 * norm
+        m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
+    return (m0, m1, m2, variance_of_mean(q0, spp), variance_of_mean(q1, spp),
+            variance_of_mean(q2, spp))
 
 
 @njit(parallel=True, cache=True)

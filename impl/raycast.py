@@ -53,8 +53,6 @@ left the surface p + 1e-7·(1 + max|p_i|)·n.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit, prange
 
@@ -66,7 +64,8 @@ from .intersect import closest_hit
 from .lighting import diffuse_albedo, direct_light_rays, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, ray_config, refine, round_ray
-from .rng import uniform
+from .phong import PHONG_PARAMS
+from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
 from .scene_arrays import SceneArrays, flatten
 
 __all__ = ["render", "cast_primary", "ALGORITHM"]
@@ -115,38 +114,19 @@ def _pixel(cam, A: SceneArrays, R: RayConfig, x, y, spp, ka, ambient, ks, shinin
     that runs the pixel (a prange body's locals can be hoisted and shared).
     """
     pixel = y * int(cam[14]) + x
-    k = int(math.sqrt(spp) + 0.5)
-    m0 = 0.0
-    m1 = 0.0
-    m2 = 0.0
-    s0 = 0.0
-    s1 = 0.0
-    s2 = 0.0
+    k = strata(spp)
+    m0 = m1 = m2 = 0.0
+    q0 = q1 = q2 = 0.0
     nsh = 0
     for s in range(spp):
-        if spp == 1:
-            fx = 0.5
-            fy = 0.5
-        else:                            # k×k jittered strata
-            fx = (s % k + uniform(seed, pixel, s, 0)) / k
-            fy = (s // k + uniform(seed, pixel, s, 1)) / k
+        fx, fy = pixel_sample(spp, k, s, seed, pixel)
         ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
         r, g, b, n = _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A, R, ka, ambient, ks, shininess,
                                c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, s)
         nsh += n
-        # Welford's running mean and sum of squared deviations.
-        c = s + 1.0
-        d0 = r - m0
-        d1 = g - m1
-        d2 = b - m2
-        m0 += d0 / c
-        m1 += d1 / c
-        m2 += d2 / c
-        s0 += d0 * (r - m0)
-        s1 += d1 * (g - m1)
-        s2 += d2 * (b - m2)
-    norm = 1.0 / (spp * (spp - 1.0)) if spp > 1 else 0.0   # variance of the mean
-    return m0, m1, m2, s0 * norm, s1 * norm, s2 * norm, nsh
+        m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
+    return (m0, m1, m2, variance_of_mean(q0, spp), variance_of_mean(q1, spp),
+            variance_of_mean(q2, spp), nsh)
 
 
 @njit(parallel=True, cache=True)
@@ -201,9 +181,7 @@ def cast_primary(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
 
 def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     spp = params["spp"]
-    k = int(round(math.sqrt(spp)))
-    if spp < 1 or k * k != spp:
-        raise ValueError(f"raycast: spp must be 1 (pixel centre) or a square k² (k×k strata), got {spp}")
+    check_spp(spp, "raycast")
     if params["light_samples"] < 0:
         raise ValueError("raycast: light_samples must be >= 0")
     _check_materials(scene)
@@ -231,14 +209,7 @@ ALGORITHM = register(Algorithm(
     params=(
         Param("spp", int, 1, "pixel samples: 1 = pixel centre, k² = k×k jittered strata (box filter)"),
         Param("light_samples", int, 16, "shadow rays per area emitter per pixel sample"),
-        Param("ka", float, 0.0, "ambient coefficient k_a (times the diffuse colour)"),
-        Param("ambient", float, 0.0, "ambient intensity I_a"),
-        Param("ks", float, 0.0, "specular coefficient k_s"),
-        Param("shininess", float, 32.0, "Phong exponent n"),
-        Param("c1", float, 0.0, "f_att constant term"),
-        Param("c2", float, 0.0, "f_att linear term"),
-        Param("c3", float, 1.0, "f_att quadratic term"),
-        Param("fatt_clamp", bool, False, "clamp f_att to 1 (thesis 1.4.2.3)"),
+        *PHONG_PARAMS,
         Param("shadows", bool, True, "cast shadow rays"),
         *RAY_PARAMS,
     ),

@@ -157,7 +157,6 @@ Example::
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -171,7 +170,8 @@ from .fresnel import fresnel_conductor, fresnel_dielectric, lookup_ior, reflect,
 from .lighting import diffuse_albedo, direct_light_rays, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, ray_config, refine, round_ray
-from .rng import uniform
+from .phong import PHONG_PARAMS
+from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
 from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten
 
 __all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "ALGORITHM"]
@@ -460,7 +460,7 @@ def _pixel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, x, y, spp, max_
     """
     W = int(cam[14])
     pixel = y * W + x
-    k = int(math.sqrt(spp) + 0.5)
+    k = strata(spp)
     # Depth-first: below the popped ray of depth d wait at most one sibling per
     # level 2..d, plus its two children, so max_depth + 1 slots suffice.
     stack_f = np.empty((max_depth + 2, 11))
@@ -469,36 +469,20 @@ def _pixel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, x, y, spp, max_
     hst = np.zeros(max_depth + 1, dtype=np.int64)
     cut_w = np.zeros(2)
     m0 = m1 = m2 = 0.0
-    s0 = s1 = s2 = 0.0
+    q0 = q1 = q2 = 0.0
     for s in range(spp):
-        if spp == 1:
-            fx = 0.5
-            fy = 0.5
-        else:                            # k×k jittered strata
-            fx = (s % k + uniform(seed, pixel, s, 0)) / k
-            fy = (s // k + uniform(seed, pixel, s, 1)) / k
+        fx, fy = pixel_sample(spp, k, s, seed, pixel)
         ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
         r, g, b = _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, R, max_depth, hall_threshold,
                         ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
                         seed, pixel, s, spp, stack_f, stack_i, cnt, hst, cut_w)
-        # Welford's running mean and sum of squared deviations.
-        c = s + 1.0
-        d0 = r - m0
-        d1 = g - m1
-        d2 = b - m2
-        m0 += d0 / c
-        m1 += d1 / c
-        m2 += d2 / c
-        s0 += d0 * (r - m0)
-        s1 += d1 * (g - m1)
-        s2 += d2 * (b - m2)
-    norm = 1.0 / (spp * (spp - 1.0)) if spp > 1 else 0.0   # variance of the mean
+        m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
     mean[y, x, 0] = m0
     mean[y, x, 1] = m1
     mean[y, x, 2] = m2
-    var[y, x, 0] = s0 * norm
-    var[y, x, 1] = s1 * norm
-    var[y, x, 2] = s2 * norm
+    var[y, x, 0] = variance_of_mean(q0, spp)
+    var[y, x, 1] = variance_of_mean(q1, spp)
+    var[y, x, 2] = variance_of_mean(q2, spp)
     for i in range(cnt.shape[0]):
         counts[pixel, i] = cnt[i]
     for i in range(hst.shape[0]):
@@ -532,10 +516,7 @@ def _trace_one(ox, oy, oz, dx, dy, dz, A: SceneArrays, S: SpecularArrays, R: Ray
 # ------------------------------------------------------------- orchestration ---
 
 def _check(params: dict) -> None:
-    spp = params["spp"]
-    k = int(round(math.sqrt(spp)))
-    if spp < 1 or k * k != spp:
-        raise ValueError(f"whitted: spp must be 1 (pixel centre) or a square k² (k×k strata), got {spp}")
+    check_spp(params["spp"], "whitted")
     if params["max_depth"] < 1:
         raise ValueError(f"whitted: max_depth must be >= 1 (1 = eye rays only), got {params['max_depth']}")
     if not params["hall_threshold"] >= 0.0:
@@ -612,14 +593,7 @@ ALGORITHM = register(Algorithm(
         Param("max_depth", int, 10, "deepest ray of a tree branch (eye ray = 1; 1 = ray casting)"),
         Param("hall_threshold", float, 1e-5, "cut a branch whose weight (every RGB channel) is below this"),
         Param("light_samples", int, 16, "shadow rays per area emitter per diffuse hit"),
-        Param("ka", float, 0.0, "ambient coefficient k_a (times the diffuse colour)"),
-        Param("ambient", float, 0.0, "ambient intensity I_a"),
-        Param("ks", float, 0.0, "Phong specular coefficient k_s at diffuse hits"),
-        Param("shininess", float, 32.0, "Phong exponent n"),
-        Param("c1", float, 0.0, "f_att constant term"),
-        Param("c2", float, 0.0, "f_att linear term"),
-        Param("c3", float, 1.0, "f_att quadratic term"),
-        Param("fatt_clamp", bool, False, "clamp f_att to 1 (thesis 1.4.2.3)"),
+        *PHONG_PARAMS,
         Param("shadows", bool, True, "cast shadow rays"),
         *RAY_PARAMS,
     ),

@@ -54,8 +54,6 @@ fatt_clamp     bool    false     clamp f_att to 1
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from gibench.registry import Algorithm, Param, RenderResult, register
@@ -63,6 +61,8 @@ from gibench.scene import Scene
 
 from .pipeline import ScreenTriangles, camera_frame, geometry_stage
 from .raster import DEPTH_MODES, VisibilityBuffer, rasterize
+from .phong import PHONG_PARAMS
+from .sampling import check_spp
 from .scene_arrays import flatten
 from .shading import SHADING_MODES, PhongParams, resolve
 from .tessellate import TriangleSoup, scene_triangles
@@ -71,10 +71,7 @@ __all__ = ["render", "render_polygons", "pixel_centre_aovs", "zbuffer_visibility
 
 
 def _check(scene: Scene, params: dict, algorithm: str) -> int:
-    spp = params["spp"]
-    k = int(round(math.sqrt(spp)))
-    if spp < 1 or k * k != spp:
-        raise ValueError(f"{algorithm}: spp must be 1 (pixel centre) or a square k² (k×k grid), got {spp}")
+    k = check_spp(params["spp"], algorithm)
     if params["tessellation"] < 3:
         raise ValueError(f"{algorithm}: tessellation must be >= 3 segments, got {params['tessellation']}")
     for shape in scene.shapes:
@@ -151,14 +148,7 @@ PARAMS = (
     Param("tessellation", int, 64, "segments around a sphere (N//2 rings)"),
     Param("cull", bool, True, "back-face culling (thesis 1.2.3)"),
     Param("light_samples", int, 16, "samples per area emitter per shading evaluation"),
-    Param("ka", float, 0.0, "ambient coefficient k_a (times the diffuse colour)"),
-    Param("ambient", float, 0.0, "ambient intensity I_a"),
-    Param("ks", float, 0.0, "specular coefficient k_s"),
-    Param("shininess", float, 32.0, "Phong exponent n"),
-    Param("c1", float, 0.0, "f_att constant term"),
-    Param("c2", float, 0.0, "f_att linear term"),
-    Param("c3", float, 1.0, "f_att quadratic term"),
-    Param("fatt_clamp", bool, False, "clamp f_att to 1 (thesis 1.4.2.3)"),
+    *PHONG_PARAMS,
 )
 
 ALGORITHM = register(Algorithm(
