@@ -89,9 +89,9 @@ def test_depth_matches_mitsuba_aov(path, mitsuba):
     assert np.mean(hit_ours == hit_mi) > 0.999, f"hit masks differ on {np.sum(hit_ours != hit_mi)} pixels"
     both = hit_ours & hit_mi
     rel = np.abs(ours_mi[both] - theirs[both]) / theirs[both]
-    # float32 in Mitsuba vs float64 here: compare the bulk to 1e-4 and allow a
-    # few pixels at depth discontinuities (another surface hit by the other).
-    assert np.mean(rel <= 1e-4) >= 0.999, f"max rel {rel.max():.3g}, {np.sum(rel > 1e-4)} pixels > 1e-4"
+    # Mitsuba computes in float32, we in float64: measured median 5e-8, and no
+    # pixel hit by both beyond 1e-4 on any suite scene.
+    assert rel.max() <= 1e-4, f"max rel {rel.max():.3g}, {np.sum(rel > 1e-4)} pixels > 1e-4"
 
 
 # --------------------------------------------------------------- bad input ---
