@@ -384,7 +384,9 @@ def _pivot(rows: list[dict], spec: dict) -> str:
 
 def _plot(rows: list[dict], spec: dict) -> str:
     """A line plot of ``y`` against ``x`` with one line per ``series`` combination
-    (log axes on request), as an embedded PNG; rows missing x or y are skipped."""
+    (log axes on request), as an embedded PNG; rows missing x or y are skipped.
+    Points are joined in row order, so an error-vs-time curve follows the sweep
+    (tessellation, patch count, spp) even where time is not monotonic."""
     from matplotlib.figure import Figure
 
     x, ys, series = spec["x"], spec["y"], list(spec.get("series", []))
@@ -397,8 +399,7 @@ def _plot(rows: list[dict], spec: dict) -> str:
             xv, yv = _num(r.get(x)), _num(r.get(y))
             if xv is not None and yv is not None and math.isfinite(xv) and math.isfinite(yv):
                 lines.setdefault(tuple(r.get(k) for k in series), []).append((xv, yv))
-        for key, pts in lines.items():
-            pts.sort()
+        for key, pts in lines.items():             # joined in row order (the study's sweep order)
             ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", ms=3,
                     label=", ".join(map(str, key)) or y)
         if spec.get("logx"):
