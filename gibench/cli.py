@@ -1,10 +1,14 @@
 """The ``gibench`` command line.
 
     gibench algorithms
-    gibench render SCENE --algorithm NAME [--spp N] [--seed S] [--set k=v ...] --out FILE.exr
-    gibench reference SCENE --transport full|direct|whitted [--spp N] [--passes P]
+    gibench render SCENE --algorithm NAME [--spp N] [--seed S] [--set k=v ...] [-D name=value ...] --out FILE.exr
+    gibench reference SCENE --transport full|direct|whitted [--spp N] [--passes P] [-D name=value ...]
     gibench compare IMAGE REFERENCE [--reference-variance V] [--test-variance V] [--json]
-    gibench run [SUITE] [--no-mitsuba-timing]
+    gibench run [SUITE] [--no-mitsuba-timing] [-D name=value ...]
+
+``-D name=value`` replaces the value of the scene's ``<default name=...>``
+(as Mitsuba's own ``mitsuba -D name=value``); the reference renders with the
+same values and its cache key includes them.
     gibench report [--run RUN_ID] [--out FILE.html]
 
 Errors in the input (a bad scene, a missing file, an image with NaN, an
@@ -41,6 +45,21 @@ def _parse_sets(items) -> dict:
     return out
 
 
+def _parse_defines(items) -> dict:
+    """``-D name=value`` items -> ``{name: value}`` (Mitsuba's scene-parameter overrides)."""
+    import re
+
+    out = {}
+    for item in items or []:
+        if "=" not in item:
+            raise CLIError(f"-D expects name=value, got '{item}'")
+        k, v = (x.strip() for x in item.split("=", 1))
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", k):
+            raise CLIError(f"-D name must be an identifier, got '{k}'")
+        out[k] = v
+    return out
+
+
 def cmd_algorithms(args) -> int:
     for algo in registry.algorithms():
         print(f"{algo.name}  —  {algo.summary} ({algo.section}; transport: {algo.transport})")
@@ -61,12 +80,14 @@ def cmd_render(args) -> int:
             raise CLIError(f"{algo.name} takes no --spp")
         values[algo.spp_param] = args.spp
     params = algo.parse_params(values)
-    scene = load_scene(args.scene)
+    defines = _parse_defines(args.define)
+    scene = load_scene(args.scene, defines=defines)
     result, timing = render_timed(algo, scene, params, seed=args.seed, repeats=args.repeats)
     check_finite(result.image, name=f"{algo.name} output")
     out = Path(args.out)
     write_exr(out, result.image)
-    sidecar = {"scene": str(args.scene), "algorithm": algo.name, "params": params, "seed": args.seed,
+    sidecar = {"scene": str(args.scene), "defines": defines, "algorithm": algo.name,
+               "params": params, "seed": args.seed,
                "time": timing, "counters": result.counters, "versions": versions(),
                "commit": git_commit(), "machine": machine(), "created": utc_now(),
                "variance": None}
@@ -85,7 +106,8 @@ def cmd_reference(args) -> int:
     from references.reference import get_reference
 
     ref = get_reference(args.scene, transport=args.transport, spp=args.spp, passes=args.passes,
-                        seed=args.seed, render_missing=True, force=args.force)
+                        seed=args.seed, render_missing=True, force=args.force,
+                        defines=_parse_defines(args.define))
     m = ref.manifest
     print(f"{ref.directory}: {m.get('transport')} ({m.get('integrator', {}).get('type')}), "
           f"{m.get('spp')} spp in {m.get('passes')} passes, variant {m.get('variant')}, "
@@ -146,12 +168,14 @@ def cmd_run(args) -> int:
 
     from .suite import load_suite, run_suite
 
+    defines = _parse_defines(args.define)
     suite = load_suite(_resolve_suite(args.suite))
     store = ResultStore(Path(args.results))
     run_id = new_run_id()
     print(f"gibench run {run_id}: suite '{suite.name}' ({len(suite.cases)} cases) from {suite.path}")
     records = run_suite(suite, store, run_id=run_id, out_root=Path(args.results).parent,
-                        mitsuba_timing=not args.no_mitsuba_timing, reference_store=args.store)
+                        mitsuba_timing=not args.no_mitsuba_timing, reference_store=args.store,
+                        defines=defines)
     out = Path(args.report) if args.report else Path(args.results).parent / "report.html"
     write_report(records, out, root=REPO_ROOT, title=f"gibench — suite {suite.name}")
     n_err = sum(1 for r in records if r.get("error"))
@@ -201,6 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--set", action="append", metavar="KEY=VALUE", help="algorithm parameter")
     s.add_argument("--repeats", type=int, default=3, help="timed renders after the warm-up")
     s.add_argument("--out", "-o", required=True, help="output EXR (a .json sidecar is written beside it)")
+    s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
+                   help="override the scene's <default name=NAME> value (as Mitsuba's -D)")
     s.set_defaults(func=cmd_render)
 
     s = sub.add_parser("reference", help="render (or reuse) a Mitsuba reference")
@@ -211,6 +237,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--passes", type=int, default=8)
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--force", action="store_true", help="re-render even if a valid entry exists")
+    s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
+                   help="override the scene's <default name=NAME> value (as Mitsuba's -D)")
     s.set_defaults(func=cmd_reference)
 
     s = sub.add_parser("compare", help="image metrics of IMAGE against REFERENCE")
@@ -228,6 +256,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--store", help="reference store directory (default: references/store)")
     s.add_argument("--no-mitsuba-timing", action="store_true",
                    help="skip timing Mitsuba on the same scenes")
+    s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
+                   help="override the scene's <default name=NAME> value in every scene (as Mitsuba's -D)")
     s.set_defaults(func=cmd_run)
 
     s = sub.add_parser("report", help="write the HTML report of a stored run")

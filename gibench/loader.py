@@ -6,8 +6,17 @@ builds the one scene model the own algorithms read.  It understands:
 ===============  ==============================================================
 element          supported
 ===============  ==============================================================
-scene            ``version`` 2.x / 3.x
-default          ``name``/``value``; ``$name`` is substituted in every attribute
+scene            ``version`` 2.x / 3.x; older files (0.x, 1.x: Mitsuba 0.6) are
+                 upgraded in memory as Mitsuba 3's ``upgrade_tree`` does:
+                 camelCase ``name`` attributes become snake_case (``fovAxis`` ->
+                 ``fov_axis``, ``intIOR`` -> ``int_ior``, ``toWorld`` ->
+                 ``to_world``) and a diffuse bsdf's ``diffuse_reflectance``
+                 becomes ``reflectance``.  Mitsuba does not rename in 2.x files,
+                 so neither does the loader.  Mitsuba 0.6's ``<lookAt>`` stays an
+                 error: the Mitsuba 3 parser gibench pins (3.6+) refuses it too
+default          ``name``/``value``; ``$name`` is substituted in every attribute;
+                 ``load_scene(path, defines={name: value})`` overrides them (as
+                 Mitsuba's ``-D name=value`` and ``mi.load_file(path, name=value)``)
 integrator       any type (read for the reference's transport; own algorithms ignore it)
 sensor           ``perspective``: fov, fov_axis, near_clip, far_clip, to_world
                  (focus_distance is accepted and ignored: a pinhole has no focus)
@@ -94,9 +103,9 @@ class SceneError(ValueError):
 
 
 class _Ctx:
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, defines: dict[str, str] | None = None):
         self.path = path
-        self.defaults: dict[str, str] = {}
+        self.defaults: dict[str, str] = dict(defines or {})
         self.ids: dict[str, etree._Element] = {}
         self.files: list[Path] = []
 
@@ -460,10 +469,48 @@ def _integrator(ctx, el) -> dict:
     return out
 
 
+# ---------------------------------------------------------------- upgrade ---
+
+def _snake_case(name: str) -> str:
+    """Mitsuba 3's camelCase -> snake_case rule (xml.cpp ``upgrade_tree``), kept
+    exactly: at a lower-upper pair insert ``_`` and lower-case the run of capitals
+    that follows (``intIOR`` -> ``int_ior``); the character after that run is
+    skipped, as in Mitsuba's loop."""
+    i = 0
+    while i < len(name) - 1:
+        if name[i].islower() and name[i + 1].isupper():
+            name = name[:i + 1] + "_" + name[i + 1:]
+            i += 2
+            while i < len(name) and name[i].isupper():
+                name = name[:i] + name[i].lower() + name[i + 1:]
+                i += 1
+        i += 1
+    return name
+
+
+def _upgrade_pre_v2(root) -> None:
+    """In-memory upgrade of a Mitsuba 0.x/1.x scene, as Mitsuba 3 performs it
+    (parameter names only; ``<lookAt>`` is not renamed, see the module docstring)."""
+    for el in root.iter():
+        if not isinstance(el.tag, str):
+            continue
+        if el.tag != "default" and el.get("name") is not None:
+            el.set("name", _snake_case(el.get("name")))
+    for el in root.iter("bsdf"):
+        if el.get("type") == "diffuse":
+            for c in el:
+                if isinstance(c.tag, str) and c.get("name") == "diffuse_reflectance":
+                    c.set("name", "reflectance")
+
+
 # ------------------------------------------------------------------ entry ---
 
-def load_scene(path) -> Scene:
+def load_scene(path, defines: dict | None = None) -> Scene:
     """Parse a Mitsuba 3 XML scene file into a :class:`~gibench.scene.Scene`.
+
+    ``defines`` maps ``<default>`` names to values that replace the file's
+    defaults (Mitsuba's ``-D name=value``); a name the file does not declare is
+    still usable as ``$name``.
 
     Raises
     ------
@@ -479,12 +526,15 @@ def load_scene(path) -> Scene:
     except etree.XMLSyntaxError as exc:
         line = exc.lineno if exc.lineno is not None else "?"
         raise SceneError(f"{path}:{line}: malformed XML: {exc.msg}") from None
-    ctx = _Ctx(path)
+    ctx = _Ctx(path, {str(k): str(v) for k, v in (defines or {}).items()})
     if root.tag != "scene":
         raise ctx.error(root, "the root element must be <scene>")
     version = root.get("version", "3.0.0")
-    if not re.match(r"^[23]\.", version):
-        raise ctx.error(root, f"unsupported scene version '{version}' (2.x or 3.x)")
+    m = re.fullmatch(r"\s*(\d+)\.(\d+)(?:\.(\d+))?\s*", version)
+    if m is None or int(m.group(1)) > 3:
+        raise ctx.error(root, f"unsupported scene version '{version}' (0.x to 3.x)")
+    if int(m.group(1)) < 2:
+        _upgrade_pre_v2(root)
 
     # Pass 1: defaults and ids (Mitsuba resolves <default> before anything else).
     for c in root:

@@ -171,15 +171,18 @@ def _checks(case: Case, metrics: dict) -> list[dict]:
 
 
 def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_timing: bool,
-             timing_cache: dict, reference_store=None, log=print) -> dict:
+             timing_cache: dict, reference_store=None, log=print,
+             defines: dict | None = None) -> dict:
     """Run one case and return its result record (never raises for a bad case:
-    the record's ``error`` names the cause)."""
+    the record's ``error`` names the cause).  ``defines`` overrides the scene's
+    ``<default>`` values in both the own render and the reference (``-D``)."""
     from references.reference import DEFAULT_STORE, get_reference, time_mitsuba
     from reports.metrics import compare
 
     record = {"run_id": run_id, "suite": suite.name, "scene": case.scene_id,
               "scene_file": _rel(case.scene), "algorithm": case.algorithm, "label": case.label,
-              "params": case.params, "transport": case.transport, "expect": case.expect,
+              "params": case.params, "defines": dict(defines or {}),
+              "transport": case.transport, "expect": case.expect,
               "model_error": case.expect == "model-error", "error": None,
               "versions": versions(), "commit": git_commit(), "machine": machine(),
               "created": utc_now()}
@@ -187,9 +190,10 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
         algo = registry.get(case.algorithm)
         params = algo.parse_params(case.params)
         record["params"] = params
-        scene = load_scene(case.scene)
+        scene = load_scene(case.scene, defines=defines)
         ref = get_reference(case.scene, transport=case.transport, spp=suite.reference_spp,
-                            passes=suite.reference_passes, store=reference_store or DEFAULT_STORE)
+                            passes=suite.reference_passes, store=reference_store or DEFAULT_STORE,
+                            defines=defines)
         record["reference"] = {"key": ref.key, "dir": _rel(ref.directory),
                                "image": _rel(ref.directory / "image.exr"),
                                "variance": _rel(ref.directory / "variance.exr"),
@@ -212,7 +216,7 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
             key = (str(case.scene), case.transport, spp)
             if key not in timing_cache:
                 timing_cache[key] = time_mitsuba(case.scene, transport=case.transport, spp=spp,
-                                                 repeats=suite.repeats)
+                                                 repeats=suite.repeats, defines=defines)
             mt = timing_cache[key]
             timing.update(mitsuba_median_s=mt["median_s"], mitsuba_spp=mt["spp"],
                           mitsuba_variant=mt.get("variant"),
@@ -263,7 +267,7 @@ def run_studies(suite: Suite, *, run_id: str, log=print) -> list[dict]:
 
 
 def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timing: bool = True,
-              reference_store=None, log=print) -> list[dict]:
+              reference_store=None, log=print, defines: dict | None = None) -> list[dict]:
     """Run every case, appending each record to ``store`` as it completes."""
     out_dir = out_root / "runs" / run_id
     timing_cache: dict = {}
@@ -271,7 +275,8 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
     for i, case in enumerate(suite.cases):
         log(f"[{i + 1}/{len(suite.cases)}] {case.scene_id}: {case.label} vs {case.transport}")
         rec = run_case(case, suite, run_id=run_id, out_dir=out_dir, mitsuba_timing=mitsuba_timing,
-                       timing_cache=timing_cache, reference_store=reference_store, log=log)
+                       timing_cache=timing_cache, reference_store=reference_store, log=log,
+                       defines=defines)
         store.append(rec)
         records.append(rec)
         if not rec.get("error"):

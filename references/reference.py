@@ -31,6 +31,7 @@ tests keep a ``_var.exr``).
 Entries live in ``references/store/<first 16 hex of key>/`` as ``image.exr``,
 ``variance.exr`` and ``manifest.json``.  The key is a sha256 over the scene
 bytes, the bytes of every file the scene references by ``filename``, the
+``-D name=value`` overrides of its ``<default>`` values (when any), the
 transport, spp, passes, seed, rfilter choice, variant family and
 :data:`STORE_FORMAT` (for ``"whitted"`` also :data:`WHITTED_MAX_DEPTH` and
 :data:`WHITTED_LOBE_CHOICE`; the sha256 of the integrator's source file is
@@ -199,6 +200,31 @@ def _defaults(root) -> dict[str, str]:
     return {d.get("name"): d.get("value") for d in root.iter("default") if d.get("name")}
 
 
+def _check_defines(defines) -> dict[str, str]:
+    """``{name: value}`` as strings, names checked (``-D name=value`` overrides)."""
+    out = {}
+    for k, v in (defines or {}).items():
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", str(k)):
+            raise ValueError(f"define name must be an identifier, got {k!r}")
+        out[str(k)] = str(v)
+    return out
+
+
+def _apply_defines(root, defines: dict[str, str]) -> None:
+    """Replace the values of the scene's top-level ``<default>`` elements by ``defines``
+    (inserting a ``<default>`` for a name the file does not declare), as Mitsuba's
+    ``-D name=value`` does."""
+    for name, value in defines.items():
+        found = [d for d in root if d.tag == "default" and d.get("name") == name]
+        if found:
+            for d in found:
+                d.set("value", value)
+        else:
+            el = etree.Element("default", {"name": name, "value": value})
+            el.tail = "\n    "
+            root.insert(0, el)
+
+
 def _substitute(value: str | None, defaults: dict[str, str]) -> str | None:
     """Resolve ``$name`` with the file's ``<default>`` values (for recording/hashing)."""
     if value is None or "$" not in value:
@@ -259,7 +285,7 @@ def _render_once(mi, dr, scene, spp: int, seed: int) -> np.ndarray:
 # ---------------------------------------------------------------------------
 
 
-def scene_dependencies(scene_path) -> list[dict]:
+def scene_dependencies(scene_path, defines: dict | None = None) -> list[dict]:
     """Files a scene references by ``filename`` (attributes or ``<string>``).
 
     Relative names are resolved against the scene file's directory (and, for
@@ -273,7 +299,7 @@ def scene_dependencies(scene_path) -> list[dict]:
 
     def visit(xml_path: Path, depth: int) -> None:
         root = _parse(xml_path).getroot()
-        defaults = _defaults(root)
+        defaults = {**_defaults(root), **_check_defines(defines)}
         for el in root.iter():
             if not isinstance(el.tag, str):
                 continue
@@ -299,13 +325,15 @@ def scene_dependencies(scene_path) -> list[dict]:
 
 
 def reference_key(scene_path, *, transport: str = "full", spp: int = 1024, passes: int = 8,
-                  seed: int = 0, rfilter: str = "box", variant_family: str = "rgb") -> str:
+                  seed: int = 0, rfilter: str = "box", variant_family: str = "rgb",
+                  defines: dict | None = None) -> str:
     """Full sha256 cache key of a reference (see module docstring)."""
     scene = _scene_file(scene_path)
+    defines = _check_defines(defines)
     payload = {
         "store_format": STORE_FORMAT,
         "scene_sha256": _sha256_file(scene),
-        "dependencies": [[d["name"], d["sha256"]] for d in scene_dependencies(scene)],
+        "dependencies": [[d["name"], d["sha256"]] for d in scene_dependencies(scene, defines)],
         "transport": transport,
         "spp": int(spp),
         "passes": int(passes),
@@ -316,6 +344,8 @@ def reference_key(scene_path, *, transport: str = "full", spp: int = 1024, passe
     if transport == "whitted":         # other transports keep their existing keys
         payload["whitted_max_depth"] = WHITTED_MAX_DEPTH
         payload["whitted_lobe_choice"] = WHITTED_LOBE_CHOICE
+    if defines:                        # scenes without -D overrides keep their existing keys
+        payload["defines"] = dict(sorted(defines.items()))
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
 
@@ -398,7 +428,8 @@ def _override_sensors(root, sampler_factory, rfilter: str) -> dict:
 
 def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int = 1,
                       seed: int = 0, rfilter: str = "box", integrator: dict | None = None,
-                      sampler: dict | None = None) -> tuple[str, dict, dict]:
+                      sampler: dict | None = None,
+                      defines: dict | None = None) -> tuple[str, dict, dict]:
     """Apply the reference overrides to a scene file.
 
     Parameters
@@ -414,6 +445,9 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
     integrator, sampler
         Optional explicit ``{"type": ..., name: value}`` replacements
         (used by :func:`render_depth`).
+    defines
+        ``{name: value}`` replacing the file's ``<default>`` values (Mitsuba's
+        ``-D name=value``); recorded under ``overrides["defines"]``.
 
     Returns
     -------
@@ -431,6 +465,8 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
     scene = _scene_file(scene_path)
     tree = _parse(scene)
     root = tree.getroot()
+    defines = _check_defines(defines)
+    _apply_defines(root, defines)
     defaults = _defaults(root)
     own = [c for c in root if c.tag == "integrator"]
     own = own[0] if own else None
@@ -475,6 +511,8 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
             used["hide_emitters"] = _substitute(hide, defaults)
     before = _replace_integrator(root, new)
     overrides = {"integrator": {"from": before, "to": used}}
+    if defines:
+        overrides["defines"] = dict(defines)
 
     if sampler is None:
         def sampler_factory():
@@ -594,15 +632,17 @@ def _install(tmp: Path, final: Path) -> None:
 
 
 def _render_reference(scene: Path, key: str, directory: Path, *, transport: str, spp: int,
-                      passes: int, seed: int, rfilter: str) -> Reference:
+                      passes: int, seed: int, rfilter: str,
+                      defines: dict | None = None) -> Reference:
     mi = load_mitsuba()
     import drjit as dr
 
     t_start = time.perf_counter()
     spp_pass = spp // passes
     xml, integrator, overrides = prepare_scene_xml(
-        scene, transport=transport, spp_per_pass=spp_pass, seed=seed, rfilter=rfilter)
-    deps = scene_dependencies(scene)
+        scene, transport=transport, spp_per_pass=spp_pass, seed=seed, rfilter=rfilter,
+        defines=defines)
+    deps = scene_dependencies(scene, defines)
     t0 = time.perf_counter()
     mscene = load_scene(mi, scene, xml)
     load_s = time.perf_counter() - t0
@@ -718,7 +758,8 @@ def _check_args(transport, spp, passes, seed, rfilter) -> None:
 
 def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passes: int = 8,
                   seed: int = 0, rfilter: str = "box", store=DEFAULT_STORE,
-                  render_missing: bool = True, force: bool = False) -> Reference:
+                  render_missing: bool = True, force: bool = False,
+                  defines: dict | None = None) -> Reference:
     """Return the Mitsuba reference of a scene, rendering it if needed.
 
     Parameters
@@ -743,6 +784,9 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     force
         Re-render even when a valid entry exists (the old entry is replaced
         only once the new one is complete).
+    defines
+        ``{name: value}`` overriding the scene's ``<default>`` values (Mitsuba's
+        ``-D name=value``); part of the key when given.
 
     Returns
     -------
@@ -760,8 +804,9 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     scene = _scene_file(scene_path)
     mi = load_mitsuba()
     family = _variant_family(mi.variant())
+    defines = _check_defines(defines)
     key = reference_key(scene, transport=transport, spp=spp, passes=passes, seed=seed,
-                        rfilter=rfilter, variant_family=family)
+                        rfilter=rfilter, variant_family=family, defines=defines)
     directory = Path(store) / key[:16]
     cause = "re-render requested (force)"
     if not force:
@@ -775,7 +820,7 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     print(f"gibench: rendering reference for {_display_path(scene)} ({transport}, {spp} spp): "
           f"{where}: {cause}", file=sys.stderr, flush=True)
     return _render_reference(scene, key, directory, transport=transport, spp=spp,
-                             passes=passes, seed=seed, rfilter=rfilter)
+                             passes=passes, seed=seed, rfilter=rfilter, defines=defines)
 
 
 # ---------------------------------------------------------------------------
@@ -784,7 +829,7 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
 
 
 def time_mitsuba(scene_path, *, transport: str, spp: int, seed: int = 0, repeats: int = 3,
-                 rfilter: str = "box") -> dict:
+                 rfilter: str = "box", defines: dict | None = None) -> dict:
     """Time Mitsuba rendering a scene with the reference overrides.
 
     The scene is loaded once; one untimed warm-up render (JIT compilation)
@@ -807,7 +852,7 @@ def time_mitsuba(scene_path, *, transport: str, spp: int, seed: int = 0, repeats
     import drjit as dr
 
     xml, _, _ = prepare_scene_xml(scene, transport=transport, spp_per_pass=spp, seed=seed,
-                                  rfilter=rfilter)
+                                  rfilter=rfilter, defines=defines)
     mscene = load_scene(mi, scene, xml)
     t0 = time.perf_counter()
     dr.eval(mi.render(mscene, spp=spp, seed=seed))
@@ -825,7 +870,7 @@ def time_mitsuba(scene_path, *, transport: str, spp: int, seed: int = 0, repeats
             "width": width, "height": height, "scene": _display_path(scene)}
 
 
-def render_depth(scene_path) -> np.ndarray:
+def render_depth(scene_path, defines: dict | None = None) -> np.ndarray:
     """Depth image of a scene's first sensor at pixel centres, float32 ``(H, W)``.
 
     Uses Mitsuba's ``aov`` integrator (``aovs="dd.y:depth"``), a
@@ -848,7 +893,8 @@ def render_depth(scene_path) -> np.ndarray:
 
     xml, _, _ = prepare_scene_xml(
         scene, integrator={"type": "aov", "aovs": "dd.y:depth"},
-        sampler={"type": "stratified", "sample_count": 1, "jitter": False}, rfilter="box")
+        sampler={"type": "stratified", "sample_count": 1, "jitter": False}, rfilter="box",
+        defines=defines)
     mscene = load_scene(mi, scene, xml)
     img = _render_once(mi, dr, mscene, 1, 0)
     names = list(mscene.integrator().aov_names())
