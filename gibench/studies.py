@@ -703,9 +703,10 @@ TABLES["distant_sphere_mitsuba"] = (
     "far_clip = 2d.  With the default, everything beyond the far clip plane is empty.")
 
 
-def load_config(path=None) -> dict:
-    """The studies' parameters from a TOML file (default ``suites/hard/studies.toml``)."""
-    path = Path(path) if path is not None else DEFAULT_CONFIG
+def read_config(path, default) -> dict:
+    """A studies configuration from a TOML file (``default`` when ``path`` is None),
+    with its own path under ``"_path"`` for error messages."""
+    path = Path(path) if path is not None else default
     try:
         cfg = tomllib.loads(path.read_text())
     except FileNotFoundError:
@@ -714,6 +715,32 @@ def load_config(path=None) -> dict:
         raise ValueError(f"{path}: {exc}") from None
     cfg["_path"] = str(path)
     return cfg
+
+
+def load_config(path=None) -> dict:
+    """The studies' parameters from a TOML file (default ``suites/hard/studies.toml``)."""
+    return read_config(path, DEFAULT_CONFIG)
+
+
+def run_registered(studies: dict, config: dict, *, only=None) -> dict[str, list[dict]]:
+    """Run every study of ``studies`` (name → :class:`StudyInfo`) that ``config`` has a
+    table for, without ``enabled = false``, restricted to ``only``; the table's keys
+    are the study function's keyword arguments (an unknown key is an error naming it)."""
+    where = config.get("_path", "the studies configuration")
+    out: dict[str, list[dict]] = {}
+    for name, info in studies.items():
+        if name not in config or (only is not None and name not in only):
+            continue
+        params = dict(config[name])
+        if not params.pop("enabled", True):
+            continue
+        valid = list(inspect.signature(info.run).parameters)
+        unknown = sorted(set(params) - set(valid))
+        if unknown:
+            raise ValueError(f"{where}: [{name}] has unknown key(s) {', '.join(unknown)} "
+                             f"(valid: {', '.join(valid)}, enabled)")
+        out[name] = info.run(**params)
+    return out
 
 
 def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[str, list[dict]]:
@@ -729,20 +756,7 @@ def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[
     """
     if config is None or isinstance(config, (str, Path)):
         config = load_config(config)
-    where = config.get("_path", "the studies configuration")
-    out: dict[str, list[dict]] = {}
-    for name, info in STUDIES.items():
-        if name not in config or (only is not None and name not in only):
-            continue
-        params = dict(config[name])
-        if not params.pop("enabled", True):
-            continue
-        valid = [p for p in inspect.signature(info.run).parameters]
-        unknown = sorted(set(params) - set(valid))
-        if unknown:
-            raise ValueError(f"{where}: [{name}] has unknown key(s) {', '.join(unknown)} "
-                             f"(valid: {', '.join(valid)}, enabled)")
-        out[name] = info.run(**params)
+    out = run_registered(STUDIES, config, only=only)
     mi_cfg = dict(config.get("distant_sphere_mitsuba", {}))
     enabled = mi_cfg.pop("enabled", False)
     if mitsuba is not None:

@@ -31,17 +31,14 @@ the times by one untimed warm-up render per study.
 
 from __future__ import annotations
 
-import inspect
 import math
 import time
-import tomllib
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from .provenance import REPO_ROOT
+from .studies import StudyInfo, read_config, run_registered
 
 __all__ = ["STUDIES", "TABLES", "DEFAULT_CONFIG", "load_config", "run_studies", "error_vs_patches",
            "adjacent_patches", "hemicube_aliasing", "thin_gap"]
@@ -254,14 +251,6 @@ def thin_gap(*, scene="cornell/thin_gap.xml", patch_counts=(64, 256, 1024, 4096)
 
 # ================================================================ registry ===
 
-@dataclass(frozen=True)
-class StudyInfo:
-    name: str
-    title: str
-    description: str
-    run: Callable[..., list[dict]]
-
-
 STUDIES = {s.name: s for s in (
     StudyInfo("error_vs_patches", "Radiosity: error vs patch count and time",
               "Own radiosity (mesh, form factors, solve, Gouraud/flat display) against Mitsuba's 1024-spp "
@@ -297,10 +286,8 @@ TABLES["mitsuba_ladder"] = (
 
 
 def load_config(path=None) -> dict:
-    path = Path(path) if path is not None else DEFAULT_CONFIG
-    cfg = tomllib.loads(path.read_text())
-    cfg["_path"] = str(path)
-    return cfg
+    """The studies' parameters from a TOML file (default ``suites/radiosity/studies.toml``)."""
+    return read_config(path, DEFAULT_CONFIG)
 
 
 def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[str, list[dict]]:
@@ -308,19 +295,7 @@ def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[
     ``mitsuba_ladder`` comes from :func:`references.ladder.mitsuba_ladder`."""
     if config is None or isinstance(config, (str, Path)):
         config = load_config(config)
-    where = config.get("_path", "the studies configuration")
-    out: dict[str, list[dict]] = {}
-    for name, info in STUDIES.items():
-        if name not in config or (only is not None and name not in only):
-            continue
-        params = dict(config[name])
-        if not params.pop("enabled", True):
-            continue
-        valid = list(inspect.signature(info.run).parameters)
-        unknown = sorted(set(params) - set(valid))
-        if unknown:
-            raise ValueError(f"{where}: [{name}] has unknown key(s) {', '.join(unknown)} (valid: {', '.join(valid)})")
-        out[name] = info.run(**params)
+    out = run_registered(STUDIES, config, only=only)
     lad = dict(config.get("mitsuba_ladder", {}))
     enabled = lad.pop("enabled", False) if mitsuba is None else mitsuba
     if enabled and (only is None or "mitsuba_ladder" in only):
