@@ -107,6 +107,34 @@ def _towards(ox, oy, oz, yx, yy, yz):
 
 
 @njit(cache=True)
+def local_shading(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, shape, prim, b1, b2, A: SceneArrays,
+                  R: RayConfig, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
+                  seed, pixel, sample):
+    """Local illumination leaving a surface point towards the unit direction v (thesis 1.4.2):
+    emitted L_e (front side only) + ambient I_a k_a ρ + the Phong direct light of every
+    light; (r, g, b, shadow rays).  A one-sided point seen from behind gets nothing;
+    a two-sided one is shaded on the side it is seen from."""
+    r = g = b = 0.0
+    cos_v = sx * vx + sy * vy + sz * vz
+    if cos_v > 0.0:                     # emitted radiance L_e, front side only
+        r += A.shape_emit[shape, 0]
+        g += A.shape_emit[shape, 1]
+        b += A.shape_emit[shape, 2]
+    mat = A.shape_material[shape]
+    if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+        gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+        cos_v = -cos_v
+    if cos_v <= 0.0:
+        return r, g, b, 0
+    rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+    amb = ambient * ka
+    dr_, dg_, db_, nsh = direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+                                           rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3,
+                                           fclamp, shadows, light_samples, seed, pixel, sample, R)
+    return r + amb * rho_r + dr_, g + amb * rho_g + dg_, b + amb * rho_b + db_, nsh
+
+
+@njit(cache=True)
 def direct_light(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
             A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
             seed, pixel, sample):

@@ -61,7 +61,7 @@ from gibench.scene import Scene
 
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
-from .lighting import diffuse_albedo, direct_light_rays, surface
+from .lighting import local_shading, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
@@ -84,25 +84,9 @@ def _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, R: RayConfig, 
     px, py, pz = refine(R, prim, ox + t * dx, oy + t * dy, oz + t * dz)
     gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
                                       A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
-    vx, vy, vz = -dx, -dy, -dz
-    r = g = b = 0.0
-    cos_v = sx * vx + sy * vy + sz * vz
-    if cos_v > 0.0:                     # emitted radiance L_e, front side only
-        r += A.shape_emit[shape, 0]
-        g += A.shape_emit[shape, 1]
-        b += A.shape_emit[shape, 2]
-    mat = A.shape_material[shape]
-    if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
-        gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-        cos_v = -cos_v
-    if cos_v <= 0.0:
-        return r, g, b, 0
-    rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
-    amb = ambient * ka
-    dr_, dg_, db_, nsh = direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
-                                           rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3,
-                                           fclamp, shadows, light_samples, seed, pixel, sample, R)
-    return r + amb * rho_r + dr_, g + amb * rho_g + dg_, b + amb * rho_b + db_, nsh
+    return local_shading(px, py, pz, gx, gy, gz, sx, sy, sz, -dx, -dy, -dz, shape, prim, b1, b2, A, R,
+                         ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
+                         seed, pixel, sample)
 
 
 @njit(cache=True)

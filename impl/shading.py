@@ -39,7 +39,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .lighting import diffuse_albedo, direct_light
+from .lighting import SHADOW_EPSILON, diffuse_albedo, direct_light, local_shading
+from .rays import legacy_config
 from .scene_arrays import SceneArrays
 
 __all__ = ["SHADING_MODES", "FLAT", "GOURAUD", "PHONG", "PhongParams", "shade_point", "shade_terms",
@@ -64,24 +65,10 @@ def shade_point(px, py, pz, gx, gy, gz, sx, sy, sz, ex, ey, ez, shape, prim, b1,
     vx, vy, vz = ex - px, ey - py, ez - pz
     inv = 1.0 / math.sqrt(vx * vx + vy * vy + vz * vz)
     vx, vy, vz = vx * inv, vy * inv, vz * inv
-    r = g = b = 0.0
-    cos_v = sx * vx + sy * vy + sz * vz
-    if cos_v > 0.0:                     # emitted radiance L_e, front side only
-        r += A.shape_emit[shape, 0]
-        g += A.shape_emit[shape, 1]
-        b += A.shape_emit[shape, 2]
-    mat = A.shape_material[shape]
-    if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
-        gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-        cos_v = -cos_v
-    if cos_v <= 0.0:
-        return r, g, b
-    rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
-    amb = pp[1] * pp[0]
-    dr_, dg_, db_, _n = direct_light(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
-                                     A, pp[2], pp[3], pp[4], pp[5], pp[6], pp[7] != 0.0, False,
-                                     int(pp[8]), int(pp[9]), pixel, sample)
-    return r + amb * rho_r + dr_, g + amb * rho_g + dg_, b + amb * rho_b + db_
+    r, g, b, _n = local_shading(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, shape, prim, b1, b2, A,
+                                legacy_config(A, SHADOW_EPSILON), pp[0], pp[1], pp[2], pp[3], pp[4],
+                                pp[5], pp[6], pp[7] != 0.0, False, int(pp[8]), int(pp[9]), pixel, sample)
+    return r, g, b
 
 
 @njit(cache=True)
