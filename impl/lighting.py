@@ -97,6 +97,16 @@ def sample_emitter(e, u1, u2, em_offset, em_tri, em_cdf, tri_v):
 
 
 @njit(inline="always", cache=True)
+def _blocked_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz, yx, yy, yz, shrink):
+    """Shadow ray from the surface point p (geometric normal g) to the point y, seen along
+    the unit direction l: it leaves p on the side of l and is aimed from its offset origin."""
+    side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
+    ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+    hx, hy, hz, hd = _towards(ox, oy, oz, yx, yy, yz)
+    return occluded(R, ox, oy, oz, hx, hy, hz, t0, hd * (1.0 - shrink))
+
+
+@njit(inline="always", cache=True)
 def _towards(ox, oy, oz, yx, yy, yz):
     """Unit direction from o to y and the distance |y − o| (direction 0 when y = o)."""
     hx, hy, hz = yx - ox, yy - oy, yz - oz
@@ -191,17 +201,15 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
         if kd == 0.0 and spec == 0.0:
             continue
         if shadows:
-            side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
-            ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
             nshadow += 1
             if kind == LIGHT_DIRECTIONAL:
+                side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
+                ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
                 if occluded(R, ox, oy, oz, lx, ly, lz, t0, np.inf):
                     continue
-            else:
-                hx, hy, hz, hd = _towards(ox, oy, oz, A.light_pos[li, 0], A.light_pos[li, 1],
-                                          A.light_pos[li, 2])
-                if occluded(R, ox, oy, oz, hx, hy, hz, t0, hd * (1.0 - R.shrink_point)):
-                    continue
+            elif _blocked_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz, A.light_pos[li, 0],
+                                  A.light_pos[li, 1], A.light_pos[li, 2], R.shrink_point):
+                continue
         w = fatt * falloff
         r += w * A.light_rad[li, 0] * (kd * rho_r + spec)
         g += w * A.light_rad[li, 1] * (kd * rho_g + spec)
@@ -237,11 +245,8 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
                 if kd == 0.0 and spec == 0.0:
                     continue
                 if shadows:
-                    side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
-                    ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
-                    hx, hy, hz, hd = _towards(ox, oy, oz, yx, yy, yz)
                     nshadow += 1
-                    if occluded(R, ox, oy, oz, hx, hy, hz, t0, hd * (1.0 - R.shrink_area)):
+                    if _blocked_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz, yx, yy, yz, R.shrink_area):
                         continue
                 w = cos_y * attenuation(dist, c1, c2, c3, fclamp)
                 er += w * (kd * rho_r + spec)
