@@ -13,22 +13,12 @@ from gibench import registry
 from gibench.loader import load_scene
 from gibench.suite import load_suite
 from impl.whitted import trace
+from _analytic import fresnel_inside
 
 ROOT = Path(__file__).resolve().parent.parent
 HARD = ROOT / "suites" / "hard"
 WHITTED = registry.get("whitted")
 THETA_C = math.asin(1 / 1.5)
-
-
-def _fresnel_inside(theta, n=1.5):
-    """Unpolarised reflectance from inside glass at incidence θ (Hecht's amplitudes)."""
-    s_t = n * math.sin(theta)
-    if s_t >= 1.0:
-        return 1.0
-    ci, ct = math.cos(theta), math.sqrt(1 - s_t ** 2)
-    r_s = (n * ci - ct) / (n * ci + ct)
-    r_p = (ci - n * ct) / (ci + n * ct)
-    return 0.5 * (r_s ** 2 + r_p ** 2)
 
 
 def test_tir_slab_boundary_at_the_critical_angle():
@@ -41,7 +31,7 @@ def test_tir_slab_boundary_at_the_critical_angle():
     for d in (1e-3, 1e-2, 0.2):
         theta = THETA_C - d
         rgb, c = trace(scene, [0, 0, 0], [math.sin(theta), math.cos(theta), 0], one)
-        np.testing.assert_allclose(rgb, 2.25 * (1 - _fresnel_inside(theta)), rtol=1e-9)
+        np.testing.assert_allclose(rgb, 2.25 * (1 - fresnel_inside(theta)), rtol=1e-9)
         assert c["tir"] == 0 and c["transmission_rays"] == 1
     for d in (0.0, 1e-9, 1e-3, 0.2):
         theta = THETA_C + d
@@ -72,7 +62,7 @@ def test_tir_sphere_boundary_at_the_critical_angle():
         a = a_c + d
         theta = math.asin(0.9 * math.cos(a))
         rgb, c = trace(scene, s, [0, math.sin(a), math.cos(a)], {"max_depth": 2, "hall_threshold": 0.0})
-        np.testing.assert_allclose(rgb, 2.25 * (1 - _fresnel_inside(theta)), rtol=1e-9)
+        np.testing.assert_allclose(rgb, 2.25 * (1 - fresnel_inside(theta)), rtol=1e-9)
         assert c["tir"] == 0
     rgb, c = trace(scene, s, [0, math.sin(a_c + 1e-9), math.cos(a_c + 1e-9)])
     assert c["tir"] == 0 and c["transmission_rays"] >= 1 and np.all(np.isfinite(rgb))

@@ -15,6 +15,7 @@ from gibench import registry
 from gibench.loader import load_scene
 from impl.raycast import cast_primary
 from impl.whitted import trace
+from _analytic import fresnel_inside
 
 ROOT = Path(__file__).resolve().parent.parent
 SUITES = ROOT / "suites"
@@ -233,17 +234,6 @@ SLAB = (f'<shape type="cube" id="slab"><transform name="to_world"><scale x="30" 
 SPHERE = f'<shape type="sphere" id="ball"><float name="radius" value="1"/>{GLASS}</shape>'
 
 
-def _fresnel_inside(theta, n=1.5):
-    """Unpolarised reflectance from inside glass at incidence θ (Hecht's amplitudes)."""
-    s_t = n * math.sin(theta)
-    if s_t >= 1.0:
-        return 1.0
-    ci, ct = math.cos(theta), math.sqrt(1 - s_t ** 2)
-    r_s = (n * ci - ct) / (n * ci + ct)
-    r_p = (ci - n * ct) / (ci + n * ct)
-    return 0.5 * (r_s ** 2 + r_p ** 2)
-
-
 @pytest.mark.parametrize("shape", ["slab", "sphere"])
 def test_total_internal_reflection_around_the_critical_angle(shape, tmp_path):
     """A ray inside glass meets the surface at θ: below θ_c it leaves with radiance
@@ -268,7 +258,7 @@ def test_total_internal_reflection_around_the_critical_angle(shape, tmp_path):
     # (Just below θ_c the ray leaves almost tangentially and flies past the emitter.)
     for d in (1e-3, 1e-2, 0.2):
         rgb, c = trace(scene, *ray(theta_c - d), {"max_depth": 2, "hall_threshold": 0.0})
-        expected = 2.25 * (1 - _fresnel_inside(theta_c - d))
+        expected = 2.25 * (1 - fresnel_inside(theta_c - d))
         np.testing.assert_allclose(rgb, expected, rtol=1e-9)
         assert c["tir"] == 0 and c["transmission_rays"] == 1 and c["reflection_rays"] == 1
     for d in (1e-12, 1e-9, 1e-6):
