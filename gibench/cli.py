@@ -169,6 +169,10 @@ def cmd_run(args) -> int:
     from .suite import load_suite, run_suite
 
     defines = _parse_defines(args.define)
+    if args.scenes:                    # a directory of arbitrary scene files (gibench.scene_dir)
+        from .scene_dir import cmd_run_scenes
+
+        return cmd_run_scenes(args, results=Path(args.results), defines=defines)
     suite = load_suite(_resolve_suite(args.suite))
     store = ResultStore(Path(args.results))
     run_id = new_run_id()
@@ -258,6 +262,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip timing Mitsuba on the same scenes")
     s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
                    help="override the scene's <default name=NAME> value in every scene (as Mitsuba's -D)")
+    from .scene_dir import add_arguments as _scene_dir_arguments
+
+    _scene_dir_arguments(s)           # --scenes DIR and its options
     s.set_defaults(func=cmd_run)
 
     s = sub.add_parser("report", help="write the HTML report of a stored run")

@@ -82,8 +82,11 @@ class Material:
     ``texture`` is set when the diffuse reflectance is a texture instead of a
     colour: ``{"type": "checkerboard", "color0": (r, g, b), "color1": (r, g, b),
     "to_uv": 3x3 list}`` (Mitsuba's ``checkerboard``; ``to_uv`` is the 2D
-    affine map applied to the shape's uv).  ``reflectance`` then holds the
-    texture's mean, (color0 + color1) / 2, for algorithms that want one colour.
+    affine map applied to the shape's uv), or ``{"type": "bitmap", "data":
+    (H, W, 3) linear RGB float64, "filename", "wrap_mode", "filter_type",
+    "to_uv"}`` (Mitsuba's ``bitmap``, see :mod:`impl.textures`).
+    ``reflectance`` then holds the texture's mean, for algorithms that want
+    one colour.
     """
 
     kind: str = "diffuse"
@@ -145,7 +148,9 @@ class Scene:
     materials: list[Material]
     lights: list[Light]
     integrator: dict = field(default_factory=lambda: {"type": "path"})
-    files: list[Path] = field(default_factory=list)  # files the scene reads (meshes)
+    files: list[Path] = field(default_factory=list)  # files the scene reads (meshes, includes, images)
+    # RGB radiance of a ``constant`` environment emitter (uniform from every direction), or None.
+    environment: np.ndarray | None = None
 
     @property
     def emitters(self) -> list[Shape]:

@@ -130,6 +130,10 @@ def _check_lights(scene: Scene) -> None:
         kinds = ", ".join(sorted({l.kind for l in scene.lights}))
         raise NotImplementedError(f"radiosity: the scene has delta lights ({kinds}); radiosity models "
                                   "area emitters on diffuse polygons only")
+    if getattr(scene, "environment", None) is not None:
+        raise NotImplementedError("radiosity: the scene has a 'constant' environment emitter; the "
+                                  "enclosing-emitter form (each patch's unoccluded hemisphere fraction "
+                                  "times L_env) is not implemented")
 
 
 def _check(params: dict) -> None:

@@ -196,6 +196,14 @@ def _parse(path: Path) -> etree._ElementTree:
     return tree
 
 
+def _parse_fragment(path: Path):
+    """Root element of an included XML file (any element, as Mitsuba's ``<include>`` allows)."""
+    try:
+        return etree.parse(str(path)).getroot()
+    except (etree.XMLSyntaxError, OSError) as exc:
+        raise SceneError(f"{path}: not a valid XML file: {_first_line(exc)}") from None
+
+
 def _defaults(root) -> dict[str, str]:
     return {d.get("name"): d.get("value") for d in root.iter("default") if d.get("name")}
 
@@ -298,7 +306,8 @@ def scene_dependencies(scene_path, defines: dict | None = None) -> list[dict]:
     found: dict[str, dict] = {}
 
     def visit(xml_path: Path, depth: int) -> None:
-        root = _parse(xml_path).getroot()
+        # An included file may hold a bare fragment (e.g. a <bsdf>), as Mitsuba allows.
+        root = _parse(xml_path).getroot() if depth == 0 else _parse_fragment(xml_path)
         defaults = {**_defaults(root), **_check_defines(defines)}
         for el in root.iter():
             if not isinstance(el.tag, str):
