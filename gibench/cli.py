@@ -82,6 +82,9 @@ def cmd_render(args) -> int:
     params = algo.parse_params(values)
     defines = _parse_defines(args.define)
     scene = load_scene(args.scene, defines=defines)
+    if args.spp is None and algo.spp_param is not None and algo.spp_param not in values:
+        # As Mitsuba: without --spp the scene's sampler sample_count (after -D) is used.
+        params = algo.parse_params({**values, algo.spp_param: scene.camera.sample_count})
     result, timing = render_timed(algo, scene, params, seed=args.seed, repeats=args.repeats)
     check_finite(result.image, name=f"{algo.name} output")
     out = Path(args.out)
@@ -224,7 +227,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("render", help="render a scene with an own algorithm")
     s.add_argument("scene")
     s.add_argument("--algorithm", "-a", required=True)
-    s.add_argument("--spp", type=int)
+    s.add_argument("--spp", type=int, help="samples per pixel (default: the scene's sampler sample_count)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--set", action="append", metavar="KEY=VALUE", help="algorithm parameter")
     s.add_argument("--repeats", type=int, default=3, help="timed renders after the warm-up")

@@ -23,15 +23,29 @@ sensor           ``perspective``: fov, fov_axis, near_clip, far_clip, to_world
 film             ``hdrfilm``: width, height, rfilter, pixel_format, component_format
 rfilter          ``box``, ``gaussian`` (stddev)
 sampler          any type: sample_count (seed, jitter accepted)
+include          ``filename``: an XML file whose ``<scene>`` children (or whose
+                 root element, e.g. a ``<bsdf>``) replace the element; looked up
+                 in the including file's directory, the ``<path>`` directories,
+                 the scene's directory (as Mitsuba 3.9's parser); errors inside
+                 name the included file and the include chain
+path             ``value``: a search directory for relative file names (meshes,
+                 images, includes), relative to the declaring file; the latest
+                 is searched first, then the scene file's directory
 transform        lookat, translate, rotate, scale, matrix — composed in order
 values           rgb, float, integer, boolean, string, point, vector, ref / id
-shape            sphere (center/radius or to_world), rectangle, cube, obj, ply
-                 (filename relative to the scene file), flip_normals, face_normals
+shape            sphere (center/radius or to_world), rectangle, cube, obj, ply,
+                 disk, cylinder (p0, p1, radius; both tessellated, see
+                 :mod:`gibench.meshes`), flip_normals, face_normals
 bsdf             diffuse, conductor, dielectric, roughconductor, twosided
-texture          ``checkerboard`` (color0, color1, to_uv) nested in a diffuse bsdf
-                 as its ``reflectance``, on ``rectangle`` shapes only (their uv
-                 is Mitsuba's: the local [-1, 1]² square mapped to [0, 1]²)
-emitter          point, directional, spot; ``area`` inside a shape
+texture          nested in a diffuse bsdf as its ``reflectance``:
+                 ``checkerboard`` (color0, color1, to_uv) and ``bitmap``
+                 (filename: PNG/JPEG sRGB-decoded unless ``raw``, EXR linear;
+                 filter_type bilinear|nearest, wrap_mode repeat|clamp|mirror,
+                 to_uv), on ``rectangle`` (Mitsuba's uv: the local [-1, 1]²
+                 square mapped to [0, 1]²) and ``obj`` shapes with ``vt``
+                 coordinates (v flipped on loading, as Mitsuba does)
+emitter          point, directional, spot; ``area`` inside a shape; ``constant``
+                 (uniform environment radiance, :attr:`Scene.environment`)
 ===============  ==============================================================
 
 Anything else raises :class:`SceneError` with one line naming the element, the
@@ -50,7 +64,7 @@ import numpy as np
 from lxml import etree
 
 from . import transforms as tf
-from .meshes import MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_file, rectangle
+from .meshes import MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_uvs, rectangle
 from .scene import Camera, Film, Light, Material, Scene, Shape
 
 __all__ = ["SceneError", "load_scene", "SUPPORTED"]
@@ -65,8 +79,9 @@ SUPPORTED = {
     "texture": ("checkerboard", "bitmap"),
 }
 
-#: Shapes whose uv parameterisation the loader reproduces (for textures).
-_UV_SHAPES = ("rectangle",)
+#: Shapes whose uv parameterisation the loader reproduces (for textures); an
+#: ``obj`` needs ``vt`` coordinates in the file.
+_UV_SHAPES = ("rectangle", "obj")
 
 #: Private attribute marking the top element spliced in by an ``<include>`` (its
 #: value indexes ``_Ctx.sources``); namespaced so no plugin property can clash.
@@ -494,10 +509,13 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
             raise ctx.error(el, "missing 'filename' string")
         path = ctx.resolve(el, fn, "mesh file")
         try:
-            v, f, n = load_mesh_file(path)
+            v, f, n, uvs = load_mesh_uvs(path)
         except MeshError as exc:
             raise ctx.error(el, str(exc)) from None
         ctx.files.append(path)
+        if tex is not None and uvs is None:
+            raise ctx.error(el, f"a {tex['type']} texture needs texture coordinates, and {path.name} "
+                                "has none (OBJ 'vt' lines)")
         if n is None and not p.get("face_normals", False):
             n = angle_weighted_normals(v, f)
         if p.get("face_normals", False):

@@ -22,7 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["rectangle", "cube", "disk", "cylinder", "SEGMENTS", "load_mesh_file", "angle_weighted_normals", "MeshError"]
+__all__ = ["rectangle", "cube", "disk", "cylinder", "SEGMENTS", "load_mesh_file", "load_mesh_uvs",
+           "angle_weighted_normals", "MeshError"]
 
 
 class MeshError(ValueError):
@@ -106,6 +107,18 @@ def angle_weighted_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 
 def load_mesh_file(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Read an OBJ or PLY file: (vertices, faces, normals-from-the-file or None)."""
+    v, f, n, _ = load_mesh_uvs(path)
+    return v, f, n
+
+
+def load_mesh_uvs(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """:func:`load_mesh_file` plus the texture coordinates, (V, 2) or None.
+
+    OBJ ``vt`` coordinates arrive as Mitsuba's OBJ loader stores them: v is
+    flipped, (u, 1 − v), so that with the bitmap texture's row 0 = first file
+    row an image maps upright (measured against Mitsuba 3.9's ``uv`` AOV).
+    PLY texture coordinates are not read (None).
+    """
     import trimesh
 
     path = Path(path)
@@ -122,8 +135,9 @@ def load_mesh_file(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | Non
         raise MeshError(f"cannot read mesh file {path}: {exc}") from None
     # The format loaders return one geometry or a dict of them (OBJ objects).
     parts = list(kw["geometry"].values()) if "geometry" in kw else [kw]
-    vs, fs, ns, base = [], [], [], 0
+    vs, fs, ns, uvs, base = [], [], [], [], 0
     for g in parts:
+        uv = getattr(g.get("visual"), "uv", None) if ext == "obj" else None
         gv = np.asarray(g.get("vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
         gf = np.asarray(g.get("faces", np.zeros((0, 3))), dtype=np.int64)
         if gf.ndim != 2 or (len(gf) and gf.shape[1] != 3):
@@ -132,9 +146,12 @@ def load_mesh_file(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | Non
         vs.append(gv)
         fs.append(gf.reshape(-1, 3) + base)
         ns.append(None if gn is None else np.asarray(gn, dtype=np.float64).reshape(-1, 3))
+        uvs.append(None if uv is None or len(uv) != len(gv) else
+                   np.asarray(uv, dtype=np.float64).reshape(-1, 2) * [1.0, -1.0] + [0.0, 1.0])
         base += len(gv)
     v, f = np.concatenate(vs), np.concatenate(fs)
     if len(f) == 0:
         raise MeshError(f"mesh file {path} has no triangles")
     normals = np.concatenate(ns) if all(n is not None and len(n) == len(vv) for n, vv in zip(ns, vs)) else None
-    return v, f, normals
+    tex = np.concatenate(uvs) if all(u is not None for u in uvs) else None
+    return v, f, normals, tex
