@@ -532,3 +532,12 @@ def test_radiosity_under_a_constant_sky_is_close_to_mitsubas_path_tracer():
     m = compare(ref.image, own.image, reference_variance=ref.variance, test_variance=own.variance)
     assert m["relmse"] <= 5e-4, m["relmse"]
     np.testing.assert_allclose(own.image.mean(axis=(0, 1)), ref.image.mean(axis=(0, 1)), rtol=2e-3)
+
+
+def test_reference_key_covers_files_found_through_path_and_includes():
+    from references.reference import scene_dependencies
+
+    deps = {Path(d["name"]).name: d for d in scene_dependencies(INCLUDE)}
+    assert set(deps) == {"objects.xml", "ground_bsdf.xml", "octahedron.ply"}
+    assert all(d["sha256"] is not None for d in deps.values())       # the mesh is found via <path>
+    assert deps["octahedron.ply"]["path"].endswith("include_parts/meshes/octahedron.ply")
