@@ -441,6 +441,8 @@ def _bitmap(ctx, t, to_uv) -> dict:
             from PIL import Image
 
             with Image.open(path) as im:
+                if im.mode not in ("L", "LA", "RGB", "RGBA", "I", "I;16", "I;16B", "I;16L"):
+                    im = im.convert("RGBA" if "A" in im.mode or "transparency" in im.info else "RGB")
                 mode = im.mode
                 arr = np.asarray(im)
             if arr.dtype == np.uint8:

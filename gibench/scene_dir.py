@@ -39,6 +39,7 @@ import re
 from pathlib import Path
 
 from . import registry
+from .provenance import REPO_ROOT
 from .suite import EXPECTATIONS, Case, Suite, run_case
 
 __all__ = ["add_arguments", "directory_suite", "run_directory", "cmd_run_scenes"]
@@ -103,7 +104,10 @@ def run_directory(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_t
                    "scene_file": str(case.scene), "algorithm": case.algorithm, "label": case.label,
                    "params": case.params, "transport": case.transport, "expect": case.expect,
                    "error": f"{type(exc).__name__}: {first}"}
-        store.append(rec)
+        try:
+            store.append(rec)
+        except (ValueError, TypeError, OSError) as exc:      # the run goes on; say what was lost
+            log(f"  record not stored: {type(exc).__name__}: {exc}")
         records.append(rec)
         if rec.get("error"):
             reason = rec["error"].split(": ", 1)[-1] if rec["error"].split(": ", 1)[0].endswith(
@@ -140,7 +144,7 @@ def cmd_run_scenes(args, *, results: Path, defines: dict) -> int:
                                      mitsuba_timing=not args.no_mitsuba_timing,
                                      reference_store=args.store, defines=defines)
     out = Path(args.report) if args.report else results.parent / "report.html"
-    write_report(records, out, root=Path.cwd(), title=f"gibench — scenes of {args.scenes}")
+    write_report(records, out, root=REPO_ROOT, title=f"gibench — scenes of {args.scenes}")
     compared = [r for r in records if not r.get("error")]
     failed = [(r["scene"], c["name"]) for r in compared for c in r.get("checks", []) if not c["passed"]]
     print(f"results: {results} (run {run_id})")

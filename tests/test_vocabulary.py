@@ -541,3 +541,18 @@ def test_reference_key_covers_files_found_through_path_and_includes():
     assert set(deps) == {"objects.xml", "ground_bsdf.xml", "octahedron.ply"}
     assert all(d["sha256"] is not None for d in deps.values())       # the mesh is found via <path>
     assert deps["octahedron.ply"]["path"].endswith("include_parts/meshes/octahedron.ply")
+
+
+def test_palette_and_grey_pngs_decode_like_their_rgb_version(tmp_path):
+    from PIL import Image
+
+    rgb = Image.open(VOC / "textures" / "ramp.png")
+    rgb.convert("P", palette=Image.ADAPTIVE, colors=256).save(tmp_path / "p.png")   # < 256 colours: exact
+    rgb.convert("L").save(tmp_path / "l.png")
+    tex = '<texture type="bitmap" name="reflectance"><string name="filename" value="{}"/></texture>'
+    body = "".join(f'<shape type="rectangle"><bsdf type="diffuse">{tex.format(n)}</bsdf></shape>'
+                   for n in ("p.png", "l.png", str(VOC / "textures" / "ramp.png")))
+    scene = load_scene(_scene(tmp_path / "s.xml", f"{CAMERA}\n{body}"))
+    pal, grey, ref = (m.texture["data"] for m in scene.materials)
+    np.testing.assert_array_equal(pal, ref)
+    assert grey.shape == ref.shape and np.all(grey[..., 0] == grey[..., 2])
