@@ -7,7 +7,10 @@ sRGB.  The model holds what the scene file says and nothing an algorithm adds:
 Phong coefficients, sample counts and the like are algorithm parameters.
 
 Shapes are either analytic spheres or triangle meshes; ``rectangle`` and
-``cube`` arrive as the triangle meshes Mitsuba itself builds for them.
+``cube`` arrive as the triangle meshes Mitsuba itself builds for them,
+``disk`` and ``cylinder`` as 128-sided tessellations of Mitsuba's analytic
+shapes (:mod:`gibench.meshes`).  A ``constant`` environment emitter is
+:attr:`Scene.environment`.
 """
 
 from __future__ import annotations
