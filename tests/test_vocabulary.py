@@ -114,7 +114,7 @@ def test_reference_xml_and_key_carry_the_defines():
         != reference_key(DEFINES, transport="direct", defines=SMALL)
 
 
-def _ztest(path, defines=None, spp=64):
+def _ztest(path, defines=None, spp=64, light_samples=16):
     """Raycast at 8x8 strata vs the stored direct reference.  8x8 rather than the 4x4
     of tests/test_raycast.py: on a 64x48 film silhouette pixels are a larger share,
     and 16 strata that all miss a thin lit sliver report zero variance there
@@ -124,7 +124,7 @@ def _ztest(path, defines=None, spp=64):
 
     ref = get_reference(path, transport="direct", spp=1024, passes=8, defines=defines)
     own = RAYCAST.render(load_scene(path, defines=defines),
-                         RAYCAST.parse_params({"spp": spp, "light_samples": 16}), seed=0)
+                         RAYCAST.parse_params({"spp": spp, "light_samples": light_samples}), seed=0)
     assert own.image.shape == ref.image.shape
     return ref, own, z_test(ref.image, own.image, reference_variance=ref.variance,
                             test_variance=own.variance)
@@ -509,9 +509,12 @@ def test_render_uses_the_scenes_sample_count_after_a_define(tmp_path, capsys):
 @pytest.mark.parametrize("path", [INCLUDE, SHAPES, BITMAP, CONSTANT_ENV],
                          ids=["include", "shapes", "bitmap", "constant_env"])
 def test_new_vocabulary_scenes_pass_the_ztest_against_mitsuba_direct(path):
+    """As the suite, except 4 (not 16) area-light samples on the 768-triangle
+    shapes scene, which halves its time (brute-force intersection); measured
+    0.99967 / 1.0 consistent at seeds 0 / 1 with 4, the same as with 16."""
     from reports.metrics import z_test
 
-    ref, own, z = _ztest(path)
+    ref, own, z = _ztest(path, light_samples=4 if path == SHAPES else 16)
     assert z.passed, z
     assert not z_test(ref.image, own.image * 1.03, reference_variance=ref.variance,
                       test_variance=own.variance).passed
