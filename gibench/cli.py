@@ -176,6 +176,9 @@ def cmd_run(args) -> int:
         from .scene_dir import cmd_run_scenes
 
         return cmd_run_scenes(args, results=Path(args.results), defines=defines)
+    from .scene_dir import refuse_without_scenes
+
+    refuse_without_scenes(args)
     suite = load_suite(_resolve_suite(args.suite))
     store = ResultStore(Path(args.results))
     run_id = new_run_id()

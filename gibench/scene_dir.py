@@ -42,20 +42,36 @@ from . import registry
 from .provenance import REPO_ROOT
 from .suite import EXPECTATIONS, Case, Suite, run_case
 
-__all__ = ["add_arguments", "directory_suite", "run_directory", "cmd_run_scenes"]
+__all__ = ["add_arguments", "refuse_without_scenes", "directory_suite", "run_directory",
+           "cmd_run_scenes"]
+
+
+#: Defaults of the directory-run options (None on the parser, so that a suite run
+#: can refuse them instead of ignoring them).
+DEFAULTS = {"algorithm": "raycast", "set": None, "expect": "ztest", "reference_spp": 1024,
+            "passes": 8, "repeats": 1}
 
 
 def add_arguments(parser) -> None:
     """The ``gibench run`` options of a directory run (see the module docstring)."""
     parser.add_argument("--scenes", metavar="DIR", help="run every scene file of DIR "
                         "(rendered and compared, or listed as skipped with its reason)")
-    parser.add_argument("--algorithm", "-a", default="raycast", help="own algorithm of --scenes")
+    parser.add_argument("--algorithm", "-a", help="own algorithm of --scenes (default raycast)")
     parser.add_argument("--set", action="append", metavar="KEY=VALUE",
                         help="algorithm parameter of --scenes")
-    parser.add_argument("--expect", choices=EXPECTATIONS, default="ztest", help="expectation of --scenes")
-    parser.add_argument("--reference-spp", type=int, default=1024, help="reference spp of --scenes")
-    parser.add_argument("--passes", type=int, default=8, help="reference passes of --scenes")
-    parser.add_argument("--repeats", type=int, default=1, help="timed renders of --scenes")
+    parser.add_argument("--expect", choices=EXPECTATIONS, help="expectation of --scenes (default ztest)")
+    parser.add_argument("--reference-spp", type=int, help="reference spp of --scenes (default 1024)")
+    parser.add_argument("--passes", type=int, help="reference passes of --scenes (default 8)")
+    parser.add_argument("--repeats", type=int, help="timed renders of --scenes (default 1)")
+
+
+def refuse_without_scenes(args) -> None:
+    """A suite run takes its algorithms and parameters from the manifest: the
+    directory-run options are an error there, not silently ignored."""
+    given = [k for k in DEFAULTS if getattr(args, k, None) is not None]
+    if given:
+        opts = ", ".join("--" + k.replace("_", "-") for k in given)
+        raise ValueError(f"{opts} only apply with --scenes DIR (a suite takes them from its manifest)")
 
 
 def _scene_id(path: Path) -> str:
@@ -128,6 +144,9 @@ def cmd_run_scenes(args, *, results: Path, defines: dict) -> int:
     from reports.html import write_report
     from reports.results import ResultStore, new_run_id
 
+    for k, v in DEFAULTS.items():
+        if getattr(args, k, None) is None:
+            setattr(args, k, v)
     params = {}
     for item in args.set or []:
         if "=" not in item:

@@ -106,3 +106,9 @@ def test_one_crashing_file_does_not_stop_the_run(tmp_path, monkeypatch):
     assert calls == ["a_good.xml", "b_malformed.xml", "c_envmap.xml", "d_conductor.xml",
                      "e_missing_mesh.xml"]
     assert skipped[0] == ("a_good.xml", "'boom'") and len(records) == 5
+
+
+def test_directory_options_are_refused_for_a_suite_run(tmp_path, capsys):
+    code = main(["run", "vocabulary", "--set", "spp=4", "--results", str(tmp_path / "r.jsonl")])
+    err = capsys.readouterr().err
+    assert code == 2 and "--set only apply with --scenes DIR" in err

@@ -306,7 +306,6 @@ def test_flip_normals_on_a_cylinder_turns_the_outside_black():
     outside is its back side, which one-sided diffuse reflects nothing from."""
     base = load_scene(SHAPES)
     params = RAYCAST.parse_params({"spp": 1, "light_samples": 4})
-    tube_px = None
     import dataclasses
 
     from impl.raycast import cast_primary
