@@ -11,7 +11,9 @@ one case of an in-memory suite.  Each file either
 * is listed as **skipped** with its one-line reason: the loader's error
   (``file:line: <element>: cause``: malformed XML, an unsupported plugin such
   as ``envmap``), the algorithm's refusal (``NotImplementedError``: a
-  material it does not model), or Mitsuba's own error on the file.
+  material it does not model), or Mitsuba's own error on the file.  The first
+  two are found by :func:`preflight` (the algorithm on a 2x2 film) before any
+  reference is rendered.
 
 A bad file never stops the run: every failure of one case, whatever its type,
 becomes that case's skip reason.  Records go to the results store and the HTML
@@ -42,7 +44,7 @@ from . import registry
 from .provenance import REPO_ROOT
 from .suite import EXPECTATIONS, Case, Suite, run_case
 
-__all__ = ["add_arguments", "refuse_without_scenes", "directory_suite", "run_directory",
+__all__ = ["add_arguments", "refuse_without_scenes", "directory_suite", "preflight", "run_directory",
            "cmd_run_scenes"]
 
 
@@ -102,6 +104,29 @@ def directory_suite(directory, algorithm: str, params: dict | None = None, *,
                  description=f"every scene file of {directory}")
 
 
+def preflight(case: Case, defines: dict | None = None) -> str | None:
+    """Why the own side cannot run ``case`` (loader error, the algorithm's refusal),
+    or None; found on a 2x2 copy of the film, before any Mitsuba reference is
+    rendered for a file that would be skipped anyway.  It costs one render of 4
+    pixels, plus whatever the algorithm computes independently of the view
+    (radiosity meshes and solves the scene once more)."""
+    import dataclasses
+
+    from .loader import load_scene
+
+    try:
+        algo = registry.get(case.algorithm)
+        params = algo.parse_params(case.params)
+        scene = load_scene(case.scene, defines=defines)
+        film = dataclasses.replace(scene.camera.film, width=2, height=2)
+        scene.camera = dataclasses.replace(scene.camera, film=film)
+        algo.render(scene, params)
+    except Exception as exc:  # noqa: BLE001 - any failure is this file's skip reason
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        return first or type(exc).__name__
+    return None
+
+
 def run_directory(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timing: bool = False,
                   reference_store=None, log=print, defines: dict | None = None):
     """Run every case of a :func:`directory_suite`; returns (records, skipped) where
@@ -110,6 +135,20 @@ def run_directory(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_t
     records, skipped = [], []
     for i, case in enumerate(suite.cases):
         log(f"[{i + 1}/{len(suite.cases)}] {case.scene.name}")
+        reason = preflight(case, defines)
+        if reason is not None:
+            rec = {"run_id": run_id, "suite": suite.name, "scene": case.scene_id,
+                   "scene_file": str(case.scene), "algorithm": case.algorithm, "label": case.label,
+                   "params": case.params, "transport": case.transport, "expect": case.expect,
+                   "error": reason}
+            try:
+                store.append(rec)
+            except (ValueError, TypeError, OSError) as exc:
+                log(f"  record not stored: {type(exc).__name__}: {exc}")
+            records.append(rec)
+            skipped.append((case.scene.name, reason))
+            log(f"  skipped: {reason}")
+            continue
         try:
             rec = run_case(case, suite, run_id=run_id, out_dir=out_dir, mitsuba_timing=mitsuba_timing,
                            timing_cache={}, reference_store=reference_store, log=None,
