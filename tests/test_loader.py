@@ -29,7 +29,7 @@ def test_suite_has_the_promised_scenes():
 def test_scene_loads(path):
     scene = load_scene(path)
     assert scene.shapes, "no shapes"
-    assert scene.lights or scene.emitters, "no light"
+    assert scene.lights or scene.emitters or scene.environment is not None, "no light"
 
 
 # --------------------------------------------------------------- transforms ---
