@@ -82,6 +82,9 @@ def cmd_render(args) -> int:
     params = algo.parse_params(values)
     defines = _parse_defines(args.define)
     scene = load_scene(args.scene, defines=defines)
+    if args.spp is None and algo.spp_param is not None and algo.spp_param not in values:
+        # As Mitsuba: without --spp the scene's sampler sample_count (after -D) is used.
+        params = algo.parse_params({**values, algo.spp_param: scene.camera.sample_count})
     result, timing = render_timed(algo, scene, params, seed=args.seed, repeats=args.repeats)
     check_finite(result.image, name=f"{algo.name} output")
     out = Path(args.out)
@@ -169,6 +172,13 @@ def cmd_run(args) -> int:
     from .suite import load_suite, run_suite
 
     defines = _parse_defines(args.define)
+    if args.scenes:                    # a directory of arbitrary scene files (gibench.scene_dir)
+        from .scene_dir import cmd_run_scenes
+
+        return cmd_run_scenes(args, results=Path(args.results), defines=defines)
+    from .scene_dir import refuse_without_scenes
+
+    refuse_without_scenes(args)
     suite = load_suite(_resolve_suite(args.suite))
     store = ResultStore(Path(args.results))
     run_id = new_run_id()
@@ -220,7 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("render", help="render a scene with an own algorithm")
     s.add_argument("scene")
     s.add_argument("--algorithm", "-a", required=True)
-    s.add_argument("--spp", type=int)
+    s.add_argument("--spp", type=int, help="samples per pixel (default: the scene's sampler sample_count)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--set", action="append", metavar="KEY=VALUE", help="algorithm parameter")
     s.add_argument("--repeats", type=int, default=3, help="timed renders after the warm-up")
@@ -258,6 +268,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip timing Mitsuba on the same scenes")
     s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
                    help="override the scene's <default name=NAME> value in every scene (as Mitsuba's -D)")
+    from .scene_dir import add_arguments as _scene_dir_arguments
+
+    _scene_dir_arguments(s)           # --scenes DIR and its options
     s.set_defaults(func=cmd_run)
 
     s = sub.add_parser("report", help="write the HTML report of a stored run")

@@ -23,15 +23,29 @@ sensor           ``perspective``: fov, fov_axis, near_clip, far_clip, to_world
 film             ``hdrfilm``: width, height, rfilter, pixel_format, component_format
 rfilter          ``box``, ``gaussian`` (stddev)
 sampler          any type: sample_count (seed, jitter accepted)
+include          ``filename``: an XML file whose ``<scene>`` children (or whose
+                 root element, e.g. a ``<bsdf>``) replace the element; looked up
+                 in the including file's directory, the ``<path>`` directories,
+                 the scene's directory (as Mitsuba 3.9's parser); errors inside
+                 name the included file and the include chain
+path             ``value``: a search directory for relative file names (meshes,
+                 images, includes), relative to the declaring file; the latest
+                 is searched first, then the scene file's directory
 transform        lookat, translate, rotate, scale, matrix — composed in order
 values           rgb, float, integer, boolean, string, point, vector, ref / id
-shape            sphere (center/radius or to_world), rectangle, cube, obj, ply
-                 (filename relative to the scene file), flip_normals, face_normals
+shape            sphere (center/radius or to_world), rectangle, cube, obj, ply,
+                 disk, cylinder (p0, p1, radius; both tessellated, see
+                 :mod:`gibench.meshes`), flip_normals, face_normals
 bsdf             diffuse, conductor, dielectric, roughconductor, twosided
-texture          ``checkerboard`` (color0, color1, to_uv) nested in a diffuse bsdf
-                 as its ``reflectance``, on ``rectangle`` shapes only (their uv
-                 is Mitsuba's: the local [-1, 1]² square mapped to [0, 1]²)
-emitter          point, directional, spot; ``area`` inside a shape
+texture          nested in a diffuse bsdf as its ``reflectance``:
+                 ``checkerboard`` (color0, color1, to_uv) and ``bitmap``
+                 (filename: PNG/JPEG sRGB-decoded unless ``raw``, EXR linear;
+                 filter_type bilinear|nearest, wrap_mode repeat|clamp|mirror,
+                 to_uv), on ``rectangle`` (Mitsuba's uv: the local [-1, 1]²
+                 square mapped to [0, 1]²) and ``obj`` shapes with ``vt``
+                 coordinates (v flipped on loading, as Mitsuba does)
+emitter          point, directional, spot; ``area`` inside a shape; ``constant``
+                 (uniform environment radiance, :attr:`Scene.environment`)
 ===============  ==============================================================
 
 Anything else raises :class:`SceneError` with one line naming the element, the
@@ -50,23 +64,31 @@ import numpy as np
 from lxml import etree
 
 from . import transforms as tf
-from .meshes import MeshError, angle_weighted_normals, cube, load_mesh_file, rectangle
+from .meshes import MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_uvs, rectangle
 from .scene import Camera, Film, Light, Material, Scene, Shape
 
 __all__ = ["SceneError", "load_scene", "SUPPORTED"]
 
 SUPPORTED = {
-    "shape": ("sphere", "rectangle", "cube", "obj", "ply"),
+    "shape": ("sphere", "rectangle", "cube", "disk", "cylinder", "obj", "ply"),
     "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "twosided"),
-    "emitter": ("point", "directional", "spot", "area"),
+    "emitter": ("point", "directional", "spot", "area", "constant"),
     "sensor": ("perspective",),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian"),
-    "texture": ("checkerboard",),
+    "texture": ("checkerboard", "bitmap"),
 }
 
-#: Shapes whose uv parameterisation the loader reproduces (for textures).
-_UV_SHAPES = ("rectangle",)
+#: Shapes whose uv parameterisation the loader reproduces (for textures); an
+#: ``obj`` needs ``vt`` coordinates in the file.
+_UV_SHAPES = ("rectangle", "obj")
+
+#: Private attribute marking the top element spliced in by an ``<include>`` (its
+#: value indexes ``_Ctx.sources``); namespaced so no plugin property can clash.
+_SRC = "{urn:gibench:loader}source"
+
+#: Mitsuba's limit on nested ``<include>`` files (parser.cpp ``max_include_depth``).
+_MAX_INCLUDE_DEPTH = 15
 
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
 
@@ -79,6 +101,8 @@ _PROPS = {
     ("shape", "sphere"): {"center", "radius", "to_world", "flip_normals"},
     ("shape", "rectangle"): {"to_world", "flip_normals"},
     ("shape", "cube"): {"to_world", "flip_normals"},
+    ("shape", "disk"): {"to_world", "flip_normals"},
+    ("shape", "cylinder"): {"to_world", "flip_normals", "p0", "p1", "radius"},
     ("shape", "obj"): {"filename", "to_world", "flip_normals", "face_normals"},
     ("shape", "ply"): {"filename", "to_world", "flip_normals", "face_normals"},
     ("bsdf", "diffuse"): {"reflectance"},
@@ -92,6 +116,8 @@ _PROPS = {
     ("emitter", "spot"): {"intensity", "cutoff_angle", "beam_width", "to_world"},
     ("emitter", "area"): {"radiance"},
     ("texture", "checkerboard"): {"color0", "color1", "to_uv"},
+    ("texture", "bitmap"): {"filename", "filter_type", "wrap_mode", "raw", "to_uv", "format"},
+    ("emitter", "constant"): {"radiance"},
 }
 
 
@@ -108,13 +134,43 @@ class _Ctx:
         self.defaults: dict[str, str] = dict(defines or {})
         self.ids: dict[str, etree._Element] = {}
         self.files: list[Path] = []
+        # <include>d files: (file, "included from a.xml:3 <- ...") by index; see _expand_includes.
+        self.sources: list[tuple[Path, str]] = []
+        # <path> directories, most recent first (Mitsuba prepends them to its file resolver).
+        self.search: list[Path] = []
+
+    def where(self, el) -> tuple[Path, str]:
+        """The file an element comes from and its include chain ("" for the scene file)."""
+        node = el
+        while node is not None:
+            src = node.get(_SRC) if isinstance(node.tag, str) else None
+            if src is not None:
+                return self.sources[int(src)]
+            node = node.getparent()
+        return self.path, ""
 
     def error(self, el, msg: str) -> SceneError:
         line = getattr(el, "sourceline", None) or "?"
         tag = el.tag if isinstance(el.tag, str) else "?"
         typ = el.get("type")
         desc = f'<{tag} type="{typ}">' if typ else f"<{tag}>"
-        return SceneError(f"{self.path}:{line}: {desc}: {msg}")
+        path, chain = self.where(el)
+        return SceneError(f"{path}:{line}: {desc}: {msg}{chain}")
+
+    def resolve(self, el, name: str, what: str = "file") -> Path:
+        """A file named in the scene, found as Mitsuba's file resolver finds it: an
+        absolute name as is; a relative one in the ``<path>`` directories (the latest
+        declared first), then in the scene file's directory."""
+        p = Path(name)
+        if p.is_absolute():
+            if p.is_file():
+                return p
+            raise self.error(el, f"{what} not found: {p}")
+        dirs = [*self.search, self.path.parent]
+        for d in dirs:
+            if (d / p).is_file():
+                return (d / p).resolve()
+        raise self.error(el, f"{what} '{name}' not found (searched: {', '.join(str(d) for d in dirs)})")
 
     def attr(self, el, key: str, default=None):
         v = el.get(key)
@@ -312,7 +368,9 @@ def _material(ctx, el, materials: list, cache: dict) -> int:
         texture = _texture(ctx, p)
     else:
         p.unexpected_children(())
-    if texture is not None:
+    if texture is not None and texture["type"] == "bitmap":
+        refl = tuple(float(x) for x in texture["data"].reshape(-1, 3).mean(axis=0))
+    elif texture is not None:
         refl = tuple(0.5 * (np.asarray(texture["color0"]) + np.asarray(texture["color1"])))
     else:
         refl = tuple(_rgb(ctx, p, "reflectance", 0.5)) if p.type == "diffuse" else (0.0, 0.0, 0.0)
@@ -341,8 +399,73 @@ def _texture(ctx, bsdf) -> dict | None:
     # Mitsuba reads a 4x4 to_uv as a 2D affine map: the upper-left 2x2 block and
     # the first two entries of the translation column.
     to_uv = np.array([[m[0, 0], m[0, 1], m[0, 3]], [m[1, 0], m[1, 1], m[1, 3]], [0.0, 0.0, 1.0]])
+    if t.type == "bitmap":
+        return _bitmap(ctx, t, to_uv)
     return {"type": t.type, "color0": tuple(_rgb(ctx, t, "color0", 0.4)),
             "color1": tuple(_rgb(ctx, t, "color1", 0.2)), "to_uv": to_uv.tolist()}
+
+
+def _srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """The exact sRGB decoding curve (IEC 61966-2-1), as Mitsuba's ``Bitmap`` applies it."""
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def _bitmap(ctx, t, to_uv) -> dict:
+    """Mitsuba's ``bitmap`` texture: the image in linear RGB and its lookup options.
+
+    8-bit and 16-bit images (PNG, JPEG) are sRGB-encoded and decoded with the sRGB
+    curve unless ``raw`` is true; float images (EXR) are taken as linear, as Mitsuba
+    does.  Grey images become RGB; an alpha channel is dropped (Mitsuba's RGB
+    reflectance ignores it too).
+    """
+    fn = t.get("filename")
+    if fn is None:
+        raise ctx.error(t.el, "bitmap texture needs a 'filename' string")
+    path = ctx.resolve(t.el, fn, "image file")
+    filt = t.get("filter_type", "bilinear")
+    wrap = t.get("wrap_mode", "repeat")
+    if filt not in ("bilinear", "nearest"):
+        raise ctx.error(t.el, f"unknown filter_type '{filt}' (bilinear, nearest)")
+    if wrap not in ("repeat", "clamp", "mirror"):
+        raise ctx.error(t.el, f"unknown wrap_mode '{wrap}' (repeat, clamp, mirror)")
+    if t.get("format", "variant") != "variant":
+        raise ctx.error(t.el, "bitmap 'format' other than 'variant' is not supported")
+    raw = bool(t.get("raw", False))
+    try:
+        if path.suffix.lower() == ".exr":
+            from .imageio import read_exr
+
+            img = np.asarray(read_exr(path), dtype=np.float64)
+            srgb = False
+        else:
+            from PIL import Image
+
+            with Image.open(path) as im:
+                if im.mode not in ("L", "LA", "RGB", "RGBA", "I", "I;16", "I;16B", "I;16L"):
+                    im = im.convert("RGBA" if "A" in im.mode or "transparency" in im.info else "RGB")
+                mode = im.mode
+                arr = np.asarray(im)
+            if arr.dtype == np.uint8:
+                img = arr.astype(np.float64) / 255.0
+            elif arr.dtype in (np.uint16, np.int32) and mode.startswith("I"):
+                img = arr.astype(np.float64) / 65535.0
+            else:
+                raise ValueError(f"unsupported pixel type {arr.dtype} (mode {mode})")
+            srgb = not raw
+    except Exception as exc:                      # noqa: BLE001 - any decoder failure is the file's
+        raise ctx.error(t.el, f"cannot read image {path}: {exc}") from None
+    if img.ndim == 2:
+        img = img[:, :, None]
+    if img.shape[2] in (2, 4):                     # grey + alpha, RGBA: drop alpha
+        img = img[:, :, :-1]
+    if img.shape[2] == 1:
+        img = np.repeat(img, 3, axis=2)
+    img = np.ascontiguousarray(img[:, :, :3], dtype=np.float64)
+    if srgb:
+        img = _srgb_to_linear(img)
+    ctx.files.append(path)
+    return {"type": "bitmap", "data": img, "filename": str(path), "wrap_mode": wrap,
+            "filter_type": filt, "to_uv": to_uv.tolist()}
 
 
 def _shape(ctx, el, materials, cache, default_mat) -> Shape:
@@ -376,7 +499,9 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
                      center=tf.transform_points(m, center), radius=radius * s,
                      flip_normals=flip, emitter_radiance=emit)
     uvs = None
-    if p.type in ("rectangle", "cube"):
+    if p.type in ("disk", "cylinder"):
+        v, f, n, m = _analytic_mesh(ctx, p, m)
+    elif p.type in ("rectangle", "cube"):
         v, f, n = rectangle() if p.type == "rectangle" else cube()
         if p.type == "rectangle":
             uvs = 0.5 * (v[:, :2] + 1.0)      # Mitsuba: local (x, y) ∈ [-1, 1]² -> uv ∈ [0, 1]²
@@ -384,12 +509,15 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
         fn = p.get("filename")
         if fn is None:
             raise ctx.error(el, "missing 'filename' string")
-        path = (ctx.path.parent / fn).resolve()
+        path = ctx.resolve(el, fn, "mesh file")
         try:
-            v, f, n = load_mesh_file(path)
+            v, f, n, uvs = load_mesh_uvs(path)
         except MeshError as exc:
             raise ctx.error(el, str(exc)) from None
         ctx.files.append(path)
+        if tex is not None and uvs is None:
+            raise ctx.error(el, f"a {tex['type']} texture needs texture coordinates, and {path.name} "
+                                "has none (OBJ 'vt' lines)")
         if n is None and not p.get("face_normals", False):
             n = angle_weighted_normals(v, f)
         if p.get("face_normals", False):
@@ -400,6 +528,43 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
         f = f[:, ::-1].copy()          # a mirroring transform flips the winding; keep normals outward
     return Shape(kind="mesh", material=mat, name=name, source=p.type, vertices=v_world,
                  faces=f, normals=n_world, flip_normals=flip, emitter_radiance=emit, uvs=uvs)
+
+
+def _analytic_mesh(ctx, p, m):
+    """Mitsuba's ``disk`` / ``cylinder`` as a tessellated mesh (see :mod:`gibench.meshes`):
+    (vertices, faces, normals, object-to-world).  The cylinder's object-to-world is
+    Mitsuba's: to_world · translate(p0) · frame(p1 − p0) · scale(radius, radius, |p1 − p0|);
+    Mitsuba refuses a non-uniform scale across the axis, and so does the loader."""
+    if p.type == "disk":
+        return (*disk(), m)
+    p0 = np.asarray(p.get("p0", np.zeros(3)), dtype=np.float64)
+    p1 = np.asarray(p.get("p1", [0.0, 0.0, 1.0]), dtype=np.float64)
+    radius = float(p.get("radius", 1.0))
+    d = p1 - p0
+    length = float(np.linalg.norm(d))
+    if length == 0.0 or radius <= 0.0:
+        raise ctx.error(p.el, f"cylinder needs p0 != p1 and radius > 0 (radius {radius}, length {length})")
+    zax = d / length
+    helper = np.array([1.0, 0.0, 0.0]) if abs(zax[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    xax = np.cross(helper, zax)
+    xax /= np.linalg.norm(xax)
+    frame = np.eye(4)
+    frame[:3, 0], frame[:3, 1], frame[:3, 2] = xax, np.cross(zax, xax), zax
+    m = m @ tf.translate(p0) @ frame @ tf.scale([radius, radius, length])
+    ex, ey = m[:3, 0], m[:3, 1]
+    if abs(np.linalg.norm(ex) - np.linalg.norm(ey)) > 1e-6 * np.linalg.norm(ex) or \
+            abs(ex @ ey) > 1e-6 * (ex @ ex) or abs(ex @ m[:3, 2]) > 1e-6 * np.linalg.norm(ex) * np.linalg.norm(m[:3, 2]) \
+            or abs(ey @ m[:3, 2]) > 1e-6 * np.linalg.norm(ey) * np.linalg.norm(m[:3, 2]):
+        raise ctx.error(p.el, "cylinder to_world must scale the cross-section uniformly and keep it "
+                              "perpendicular to the axis (as Mitsuba requires)")
+    return (*cylinder(), m)
+
+
+def _environment(ctx, el) -> np.ndarray:
+    """Mitsuba's ``constant`` emitter: uniform radiance from every direction (RGB)."""
+    p = _Plugin(ctx, el, "emitter")
+    p.unexpected_children(())
+    return _rgb(ctx, p, "radiance", 1.0)
 
 
 def _light(ctx, el) -> Light:
@@ -503,6 +668,103 @@ def _upgrade_pre_v2(root) -> None:
                     c.set("name", "reflectance")
 
 
+# --------------------------------------------------------------- include ---
+
+def _parse_xml(path: Path, where: str = "") -> etree._Element:
+    try:
+        return etree.parse(str(path), etree.XMLParser(remove_comments=True)).getroot()
+    except etree.XMLSyntaxError as exc:
+        line = exc.lineno if exc.lineno is not None else "?"
+        raise SceneError(f"{path}:{line}: malformed XML: {exc.msg}{where}") from None
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read: {exc}{where}") from None
+
+
+def _check_version(ctx, root, where: str = "") -> int:
+    """The major version of a file's root ``version`` attribute; a file older
+    than 2.0 is upgraded in memory (:func:`_upgrade_pre_v2`)."""
+    version = root.get("version", "3.0.0")
+    m = re.fullmatch(r"\s*(\d+)\.(\d+)(?:\.(\d+))?\s*", version)
+    if m is None or int(m.group(1)) > 3:
+        raise ctx.error(root, f"unsupported scene version '{version}' (0.x to 3.x)")
+    if int(m.group(1)) < 2:
+        _upgrade_pre_v2(root)
+    return int(m.group(1))
+
+
+def _expand_includes(ctx, root, file: Path, chain: str, depth: int) -> None:
+    """Replace every ``<include filename=...>`` under ``root`` by the file's content and
+    record the ``<path value=...>`` directories, in document order, as Mitsuba 3's
+    parser does (parser.cpp, ``TagType::Include`` / ``TagType::Resource``):
+
+    * ``<path>`` may only be a child of the root; a relative directory is taken
+      from the directory of the file that declares it, else looked up in the
+      directories declared before; it must exist.  Later ones are searched first.
+    * An included file is looked up in the including file's directory, then in
+      the ``<path>`` directories, then in the scene file's directory.  It needs a
+      ``version`` on its root (files older than 2.0 are upgraded on their own
+      version); a ``<scene>`` root contributes its children, any other root
+      element (e.g. a ``<bsdf>``) is inserted itself, named by the include's
+      ``name``.  Nesting stops at depth 15.
+
+    Errors inside an included file name that file and line and then the chain
+    of includes that led to it.
+    """
+    for el in list(root.iter("include", "path")):
+        if el.tag == "path":
+            if el.getparent() is not root:
+                raise ctx.error(el, "<path> can only be a child of the root <scene>")
+            value = ctx.attr(el, "value")
+            if not value:
+                raise ctx.error(el, "<path> needs a 'value' attribute")
+            d = Path(value)
+            if not d.is_absolute():
+                cands = [file.parent / d, *(s / d for s in ctx.search), ctx.path.parent / d]
+                d = next((c for c in cands if c.is_dir()), file.parent / d)
+            if not d.is_dir():
+                raise ctx.error(el, f"<path>: folder '{value}' not found")
+            ctx.search.insert(0, d.resolve())
+            el.getparent().remove(el)
+            continue
+        name = ctx.attr(el, "filename")
+        if not name:
+            raise ctx.error(el, "<include> needs a 'filename' attribute")
+        dirs = [file.parent, *ctx.search, ctx.path.parent]
+        found = Path(name) if Path(name).is_absolute() else next(
+            (d / name for d in dirs if (d / name).is_file()), None)
+        if found is None or not found.is_file():
+            raise ctx.error(el, f"included file '{name}' not found "
+                                f"(searched: {', '.join(str(d) for d in dict.fromkeys(dirs))})")
+        if depth + 1 > _MAX_INCLUDE_DEPTH:
+            raise ctx.error(el, f"more than {_MAX_INCLUDE_DEPTH} nested <include> files")
+        found = found.resolve()
+        ctx.files.append(found)
+        here = f"{file.name if file == ctx.path else file}:{el.sourceline}"
+        sub_chain = f" (included from {here}" + (f", {chain[2:]}" if chain else ")")
+        inc = _parse_xml(found, sub_chain)
+        ctx.sources.append((found, sub_chain))
+        mark = str(len(ctx.sources) - 1)
+        inc.set(_SRC, mark)
+        if inc.get("version") is None:
+            raise ctx.error(inc, "an included file needs a 'version' attribute on its root element")
+        _check_version(ctx, inc)
+        if inc.tag == "scene":
+            for c in inc:
+                if isinstance(c.tag, str) and c.tag == "default":
+                    ctx.defaults.setdefault(c.get("name"), c.get("value"))
+        _expand_includes(ctx, inc, found, sub_chain, depth + 1)
+        parts = [c for c in inc if isinstance(c.tag, str)] if inc.tag == "scene" else [inc]
+        parent, at = el.getparent(), el.getparent().index(el)
+        for c in parts:
+            if c.get(_SRC) is None:
+                c.set(_SRC, mark)
+        if inc.tag != "scene" and el.get("name") is not None:
+            inc.set("name", el.get("name"))
+        parent.remove(el)
+        for k, c in enumerate(parts):
+            parent.insert(at + k, c)
+
+
 # ------------------------------------------------------------------ entry ---
 
 def load_scene(path, defines: dict | None = None) -> Scene:
@@ -521,28 +783,21 @@ def load_scene(path, defines: dict | None = None) -> Scene:
     path = Path(path)
     if not path.is_file():
         raise SceneError(f"{path}: scene file not found")
-    try:
-        root = etree.parse(str(path), etree.XMLParser(remove_comments=True)).getroot()
-    except etree.XMLSyntaxError as exc:
-        line = exc.lineno if exc.lineno is not None else "?"
-        raise SceneError(f"{path}:{line}: malformed XML: {exc.msg}") from None
+    root = _parse_xml(path)
     ctx = _Ctx(path, {str(k): str(v) for k, v in (defines or {}).items()})
     if root.tag != "scene":
         raise ctx.error(root, "the root element must be <scene>")
-    version = root.get("version", "3.0.0")
-    m = re.fullmatch(r"\s*(\d+)\.(\d+)(?:\.(\d+))?\s*", version)
-    if m is None or int(m.group(1)) > 3:
-        raise ctx.error(root, f"unsupported scene version '{version}' (0.x to 3.x)")
-    if int(m.group(1)) < 2:
-        _upgrade_pre_v2(root)
+    _check_version(ctx, root)
 
-    # Pass 1: defaults and ids (Mitsuba resolves <default> before anything else).
+    # Pass 1: defaults, includes and paths, then ids (Mitsuba resolves <default>
+    # before anything else; an included scene's defaults join in document order).
     for c in root:
         if isinstance(c.tag, str) and c.tag == "default":
             name, value = c.get("name"), c.get("value")
             if name is None or value is None:
                 raise ctx.error(c, "<default> needs 'name' and 'value'")
             ctx.defaults.setdefault(name, value)
+    _expand_includes(ctx, root, path, "", 0)
     for c in root.iter():
         if isinstance(c.tag, str) and c.get("id") is not None and c.tag != "ref":
             ctx.ids[ctx.attr(c, "id")] = c
@@ -558,6 +813,7 @@ def load_scene(path, defines: dict | None = None) -> Scene:
         return default_mat_index[0]
 
     camera, shapes, lights, integrator = None, [], [], {"type": "path"}
+    environment = None
     for c in root:
         if not isinstance(c.tag, str) or c.tag == "default":
             continue
@@ -571,6 +827,10 @@ def load_scene(path, defines: dict | None = None) -> Scene:
             _material(ctx, c, materials, cache)
         elif c.tag == "shape":
             shapes.append(_shape(ctx, c, materials, cache, default_mat))
+        elif c.tag == "emitter" and ctx.attr(c, "type") == "constant":
+            if environment is not None:
+                raise ctx.error(c, "more than one constant environment emitter")
+            environment = _environment(ctx, c)
         elif c.tag == "emitter":
             lights.append(_light(ctx, c))
         else:
@@ -579,4 +839,4 @@ def load_scene(path, defines: dict | None = None) -> Scene:
     if camera is None:
         raise ctx.error(root, "the scene has no sensor")
     return Scene(path=path, camera=camera, shapes=shapes, materials=materials, lights=lights,
-                 integrator=integrator, files=ctx.files)
+                 integrator=integrator, files=ctx.files, environment=environment)

@@ -7,7 +7,10 @@ sRGB.  The model holds what the scene file says and nothing an algorithm adds:
 Phong coefficients, sample counts and the like are algorithm parameters.
 
 Shapes are either analytic spheres or triangle meshes; ``rectangle`` and
-``cube`` arrive as the triangle meshes Mitsuba itself builds for them.
+``cube`` arrive as the triangle meshes Mitsuba itself builds for them,
+``disk`` and ``cylinder`` as 128-sided tessellations of Mitsuba's analytic
+shapes (:mod:`gibench.meshes`).  A ``constant`` environment emitter is
+:attr:`Scene.environment`.
 """
 
 from __future__ import annotations
@@ -82,8 +85,11 @@ class Material:
     ``texture`` is set when the diffuse reflectance is a texture instead of a
     colour: ``{"type": "checkerboard", "color0": (r, g, b), "color1": (r, g, b),
     "to_uv": 3x3 list}`` (Mitsuba's ``checkerboard``; ``to_uv`` is the 2D
-    affine map applied to the shape's uv).  ``reflectance`` then holds the
-    texture's mean, (color0 + color1) / 2, for algorithms that want one colour.
+    affine map applied to the shape's uv), or ``{"type": "bitmap", "data":
+    (H, W, 3) linear RGB float64, "filename", "wrap_mode", "filter_type",
+    "to_uv"}`` (Mitsuba's ``bitmap``, see :mod:`impl.textures`).
+    ``reflectance`` then holds the texture's mean, for algorithms that want
+    one colour.
     """
 
     kind: str = "diffuse"
@@ -145,7 +151,9 @@ class Scene:
     materials: list[Material]
     lights: list[Light]
     integrator: dict = field(default_factory=lambda: {"type": "path"})
-    files: list[Path] = field(default_factory=list)  # files the scene reads (meshes)
+    files: list[Path] = field(default_factory=list)  # files the scene reads (meshes, includes, images)
+    # RGB radiance of a ``constant`` environment emitter (uniform from every direction), or None.
+    environment: np.ndarray | None = None
 
     @property
     def emitters(self) -> list[Shape]:

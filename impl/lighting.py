@@ -6,14 +6,22 @@ tree (thesis 2.2: the shadow rays of a hit point):
 
 * :func:`surface` — geometric and shading normals of the kept hit;
 * :func:`diffuse_albedo` — the diffuse reflectance ρ at the hit, from the
-  material's colour or its texture (Mitsuba's ``checkerboard``);
+  material's colour or its texture (Mitsuba's ``checkerboard`` or ``bitmap``,
+  :mod:`impl.textures`);
+* :func:`environment_radiance` — what a ray that escapes the scene sees: the
+  radiance of a ``constant`` environment emitter (0 without one), for the
+  tracers' escaping rays;
 * :func:`sample_emitter` — a uniform point on an area emitter, by area;
 * :func:`direct_light_rays` — Phong-model light from every delta light and
   area emitter, each sample tested with a shadow ray cast with a ray
   configuration (:class:`impl.rays.RayConfig`: ray–sphere form, intersection
   precision, offset strategy); :func:`direct_light` is the same with the fixed
   rule of before (stable form, float64, origin moved SHADOW_EPSILON·(1 + max|p_i|)
-  along the normal).
+  along the normal).  A ``constant`` environment emitter is sampled there too:
+  ``light_samples`` cosine-weighted directions about the shading normal, each
+  with a shadow ray to infinity; the estimator of the diffuse part is
+  L_env ρ V(ω) per sample (f cos / pdf = (ρ/π) cos / (cos/π) = ρ), the Phong
+  highlight adds L_env k_s (R·V)^n π / cos.
 
 They take the flattened scene (:class:`impl.scene_arrays.SceneArrays`) and
 return plain scalars, so a caller's pixel kernel stays free of allocation.
@@ -29,10 +37,11 @@ from numba import njit
 from .rays import RayConfig, legacy_config, leave, occluded
 from .phong import attenuation, phong_brdf_cos
 from .rng import uniform
-from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, TEX_CHECKERBOARD, SceneArrays
+from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays
+from .textures import bitmap, checkerboard
 
 __all__ = ["SHADOW_EPSILON", "surface", "diffuse_albedo", "sample_emitter", "direct_light",
-           "direct_light_rays"]
+           "direct_light_rays", "environment_radiance", "sample_cosine_hemisphere"]
 
 #: Shadow-ray origins move off the surface by this much times (1 + |p|_max).
 SHADOW_EPSILON = 1e-7
@@ -256,20 +265,79 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
             r += scale * er * A.shape_emit[sh, 0]
             g += scale * eg * A.shape_emit[sh, 1]
             b += scale * eb * A.shape_emit[sh, 2]
+    # Constant environment: cosine-weighted directions about the shading normal.
+    if A.env_radiance.shape[0] > 0 and light_samples > 0:
+        q = int(math.sqrt(light_samples) + 0.5)
+        stratified = q * q == light_samples
+        er = eg = eb = 0.0
+        for k in range(light_samples):
+            dim = 2 + 2 * (n_em * light_samples + k)
+            u1 = uniform(seed, pixel, sample, dim)
+            u2 = uniform(seed, pixel, sample, dim + 1)
+            if stratified:
+                u1 = (k % q + u1) / q
+                u2 = (k // q + u2) / q
+            lx, ly, lz, cos_l = sample_cosine_hemisphere(u1, u2, sx, sy, sz)
+            if cos_l <= 0.0:
+                continue
+            kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
+            if kd == 0.0 and spec == 0.0:
+                continue
+            if shadows:
+                nshadow += 1
+                side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
+                ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+                if occluded(R, ox, oy, oz, lx, ly, lz, t0, np.inf):
+                    continue
+            w = math.pi / cos_l          # 1 / pdf, pdf = cos / π
+            er += w * (kd * rho_r + spec)
+            eg += w * (kd * rho_g + spec)
+            eb += w * (kd * rho_b + spec)
+        r += er * A.env_radiance[0, 0] / light_samples
+        g += eg * A.env_radiance[0, 1] / light_samples
+        b += eb * A.env_radiance[0, 2] / light_samples
     return r, g, b, nshadow
+
+
+@njit(inline="always", cache=True)
+def sample_cosine_hemisphere(u1, u2, nx, ny, nz):
+    """Cosine-weighted direction about the unit normal n (Malley: a uniform point on
+    the unit disk lifted to the hemisphere): (x, y, z, cos θ); pdf = cos θ / π."""
+    rad = math.sqrt(u1)
+    phi = 2.0 * math.pi * u2
+    a, c = rad * math.cos(phi), rad * math.sin(phi)
+    cz = math.sqrt(max(0.0, 1.0 - u1))
+    # Orthonormal basis (Duff et al. 2017).
+    sign = 1.0 if nz >= 0.0 else -1.0
+    p = -1.0 / (sign + nz)
+    q = nx * ny * p
+    tx, ty, tz = 1.0 + sign * nx * nx * p, sign * q, -sign * nx
+    bx, by, bz = q, sign + ny * ny * p, -ny
+    return (a * tx + c * bx + cz * nx, a * ty + c * by + cz * ny, a * tz + c * bz + cz * nz, cz)
+
+
+@njit(inline="always", cache=True)
+def environment_radiance(A: SceneArrays, dx, dy, dz):
+    """Radiance seen by a ray leaving the scene along (dx, dy, dz): a ``constant``
+    environment emitter's, uniform in direction, or 0 without one."""
+    if A.env_radiance.shape[0] == 0:
+        return 0.0, 0.0, 0.0
+    return A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
 
 
 @njit(cache=True)
 def diffuse_albedo(A: SceneArrays, mat, prim, b1, b2):
     """Diffuse reflectance ρ (r, g, b) of material ``mat`` at a hit (primitive, barycentrics).
 
-    Mitsuba's ``checkerboard``: with (u', v') = to_uv · (u, v, 1), the colour is
-    ``color0`` where frac(u') > ½ and frac(v') > ½ agree, else ``color1``.
-    Primitives without texture coordinates get the material's mean colour (the
-    loader refuses textures on such shapes).
+    A textured reflectance is looked up at (u', v') = to_uv · (u, v, 1), (u, v)
+    interpolated from the triangle's vertex uvs (:mod:`impl.textures`:
+    Mitsuba's ``checkerboard`` and ``bitmap``).  Primitives without texture
+    coordinates get the material's mean colour (the loader refuses textures on
+    such shapes).
     """
     ns = A.sph_radius.shape[0]
-    if A.mat_tex[mat] == TEX_CHECKERBOARD and prim >= ns and A.tri_has_uv[prim - ns]:
+    code = A.mat_tex[mat]
+    if code != 0 and prim >= ns and A.tri_has_uv[prim - ns]:
         t = A.tri_uv[prim - ns]
         b0 = 1.0 - b1 - b2
         u = b0 * t[0, 0] + b1 * t[1, 0] + b2 * t[2, 0]
@@ -277,7 +345,11 @@ def diffuse_albedo(A: SceneArrays, mat, prim, b1, b2):
         m = A.mat_tex_uv[mat]
         uu = m[0, 0] * u + m[0, 1] * v + m[0, 2]
         vv = m[1, 0] * u + m[1, 1] * v + m[1, 2]
-        if (uu - math.floor(uu) > 0.5) == (vv - math.floor(vv) > 0.5):
-            return A.mat_tex_c0[mat, 0], A.mat_tex_c0[mat, 1], A.mat_tex_c0[mat, 2]
-        return A.mat_tex_c1[mat, 0], A.mat_tex_c1[mat, 1], A.mat_tex_c1[mat, 2]
+        if code == TEX_CHECKERBOARD:
+            if checkerboard(uu, vv):
+                return A.mat_tex_c0[mat, 0], A.mat_tex_c0[mat, 1], A.mat_tex_c0[mat, 2]
+            return A.mat_tex_c1[mat, 0], A.mat_tex_c1[mat, 1], A.mat_tex_c1[mat, 2]
+        if code == TEX_BITMAP:
+            return bitmap(A.tex_data, A.mat_tex_offset[mat], A.mat_tex_size[mat, 0],
+                          A.mat_tex_size[mat, 1], A.mat_tex_wrap[mat], A.mat_tex_filter[mat], uu, vv)
     return A.mat_rho[mat, 0], A.mat_rho[mat, 1], A.mat_rho[mat, 2]

@@ -36,6 +36,14 @@ timed render is the whole method).  Counters report ``formfactor_s``,
 ``solve_s`` (as measured when first computed) and ``view_s`` separately, and
 ``solve_cached`` says whether this call reused them.
 
+A ``constant`` environment emitter (uniform radiance L_env from every
+direction) is an enclosing emitter: patch i receives π L_env times the
+fraction V_i of its cosine-weighted hemisphere that escapes the scene, so its
+emission becomes E_i + ρ_i π L_env V_i before the solve (V_i estimated with
+``env_rays`` cosine-weighted rays from uniform points on the patch,
+:func:`environment_fraction`); eye rays that escape show L_env.  The light it
+brings after one or more bounces follows from the solve as any other.
+
 Leaves out: spheres, non-diffuse and two-sided materials (refused with
 ``NotImplementedError`` naming the shape), textures (the mean reflectance),
 delta lights (point/spot/directional, refused), adaptive subdivision and
@@ -62,6 +70,7 @@ max_bounces   int     -1            ≥ 0: Neumann series of that many bounces
 display       str     gouraud       flat | gouraud
 spp           int     1             1 = pixel centre, k² = k×k jittered strata
 ambient       bool    true          progressive: add the ambient term to the display
+env_rays      int     256           constant environment: rays per patch for V_i
 ============  ======  ============  ===========================================
 """
 
@@ -79,13 +88,15 @@ from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
 from .camera import camera_params, eye_ray
-from .form_factors import METHODS, FormFactors, form_factors
+from .form_factors import METHODS, FormFactors, _eps, form_factors
+from .lighting import sample_cosine_hemisphere
+from .rng import uniform
 from .patches import PatchMesh, closest_face, locate, mesh_scene, vertex_radiosity
 from .radiosity_solvers import SOLVERS, SolveResult, neumann, residual, solve
 from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
 
 __all__ = ["render", "solve_scene", "display", "Solution", "clear_cache", "ALGORITHM",
-           "DISPLAYS"]
+           "DISPLAYS", "environment_fraction"]
 
 DISPLAYS = ("flat", "gouraud")
 
@@ -132,6 +143,62 @@ def _check_lights(scene: Scene) -> None:
                                   "area emitters on diffuse polygons only")
 
 
+@njit(cache=True)
+def _escape_fraction(M: PatchMesh, i, rays, seed, eps):
+    """Fraction of ``rays`` cosine-weighted rays from uniform points of patch i that
+    leave the scene (stratified directions when ``rays`` is a square)."""
+    q = int(math.sqrt(rays) + 0.5)
+    stratified = q * q == rays
+    P = M.poly[i]
+    nx, ny, nz = M.normal[i, 0], M.normal[i, 1], M.normal[i, 2]
+    free = 0
+    for k in range(rays):
+        a = uniform(seed, i, k, 0)
+        b = uniform(seed, i, k, 1)
+        c = uniform(seed, i, k, 2)
+        d = uniform(seed, i, k, 3)
+        if stratified:
+            c = (k % q + c) / q
+            d = (k // q + d) / q
+        if M.nverts[i] == 4:            # parallelogram: P0 + a (P1 − P0) + b (P3 − P0)
+            w0, w1, w2, w3 = 1.0 - a - b, a, 0.0, b
+        else:                           # triangle: square-to-triangle warp
+            su = math.sqrt(a)
+            w0, w1, w2, w3 = 1.0 - su, su * (1.0 - b), su * b, 0.0
+        px = w0 * P[0, 0] + w1 * P[1, 0] + w2 * P[2, 0] + w3 * P[3, 0] + eps * nx
+        py = w0 * P[0, 1] + w1 * P[1, 1] + w2 * P[2, 1] + w3 * P[3, 1] + eps * ny
+        pz = w0 * P[0, 2] + w1 * P[1, 2] + w2 * P[2, 2] + w3 * P[3, 2] + eps * nz
+        dx, dy, dz, cos_t = sample_cosine_hemisphere(c, d, nx, ny, nz)
+        if closest_face(M, px, py, pz, dx, dy, dz, 0.0, np.inf)[1] < 0:
+            free += 1
+    return free / rays
+
+
+@njit(parallel=True, cache=True)
+def _escape_kernel(M: PatchMesh, rays, seed, eps, out):
+    for i in prange(out.shape[0]):
+        out[i] = _escape_fraction(M, i, rays, seed, eps)
+
+
+def environment_fraction(M: PatchMesh, rays: int = 256, seed: int = 0) -> np.ndarray:
+    """V_i: the cosine-weighted fraction of each patch's hemisphere that sees no
+    surface (N,), i.e. its form factor to an enclosing environment."""
+    if rays < 1:
+        raise ValueError(f"radiosity: env_rays must be >= 1, got {rays}")
+    out = np.zeros(M.n_patches)
+    _escape_kernel(M, rays, seed, _eps(M), out)
+    return out
+
+
+def _with_environment(scene: Scene, M: PatchMesh, rays: int, seed: int) -> PatchMesh:
+    """The mesh with E_i + ρ_i π L_env V_i as emission (unchanged without an environment)."""
+    if getattr(scene, "environment", None) is None:
+        return M
+    L = np.asarray(scene.environment, dtype=np.float64)
+    V = environment_fraction(M, rays, seed)
+    return M._replace(emit=M.emit + M.rho * (math.pi * L)[None, :] * V[:, None])
+
+
 def _check(params: dict) -> None:
     check_spp(params["spp"], "radiosity")
     if params["ff_points"] < 1:
@@ -146,6 +213,7 @@ def solve_scene(scene: Scene, params: dict, *, seed: int = 0, mesh: PatchMesh | 
     M = mesh if mesh is not None else mesh_scene(scene, patch_size=params["patch_size"],
                                                  patches=params["patches"])
     _check_lights(scene)
+    M = _with_environment(scene, M, params["env_rays"], seed)
     digest = M.digest()
     ff_key = (digest,) + tuple(params[k] for k in _FF_KEYS) + ((seed,) if params["formfactor"] == "montecarlo" else ())
     solve_key = ff_key + tuple(params[k] for k in _SOLVE_KEYS)
@@ -178,11 +246,12 @@ def solve_scene(scene: Scene, params: dict, *, seed: int = 0, mesh: PatchMesh | 
 # ---------------------------------------------------------------- display ---
 
 @njit(cache=True)
-def _shade(M: PatchMesh, B, V, gouraud, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Displayed radiance B/π of the first front-facing surface along an eye ray."""
+def _shade(M: PatchMesh, B, V, gouraud, env, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Displayed radiance B/π of the first front-facing surface along an eye ray
+    (``env``: the environment radiance an escaping ray sees)."""
     t, f = closest_face(M, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if f < 0:
-        return 0.0, 0.0, 0.0
+        return env[0], env[1], env[2]
     if dx * M.face_n[f, 0] + dy * M.face_n[f, 1] + dz * M.face_n[f, 2] >= 0.0:
         return 0.0, 0.0, 0.0                       # back of a one-sided surface: black
     patch, v0, v1, v2, v3, w0, w1, w2, w3 = locate(M, f, ox + t * dx, oy + t * dy, oz + t * dz)
@@ -196,7 +265,7 @@ def _shade(M: PatchMesh, B, V, gouraud, ox, oy, oz, dx, dy, dz, tmin, tmax):
 
 
 @njit(cache=True)
-def _pixel(cam, M: PatchMesh, B, V, gouraud, x, y, spp, seed):
+def _pixel(cam, M: PatchMesh, B, V, gouraud, env, x, y, spp, seed):
     """Mean and variance of the mean of one pixel (a function of its own so that
     the accumulators are private to the thread running the pixel)."""
     pixel = y * int(cam[14]) + x
@@ -206,19 +275,19 @@ def _pixel(cam, M: PatchMesh, B, V, gouraud, x, y, spp, seed):
     for s in range(spp):
         fx, fy = pixel_sample(spp, k, s, seed, pixel)
         ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-        r, g, b = _shade(M, B, V, gouraud, ox, oy, oz, dx, dy, dz, tmin, tmax)
+        r, g, b = _shade(M, B, V, gouraud, env, ox, oy, oz, dx, dy, dz, tmin, tmax)
         m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
     return (m0, m1, m2, variance_of_mean(q0, spp), variance_of_mean(q1, spp),
             variance_of_mean(q2, spp))
 
 
 @njit(parallel=True, cache=True)
-def _display_kernel(cam, M: PatchMesh, B, V, gouraud, spp, seed, mean, var):
+def _display_kernel(cam, M: PatchMesh, B, V, gouraud, env, spp, seed, mean, var):
     W, H = int(cam[14]), int(cam[15])
     for pixel in prange(W * H):
         x = pixel % W
         y = pixel // W
-        out = _pixel(cam, M, B, V, gouraud, x, y, spp, seed)
+        out = _pixel(cam, M, B, V, gouraud, env, x, y, spp, seed)
         mean[y, x, 0] = out[0]
         mean[y, x, 1] = out[1]
         mean[y, x, 2] = out[2]
@@ -239,7 +308,9 @@ def display(scene: Scene, sol: Solution, *, mode: str = "gouraud", spp: int = 1,
     H, W = scene.camera.film.height, scene.camera.film.width
     mean = np.zeros((H, W, 3))
     var = np.zeros((H, W, 3))
-    _display_kernel(cam, M, B, V, mode == "gouraud", spp, seed, mean, var)
+    env = np.zeros(3) if getattr(scene, "environment", None) is None else \
+        np.asarray(scene.environment, dtype=np.float64)
+    _display_kernel(cam, M, B, V, mode == "gouraud", env, spp, seed, mean, var)
     return mean, (var if spp > 1 else None), time.perf_counter() - t0
 
 
@@ -295,6 +366,8 @@ ALGORITHM = register(Algorithm(
         Param("display", str, "gouraud", "radiosity display", choices=DISPLAYS),
         Param("spp", int, 1, "pixel samples: 1 = pixel centre, k² = k×k jittered strata (box filter)"),
         Param("ambient", bool, True, "progressive: add the ambient term to the displayed radiosity"),
+        Param("env_rays", int, 256, "constant environment: cosine-weighted rays per patch for the "
+                                    "fraction of its hemisphere that sees the environment"),
         Param("reuse", bool, False, "reuse this process's cached form factors and solution (a view-only "
                                     "re-render); off, every render is timed from meshing to pixels"),
     ),

@@ -22,7 +22,10 @@ emitter and pixel sample (stratified when it is a square).
 Leaves out: indirect light, specular reflection and transmission of other
 surfaces (see ``whitted``), glossy microfacet BSDFs.  Materials other than
 ``diffuse`` raise ``NotImplementedError``; a diffuse reflectance may be a
-``checkerboard`` texture (looked up at the hit's uv, :mod:`impl.lighting`).
+``checkerboard`` or ``bitmap`` texture (looked up at the hit's uv,
+:mod:`impl.textures`).  A ``constant`` environment emitter is seen by eye rays
+that leave the scene and lights surfaces through ``light_samples``
+cosine-weighted shadow rays per pixel sample (:mod:`impl.lighting`).
 The shared direct-lighting helpers live in :mod:`impl.lighting`.
 
 Parameters
@@ -61,7 +64,7 @@ from gibench.scene import Scene
 
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
-from .lighting import local_shading, surface
+from .lighting import environment_radiance, local_shading, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
@@ -77,8 +80,9 @@ def _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, R: RayConfig, 
     """Radiance along one eye ray: emitted + ambient + Phong direct; (r, g, b, shadow rays)."""
     ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
     t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
-    if prim < 0:
-        return 0.0, 0.0, 0.0, 0
+    if prim < 0:                        # escaped: a constant environment, if any
+        er, eg, eb = environment_radiance(A, dx, dy, dz)
+        return er, eg, eb, 0
     ns = A.sph_radius.shape[0]
     shape = A.prim_shape[prim]
     px, py, pz = refine(R, prim, ox + t * dx, oy + t * dy, oz + t * dz)

@@ -7,7 +7,10 @@ Light ``kind`` codes: 0 point, 1 directional, 2 spot.  Material ``kind``
 codes: 0 diffuse, 1 conductor, 2 dielectric, 3 roughconductor; an algorithm
 refuses the kinds it cannot model.  Textured diffuse reflectance: ``mat_tex``
 code 0 none, 1 checkerboard (colours and the 2x3 ``to_uv`` map per material),
-looked up at the triangle's interpolated ``tri_uv``.
+2 bitmap (texels of every image concatenated in ``tex_data``, row-major, with
+each material's offset, size, wrap and filter codes of :mod:`impl.textures`),
+looked up at the triangle's interpolated ``tri_uv``.  A ``constant``
+environment emitter is ``env_radiance`` (one row, or none).
 """
 
 from __future__ import annotations
@@ -18,11 +21,16 @@ import numpy as np
 
 from gibench.scene import Scene
 
+from .textures import FILTER_BILINEAR, FILTER_NEAREST, WRAP_CLAMP, WRAP_MIRROR, WRAP_REPEAT
+
+WRAP_CODES = {"repeat": WRAP_REPEAT, "clamp": WRAP_CLAMP, "mirror": WRAP_MIRROR}
+FILTER_CODES = {"bilinear": FILTER_BILINEAR, "nearest": FILTER_NEAREST}
+
 __all__ = ["SceneArrays", "flatten", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
-           "TEX_NONE", "TEX_CHECKERBOARD", "MATERIAL_CODES"]
+           "TEX_NONE", "TEX_CHECKERBOARD", "TEX_BITMAP", "MATERIAL_CODES"]
 
 LIGHT_POINT, LIGHT_DIRECTIONAL, LIGHT_SPOT = 0, 1, 2
-TEX_NONE, TEX_CHECKERBOARD = 0, 1
+TEX_NONE, TEX_CHECKERBOARD, TEX_BITMAP = 0, 1, 2
 
 
 class SceneArrays(NamedTuple):
@@ -59,6 +67,12 @@ class SceneArrays(NamedTuple):
     mat_tex_c0: np.ndarray      # (M, 3) checkerboard color0
     mat_tex_c1: np.ndarray      # (M, 3) checkerboard color1
     mat_tex_uv: np.ndarray      # (M, 2, 3) 2D affine to_uv map (first two rows)
+    tex_data: np.ndarray        # (K, 3) linear RGB texels of every bitmap, row-major, concatenated
+    mat_tex_offset: np.ndarray  # (M,) first texel of the material's bitmap in tex_data
+    mat_tex_size: np.ndarray    # (M, 2) bitmap width, height (0 if none)
+    mat_tex_wrap: np.ndarray    # (M,) impl.textures WRAP_* code
+    mat_tex_filter: np.ndarray  # (M,) impl.textures FILTER_* code
+    env_radiance: np.ndarray    # (1, 3) radiance of a constant environment emitter, or (0, 3)
 
     @property
     def n_spheres(self) -> int:
@@ -111,11 +125,27 @@ def flatten(scene: Scene) -> SceneArrays:
         em_shape.append(index[id(s)])
         em_offset.append(len(em_tri))
 
-    tex_codes = {"checkerboard": TEX_CHECKERBOARD}
+    tex_codes = {"checkerboard": TEX_CHECKERBOARD, "bitmap": TEX_BITMAP}
     mats = scene.materials
     mat_tex = [tex_codes[m.texture["type"]] if m.texture else TEX_NONE for m in mats]
-    mat_tex_c0 = [m.texture["color0"] if m.texture else (0.0, 0.0, 0.0) for m in mats]
-    mat_tex_c1 = [m.texture["color1"] if m.texture else (0.0, 0.0, 0.0) for m in mats]
+    is_cb = [m.texture is not None and m.texture["type"] == "checkerboard" for m in mats]
+    mat_tex_c0 = [m.texture["color0"] if cb else (0.0, 0.0, 0.0) for m, cb in zip(mats, is_cb)]
+    mat_tex_c1 = [m.texture["color1"] if cb else (0.0, 0.0, 0.0) for m, cb in zip(mats, is_cb)]
+    texels, tex_offset, tex_size, tex_wrap, tex_filter, n_texels = [], [], [], [], [], 0
+    for m in mats:
+        if m.texture is not None and m.texture["type"] == "bitmap":
+            img = np.asarray(m.texture["data"], dtype=np.float64)
+            tex_offset.append(n_texels)
+            tex_size.append((img.shape[1], img.shape[0]))
+            tex_wrap.append(WRAP_CODES[m.texture["wrap_mode"]])
+            tex_filter.append(FILTER_CODES[m.texture["filter_type"]])
+            texels.append(img.reshape(-1, 3))
+            n_texels += img.shape[0] * img.shape[1]
+        else:
+            tex_offset.append(0)
+            tex_size.append((0, 0))
+            tex_wrap.append(0)
+            tex_filter.append(0)
     mat_tex_uv = [np.asarray(m.texture["to_uv"])[:2] if m.texture else np.eye(3)[:2] for m in mats]
 
     lights = scene.lights
@@ -155,4 +185,11 @@ def flatten(scene: Scene) -> SceneArrays:
         mat_tex_c0=f64(mat_tex_c0, (-1, 3)),
         mat_tex_c1=f64(mat_tex_c1, (-1, 3)),
         mat_tex_uv=f64(mat_tex_uv, (-1, 2, 3)),
+        tex_data=np.ascontiguousarray(np.concatenate(texels) if texels else np.zeros((0, 3)),
+                                      dtype=np.float64),
+        mat_tex_offset=np.asarray(tex_offset, dtype=np.int64),
+        mat_tex_size=np.asarray(tex_size, dtype=np.int64).reshape(-1, 2),
+        mat_tex_wrap=np.asarray(tex_wrap, dtype=np.int64),
+        mat_tex_filter=np.asarray(tex_filter, dtype=np.int64),
+        env_radiance=f64([] if scene.environment is None else [scene.environment], (-1, 3)),
     )

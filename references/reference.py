@@ -196,6 +196,14 @@ def _parse(path: Path) -> etree._ElementTree:
     return tree
 
 
+def _parse_fragment(path: Path):
+    """Root element of an included XML file (any element, as Mitsuba's ``<include>`` allows)."""
+    try:
+        return etree.parse(str(path)).getroot()
+    except (etree.XMLSyntaxError, OSError) as exc:
+        raise SceneError(f"{path}: not a valid XML file: {_first_line(exc)}") from None
+
+
 def _defaults(root) -> dict[str, str]:
     return {d.get("name"): d.get("value") for d in root.iter("default") if d.get("name")}
 
@@ -288,18 +296,25 @@ def _render_once(mi, dr, scene, spp: int, seed: int) -> np.ndarray:
 def scene_dependencies(scene_path, defines: dict | None = None) -> list[dict]:
     """Files a scene references by ``filename`` (attributes or ``<string>``).
 
-    Relative names are resolved against the scene file's directory (and, for
-    nested ``<include>`` files, the including file's directory); ``$name``
+    Relative names are resolved against the ``<path>`` directories (latest
+    first), the scene file's directory (and, for nested ``<include>`` files,
+    the including file's directory); ``$name``
     substitutions are resolved with the file's ``<default>`` values.  Included
     XML files are followed.  Returns ``[{name, path, sha256}]`` sorted by name,
     with ``path``/``sha256`` None for files that cannot be found.
     """
     scene = _scene_file(scene_path)
     found: dict[str, dict] = {}
+    search: list[Path] = []            # <path> directories, latest first (Mitsuba's resolver)
 
     def visit(xml_path: Path, depth: int) -> None:
-        root = _parse(xml_path).getroot()
+        # An included file may hold a bare fragment (e.g. a <bsdf>), as Mitsuba allows.
+        root = _parse(xml_path).getroot() if depth == 0 else _parse_fragment(xml_path)
         defaults = {**_defaults(root), **_check_defines(defines)}
+        for c in root:
+            if c.tag == "path" and c.get("value"):
+                d = Path(_substitute(c.get("value"), defaults))
+                search.insert(0, d if d.is_absolute() else xml_path.parent / d)
         for el in root.iter():
             if not isinstance(el.tag, str):
                 continue
@@ -313,7 +328,7 @@ def scene_dependencies(scene_path, defines: dict | None = None) -> list[dict]:
             if not name or name in found:
                 continue
             candidates = [Path(name)] if os.path.isabs(name) else [
-                scene.parent / name, xml_path.parent / name]
+                *(d / name for d in search), scene.parent / name, xml_path.parent / name]
             path = next((c for c in candidates if c.is_file()), None)
             found[name] = {"name": name, "path": str(path) if path else None,
                            "sha256": _sha256_file(path) if path else None}

@@ -62,7 +62,7 @@ def test_render_writes_exr_and_sidecar(tmp_path, capsys):
 
 @pytest.mark.parametrize("body, expect", [
     ('<shape type="sphere">\n<float name="radius" value="1">\n</shape>', "malformed XML"),
-    ('<shape type="disk"/>', 'unsupported shape type \'disk\''),
+    ('<shape type="linearcurve"/>', 'unsupported shape type \'linearcurve\''),
     ('<shape type="obj"><string name="filename" value="missing.obj"/></shape>', "missing.obj"),
 ])
 def test_bad_scene_gives_one_line_error_naming_file_and_line(tmp_path, capsys, body, expect):
@@ -102,7 +102,7 @@ def test_run_small_suite_end_to_end(tmp_path, capsys):
     with one broken case that must be recorded (not crash the run) and fail it."""
     scene = small_scene(tmp_path)
     broken = tmp_path / "broken.xml"
-    broken.write_text(scene.read_text().replace('type="rectangle"', 'type="disk"'))
+    broken.write_text(scene.read_text().replace('type="rectangle"', 'type="linearcurve"'))
     manifest = tmp_path / "small.toml"
     manifest.write_text("""
 [suite]
@@ -139,7 +139,7 @@ algorithm = "raycast"
     assert ok["metrics"]["ztest"]["passed"] and ok["time"]["mitsuba_median_s"] > 0
     assert ok["time"]["ratio"] == pytest.approx(ok["time"]["own_median_s"] / ok["time"]["mitsuba_median_s"])
     assert centre["checks"] and centre["checks"][0]["name"].startswith("relmse")
-    assert "unsupported shape type 'disk'" in bad["error"]
+    assert "unsupported shape type 'linearcurve'" in bad["error"]
     report = (tmp_path / "out" / "report.html").read_text()
     assert "small" in report and "unsupported shape type" in report
     # The references were stored and are reused by a second run (no new entries).

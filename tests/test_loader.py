@@ -29,7 +29,7 @@ def test_suite_has_the_promised_scenes():
 def test_scene_loads(path):
     scene = load_scene(path)
     assert scene.shapes, "no shapes"
-    assert scene.lights or scene.emitters, "no light"
+    assert scene.lights or scene.emitters or scene.environment is not None, "no light"
 
 
 # --------------------------------------------------------------- transforms ---
@@ -88,10 +88,16 @@ def test_depth_matches_mitsuba_aov(path, mitsuba):
     # Hit/miss must agree except where a pixel centre grazes a silhouette.
     assert np.mean(hit_ours == hit_mi) > 0.999, f"hit masks differ on {np.sum(hit_ours != hit_mi)} pixels"
     both = hit_ours & hit_mi
-    rel = np.abs(ours_mi[both] - theirs[both]) / theirs[both]
+    rel = np.abs(ours_mi - theirs) / np.where(theirs > 0, theirs, 1.0)
+    # disk and cylinder are 128-gons here, Mitsuba's are exact (gibench.meshes):
+    # their surface lies up to 3e-4 r inside the circle, more along grazing rays
+    # (measured max 6.7e-4 relative on vocabulary/shapes).
+    tess = np.isin(shape_id, [i for i, s in enumerate(scene.shapes) if s.source in ("disk", "cylinder")])
+    assert rel[both & tess].max(initial=0.0) <= 2e-3
+    rel = rel[both & ~tess]
     # Mitsuba computes in float32, we in float64: measured median 5e-8, and no
     # pixel hit by both beyond 1e-4 on any suite scene.
-    assert rel.max() <= 1e-4, f"max rel {rel.max():.3g}, {np.sum(rel > 1e-4)} pixels > 1e-4"
+    assert rel.max(initial=0.0) <= 1e-4, f"max rel {rel.max():.3g}, {np.sum(rel > 1e-4)} pixels > 1e-4"
 
 
 # --------------------------------------------------------------- bad input ---
@@ -121,12 +127,12 @@ def test_malformed_xml_names_file_and_line(tmp_path):
 
 
 def test_unknown_plugin_type_names_element_file_and_line(tmp_path):
-    p = _write(tmp_path, MINIMAL.format(body='<shape type="disk"/>'))
+    p = _write(tmp_path, MINIMAL.format(body='<shape type="linearcurve"/>'))
     with pytest.raises(SceneError) as e:
         load_scene(p)
     msg = str(e.value)
     assert "\n" not in msg
-    assert f"{p}:5:" in msg and '<shape type="disk">' in msg and "supported" in msg
+    assert f"{p}:5:" in msg and '<shape type="linearcurve">' in msg and "supported" in msg
 
 
 def test_unsupported_property_is_not_silently_ignored(tmp_path):
@@ -234,12 +240,12 @@ def test_checkerboard_lookup_matches_mitsubas_texture(tmp_path, mitsuba):
 
 
 def test_unsupported_texture_type_gives_one_line_error(tmp_path):
-    p = _write(tmp_path, MINIMAL.format(body=CHECKER.format(type="bitmap", name="reflectance")))
+    p = _write(tmp_path, MINIMAL.format(body=CHECKER.format(type="mesh_attribute", name="reflectance")))
     with pytest.raises(SceneError) as e:
         load_scene(p)
     msg = str(e.value)
     assert "\n" not in msg and f"{p}:8:" in msg
-    assert "unsupported texture type 'bitmap' (supported: checkerboard)" in msg
+    assert "unsupported texture type 'mesh_attribute' (supported: checkerboard, bitmap)" in msg
 
 
 def test_texture_only_as_reflectance_of_a_rectangle(tmp_path):

@@ -1,0 +1,92 @@
+"""Texture lookups for a diffuse reflectance: Mitsuba's ``checkerboard`` and ``bitmap``.
+
+What it computes
+----------------
+The reflectance ρ(u, v) at a surface point's texture coordinates, after the
+texture's 2D affine ``to_uv`` map (u', v') = to_uv · (u, v, 1):
+
+* :func:`checkerboard` — ``color0`` where frac(u') > ½ and frac(v') > ½ agree,
+  else ``color1`` (Mitsuba 3 ``src/textures/checkerboard.cpp``);
+* :func:`bitmap` — an image in linear RGB, looked up as Mitsuba's ``bitmap``
+  does (``src/textures/bitmap.cpp`` through ``dr::Texture``): texel (i, j)
+  has its centre at ((i + ½)/w, (j + ½)/h), row j = 0 being the *first row of
+  the file* (v is not flipped: on Mitsuba's ``rectangle``, whose v grows with
+  local y, the file's top row lies at local y = −1); ``bilinear`` weights the
+  four texels around (u' w − ½, v' h − ½), ``nearest`` takes the texel that
+  contains (u' w, v' h); ``repeat`` / ``clamp`` / ``mirror`` wrap the integer
+  texel indices.
+
+The images arrive decoded (8-bit sRGB → linear with the exact sRGB curve, as
+Mitsuba's ``raw = false`` does; float EXR as stored) by
+:mod:`gibench.loader`, concatenated into one texel array
+(:mod:`impl.scene_arrays`).
+
+Leaves out: MIP-mapping and ray differentials (Mitsuba's bitmap does not
+filter over the pixel footprint either), the ``raw`` flag's effect on spectral
+upsampling (RGB only), alpha.
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+__all__ = ["WRAP_REPEAT", "WRAP_CLAMP", "WRAP_MIRROR", "FILTER_BILINEAR", "FILTER_NEAREST",
+           "checkerboard", "bitmap", "wrap_index"]
+
+WRAP_REPEAT, WRAP_CLAMP, WRAP_MIRROR = 0, 1, 2
+FILTER_BILINEAR, FILTER_NEAREST = 0, 1
+
+
+@njit(inline="always", cache=True)
+def checkerboard(u, v):
+    """Whether (u, v) (after to_uv) lies on a ``color0`` square of Mitsuba's checkerboard."""
+    return (u - math.floor(u) > 0.5) == (v - math.floor(v) > 0.5)
+
+
+@njit(inline="always", cache=True)
+def wrap_index(i, n, mode):
+    """Integer texel index i wrapped into [0, n) by Mitsuba's wrap mode."""
+    if mode == WRAP_CLAMP:
+        return min(max(i, 0), n - 1)
+    if mode == WRAP_MIRROR:
+        period = 2 * n
+        i = i % period
+        if i < 0:
+            i += period
+        return i if i < n else period - 1 - i
+    i = i % n
+    return i + n if i < 0 else i
+
+
+@njit(cache=True)
+def bitmap(data, offset, w, h, wrap, filt, u, v):
+    """RGB of a bitmap stored row-major at ``data[offset : offset + w h]`` at (u, v)."""
+    if filt == FILTER_NEAREST:
+        i = wrap_index(int(math.floor(u * w)), w, wrap)
+        j = wrap_index(int(math.floor(v * h)), h, wrap)
+        k = offset + j * w + i
+        return data[k, 0], data[k, 1], data[k, 2]
+    x = u * w - 0.5
+    y = v * h - 0.5
+    x0 = math.floor(x)
+    y0 = math.floor(y)
+    fx = x - x0
+    fy = y - y0
+    i0 = wrap_index(int(x0), w, wrap)
+    i1 = wrap_index(int(x0) + 1, w, wrap)
+    j0 = wrap_index(int(y0), h, wrap)
+    j1 = wrap_index(int(y0) + 1, h, wrap)
+    w00 = (1.0 - fx) * (1.0 - fy)
+    w10 = fx * (1.0 - fy)
+    w01 = (1.0 - fx) * fy
+    w11 = fx * fy
+    k00 = offset + j0 * w + i0
+    k10 = offset + j0 * w + i1
+    k01 = offset + j1 * w + i0
+    k11 = offset + j1 * w + i1
+    r = w00 * data[k00, 0] + w10 * data[k10, 0] + w01 * data[k01, 0] + w11 * data[k11, 0]
+    g = w00 * data[k00, 1] + w10 * data[k10, 1] + w01 * data[k01, 1] + w11 * data[k11, 1]
+    b = w00 * data[k00, 2] + w10 * data[k10, 2] + w01 * data[k01, 2] + w11 * data[k11, 2]
+    return r, g, b
