@@ -244,7 +244,8 @@ def cmd_baseline(args) -> int:
         run_id = new_run_id()
         print(f"gibench baseline {run_id}: suite '{suite.name}', seed {seed}")
         runs.append(run_suite(suite, store, run_id=run_id, out_root=Path(args.results).parent,
-                              mitsuba_timing=(seed == 0), reference_store=args.store, seed=seed,
+                              mitsuba_timing=(seed == 0 and not args.no_mitsuba_timing),
+                              reference_store=args.store, seed=seed,
                               history=history if seed == 0 else None, command="baseline",
                               ladder=False, **_run_common(args)))
     doc = make_baseline(runs, suite=suite.name, suite_file=_rel(suite.path), seeds=seeds)
@@ -423,7 +424,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", "-o", required=True, help="baseline JSON to write")
     s.add_argument("--seeds", type=int, default=3,
                    help="own-render seeds 0..K-1; their spread sets the tolerances")
-    common(s, mitsuba=False)
+    common(s)
     s.set_defaults(func=cmd_baseline)
 
     s = sub.add_parser("check", help="run a suite and compare with a baseline (exit 1 on regression)")
