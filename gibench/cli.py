@@ -446,7 +446,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--reference-spp", type=int, default=1024)
     s.add_argument("--reference-passes", type=int, default=8)
     s.add_argument("--repeats", type=int, default=3)
-    s.add_argument("--ladder", default="1,4,16,64", help="Mitsuba spp ladder ('' for none)")
+    s.add_argument("--ladder", default="1,4,16,64,256", help="Mitsuba spp ladder ('' for none)")
     s.add_argument("--metric", default="relmse", help="error metric of the table")
     common(s)
     s.set_defaults(func=cmd_sweep)

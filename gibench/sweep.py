@@ -45,7 +45,7 @@ def parse_grid(items, algo: Algorithm) -> dict[str, list]:
 
 def sweep_suite(scene, algo: Algorithm, grid: dict[str, list], *, transport: str | None = None,
                 reference_spp: int = 1024, reference_passes: int = 8, repeats: int = 3,
-                ladder="1,4,16,64", base_params: dict | None = None) -> Suite:
+                ladder="1,4,16,64,256", base_params: dict | None = None) -> Suite:
     """The suite of a sweep: every grid point of ``algo`` on ``scene``."""
     from .provenance import REPO_ROOT
 
@@ -100,7 +100,8 @@ def sweep_table(records: list[dict], *, metric: str = "relmse") -> str:
         lines += [head, "  " + "-" * (len(head) - 2)]
         for row in summary["rows"]:
             def f(x, spec):
-                return format(x, spec) if isinstance(x, float) and math.isfinite(x) else "—"
+                width = int(spec.split(".")[0])
+                return format(x, spec) if isinstance(x, float) and math.isfinite(x) else "—".rjust(width)
             lines.append(f"  {row['label'][:40]:<40} {f(row['error'], '10.4g')} "
                          f"{f(row['time'] * 1e3, '9.1f')} {f(row['efficiency'], '11.4g')} "
                          f"{'*' if row['pareto'] else '':>6} {f(row['equal_error_time_ratio'], '11.3g')} "
