@@ -57,7 +57,7 @@ def _init_worker():
 
 
 def map_unordered(fn: Callable, items: Iterable, *, kind: str = "serial", detail=None,
-                  ) -> Iterator[tuple[int, object]]:
+                  connect_timeout: float = 10.0) -> Iterator[tuple[int, object]]:
     """Yield ``(index, fn(item))`` as each item completes.
 
     ``fn`` must be a module-level function (it is pickled for process and
@@ -92,19 +92,24 @@ def map_unordered(fn: Callable, items: Iterable, *, kind: str = "serial", detail
             raise ExecutorError("--executor dask://... needs dask[distributed] "
                                 "(pip install 'dask[distributed]')") from None
         try:
-            client = Client(detail, timeout="10s", set_as_default=False)
+            client = Client(detail, timeout=f"{connect_timeout}s", set_as_default=False)
         except (OSError, TimeoutError) as exc:
             raise ExecutorError(f"cannot reach the Dask scheduler at {detail}: {exc}") from None
         try:
-            futures = [client.submit(fn, it, pure=False) for it in items]
-            index = {f.key: i for i, f in enumerate(futures)}
-            try:
-                for fut in dask_as_completed(futures):
-                    yield index[fut.key], fut.result()
-            except BaseException:
-                client.cancel(futures)
-                raise
+            with client.as_current():
+                yield from _dask_loop(client, fn, items, dask_as_completed)
         finally:
             client.close()
         return
     raise ExecutorError(f"unknown executor kind {kind!r}")
+
+
+def _dask_loop(client, fn, items, dask_as_completed):
+    futures = [client.submit(fn, it, pure=False) for it in items]
+    index = {f.key: i for i, f in enumerate(futures)}
+    try:
+        for fut in dask_as_completed(futures):
+            yield index[fut.key], fut.result()
+    except BaseException:
+        client.cancel(futures)
+        raise
