@@ -194,6 +194,16 @@ def cmd_run(args) -> int:
 
     defines = _parse_defines(args.define)
     suite = load_suite(_resolve_suite(args.suite))
+    if args.ladder is not None:
+        import dataclasses
+
+        try:
+            spps = tuple(int(x) for x in args.ladder.split(",") if x.strip())
+        except ValueError:
+            raise CLIError(f"--ladder expects comma-separated spp, got {args.ladder!r}") from None
+        if any(x < 1 for x in spps):
+            raise CLIError(f"--ladder spp must be positive, got {args.ladder!r}")
+        suite = dataclasses.replace(suite, ladder=spps)
     store = ResultStore(Path(args.results))
     run_id = new_run_id()
     history = _history(args)
@@ -471,6 +481,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("run", help="run a suite against the stored references and write the report")
     s.add_argument("suite", nargs="?", default="default")
+    s.add_argument("--ladder", help="Mitsuba spp ladder for the speed-vs-error plots, e.g. "
+                   "1,4,16,64 (default: the suite's [suite] ladder; '' for none)")
     common(s)
     s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
                    help="override the scene's <default name=NAME> value in every scene (as Mitsuba's -D)")

@@ -81,3 +81,23 @@ def test_unreachable_scheduler_is_a_clear_error():
 
     with pytest.raises(ExecutorError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
         list(map_unordered(str, [1], kind="dask", detail="tcp://127.0.0.1:9", connect_timeout=1.0))
+
+
+@pytest.mark.mitsuba
+def test_reference_device_falls_back_to_llvm_without_a_gpu(tmp_path, monkeypatch, capsys, mitsuba):
+    """CUDA references where a GPU works; here (no GPU) the fallback path: the entry is
+    rendered with the LLVM variant and the manifest says so."""
+    from references.reference import (CUDA_VARIANT, cuda_available, get_reference,
+                                       reference_device_variant)
+
+    assert reference_device_variant("llvm") is None
+    with pytest.raises(ValueError, match="auto, cuda or llvm"):
+        reference_device_variant("gpu")
+    if cuda_available():
+        pytest.skip("a working CUDA device: the fallback path cannot be exercised here")
+    monkeypatch.setenv("GIBENCH_REFERENCE_DEVICE", "cuda")
+    ref = get_reference(REPO_ROOT / "suites" / "vocabulary" / "defines.xml", transport="direct",
+                        spp=8, passes=2, store=tmp_path, defines={"width": "16", "height": "12"})
+    assert "CUDA variant does not work here" in capsys.readouterr().err
+    assert ref.manifest["variant"] != CUDA_VARIANT and ref.manifest["variant"] == mitsuba.variant()
+    assert ref.image.shape == (12, 16, 3)
