@@ -39,10 +39,11 @@ ERR_EPS = 0.01
 CMAP = "inferno"
 MAX_DISPLAY_PX = 512
 METRIC_ORDER = ["mse", "rmse", "relmse", "mae", "bias", "psnr", "ssim", "flip", "delta_e2000",
-                "nan_count", "inf_count", "noise_floor"]
+                "nan_count", "inf_count", "noise_floor", "noise_floor_relmse"]
 METRIC_NAMES = {"mse": "MSE", "rmse": "RMSE", "relmse": "rel. MSE", "mae": "MAE", "bias": "bias",
                 "psnr": "PSNR [dB]", "ssim": "SSIM", "flip": "FLIP", "delta_e2000": "ΔE2000",
-                "nan_count": "NaN pixels", "inf_count": "Inf pixels", "noise_floor": "noise floor"}
+                "nan_count": "NaN pixels", "inf_count": "Inf pixels", "noise_floor": "noise floor",
+                "noise_floor_relmse": "rel. MSE noise floor"}
 TIMING_NOTE = "warm-up excluded; medians of {n} repeats; 2-core shared machine: compare ratios"
 
 CSS = """
@@ -451,7 +452,7 @@ def _pareto_plot(scene, transport, g: dict, metric: str) -> str:
     if own:
         t = np.array([p["time"] for p in own])
         e = np.array([p["error"] for p in own])
-        ax.scatter(t, e, s=22, color="#1f77b4", label="own configurations", zorder=3)
+        ax.scatter(t, e, s=30, color="#1f77b4", label="own configurations", zorder=3)
         f = pareto_front(t, e)
         ax.plot(t[f], e[f], "-", color="#d62728", lw=1.5, label="own Pareto front", zorder=2)
         for p in own:
