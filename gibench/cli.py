@@ -19,7 +19,8 @@ same values and its cache key includes them.
 ``run``, ``check``, ``baseline`` and ``sweep`` take ``--jobs N`` (local
 worker processes) or ``--executor dask://HOST:PORT`` (a Dask cluster) and
 store every record in the history database (``--history``, default
-``reports/out/history.sqlite``; ``--no-history`` to skip).
+``history.sqlite`` beside ``--results``, i.e. ``reports/out/history.sqlite``;
+``--no-history`` to skip).
 
 Errors in the input (a bad scene, a missing file, an image with NaN, an
 unknown algorithm or parameter) print one line, ``gibench: error: <cause>``,
@@ -176,9 +177,16 @@ def _history(args):
     """The open history database of a command (None with --no-history)."""
     if getattr(args, "no_history", False):
         return None
+    import os
+
     from .history import connect
 
-    return connect(args.history) if getattr(args, "history", None) else connect()
+    if getattr(args, "history", None):
+        return connect(args.history)
+    if not os.environ.get("GIBENCH_HISTORY") and getattr(args, "results", None):
+        # Beside the results file: reports/out/history.sqlite for the default results.
+        return connect(Path(args.results).parent / "history.sqlite")
+    return connect()
 
 
 def _run_common(args) -> dict:

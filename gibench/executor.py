@@ -73,16 +73,17 @@ def map_unordered(fn: Callable, items: Iterable, *, kind: str = "serial", detail
         import multiprocessing
 
         ctx = multiprocessing.get_context("spawn")      # no forked numba/LLVM state
-        with ProcessPoolExecutor(max_workers=int(detail), mp_context=ctx,
-                                 initializer=_init_worker) as pool:
-            futures = {pool.submit(fn, it): i for i, it in enumerate(items)}
-            try:
-                for fut in as_completed(futures):
-                    yield futures[fut], fut.result()
-            except BaseException:
-                for fut in futures:
-                    fut.cancel()
-                raise
+        pool = ProcessPoolExecutor(max_workers=int(detail), mp_context=ctx,
+                                   initializer=_init_worker)
+        futures = {pool.submit(fn, it): i for i, it in enumerate(items)}
+        try:
+            for fut in as_completed(futures):
+                yield futures[fut], fut.result()
+        except BaseException:
+            # Ctrl-C or a failure: drop queued cases, do not wait for running ones.
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
         return
     if kind == "dask":
         try:

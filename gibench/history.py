@@ -7,8 +7,10 @@ and the dashboard (:mod:`reports.dashboard`) can show each metric and time
 across commits, as asv and Blender's benchmark pages do.  pytest-benchmark
 JSON files (``.benchmarks/**/*.json``) are ingested into a second table.
 
-Where it lives: ``reports/out/history.sqlite`` by default (``$GIBENCH_HISTORY``
-or ``--history`` override it).  ``reports/out/`` is git-ignored: the
+Where it lives: ``reports/out/history.sqlite`` by default (``--history`` or
+``$GIBENCH_HISTORY`` override it; a command given another ``--results`` file
+uses ``history.sqlite`` beside it, so runs into a scratch directory stay out
+of the main history).  ``reports/out/`` is git-ignored: the
 database is a per-machine record (timings from different machines are not
 comparable) and is *not* committed; the committed accuracy record is the CI
 baseline (``suites/baselines/ci.json``).
