@@ -100,20 +100,26 @@ def sweep_table(records: list[dict], *, metric: str = "relmse") -> str:
         lines += [head, "  " + "-" * (len(head) - 2)]
         for row in summary["rows"]:
             def f(x, spec):
-                width = int(spec.split(".")[0])
+                width = int(spec.split(".")[0] or 0)
                 return format(x, spec) if isinstance(x, float) and math.isfinite(x) else "—".rjust(width)
+            def r(x, spec, extrapolated):
+                width = int(spec.split(".")[0])
+                return (("~" if extrapolated else "") + f(x, "." + spec.split(".")[1]).strip()).rjust(width)
             lines.append(f"  {row['label'][:40]:<40} {f(row['error'], '10.4g')} "
                          f"{f(row['time'] * 1e3, '9.1f')} {f(row['efficiency'], '11.4g')} "
-                         f"{'*' if row['pareto'] else '':>6} {f(row['equal_error_time_ratio'], '11.3g')} "
-                         f"{f(row['equal_time_error_ratio'], '10.3g')}")
+                         f"{'*' if row['pareto'] else '':>6} "
+                         f"{r(row['equal_error_time_ratio'], '11.3g', row['equal_error_extrapolated'])} "
+                         f"{r(row['equal_time_error_ratio'], '10.3g', row['equal_time_extrapolated'])}")
         for row in summary["mitsuba_rows"]:
             lines.append(f"  {row['label'][:40]:<40} {row['error']:10.4g} {row['time'] * 1e3:9.1f} "
                          f"{row['efficiency']:11.4g}")
         best = summary["best"]
         if best:
-            lines.append(f"  own best: equal-error time ratio {best['equal_error_time_ratio']:.3g} "
+            x1 = "~" if best["equal_error_extrapolated"] else ""
+            x2 = "~" if best["equal_time_extrapolated"] else ""
+            lines.append(f"  own best: equal-error time ratio {x1}{best['equal_error_time_ratio']:.3g} "
                          f"({best['equal_error_label']}), equal-time error ratio "
-                         f"{best['equal_time_error_ratio']:.3g} ({best['equal_time_label']}); "
-                         "< 1 means the own configuration wins")
+                         f"{x2}{best['equal_time_error_ratio']:.3g} ({best['equal_time_label']}); "
+                         "< 1 means the own configuration wins; ~ extrapolated beyond Mitsuba's ladder")
         lines.append("")
     return "\n".join(lines) if lines else "no finished configurations"

@@ -430,8 +430,10 @@ def _study(r: dict) -> str:
             f"<p class='small'>{len(rows)} rows; study '{_e(r.get('study'))}'</p>")
 
 
-def _fmt_ratio(x) -> str:
-    return DASH if isinstance(x, float) and math.isnan(x) else fmt(x)
+def _fmt_ratio(x, extrapolated: bool = False) -> str:
+    if isinstance(x, float) and math.isnan(x):
+        return DASH
+    return ("~" if extrapolated else "") + fmt(x)
 
 
 def _pareto_plot(scene, transport, g: dict, metric: str) -> str:
@@ -489,22 +491,23 @@ def _speed_vs_error(records: list[dict], metric: str = "relmse") -> str:
            "floor (errors near it cannot be resolved). Efficiency = 1 / (error × time). "
            "Equal-error time ratio = own time / Mitsuba's time for the same error, equal-time error "
            "ratio = own error / Mitsuba's error in the same time (log–log interpolation along "
-           "Mitsuba's ladder, — outside it); below 1 the own configuration wins.</p>"]
+           "Mitsuba's ladder; ~ marks a power-law extrapolation of its end segment beyond it); "
+           "below 1 the own configuration wins.</p>"]
     for (scene, transport), g in groups.items():
         s = summarize_points(g["own"], g["mitsuba"])
         rows = "".join(
             f"<tr><td>{_e(r['label'])}</td><td class='n'>{fmt(r['error'])}</td>"
             f"<td class='n'>{fmt(r['time'] * 1e3)}</td><td class='n'>{fmt(r['efficiency'])}</td>"
-            f"<td>{'★' if r['pareto'] else ''}</td><td class='n'>{_fmt_ratio(r['equal_error_time_ratio'])}</td>"
-            f"<td class='n'>{_fmt_ratio(r['equal_time_error_ratio'])}</td></tr>" for r in s["rows"])
+            f"<td>{'★' if r['pareto'] else ''}</td><td class='n'>{_fmt_ratio(r['equal_error_time_ratio'], r['equal_error_extrapolated'])}</td>"
+            f"<td class='n'>{_fmt_ratio(r['equal_time_error_ratio'], r['equal_time_extrapolated'])}</td></tr>" for r in s["rows"])
         rows += "".join(
             f"<tr class='small'><td>{_e(r['label'])}</td><td class='n'>{fmt(r['error'])}</td>"
             f"<td class='n'>{fmt(r['time'] * 1e3)}</td><td class='n'>{fmt(r['efficiency'])}</td>"
             f"<td></td><td></td><td></td></tr>" for r in s["mitsuba_rows"])
         best = s["best"]
-        best_txt = (f"<p>Own best: equal-error time ratio <b>{_fmt_ratio(best['equal_error_time_ratio'])}</b> "
+        best_txt = (f"<p>Own best: equal-error time ratio <b>{_fmt_ratio(best['equal_error_time_ratio'], best['equal_error_extrapolated'])}</b> "
                     f"({_e(best['equal_error_label'])}); equal-time error ratio "
-                    f"<b>{_fmt_ratio(best['equal_time_error_ratio'])}</b> ({_e(best['equal_time_label'])}).</p>"
+                    f"<b>{_fmt_ratio(best['equal_time_error_ratio'], best['equal_time_extrapolated'])}</b> ({_e(best['equal_time_label'])}).</p>"
                     if best else "<p class='small'>No own configuration falls inside Mitsuba's ladder.</p>")
         out.append(f"<h3>{_e(scene)} vs Mitsuba {_e(transport)}</h3>"
                    + _pareto_plot(scene, transport, g, metric) + best_txt

@@ -6,7 +6,12 @@ where lower is better (rel. MSE by default in the reports).  Comparisons
 with a reference curve (Mitsuba's spp ladder) interpolate linearly in
 log–log space between the curve's points, where Monte Carlo error falls as a
 power of time (``error ~ c * t**-1`` for MSE-like metrics); outside the
-curve's range the ratios are NaN (no extrapolation).
+curve's range the ratios are NaN unless ``extrapolate=True``, which extends
+the expensive end segment of the curve's Pareto front as a power law (towards
+more time and lower error only: nothing is cheaper than the first rung) (the reports do
+so and mark such values with "~": a Mitsuba render longer than the ladder's
+longest would follow that line only if its error keeps converging at the same
+rate).
 
 Efficiency of a configuration is ``1 / (error * time)`` (Veach's efficiency
 of an estimator, with MSE as the error: constant for an unbiased estimator as
@@ -57,11 +62,12 @@ def pareto_front(times, errors) -> np.ndarray:
     return np.asarray(front, dtype=np.intp)
 
 
-def loglog_interp(x, y, x0):
+def loglog_interp(x, y, x0, *, extrapolate: bool = False):
     """``y(x0)`` by linear interpolation of ``log y`` against ``log x``.
 
-    ``x`` must be positive and strictly monotonic after sorting (duplicates
-    are rejected); NaN outside ``[min x, max x]``.
+    ``x`` must be positive and distinct; outside ``[min x, max x]`` the result
+    is NaN, or with ``extrapolate`` the power law through the two nearest end
+    points.
     """
     x, y = _points(x, y)
     if x.size == 0:
@@ -73,9 +79,15 @@ def loglog_interp(x, y, x0):
     if np.any(np.diff(x) == 0):
         raise ValueError("log-log interpolation needs distinct x values")
     x0 = float(x0)
-    if not (x0 > 0 and x[0] <= x0 <= x[-1]):
+    if not x0 > 0:
         return math.nan
-    return float(np.exp(np.interp(np.log(x0), np.log(x), np.log(y))))
+    if x[0] <= x0 <= x[-1]:
+        return float(np.exp(np.interp(np.log(x0), np.log(x), np.log(y))))
+    if not extrapolate or x.size < 2:
+        return math.nan
+    i, j = (0, 1) if x0 < x[0] else (-2, -1)
+    slope = (np.log(y[j]) - np.log(y[i])) / (np.log(x[j]) - np.log(x[i]))
+    return float(np.exp(np.log(y[i]) + slope * (np.log(x0) - np.log(x[i]))))
 
 
 def _front(times, errors):
@@ -85,38 +97,42 @@ def _front(times, errors):
     return t[f], e[f]
 
 
-def time_at_error(times, errors, error: float) -> float:
+def time_at_error(times, errors, error: float, *, extrapolate: bool = False) -> float:
     """Time the curve ``(times, errors)`` needs to reach ``error`` (on its Pareto front,
-    log–log interpolated; NaN outside its range)."""
+    log–log interpolated; NaN outside its range unless ``extrapolate``)."""
     t, e = _front(times, errors)
     if t.size == 0 or not error > 0:
         return math.nan
     if t.size == 1:
         return float(t[0]) if error == e[0] else math.nan
-    return loglog_interp(e, t, error)
+    # Extrapolate only towards more time (lower error): fewer samples than the
+    # cheapest ladder point is not a render the curve could make.
+    return loglog_interp(e, t, error, extrapolate=extrapolate and error < e.min())
 
 
-def error_at_time(times, errors, time: float) -> float:
+def error_at_time(times, errors, time: float, *, extrapolate: bool = False) -> float:
     """Error the curve reaches in ``time`` (Pareto front, log–log interpolation)."""
     t, e = _front(times, errors)
     if t.size == 0 or not time > 0:
         return math.nan
     if t.size == 1:
         return float(e[0]) if time == t[0] else math.nan
-    return loglog_interp(t, e, time)
+    return loglog_interp(t, e, time, extrapolate=extrapolate and time > t.max())
 
 
-def equal_error_time_ratio(time: float, error: float, ref_times, ref_errors) -> float:
+def equal_error_time_ratio(time: float, error: float, ref_times, ref_errors, *,
+                           extrapolate: bool = False) -> float:
     """``time / t_ref(error)``: how much longer than the reference curve a configuration
     takes for the same error (< 1: faster than the reference)."""
-    tr = time_at_error(ref_times, ref_errors, error)
+    tr = time_at_error(ref_times, ref_errors, error, extrapolate=extrapolate)
     return float(time / tr) if tr and math.isfinite(tr) else math.nan
 
 
-def equal_time_error_ratio(time: float, error: float, ref_times, ref_errors) -> float:
+def equal_time_error_ratio(time: float, error: float, ref_times, ref_errors, *,
+                           extrapolate: bool = False) -> float:
     """``error / e_ref(time)``: the error relative to the reference curve's at the same
     time (< 1: more accurate than the reference)."""
-    er = error_at_time(ref_times, ref_errors, time)
+    er = error_at_time(ref_times, ref_errors, time, extrapolate=extrapolate)
     return float(error / er) if er and math.isfinite(er) else math.nan
 
 
@@ -149,8 +165,10 @@ def summarize_points(own: list[dict], mitsuba: list[dict]) -> dict:
     ``own`` and ``mitsuba`` are lists of ``{"label", "time", "error"}``.
     Each own row gets ``efficiency``, ``pareto`` (on the own front),
     ``equal_error_time_ratio`` and ``equal_time_error_ratio`` against the
-    Mitsuba curve; ``best`` holds the smallest of each ratio over the own
-    configurations and which configuration gives it.
+    Mitsuba curve, interpolated inside it and extrapolated as a power law
+    outside (flags ``equal_error_extrapolated`` / ``equal_time_extrapolated``);
+    ``best`` holds the smallest of each ratio over the own configurations and
+    which configuration gives it.
     """
     mt = [p["time"] for p in mitsuba]
     me = [p["error"] for p in mitsuba]
@@ -159,9 +177,17 @@ def summarize_points(own: list[dict], mitsuba: list[dict]) -> dict:
     front = set(pareto_front(t, e).tolist()) if own else set()
     rows = []
     for i, p in enumerate(own):
+        ee = equal_error_time_ratio(p["time"], p["error"], mt, me)
+        ee_x = math.isnan(ee)
+        if ee_x:
+            ee = equal_error_time_ratio(p["time"], p["error"], mt, me, extrapolate=True)
+        et = equal_time_error_ratio(p["time"], p["error"], mt, me)
+        et_x = math.isnan(et)
+        if et_x:
+            et = equal_time_error_ratio(p["time"], p["error"], mt, me, extrapolate=True)
         rows.append(dict(p, efficiency=efficiency(p["error"], p["time"]), pareto=i in front,
-                         equal_error_time_ratio=equal_error_time_ratio(p["time"], p["error"], mt, me),
-                         equal_time_error_ratio=equal_time_error_ratio(p["time"], p["error"], mt, me)))
+                         equal_error_time_ratio=ee, equal_error_extrapolated=ee_x and not math.isnan(ee),
+                         equal_time_error_ratio=et, equal_time_extrapolated=et_x and not math.isnan(et)))
     mrows = [dict(p, efficiency=efficiency(p["error"], p["time"])) for p in mitsuba]
     best = None
     ee = [r for r in rows if math.isfinite(r["equal_error_time_ratio"])]
@@ -171,8 +197,10 @@ def summarize_points(own: list[dict], mitsuba: list[dict]) -> dict:
         b2 = min(et, key=lambda r: r["equal_time_error_ratio"]) if et else None
         best = {"equal_error_time_ratio": b1["equal_error_time_ratio"] if b1 else math.nan,
                 "equal_error_label": b1["label"] if b1 else "—",
+                "equal_error_extrapolated": bool(b1 and b1["equal_error_extrapolated"]),
                 "equal_time_error_ratio": b2["equal_time_error_ratio"] if b2 else math.nan,
-                "equal_time_label": b2["label"] if b2 else "—"}
+                "equal_time_label": b2["label"] if b2 else "—",
+                "equal_time_extrapolated": bool(b2 and b2["equal_time_extrapolated"])}
     return {"rows": rows, "mitsuba_rows": mrows, "best": best}
 
 

@@ -99,3 +99,22 @@ def test_summarize_and_points_from_records():
     assert fast["equal_error_time_ratio"] == pytest.approx(0.5)
     assert s["best"]["equal_error_label"] == "fast"
     assert slow["efficiency"] == pytest.approx(1 / (0.05 * 0.1))
+
+
+def test_extrapolation_follows_the_end_segment_power_law():
+    mt = np.array([0.01, 0.04, 0.16])
+    me = 0.1 / mt
+    # Interpolation alone cannot reach error 0.1 / 0.64; the power law can, exactly.
+    assert math.isnan(time_at_error(mt, me, 0.1 / 0.64))
+    assert time_at_error(mt, me, 0.1 / 0.64, extrapolate=True) == pytest.approx(0.64)
+    assert error_at_time(mt, me, 0.64, extrapolate=True) == pytest.approx(0.1 / 0.64)
+    # Never towards less time than the cheapest rung (fewer than its samples).
+    assert math.isnan(error_at_time(mt, me, 0.0025, extrapolate=True))
+    assert math.isnan(time_at_error(mt, me, 40.0, extrapolate=True))
+    assert loglog_interp([1.0, 2.0], [4.0, 1.0], 4.0, extrapolate=True) == pytest.approx(0.25)
+    # summarize_points extrapolates and says so.
+    s = summarize_points([{"label": "x", "time": 1.28, "error": 0.1 / 0.64}],
+                         [{"label": f"m{t}", "time": t, "error": 0.1 / t} for t in mt])
+    (row,) = s["rows"]
+    assert row["equal_error_time_ratio"] == pytest.approx(2.0) and row["equal_error_extrapolated"]
+    assert s["best"]["equal_error_extrapolated"]
