@@ -358,8 +358,7 @@ def cmd_dashboard(args) -> int:
     con = _history(args)
     if con is None:
         raise CLIError("dashboard needs the database (drop --no-history)")
-    bench = Path(args.benchmarks)
-    if bench.exists():
+    for bench in args.benchmarks or [str(REPO_ROOT / ".benchmarks"), str(OUT_ROOT / "bench*.json")]:
         n = ingest_benchmarks(con, bench)
         print(f"benchmarks: {n} new rows from {bench}")
     out = write_dashboard(con, args.out, metrics=args.metric or None)
@@ -480,8 +479,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("dashboard", help="HTML dashboard of the history database and benchmarks")
     s.add_argument("--out", default=str(OUT_ROOT / "dashboard.html"))
-    s.add_argument("--benchmarks", default=str(REPO_ROOT / ".benchmarks"),
-                   help="pytest-benchmark JSON directory to ingest first")
+    s.add_argument("--benchmarks", action="append",
+                   help="pytest-benchmark JSON to ingest first: file, directory or glob "
+                   "(default: .benchmarks/ and reports/out/bench*.json)")
     s.add_argument("--metric", action="append", help="metrics to plot (default relmse, flip, own time)")
     s.add_argument("--history")
     s.add_argument("--no-history", action="store_true", help=argparse.SUPPRESS)

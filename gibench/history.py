@@ -74,7 +74,7 @@ CREATE TABLE IF NOT EXISTS benchmarks (
     mean_s REAL,
     stddev_s REAL,
     rounds INTEGER,
-    UNIQUE (source, name)
+    UNIQUE (source, name, created)
 );
 """
 
@@ -163,16 +163,26 @@ def add_records(con, records, *, command: str = "run") -> int:
 
 
 def ingest_benchmarks(con: sqlite3.Connection, root) -> int:
-    """Ingest every pytest-benchmark JSON file under ``root`` (a file or a directory,
-    e.g. ``.benchmarks/``); returns how many benchmark rows were new.
+    """Ingest every pytest-benchmark JSON file under ``root`` (a file, a directory such
+    as ``.benchmarks/`` from ``--benchmark-autosave``, or a glob such as
+    ``reports/out/bench*.json`` from ``--benchmark-json``); returns how many
+    benchmark rows were new (a file rewritten by a later run adds its rows again:
+    rows are keyed by file, benchmark and the run's date).
 
     Any ``benchmarks/bench_*.py`` that pytest-benchmark saved is accepted: the
     file's ``benchmarks`` list gives name, group and stats; ``commit_info`` and
     ``datetime`` give commit and date.  Files that are not pytest-benchmark
     JSON are skipped.
     """
+    import glob
+
     root = Path(root)
-    files = [root] if root.is_file() else sorted(root.rglob("*.json")) if root.is_dir() else []
+    if root.is_file():
+        files = [root]
+    elif root.is_dir():
+        files = sorted(root.rglob("*.json"))
+    else:                                   # a glob pattern, e.g. reports/out/bench*.json
+        files = sorted(Path(p) for p in glob.glob(str(root)) if Path(p).is_file())
     new = 0
     for f in files:
         try:

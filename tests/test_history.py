@@ -75,6 +75,12 @@ def test_benchmark_ingestion_and_dashboard(tmp_path):
     (bench / "notes.json").write_text('{"something": "else"}')             # not pytest-benchmark
     assert ingest_benchmarks(con, tmp_path / ".benchmarks") == 4
     assert ingest_benchmarks(con, tmp_path / ".benchmarks") == 0             # idempotent
+    # --benchmark-json rewrites one file per run: a glob picks it up, a rerun adds rows.
+    single = tmp_path / "out" / "bench_x.json"
+    _bench_json(single, "cccc", "2026-01-03T00:00:00", 0.03)
+    assert ingest_benchmarks(con, tmp_path / "out" / "bench*.json") == 2
+    _bench_json(single, "dddd", "2026-01-04T00:00:00", 0.04)
+    assert ingest_benchmarks(con, tmp_path / "out" / "bench*.json") == 2
     rows = benchmark_rows(con)
     assert {(r["commit"], r["group"], r["median_s"]) for r in rows} >= {
         ("aaaaaaaaaaaa", "intersect", 0.01), ("bbbbbbbbbbbb", "raycast", 0.04)}
@@ -82,6 +88,7 @@ def test_benchmark_ingestion_and_dashboard(tmp_path):
     add_record(con, _rec("r2", "bbb", "2026-01-02T00:00:00", 2e-3, 0.4))
     page = render_dashboard(query(con), rows)
     assert page.count("<img class='plot'") == 3                 # one scene, two benchmark groups
+    assert len(rows) == 8
     assert "spheres/lit_sphere" in page and "alt='benchmarks intersect'" in page
     empty = render_dashboard([], [])
     assert "No results" in empty and "No benchmark JSON" in empty
