@@ -294,6 +294,13 @@ def cmd_check(args) -> int:
     findings = compare_with_baseline(records, baseline, speed_factor=args.speed_factor)
     print(format_findings(findings, all_rows=args.all))
     failed = [f for f in findings if f.failed]
+    import dataclasses
+
+    from .check import _atomic_write
+
+    _atomic_write(out.parent / "check.json", json.dumps(
+        {"run_id": run_id, "baseline": str(args.baseline), "passed": not failed,
+         "findings": [dataclasses.asdict(f) for f in findings]}, indent=1, default=str) + "\n")
     print(f"report:  {out}")
     if failed:
         from .check import case_key

@@ -135,6 +135,9 @@ def test_check_cli_unchanged_passes_broken_parameter_fails(tmp_path, capsys, mit
                      *common]) == 1
     out = capsys.readouterr().out
     assert "check FAILED" in out
+    summary = json.loads((report.parent / "check.json").read_text())
+    assert not summary["passed"] and any(f["what"] == "relmse" and f["failed"]
+                                         for f in summary["findings"])
     failing = [line for line in out.splitlines() if line.rstrip().endswith("FAIL")
                or "FAIL  (" in line]
     assert any(" relmse " in line for line in failing), out
