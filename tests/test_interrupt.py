@@ -5,7 +5,7 @@ The run renders its references into a fresh store (few spp, small scenes), so th
 kill can land in a reference render, an own render or a store write.
 """
 
-import os
+import json
 import signal
 import sqlite3
 import subprocess
@@ -81,7 +81,6 @@ def _assert_consistent(tmp_path, *, complete=False):
     from references.reference import _load_entry
 
     for d in (tmp_path / "store").glob("[0-9a-f]*"):
-        import json
         key = json.loads((d / "manifest.json").read_text())["key"]
         _load_entry(d, key)
     if complete:
