@@ -122,4 +122,5 @@ def sweep_table(records: list[dict], *, metric: str = "relmse") -> str:
                          f"{x2}{best['equal_time_error_ratio']:.3g} ({best['equal_time_label']}); "
                          "< 1 means the own configuration wins; ~ extrapolated beyond Mitsuba's ladder")
         lines.append("")
-    return "\n".join(lines) if lines else "no finished configurations"
+    return "\n".join(lines) if lines else ("no speed-vs-error table: no finished configuration "
+                                            "with a Mitsuba ladder point (--ladder)")
