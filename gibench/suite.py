@@ -378,22 +378,22 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
 
     n = len(suite.cases)
     bar = _progress(n, f"{suite.name}", progress)
+    # Lines go above the bar while it is shown; nothing is printed with log=None.
+    say = ((bar.write if not bar.disable else log) if log else (lambda s: None))
     try:
         if kind == "serial":
             timing_cache: dict = {}
             for i, case in enumerate(suite.cases):
-                (bar.write if not bar.disable else log or (lambda s: None))(
-                    f"[{i + 1}/{n}] {case.scene_id}: {case.label} vs {case.transport}")
+                say(f"[{i + 1}/{n}] {case.scene_id}: {case.label} vs {case.transport}")
                 rec = run_case(case, suite, run_id=run_id, out_dir=out_dir,
                                mitsuba_timing=mitsuba_timing, timing_cache=timing_cache,
                                reference_store=reference_store, log=log, defines=defines, seed=seed)
                 keep(rec)
                 bar.update(1)
-                if log and not rec.get("error"):
-                    (bar.write if not bar.disable else log)(_summary_line(rec))
+                if not rec.get("error"):
+                    say(_summary_line(rec))
         else:
-            if log:
-                log(f"running {n} cases on {kind} ({detail})")
+            say(f"running {n} cases on {kind} ({detail})")
             kw = dict(run_id=run_id, out_dir=out_dir, mitsuba_timing=mitsuba_timing,
                       reference_store=reference_store, defines=defines, seed=seed)
             jobs_ = [(case, suite, kw) for case in suite.cases]
@@ -402,10 +402,8 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
                 keep(rec)
                 done += 1
                 bar.update(1)
-                if log:
-                    c = suite.cases[i]
-                    (bar.write if not bar.disable else log)(
-                        f"[{done}/{n}] {c.scene_id}: {c.label} vs {c.transport}\n{_summary_line(rec)}")
+                c = suite.cases[i]
+                say(f"[{done}/{n}] {c.scene_id}: {c.label} vs {c.transport}\n{_summary_line(rec)}")
     finally:
         bar.close()
     if (suite.ladder if ladder is None else ladder) and suite.ladder:
