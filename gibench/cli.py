@@ -10,6 +10,17 @@
 (as Mitsuba's own ``mitsuba -D name=value``); the reference renders with the
 same values and its cache key includes them.
     gibench report [--run RUN_ID] [--out FILE.html]
+    gibench baseline [SUITE] --out FILE [--seeds K]
+    gibench check --baseline FILE [SUITE] [--speed-factor F]
+    gibench sweep SCENE --algorithm A --grid key=v1,v2 [--grid ...] [--transport T]
+    gibench history [--metric M] [--scene S] [--algorithm A]
+    gibench dashboard [--out FILE.html] [--benchmarks DIR]
+
+``run``, ``check``, ``baseline`` and ``sweep`` take ``--jobs N`` (local
+worker processes) or ``--executor dask://HOST:PORT`` (a Dask cluster) and
+store every record in the history database (``--history``, default
+``history.sqlite`` beside ``--results``, i.e. ``reports/out/history.sqlite``;
+``--no-history`` to skip).
 
 Errors in the input (a bad scene, a missing file, an image with NaN, an
 unknown algorithm or parameter) print one line, ``gibench: error: <cause>``,
@@ -165,6 +176,27 @@ def _resolve_suite(name: str) -> Path:
     return cand if cand.exists() else p
 
 
+def _history(args):
+    """The open history database of a command (None with --no-history)."""
+    if getattr(args, "no_history", False):
+        return None
+    import os
+
+    from .history import connect
+
+    if getattr(args, "history", None):
+        return connect(args.history)
+    if not os.environ.get("GIBENCH_HISTORY") and getattr(args, "results", None):
+        # Beside the results file: reports/out/history.sqlite for the default results.
+        return connect(Path(args.results).parent / "history.sqlite")
+    return connect()
+
+
+def _run_common(args) -> dict:
+    return dict(jobs=args.jobs, executor=args.executor,
+                progress=False if args.no_progress else None)
+
+
 def cmd_run(args) -> int:
     from reports.html import write_report
     from reports.results import ResultStore, new_run_id
@@ -180,16 +212,28 @@ def cmd_run(args) -> int:
 
     refuse_without_scenes(args)
     suite = load_suite(_resolve_suite(args.suite))
+    if args.ladder is not None:
+        import dataclasses
+
+        try:
+            spps = tuple(int(x) for x in args.ladder.split(",") if x.strip())
+        except ValueError:
+            raise CLIError(f"--ladder expects comma-separated spp, got {args.ladder!r}") from None
+        if any(x < 1 for x in spps):
+            raise CLIError(f"--ladder spp must be positive, got {args.ladder!r}")
+        suite = dataclasses.replace(suite, ladder=spps)
     store = ResultStore(Path(args.results))
     run_id = new_run_id()
+    history = _history(args)
     print(f"gibench run {run_id}: suite '{suite.name}' ({len(suite.cases)} cases) from {suite.path}")
     records = run_suite(suite, store, run_id=run_id, out_root=Path(args.results).parent,
                         mitsuba_timing=not args.no_mitsuba_timing, reference_store=args.store,
-                        defines=defines)
+                        defines=defines, history=history, command="run", **_run_common(args))
     out = Path(args.report) if args.report else Path(args.results).parent / "report.html"
     write_report(records, out, root=REPO_ROOT, title=f"gibench — suite {suite.name}")
-    n_err = sum(1 for r in records if r.get("error"))
-    failed = [(r["scene"], c["name"]) for r in records for c in r.get("checks", []) if not c["passed"]]
+    cases = [r for r in records if r.get("kind", "case") == "case"]
+    n_err = sum(1 for r in cases if r.get("error"))
+    failed = [(r["scene"], c["name"]) for r in cases for c in r.get("checks", []) if not c["passed"]]
     print(f"results: {args.results} (run {run_id})")
     print(f"report:  {out}")
     if n_err or failed:
@@ -197,8 +241,145 @@ def cmd_run(args) -> int:
             print(f"FAILED: {scene}: {name}")
         print(f"{len(failed)} failed checks, {n_err} cases with errors")
         return 1
-    checks = sum(len(r.get("checks", [])) for r in records)
+    checks = sum(len(r.get("checks", [])) for r in cases)
     print(f"all {checks} checks passed")
+    return 0
+
+
+def _baseline_suite(args, baseline: dict | None = None):
+    from .suite import load_suite
+
+    name = args.suite
+    if name is None and baseline is not None:
+        name = str(REPO_ROOT / baseline["suite_file"]) if baseline.get("suite_file") else baseline["suite"]
+    return load_suite(_resolve_suite(name or "ci"))
+
+
+def cmd_baseline(args) -> int:
+    from reports.results import ResultStore, new_run_id
+
+    from .check import make_baseline, write_baseline
+    from .suite import _rel, run_suite
+
+    if args.seeds < 1:
+        raise CLIError(f"--seeds must be >= 1, got {args.seeds}")
+    suite = _baseline_suite(args)
+    store = ResultStore(Path(args.results))
+    history = _history(args)
+    seeds = list(range(args.seeds))
+    runs = []
+    for seed in seeds:
+        run_id = new_run_id()
+        print(f"gibench baseline {run_id}: suite '{suite.name}', seed {seed}")
+        runs.append(run_suite(suite, store, run_id=run_id, out_root=Path(args.results).parent,
+                              mitsuba_timing=(seed == 0 and not args.no_mitsuba_timing),
+                              reference_store=args.store, seed=seed,
+                              history=history if seed == 0 else None, command="baseline",
+                              ladder=False, **_run_common(args)))
+    doc = make_baseline(runs, suite=suite.name, suite_file=_rel(suite.path), seeds=seeds)
+    out = write_baseline(doc, args.out)
+    print(f"baseline: {out} ({len(doc['cases'])} cases, seeds {seeds})")
+    return 0
+
+
+def cmd_check(args) -> int:
+    from reports.html import write_report
+    from reports.results import ResultStore, new_run_id
+
+    from .check import compare_with_baseline, format_findings, read_baseline, write_evidence
+    from .suite import run_suite
+
+    baseline = read_baseline(args.baseline)
+    suite = _baseline_suite(args, baseline)
+    store = ResultStore(Path(args.results))
+    run_id = new_run_id()
+    history = _history(args)
+    print(f"gibench check {run_id}: suite '{suite.name}' ({len(suite.cases)} cases) "
+          f"against {args.baseline} (commit {baseline.get('commit')})")
+    records = run_suite(suite, store, run_id=run_id, out_root=Path(args.results).parent,
+                        mitsuba_timing=not args.no_mitsuba_timing, reference_store=args.store,
+                        history=history, command="check", ladder=False, **_run_common(args))
+    out = Path(args.report) if args.report else Path(args.results).parent / "check" / "report.html"
+    write_report(records, out, root=REPO_ROOT, title=f"gibench check — suite {suite.name}")
+    findings = compare_with_baseline(records, baseline, speed_factor=args.speed_factor)
+    print(format_findings(findings, all_rows=args.all))
+    failed = [f for f in findings if f.failed]
+    import dataclasses
+
+    from .check import _atomic_write
+
+    _atomic_write(out.parent / "check.json", json.dumps(
+        {"run_id": run_id, "baseline": str(args.baseline), "passed": not failed,
+         "findings": [dataclasses.asdict(f) for f in findings]}, indent=1, default=str) + "\n")
+    print(f"report:  {out}")
+    if failed:
+        from .check import case_key
+
+        bad = {f.case for f in failed}
+        for r in records:
+            if case_key(r) in bad and not r.get("error"):
+                ev = write_evidence(r, out.parent / "evidence")
+                if ev is not None:
+                    print(f"evidence: {ev}")
+        print(f"check FAILED: {len(failed)} of {len(findings)} comparisons in {len(bad)} cases")
+        return 1
+    print(f"check passed: {len(findings)} comparisons over {len(baseline['cases'])} cases")
+    return 0
+
+
+def cmd_sweep(args) -> int:
+    from reports.html import write_report
+    from reports.results import ResultStore, new_run_id
+
+    from .sweep import parse_grid, sweep_suite, sweep_table
+    from .suite import run_suite
+
+    algo = registry.get(args.algorithm)
+    grid = parse_grid(args.grid, algo)
+    suite = sweep_suite(args.scene, algo, grid, transport=args.transport,
+                        reference_spp=args.reference_spp, reference_passes=args.reference_passes,
+                        repeats=args.repeats, ladder=args.ladder, base_params=_parse_sets(args.set))
+    store = ResultStore(Path(args.results))
+    run_id = new_run_id()
+    print(f"gibench sweep {run_id}: {suite.name}, {len(suite.cases)} configurations")
+    records = run_suite(suite, store, run_id=run_id, out_root=Path(args.results).parent,
+                        mitsuba_timing=not args.no_mitsuba_timing, reference_store=args.store,
+                        history=_history(args), command="sweep", **_run_common(args))
+    out = Path(args.report) if args.report else Path(args.results).parent / "sweep" / "report.html"
+    write_report(records, out, root=REPO_ROOT, title=f"gibench sweep — {suite.name}")
+    print(sweep_table(records, metric=args.metric))
+    print(f"report:  {out}")
+    return 1 if any(r.get("error") for r in records) else 0
+
+
+def cmd_history(args) -> int:
+    from .history import format_table, query
+
+    con = _history(args) if not args.no_history else None
+    if con is None:
+        raise CLIError("history needs the database (drop --no-history)")
+    rows = query(con, metric=args.metric, scene=args.scene, algorithm=args.algorithm,
+                 limit=args.limit)
+    if not rows:
+        print("no matching records in the history database")
+        return 0
+    print(format_table(rows, metric=args.metric or "relmse"))
+    return 0
+
+
+def cmd_dashboard(args) -> int:
+    from reports.dashboard import write_dashboard
+
+    from .history import ingest_benchmarks
+
+    con = _history(args)
+    if con is None:
+        raise CLIError("dashboard needs the database (drop --no-history)")
+    for bench in args.benchmarks or [str(REPO_ROOT / ".benchmarks"), str(OUT_ROOT / "bench*.json")]:
+        n = ingest_benchmarks(con, bench)
+        print(f"benchmarks: {n} new rows from {bench}")
+    out = write_dashboard(con, args.out, metrics=args.metric or None)
+    print(f"dashboard: {out}")
     return 0
 
 
@@ -259,13 +440,75 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_compare)
 
+    def common(s, *, mitsuba=True):
+        s.add_argument("--results", default=str(RESULTS))
+        s.add_argument("--report", help="HTML output (default: beside the results)")
+        s.add_argument("--store", help="reference store directory (default: references/store)")
+        s.add_argument("--history", help="history database (default: reports/out/history.sqlite)")
+        s.add_argument("--no-history", action="store_true", help="do not store the records in it")
+        s.add_argument("--jobs", "-j", type=int, default=1, help="local worker processes")
+        s.add_argument("--executor", help="dask://HOST:PORT: run the cases on a Dask cluster")
+        s.add_argument("--no-progress", action="store_true", help="no progress bar")
+        if mitsuba:
+            s.add_argument("--no-mitsuba-timing", action="store_true",
+                           help="skip timing Mitsuba on the same scenes")
+
+    s = sub.add_parser("baseline", help="run a suite with several seeds and write a CI baseline")
+    s.add_argument("suite", nargs="?", default=None, help="suite (default: ci)")
+    s.add_argument("--out", "-o", required=True, help="baseline JSON to write")
+    s.add_argument("--seeds", type=int, default=3,
+                   help="own-render seeds 0..K-1; their spread sets the tolerances")
+    common(s)
+    s.set_defaults(func=cmd_baseline)
+
+    s = sub.add_parser("check", help="run a suite and compare with a baseline (exit 1 on regression)")
+    s.add_argument("suite", nargs="?", default=None, help="suite (default: the baseline's)")
+    s.add_argument("--baseline", "-b", required=True)
+    s.add_argument("--speed-factor", type=float, help="fail when own/Mitsuba grows more than "
+                   "this factor (default: the baseline's, 4)")
+    s.add_argument("--all", action="store_true", help="show unchanged comparisons too")
+    common(s)
+    s.set_defaults(func=cmd_check)
+
+    s = sub.add_parser("sweep", help="speed vs error over a parameter grid of one algorithm")
+    s.add_argument("scene")
+    s.add_argument("--algorithm", "-a", required=True)
+    s.add_argument("--grid", "-g", action="append", metavar="KEY=V1,V2,...", required=True)
+    s.add_argument("--set", action="append", metavar="KEY=VALUE", help="fixed algorithm parameter")
+    s.add_argument("--transport", choices=("full", "direct", "whitted"),
+                   help="reference transport (default: the algorithm's)")
+    s.add_argument("--reference-spp", type=int, default=1024)
+    s.add_argument("--reference-passes", type=int, default=8)
+    s.add_argument("--repeats", type=int, default=3)
+    s.add_argument("--ladder", default="1,4,16,64,256", help="Mitsuba spp ladder ('' for none)")
+    s.add_argument("--metric", default="relmse", help="error metric of the table")
+    common(s)
+    s.set_defaults(func=cmd_sweep)
+
+    s = sub.add_parser("history", help="metrics and times across commits, from the history database")
+    s.add_argument("--metric", help="metric or time key (default relmse)")
+    s.add_argument("--scene")
+    s.add_argument("--algorithm")
+    s.add_argument("--limit", type=int)
+    s.add_argument("--history")
+    s.add_argument("--no-history", action="store_true", help=argparse.SUPPRESS)
+    s.set_defaults(func=cmd_history)
+
+    s = sub.add_parser("dashboard", help="HTML dashboard of the history database and benchmarks")
+    s.add_argument("--out", default=str(OUT_ROOT / "dashboard.html"))
+    s.add_argument("--benchmarks", action="append",
+                   help="pytest-benchmark JSON to ingest first: file, directory or glob "
+                   "(default: .benchmarks/ and reports/out/bench*.json)")
+    s.add_argument("--metric", action="append", help="metrics to plot (default relmse, flip, own time)")
+    s.add_argument("--history")
+    s.add_argument("--no-history", action="store_true", help=argparse.SUPPRESS)
+    s.set_defaults(func=cmd_dashboard)
+
     s = sub.add_parser("run", help="run a suite against the stored references and write the report")
     s.add_argument("suite", nargs="?", default="default")
-    s.add_argument("--results", default=str(RESULTS))
-    s.add_argument("--report", help="HTML output (default: beside the results)")
-    s.add_argument("--store", help="reference store directory (default: references/store)")
-    s.add_argument("--no-mitsuba-timing", action="store_true",
-                   help="skip timing Mitsuba on the same scenes")
+    s.add_argument("--ladder", help="Mitsuba spp ladder for the speed-vs-error plots, e.g. "
+                   "1,4,16,64 (default: the suite's [suite] ladder; '' for none)")
+    common(s)
     s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
                    help="override the scene's <default name=NAME> value in every scene (as Mitsuba's -D)")
     from .scene_dir import add_arguments as _scene_dir_arguments
@@ -288,6 +531,9 @@ def main(argv=None) -> int:
     from .imageio import ImageError
     from .loader import SceneError
     from .meshes import MeshError
+    from .check import BaselineError
+    from .executor import ExecutorError
+    from .history import HistoryError
     from .suite import SuiteError
 
     args = build_parser().parse_args(argv)
@@ -295,7 +541,7 @@ def main(argv=None) -> int:
         return args.func(args)
     except (CLIError, SceneError, MitsubaSceneError, ImageError, MeshError, SuiteError,
             registry.ParamError, ReferenceMissing, NotImplementedError, ValueError,
-            FileNotFoundError) as exc:
+            FileNotFoundError, BaselineError, ExecutorError, HistoryError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"gibench: error: {msg}", file=sys.stderr)
         return 2

@@ -8,6 +8,8 @@ configurations × reference transport × expectations::
     reference_spp = 1024        # Mitsuba samples per pixel of every reference
     reference_passes = 8        # independent passes (for the variance of the mean)
     repeats = 3                 # timed renders per configuration (after a warm-up)
+    ladder = [1, 4, 16, 64]     # optional: Mitsuba's integrator at these spp, timed and
+                                # compared in the same run (speed-vs-error plots)
 
     [[group]]
     scenes = ["spheres/lit_sphere.xml"]      # relative to the manifest
@@ -82,6 +84,7 @@ class Suite:
     studies: Path | None = None      # studies configuration (TOML)
     studies_module: str = "gibench.studies"      # the module whose run_studies/TABLES run it
     pivots: dict = field(default_factory=dict)   # report layout of each study's table
+    ladder: tuple = ()           # Mitsuba spp ladder for the speed-vs-error plots (empty: none)
 
 
 def _need(table: dict, key: str, where: str, typ=None):
@@ -131,6 +134,10 @@ def load_suite(path) -> Suite:
                                   params=params, transport=cfg.get("transport", transport),
                                   label=cfg.get("label", f"{algo.name} {params}"),
                                   expect=expect, tolerances=tol))
+    ladder = head.get("ladder", [])
+    if not isinstance(ladder, list) or not all(isinstance(x, int) and x >= 1 for x in ladder):
+        raise SuiteError(f"{path}: [suite] ladder must be a list of positive integers (spp), "
+                         f"got {ladder!r}")
     studies = None
     if "studies" in head:
         studies = (suites_root / head["studies"]).resolve()
@@ -144,7 +151,7 @@ def load_suite(path) -> Suite:
                  reference_passes=int(head.get("reference_passes", 8)),
                  repeats=int(head.get("repeats", 3)), description=head.get("description", ""),
                  studies=studies, studies_module=head.get("studies_module", "gibench.studies"),
-                 pivots=dict(data.get("pivot", {})))
+                 pivots=dict(data.get("pivot", {})), ladder=tuple(ladder))
 
 
 def _rel(p: Path) -> str:
@@ -172,16 +179,17 @@ def _checks(case: Case, metrics: dict) -> list[dict]:
 
 def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_timing: bool,
              timing_cache: dict, reference_store=None, log=print,
-             defines: dict | None = None) -> dict:
+             defines: dict | None = None, seed: int = 0) -> dict:
     """Run one case and return its result record (never raises for a bad case:
     the record's ``error`` names the cause).  ``defines`` overrides the scene's
-    ``<default>`` values in both the own render and the reference (``-D``)."""
+    ``<default>`` values in both the own render and the reference (``-D``);
+    ``seed`` is the own render's seed."""
     from references.reference import DEFAULT_STORE, get_reference, time_mitsuba
     from reports.metrics import compare
 
     record = {"run_id": run_id, "suite": suite.name, "scene": case.scene_id,
               "scene_file": _rel(case.scene), "algorithm": case.algorithm, "label": case.label,
-              "params": case.params, "defines": dict(defines or {}),
+              "params": case.params, "defines": dict(defines or {}), "seed": seed,
               "transport": case.transport, "expect": case.expect,
               "model_error": case.expect == "model-error", "error": None,
               "versions": versions(), "commit": git_commit(), "machine": machine(),
@@ -199,18 +207,23 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
                                "variance": _rel(ref.directory / "variance.exr"),
                                "spp": ref.manifest.get("spp"), "variant": ref.manifest.get("variant"),
                                "integrator": case.transport}
-        result, timing = render_timed(algo, scene, params, repeats=suite.repeats)
-        image_path = out_dir / f"{case.name}.exr"
+        result, timing = render_timed(algo, scene, params, seed=seed, repeats=suite.repeats)
+        suffix = f".seed{seed}" if seed else ""
+        image_path = out_dir / f"{case.name}{suffix}.exr"
         write_exr(image_path, result.image)
         record["image"] = _rel(image_path)
         record["variance"] = None
         if result.variance is not None:
-            var_path = out_dir / f"{case.name}.var.exr"
+            var_path = out_dir / f"{case.name}{suffix}.var.exr"
             write_exr(var_path, result.variance)
             record["variance"] = _rel(var_path)
         record["counters"] = result.counters
         record["metrics"] = compare(ref.image, result.image, reference_variance=ref.variance,
                                     test_variance=result.variance, allow_nonfinite=True)
+        if ref.variance is not None:
+            from reports.pareto import noise_floor_relmse
+
+            record["metrics"]["noise_floor_relmse"] = noise_floor_relmse(ref.image, ref.variance)
         if mitsuba_timing:
             spp = params.get(algo.spp_param, 1) if algo.spp_param else 1
             key = (str(case.scene), case.transport, spp)
@@ -266,27 +279,138 @@ def run_studies(suite: Suite, *, run_id: str, log=print) -> list[dict]:
     return records
 
 
-def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timing: bool = True,
-              reference_store=None, log=print, defines: dict | None = None) -> list[dict]:
-    """Run every case, appending each record to ``store`` as it completes."""
-    out_dir = out_root / "runs" / run_id
-    timing_cache: dict = {}
+def _case_task(job: tuple) -> dict:
+    """Run one case in a worker (module level so process and Dask workers can unpickle it)."""
+    case, suite, kw = job
+    return run_case(case, suite, timing_cache={}, log=None, **kw)
+
+
+def _summary_line(rec: dict) -> str:
+    if rec.get("error"):
+        return f"  error: {rec['error']}"
+    m, t = rec["metrics"], rec["time"]
+    verdict = "; ".join(f"{c['name']}: {'ok' if c['passed'] else 'FAILED'}" for c in rec["checks"])
+    ratio = f", {t['ratio']:.2f}x Mitsuba" if t.get("ratio") else ""
+    return (f"  relMSE {m['relmse']:.3g}, FLIP {m['flip']:.3g}, own {t['own_median_s'] * 1e3:.1f} ms"
+            f"{ratio}" + (f" -- {verdict}" if verdict else " -- reported"))
+
+
+def _progress(total: int, desc: str, enabled):
+    """A tqdm bar on stderr (``enabled=None``: only on a terminal)."""
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="case", disable=(not enabled) if enabled is not None
+                else None, file=sys.stderr, dynamic_ncols=True, leave=False)
+
+
+def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=print,
+                defines: dict | None = None) -> list[dict]:
+    """Mitsuba's spp ladder (``suite.ladder``) for every (scene, transport) of ``cases``:
+    one record (``kind = "ladder"``) per spp with Mitsuba's time and error, measured
+    in this run for the speed-vs-error plots."""
+    from references.ladder import ladder_points
+    from references.reference import DEFAULT_STORE, get_reference
+
     records = []
-    for i, case in enumerate(suite.cases):
-        log(f"[{i + 1}/{len(suite.cases)}] {case.scene_id}: {case.label} vs {case.transport}")
-        rec = run_case(case, suite, run_id=run_id, out_dir=out_dir, mitsuba_timing=mitsuba_timing,
-                       timing_cache=timing_cache, reference_store=reference_store, log=log,
-                       defines=defines)
+    pairs = list(dict.fromkeys((c.scene, c.scene_id, c.transport) for c in cases))
+    for scene, scene_id, transport in pairs:
+        base = {"run_id": run_id, "suite": suite.name, "kind": "ladder", "scene": scene_id,
+                "scene_file": _rel(scene), "algorithm": "mitsuba", "transport": transport,
+                "defines": dict(defines or {}), "versions": versions(), "commit": git_commit(),
+                "machine": machine(), "created": utc_now(), "error": None}
+        try:
+            ref = get_reference(scene, transport=transport, spp=suite.reference_spp,
+                                passes=suite.reference_passes,
+                                store=reference_store or DEFAULT_STORE, defines=defines)
+            points = ladder_points(scene, transport=transport, spps=suite.ladder, reference=ref,
+                                   repeats=suite.repeats, defines=defines)
+        except (SceneError, ValueError, RuntimeError, OSError) as exc:
+            msg = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+            if log:
+                log(f"  ladder {scene_id} ({transport}): error: {msg}")
+            records.append(dict(base, label=f"Mitsuba {transport}", params={}, error=msg))
+            continue
+        from reports.pareto import noise_floor_relmse
+
+        for pt in points:
+            if ref.variance is not None:
+                pt["metrics"]["noise_floor_relmse"] = noise_floor_relmse(ref.image, ref.variance)
+            records.append(dict(base, label=f"Mitsuba {transport} {pt['spp']} spp",
+                                params={"spp": pt["spp"]}, metrics=pt["metrics"],
+                                time={"own_median_s": pt["median_s"], "own_times_s": pt["times_s"],
+                                      "repeats": suite.repeats, "variant": pt["variant"]},
+                                reference={"key": ref.key, "dir": _rel(ref.directory),
+                                           "spp": ref.manifest.get("spp")},
+                                ladder_spp=pt["spp"], mitsuba=pt["mitsuba"]))
+            if log:
+                log(f"  ladder {scene_id} ({transport}) {pt['spp']} spp: relMSE "
+                    f"{pt['metrics']['relmse']:.3g}, {pt['median_s'] * 1e3:.1f} ms")
+    return records
+
+
+def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timing: bool = True,
+              reference_store=None, log=print, defines: dict | None = None, seed: int = 0,
+              history=None, command: str = "run", jobs: int = 1, executor: str | None = None,
+              progress=None, ladder: bool | None = None) -> list[dict]:
+    """Run every case, appending each record to ``store`` as it completes.
+
+    ``history``: an open :func:`gibench.history.connect` connection (or None)
+    that receives every record too, one transaction each.  ``jobs`` /
+    ``executor``: where cases execute (:mod:`gibench.executor`); records
+    always flow back to this process, which alone writes the stores.
+    ``progress``: a tqdm bar on stderr (None: only on a terminal).
+    ``ladder``: time Mitsuba's spp ladder (default: when ``suite.ladder``
+    is set).
+    """
+    from .executor import map_unordered, parse_executor
+
+    kind, detail = parse_executor(executor, jobs)
+    out_dir = out_root / "runs" / run_id
+    records = []
+
+    def keep(rec):
         store.append(rec)
+        if history is not None:
+            from .history import add_record
+
+            add_record(history, rec, command=command)
         records.append(rec)
-        if not rec.get("error"):
-            m, t = rec["metrics"], rec["time"]
-            verdict = "; ".join(f"{c['name']}: {'ok' if c['passed'] else 'FAILED'}" for c in rec["checks"])
-            ratio = f", {t['ratio']:.2f}x Mitsuba" if t.get("ratio") else ""
-            log(f"  relMSE {m['relmse']:.3g}, FLIP {m['flip']:.3g}, own {t['own_median_s'] * 1e3:.1f} ms"
-                f"{ratio}" + (f" -- {verdict}" if verdict else " -- reported"))
+
+    n = len(suite.cases)
+    bar = _progress(n, f"{suite.name}", progress)
+    # Lines go above the bar while it is shown; nothing is printed with log=None.
+    say = ((bar.write if not bar.disable else log) if log else (lambda s: None))
+    try:
+        if kind == "serial":
+            timing_cache: dict = {}
+            for i, case in enumerate(suite.cases):
+                say(f"[{i + 1}/{n}] {case.scene_id}: {case.label} vs {case.transport}")
+                rec = run_case(case, suite, run_id=run_id, out_dir=out_dir,
+                               mitsuba_timing=mitsuba_timing, timing_cache=timing_cache,
+                               reference_store=reference_store, log=log, defines=defines, seed=seed)
+                keep(rec)
+                bar.update(1)
+                if not rec.get("error"):
+                    say(_summary_line(rec))
+        else:
+            say(f"running {n} cases on {kind} ({detail})")
+            kw = dict(run_id=run_id, out_dir=out_dir, mitsuba_timing=mitsuba_timing,
+                      reference_store=reference_store, defines=defines, seed=seed)
+            jobs_ = [(case, suite, kw) for case in suite.cases]
+            done = 0
+            for i, rec in map_unordered(_case_task, jobs_, kind=kind, detail=detail):
+                keep(rec)
+                done += 1
+                bar.update(1)
+                c = suite.cases[i]
+                say(f"[{done}/{n}] {c.scene_id}: {c.label} vs {c.transport}\n{_summary_line(rec)}")
+    finally:
+        bar.close()
+    if (suite.ladder if ladder is None else ladder) and suite.ladder:
+        for rec in run_ladders(suite, suite.cases, run_id=run_id, reference_store=reference_store,
+                               log=log, defines=defines):
+            keep(rec)
     if suite.studies is not None:
         for rec in run_studies(suite, run_id=run_id, log=log):
-            store.append(rec)
-            records.append(rec)
+            keep(rec)
     return records

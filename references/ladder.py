@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 
-__all__ = ["mitsuba_ladder"]
+__all__ = ["mitsuba_ladder", "ladder_points"]
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 LADDER_SEED = 987654
@@ -63,3 +63,57 @@ def mitsuba_ladder(*, scenes=("cornell/cornell_box.xml",), spps=(4, 16, 64, 256)
                          "median_s": statistics.median(times), "variant": mi.variant(),
                          "mitsuba": mi.__version__})
     return rows
+
+
+def ladder_points(scene_path, *, transport: str, spps=(1, 4, 16, 64), reference, repeats: int = 3,
+                  defines: dict | None = None, metrics=None) -> list[dict]:
+    """Mitsuba's integrator for ``transport`` at each spp of ``spps``: time and error
+    against ``reference`` (a :class:`references.reference.Reference`), for the
+    speed-vs-error plots of ``gibench run``/``sweep`` (issue 9).
+
+    The same overrides as the reference (:func:`prepare_scene_xml`), the seed
+    :data:`LADDER_SEED` (independent of the reference's pass seeds); one
+    untimed warm-up render per spp, then the median of ``repeats`` renders
+    (clock stopped after ``dr.sync_thread()``).  ``metrics(ref, img, var)``
+    computes the error dictionary (default :func:`reports.metrics.compare`
+    with the reference variance, so the Z-test is included).
+
+    Returns one dict per spp: ``spp``, ``median_s``, ``times_s``,
+    ``metrics``, ``variant``, ``mitsuba``.
+    """
+    import drjit as dr
+
+    from reports.metrics import compare
+
+    from .mitsuba_env import load_mitsuba
+    from .reference import load_scene, prepare_scene_xml
+
+    if not spps or any(int(s) < 1 for s in spps):
+        raise ValueError(f"ladder spps must be positive integers, got {list(spps)}")
+    mi = load_mitsuba()
+    path = Path(scene_path)
+    out = []
+    for spp in spps:
+        spp = int(spp)
+        xml, _, _ = prepare_scene_xml(path, transport=transport, spp_per_pass=spp, seed=LADDER_SEED,
+                                      defines=defines)
+        scene = load_scene(mi, path, xml)
+
+        def once():
+            img = mi.render(scene, spp=spp, seed=LADDER_SEED)
+            dr.eval(img)
+            dr.sync_thread()
+            return np.asarray(img, dtype=np.float32)[..., :3]
+
+        once()
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            img = once()
+            times.append(time.perf_counter() - t0)
+        m = (metrics(reference.image, img, reference.variance) if metrics is not None else
+             compare(reference.image, img, reference_variance=reference.variance,
+                     allow_nonfinite=True))
+        out.append({"spp": spp, "median_s": statistics.median(times), "times_s": times,
+                    "metrics": m, "variant": mi.variant(), "mitsuba": mi.__version__})
+    return out

@@ -755,6 +755,49 @@ def _render_reference(scene: Path, key: str, directory: Path, *, transport: str,
                      manifest=manifest)
 
 
+#: Where references render: ``auto`` (Mitsuba's CUDA variant when a GPU works,
+#: else the default LLVM variant), ``cuda`` (the same, warning on fallback) or
+#: ``llvm``; ``$GIBENCH_REFERENCE_DEVICE`` overrides.  CUDA and LLVM variants
+#: share the variant family (``rgb``), hence the key: either renders the entry.
+REFERENCE_DEVICE = "auto"
+CUDA_VARIANT = "cuda_ad_rgb"
+_CUDA_PROBE = ("import drjit as dr, mitsuba as mi; mi.set_variant('cuda_ad_rgb'); "
+               "x = dr.arange(mi.Float, 16); dr.eval(x); print('GIBENCH_CUDA_OK')")
+_cuda_ok: list = []
+
+
+def cuda_available(timeout: float = 60.0) -> bool:
+    """True if Mitsuba's CUDA variant renders here (probed once per process in a child,
+    since a broken CUDA setup can abort the process that tries it)."""
+    if not _cuda_ok:
+        import subprocess
+
+        try:
+            proc = subprocess.run([sys.executable, "-c", _CUDA_PROBE], capture_output=True,
+                                  text=True, timeout=timeout, cwd=tempfile.gettempdir())
+            _cuda_ok.append(proc.returncode == 0 and "GIBENCH_CUDA_OK" in proc.stdout)
+        except (subprocess.TimeoutExpired, OSError):
+            _cuda_ok.append(False)
+    return _cuda_ok[0]
+
+
+def reference_device_variant(device: str | None = None) -> str | None:
+    """The Mitsuba variant references render with: :data:`CUDA_VARIANT`, or None for
+    :func:`load_mitsuba`'s default (LLVM) when CUDA is not asked for or not available."""
+    device = device or os.environ.get("GIBENCH_REFERENCE_DEVICE") or REFERENCE_DEVICE
+    if device not in ("auto", "cuda", "llvm"):
+        raise ValueError(f"reference device must be auto, cuda or llvm, got {device!r} "
+                         "(GIBENCH_REFERENCE_DEVICE)")
+    if device == "llvm" or os.environ.get("GIBENCH_MITSUBA_VARIANT"):
+        return None
+    if cuda_available():
+        return CUDA_VARIANT
+    if device == "cuda":
+        print("gibench: warning: Mitsuba's CUDA variant does not work here; references "
+              "render with the LLVM variant", file=sys.stderr, flush=True)
+    return None
+
+
 def _check_args(transport, spp, passes, seed, rfilter) -> None:
     if transport not in TRANSPORTS:
         raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
@@ -834,8 +877,16 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
         raise ReferenceMissing(f"{scene}: no usable reference in {where} ({cause})")
     print(f"gibench: rendering reference for {_display_path(scene)} ({transport}, {spp} spp): "
           f"{where}: {cause}", file=sys.stderr, flush=True)
-    return _render_reference(scene, key, directory, transport=transport, spp=spp,
-                             passes=passes, seed=seed, rfilter=rfilter, defines=defines)
+    variant = reference_device_variant()
+    previous = mi.variant()
+    if variant is not None:
+        load_mitsuba(variant)
+    try:
+        return _render_reference(scene, key, directory, transport=transport, spp=spp,
+                                 passes=passes, seed=seed, rfilter=rfilter, defines=defines)
+    finally:
+        if variant is not None:
+            load_mitsuba(previous)
 
 
 # ---------------------------------------------------------------------------

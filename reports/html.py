@@ -39,10 +39,11 @@ ERR_EPS = 0.01
 CMAP = "inferno"
 MAX_DISPLAY_PX = 512
 METRIC_ORDER = ["mse", "rmse", "relmse", "mae", "bias", "psnr", "ssim", "flip", "delta_e2000",
-                "nan_count", "inf_count", "noise_floor"]
+                "nan_count", "inf_count", "noise_floor", "noise_floor_relmse"]
 METRIC_NAMES = {"mse": "MSE", "rmse": "RMSE", "relmse": "rel. MSE", "mae": "MAE", "bias": "bias",
                 "psnr": "PSNR [dB]", "ssim": "SSIM", "flip": "FLIP", "delta_e2000": "ΔE2000",
-                "nan_count": "NaN pixels", "inf_count": "Inf pixels", "noise_floor": "noise floor"}
+                "nan_count": "NaN pixels", "inf_count": "Inf pixels", "noise_floor": "noise floor",
+                "noise_floor_relmse": "rel. MSE noise floor"}
 TIMING_NOTE = "warm-up excluded; medians of {n} repeats; 2-core shared machine: compare ratios"
 
 CSS = """
@@ -429,6 +430,93 @@ def _study(r: dict) -> str:
             f"<p class='small'>{len(rows)} rows; study '{_e(r.get('study'))}'</p>")
 
 
+def _fmt_ratio(x, extrapolated: bool = False) -> str:
+    if isinstance(x, float) and math.isnan(x):
+        return DASH
+    return ("~" if extrapolated else "") + fmt(x)
+
+
+def _pareto_plot(scene, transport, g: dict, metric: str) -> str:
+    from matplotlib.figure import Figure
+
+    from reports.pareto import pareto_front
+
+    fig = Figure(figsize=(6.4, 4.2), dpi=100)
+    ax = fig.add_subplot(1, 1, 1)
+    mi = g["mitsuba"]
+    ax.plot([p["time"] for p in mi], [p["error"] for p in mi], "s-", color="#444", ms=4,
+            label=f"Mitsuba {transport} (spp ladder)")
+    for p in mi:
+        if p.get("spp"):
+            ax.annotate(f"{p['spp']}", (p["time"], p["error"]), fontsize=7, xytext=(3, 3),
+                        textcoords="offset points", color="#444")
+    own = g["own"]
+    if own:
+        t = np.array([p["time"] for p in own])
+        e = np.array([p["error"] for p in own])
+        ax.scatter(t, e, s=30, color="#1f77b4", label="own configurations", zorder=3)
+        f = pareto_front(t, e)
+        ax.plot(t[f], e[f], "-", color="#d62728", lw=1.5, label="own Pareto front", zorder=2)
+        for p in own:
+            ax.annotate(p["label"][:28], (p["time"], p["error"]), fontsize=6, xytext=(3, -8),
+                        textcoords="offset points", color="#1f77b4")
+    if g.get("noise_floor"):
+        ax.axhline(g["noise_floor"], color="#2ca02c", ls="--", lw=1,
+                   label=f"reference noise floor ({g['noise_floor']:.2g})")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("wall time [s] (median, warm-up excluded)")
+    ax.set_ylabel(METRIC_NAMES.get(metric, metric))
+    ax.set_title(f"{scene}: speed vs error", fontsize=10)
+    ax.grid(True, which="both", alpha=0.25)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    src = "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+    return f"<img class='pareto' alt='speed vs error {_e(scene)}' src='{src}'>"
+
+
+def _speed_vs_error(records: list[dict], metric: str = "relmse") -> str:
+    """The speed-vs-error section: per scene/transport with a Mitsuba ladder, the plot
+    and the table of efficiency and equal-error / equal-time ratios."""
+    from reports.pareto import points_from_records, summarize_points
+
+    groups = points_from_records(records, metric=metric)
+    if not groups:
+        return ""
+    out = ["<h2 id='speed-vs-error'>Speed vs error</h2><p class='small'>Every own configuration "
+           "(median wall time, warm-up excluded) and Mitsuba's own integrator at a ladder of spp, "
+           "measured in the same run; log–log axes; the dashed line is the reference's own noise "
+           "floor (errors near it cannot be resolved). Efficiency = 1 / (error × time). "
+           "Equal-error time ratio = own time / Mitsuba's time for the same error, equal-time error "
+           "ratio = own error / Mitsuba's error in the same time (log–log interpolation along "
+           "Mitsuba's ladder; ~ marks a power-law extrapolation of its end segment beyond it); "
+           "below 1 the own configuration wins.</p>"]
+    for (scene, transport), g in groups.items():
+        s = summarize_points(g["own"], g["mitsuba"])
+        rows = "".join(
+            f"<tr><td>{_e(r['label'])}</td><td class='n'>{fmt(r['error'])}</td>"
+            f"<td class='n'>{fmt(r['time'] * 1e3)}</td><td class='n'>{fmt(r['efficiency'])}</td>"
+            f"<td>{'★' if r['pareto'] else ''}</td><td class='n'>{_fmt_ratio(r['equal_error_time_ratio'], r['equal_error_extrapolated'])}</td>"
+            f"<td class='n'>{_fmt_ratio(r['equal_time_error_ratio'], r['equal_time_extrapolated'])}</td></tr>" for r in s["rows"])
+        rows += "".join(
+            f"<tr class='small'><td>{_e(r['label'])}</td><td class='n'>{fmt(r['error'])}</td>"
+            f"<td class='n'>{fmt(r['time'] * 1e3)}</td><td class='n'>{fmt(r['efficiency'])}</td>"
+            f"<td></td><td></td><td></td></tr>" for r in s["mitsuba_rows"])
+        best = s["best"]
+        best_txt = (f"<p>Own best: equal-error time ratio <b>{_fmt_ratio(best['equal_error_time_ratio'], best['equal_error_extrapolated'])}</b> "
+                    f"({_e(best['equal_error_label'])}); equal-time error ratio "
+                    f"<b>{_fmt_ratio(best['equal_time_error_ratio'], best['equal_time_extrapolated'])}</b> ({_e(best['equal_time_label'])}).</p>"
+                    if best else "<p class='small'>No own configuration falls inside Mitsuba's ladder.</p>")
+        out.append(f"<h3>{_e(scene)} vs Mitsuba {_e(transport)}</h3>"
+                   + _pareto_plot(scene, transport, g, metric) + best_txt
+                   + f"<table class='data pareto-table'><tr><th>configuration</th><th>{_e(METRIC_NAMES.get(metric, metric))}</th>"
+                   "<th>time [ms]</th><th>efficiency</th><th>front</th><th>t / t<sub>Mitsuba</sub> at equal error</th>"
+                   f"<th>e / e<sub>Mitsuba</sub> at equal time</th></tr>{rows}</table>")
+    return "".join(out)
+
+
 def render_report(records: list[dict], *, root, title: str = "gibench report") -> str:
     """The report page for ``records`` as an HTML string (image paths relative to ``root``).
 
@@ -436,7 +524,8 @@ def render_report(records: list[dict], *, root, title: str = "gibench report") -
     """
     records = [r for r in records if isinstance(r, dict)]
     studies = [r for r in records if r.get("kind") == "study"]
-    records = [r for r in records if r.get("kind") != "study"]
+    pareto = _speed_vs_error(records)
+    records = [r for r in records if r.get("kind") not in ("study", "ladder")]
     images, colorbar = _Images(Path(root)), _colorbar()
     scenes: dict[str, list[dict]] = {}
     for r in records:
@@ -451,6 +540,7 @@ def render_report(records: list[dict], *, root, title: str = "gibench report") -
             + _header(records or studies, title)
             + ("<h2>Summary</h2>" + _summary(records) + "<h2>Timing</h2>" + _timing(records)
                if records or not studies else "")
+            + pareto
             + "".join(sections)
             + ("<h2>Studies</h2>" + "".join(_study(r) for r in studies) if studies else "")
             + "</body></html>\n")

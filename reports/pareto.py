@@ -1,0 +1,244 @@
+"""Speed against error: Pareto fronts, equal-error and equal-time ratios, efficiency.
+
+Pure functions of (time, error) points; nothing here renders or knows about
+algorithms.  Conventions: times in seconds, errors any non-negative metric
+where lower is better (rel. MSE by default in the reports).  Comparisons
+with a reference curve (Mitsuba's spp ladder) interpolate linearly in
+log–log space between the curve's points, where Monte Carlo error falls as a
+power of time (``error ~ c * t**-1`` for MSE-like metrics); outside the
+curve's range the ratios are NaN unless ``extrapolate=True``, which extends
+the expensive end segment of the curve's Pareto front as a power law (towards
+more time and lower error only: nothing is cheaper than the first rung) (the reports do
+so and mark such values with "~": a Mitsuba render longer than the ladder's
+longest would follow that line only if its error keeps converging at the same
+rate).
+
+Efficiency of a configuration is ``1 / (error * time)`` (Veach's efficiency
+of an estimator, with MSE as the error: constant for an unbiased estimator as
+its sample count grows).
+
+References
+----------
+.. [1] E. Veach, "Robust Monte Carlo Methods for Light Transport
+   Simulation", PhD thesis, Stanford, 1997, §2.4 (efficiency = 1 / (variance x time)).
+.. [2] V. Pareto, *Manuale di economia politica*, 1906 (the front of non-dominated points).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["pareto_front", "loglog_interp", "time_at_error", "error_at_time",
+           "equal_error_time_ratio", "equal_time_error_ratio", "efficiency", "noise_floor_relmse",
+           "summarize_points", "points_from_records"]
+
+
+def _points(times, errors):
+    t = np.asarray(times, dtype=np.float64).ravel()
+    e = np.asarray(errors, dtype=np.float64).ravel()
+    if t.shape != e.shape:
+        raise ValueError(f"times ({t.size}) and errors ({e.size}) differ in length")
+    return t, e
+
+
+def pareto_front(times, errors) -> np.ndarray:
+    """Indices of the non-dominated points, ordered by increasing time.
+
+    A point is dominated when another is no slower and no worse, and better in
+    one of the two.  Non-finite points are never on the front; of exact
+    duplicates the first is kept.
+    """
+    t, e = _points(times, errors)
+    ok = np.isfinite(t) & np.isfinite(e)
+    idx = np.flatnonzero(ok)
+    order = idx[np.lexsort((e[idx], t[idx]))]          # by time, then error
+    front, best = [], math.inf
+    for i in order:
+        if e[i] < best:
+            front.append(int(i))
+            best = e[i]
+    return np.asarray(front, dtype=np.intp)
+
+
+def loglog_interp(x, y, x0, *, extrapolate: bool = False):
+    """``y(x0)`` by linear interpolation of ``log y`` against ``log x``.
+
+    ``x`` must be positive and distinct; outside ``[min x, max x]`` the result
+    is NaN, or with ``extrapolate`` the power law through the two nearest end
+    points.
+    """
+    x, y = _points(x, y)
+    if x.size == 0:
+        return math.nan
+    if np.any(x <= 0) or np.any(y <= 0):
+        raise ValueError("log-log interpolation needs positive x and y")
+    order = np.argsort(x)
+    x, y = x[order], y[order]
+    if np.any(np.diff(x) == 0):
+        raise ValueError("log-log interpolation needs distinct x values")
+    x0 = float(x0)
+    if not x0 > 0:
+        return math.nan
+    if x[0] <= x0 <= x[-1]:
+        return float(np.exp(np.interp(np.log(x0), np.log(x), np.log(y))))
+    if not extrapolate or x.size < 2:
+        return math.nan
+    i, j = (0, 1) if x0 < x[0] else (-2, -1)
+    slope = (np.log(y[j]) - np.log(y[i])) / (np.log(x[j]) - np.log(x[i]))
+    return float(np.exp(np.log(y[i]) + slope * (np.log(x0) - np.log(x[i]))))
+
+
+def _front(times, errors):
+    t, e = _points(times, errors)
+    f = pareto_front(t, e)
+    f = f[(t[f] > 0) & (e[f] > 0)]
+    return t[f], e[f]
+
+
+def time_at_error(times, errors, error: float, *, extrapolate: bool = False) -> float:
+    """Time the curve ``(times, errors)`` needs to reach ``error`` (on its Pareto front,
+    log–log interpolated; NaN outside its range unless ``extrapolate``)."""
+    t, e = _front(times, errors)
+    if t.size == 0 or not error > 0:
+        return math.nan
+    if t.size == 1:
+        return float(t[0]) if error == e[0] else math.nan
+    # Extrapolate only towards more time (lower error): fewer samples than the
+    # cheapest ladder point is not a render the curve could make.
+    return loglog_interp(e, t, error, extrapolate=extrapolate and error < e.min())
+
+
+def error_at_time(times, errors, time: float, *, extrapolate: bool = False) -> float:
+    """Error the curve reaches in ``time`` (Pareto front, log–log interpolation)."""
+    t, e = _front(times, errors)
+    if t.size == 0 or not time > 0:
+        return math.nan
+    if t.size == 1:
+        return float(e[0]) if time == t[0] else math.nan
+    return loglog_interp(t, e, time, extrapolate=extrapolate and time > t.max())
+
+
+def equal_error_time_ratio(time: float, error: float, ref_times, ref_errors, *,
+                           extrapolate: bool = False) -> float:
+    """``time / t_ref(error)``: how much longer than the reference curve a configuration
+    takes for the same error (< 1: faster than the reference)."""
+    tr = time_at_error(ref_times, ref_errors, error, extrapolate=extrapolate)
+    return float(time / tr) if tr and math.isfinite(tr) else math.nan
+
+
+def equal_time_error_ratio(time: float, error: float, ref_times, ref_errors, *,
+                           extrapolate: bool = False) -> float:
+    """``error / e_ref(time)``: the error relative to the reference curve's at the same
+    time (< 1: more accurate than the reference)."""
+    er = error_at_time(ref_times, ref_errors, time, extrapolate=extrapolate)
+    return float(error / er) if er and math.isfinite(er) else math.nan
+
+
+def efficiency(error, time):
+    """``1 / (error * time)``; inf for zero error or time, elementwise for arrays."""
+    e = np.asarray(error, dtype=np.float64)
+    t = np.asarray(time, dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        out = 1.0 / (e * t)
+    return float(out) if out.ndim == 0 else out
+
+
+def noise_floor_relmse(reference, reference_variance, *, eps: float = 1e-2) -> float:
+    """The relative-MSE floor of a noisy reference: ``mean(var / (ref**2 + eps))``.
+
+    The relMSE analogue of :func:`reports.metrics.noise_floor` (same ``eps`` as
+    :func:`reports.metrics.relmse`): relMSE values near it cannot be resolved
+    with this reference.
+    """
+    ref = np.asarray(reference, dtype=np.float64)
+    var = np.asarray(reference_variance, dtype=np.float64)
+    if ref.shape != var.shape:
+        raise ValueError(f"reference shape {ref.shape} and variance shape {var.shape} differ")
+    return float(np.mean(var / (ref * ref + eps)))
+
+
+def summarize_points(own: list[dict], mitsuba: list[dict]) -> dict:
+    """Rows for the speed-vs-error table.
+
+    ``own`` and ``mitsuba`` are lists of ``{"label", "time", "error"}``.
+    Each own row gets ``efficiency``, ``pareto`` (on the own front),
+    ``equal_error_time_ratio`` and ``equal_time_error_ratio`` against the
+    Mitsuba curve, interpolated inside it and extrapolated as a power law
+    outside (flags ``equal_error_extrapolated`` / ``equal_time_extrapolated``);
+    ``best`` holds the smallest of each ratio over the own configurations and
+    which configuration gives it.
+    """
+    mt = [p["time"] for p in mitsuba]
+    me = [p["error"] for p in mitsuba]
+    t = [p["time"] for p in own]
+    e = [p["error"] for p in own]
+    front = set(pareto_front(t, e).tolist()) if own else set()
+    rows = []
+    for i, p in enumerate(own):
+        ee = equal_error_time_ratio(p["time"], p["error"], mt, me)
+        ee_x = math.isnan(ee)
+        if ee_x:
+            ee = equal_error_time_ratio(p["time"], p["error"], mt, me, extrapolate=True)
+        et = equal_time_error_ratio(p["time"], p["error"], mt, me)
+        et_x = math.isnan(et)
+        if et_x:
+            et = equal_time_error_ratio(p["time"], p["error"], mt, me, extrapolate=True)
+        rows.append(dict(p, efficiency=efficiency(p["error"], p["time"]), pareto=i in front,
+                         equal_error_time_ratio=ee, equal_error_extrapolated=ee_x and not math.isnan(ee),
+                         equal_time_error_ratio=et, equal_time_extrapolated=et_x and not math.isnan(et)))
+    mrows = [dict(p, efficiency=efficiency(p["error"], p["time"])) for p in mitsuba]
+    best = None
+    ee = [r for r in rows if math.isfinite(r["equal_error_time_ratio"])]
+    et = [r for r in rows if math.isfinite(r["equal_time_error_ratio"])]
+    if ee or et:
+        b1 = min(ee, key=lambda r: r["equal_error_time_ratio"]) if ee else None
+        b2 = min(et, key=lambda r: r["equal_time_error_ratio"]) if et else None
+        best = {"equal_error_time_ratio": b1["equal_error_time_ratio"] if b1 else math.nan,
+                "equal_error_label": b1["label"] if b1 else "—",
+                "equal_error_extrapolated": bool(b1 and b1["equal_error_extrapolated"]),
+                "equal_time_error_ratio": b2["equal_time_error_ratio"] if b2 else math.nan,
+                "equal_time_label": b2["label"] if b2 else "—",
+                "equal_time_extrapolated": bool(b2 and b2["equal_time_extrapolated"])}
+    return {"rows": rows, "mitsuba_rows": mrows, "best": best}
+
+
+def _num(x):
+    return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else None
+
+
+def points_from_records(records: list[dict], *, metric: str = "relmse") -> dict:
+    """Group result records (kinds ``case`` and ``ladder``) into speed-vs-error point sets
+    ``{(scene, transport): {"own": [...], "mitsuba": [...], "noise_floor": x}}``.
+
+    Own points are the cases (label, algorithm, time = own median, error =
+    ``metrics[metric]``); Mitsuba points are the ladder records.  The noise
+    floor is the record's ``metrics["noise_floor_" + metric]`` (relmse) or
+    ``metrics["noise_floor"]`` (mse).  Only scene/transport pairs with a
+    Mitsuba ladder are returned.
+    """
+    groups: dict = {}
+    for r in records:
+        kind = r.get("kind", "case")
+        if kind not in ("case", "ladder") or r.get("error"):
+            continue
+        m, t = r.get("metrics") or {}, r.get("time") or {}
+        err, tm = _num(m.get(metric)), _num(t.get("own_median_s"))
+        if err is None or tm is None or not (math.isfinite(err) and math.isfinite(tm)):
+            continue
+        g = groups.setdefault((r.get("scene"), r.get("transport")),
+                              {"own": [], "mitsuba": [], "noise_floor": None})
+        pt = {"label": str(r.get("label")), "algorithm": r.get("algorithm"), "time": tm, "error": err,
+              "model_error": bool(r.get("model_error"))}
+        if kind == "ladder":
+            pt["spp"] = r.get("ladder_spp")
+            g["mitsuba"].append(pt)
+        else:
+            g["own"].append(pt)
+        floor = _num(m.get(f"noise_floor_{metric}")) if metric != "mse" else _num(m.get("noise_floor"))
+        if floor is not None:
+            g["noise_floor"] = floor
+    for g in groups.values():
+        g["mitsuba"].sort(key=lambda p: p.get("spp") or 0)
+    return {k: v for k, v in groups.items() if v["mitsuba"]}
