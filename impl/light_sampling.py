@@ -77,6 +77,17 @@ def flatten_with_lights(scene: Scene) -> tuple[SceneArrays, LightArrays]:
                           shape_sph_em, int(n))
 
 
+#: A point within this relative distance of a sphere counts as inside it: a path
+#: vertex *on* a sphere emitter (the inside of a closed emitting sphere) must be
+#: sampled by area, not by the cone, which degenerates there to the point itself.
+SPHERE_SURFACE_RTOL = 1e-6
+
+
+@njit(inline="always", cache=True)
+def _outside(d2, r):
+    return d2 > r * r * (1.0 + SPHERE_SURFACE_RTOL)
+
+
 # ------------------------------------------------------------------- warps ---
 
 @njit(inline="always", cache=True)
@@ -91,7 +102,7 @@ def sample_uniform_sphere(u1, u2):
 def sphere_cone_pdf(cx, cy, cz, r, px, py, pz):
     """Solid-angle pdf of :func:`sample_sphere_cone` from p (outside the sphere), else 0."""
     d2 = (cx - px) ** 2 + (cy - py) ** 2 + (cz - pz) ** 2
-    if d2 <= r * r:
+    if not _outside(d2, r):
         return 0.0
     sin2 = r * r / d2
     # 1 − cos α_max, written to avoid cancellation for small spheres.
@@ -203,7 +214,7 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
     sh = A.prim_shape[prim]
     cx, cy, cz, r = A.sph_center[prim, 0], A.sph_center[prim, 1], A.sph_center[prim, 2], A.sph_radius[prim]
     flip = A.shape_flip[sh]
-    if (cx - px) ** 2 + (cy - py) ** 2 + (cz - pz) ** 2 > r * r:
+    if _outside((cx - px) ** 2 + (cy - py) ** 2 + (cz - pz) ** 2, r):
         wx, wy, wz, yx, yy, yz, pdf = sample_sphere_cone(cx, cy, cz, r, px, py, pz, u1, u2)
         d = math.sqrt((yx - px) ** 2 + (yy - py) ** 2 + (yz - pz) ** 2)
     else:                                       # inside: uniform by area
@@ -241,7 +252,7 @@ def emitter_pdf(A: SceneArrays, L: LightArrays, shape, px, py, pz, dist, cos_y):
         prim = L.sph_em_prim[q]
         cx, cy, cz, r = (A.sph_center[prim, 0], A.sph_center[prim, 1], A.sph_center[prim, 2],
                          A.sph_radius[prim])
-        if (cx - px) ** 2 + (cy - py) ** 2 + (cz - pz) ** 2 > r * r:
+        if _outside((cx - px) ** 2 + (cy - py) ** 2 + (cz - pz) ** 2, r):
             return sphere_cone_pdf(cx, cy, cz, r, px, py, pz) / n
         if cos_y <= 0.0:
             return 0.0
