@@ -160,11 +160,12 @@ def _tri_normal(v, flip):
 def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
     """Next-event estimation: pick a light uniformly and sample a direction from p.
 
-    Returns ``(wx, wy, wz, dist, y_x, y_y, y_z, w_r, w_g, w_b, pdf, delta)``:
+    Returns ``(wx, wy, wz, dist, y_x, y_y, y_z, w_r, w_g, w_b, pdf, delta, i)``:
     unit direction to the light, distance (inf for directional), the light
     point, the weight L_e / pdf (incl. the 1/n_lights selection; I/d² etc. for
     delta lights), the solid-angle pdf (incl. selection; 0 for delta lights)
-    and whether the light is a delta light.  A zero weight means no
+    whether the light is a delta light, and the light entry ``i`` (delta
+    lights, then mesh emitters, then sphere emitters).  A zero weight means no
     contribution (back of an emitter, outside a spot cone).
     """
     n = L.n_lights
@@ -176,7 +177,7 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
         if kind == LIGHT_DIRECTIONAL:
             wx, wy, wz = -A.light_dir[i, 0], -A.light_dir[i, 1], -A.light_dir[i, 2]
             return (wx, wy, wz, np.inf, px + wx, py + wy, pz + wz, n * A.light_rad[i, 0],
-                    n * A.light_rad[i, 1], n * A.light_rad[i, 2], 0.0, True)
+                    n * A.light_rad[i, 1], n * A.light_rad[i, 2], 0.0, True, i)
         yx, yy, yz = A.light_pos[i, 0], A.light_pos[i, 1], A.light_pos[i, 2]
         wx, wy, wz = yx - px, yy - py, yz - pz
         d = math.sqrt(wx * wx + wy * wy + wz * wz)
@@ -191,7 +192,7 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
                 falloff = (A.light_cutoff[i] - math.acos(min(cos_t, 1.0))) * A.light_inv_tw[i]
         s = n * falloff / (d * d)
         return (wx, wy, wz, d, yx, yy, yz, s * A.light_rad[i, 0], s * A.light_rad[i, 1],
-                s * A.light_rad[i, 2], 0.0, True)
+                s * A.light_rad[i, 2], 0.0, True, i)
     if i < nd + ne:
         e = i - nd
         sh = A.em_shape[e]
@@ -201,14 +202,14 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
         d2 = wx * wx + wy * wy + wz * wz
         d = math.sqrt(d2)
         if d == 0.0:
-            return 0.0, 0.0, 1.0, 0.0, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False
+            return 0.0, 0.0, 1.0, 0.0, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False, i
         wx, wy, wz = wx / d, wy / d, wz / d
         cos_y = -(nx * wx + ny * wy + nz * wz)
         if cos_y <= 0.0:                        # area emitters radiate from their front only
-            return wx, wy, wz, d, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False
+            return wx, wy, wz, d, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False, i
         pdf = d2 / (A.em_area[e] * cos_y) / n
         return (wx, wy, wz, d, yx, yy, yz, L.shape_emit[sh, 0] / pdf, L.shape_emit[sh, 1] / pdf,
-                L.shape_emit[sh, 2] / pdf, pdf, False)
+                L.shape_emit[sh, 2] / pdf, pdf, False, i)
     q = i - nd - ne
     prim = L.sph_em_prim[q]
     sh = A.prim_shape[prim]
@@ -223,7 +224,7 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
         wx, wy, wz = yx - px, yy - py, yz - pz
         d = math.sqrt(wx * wx + wy * wy + wz * wz)
         if d == 0.0:
-            return 0.0, 0.0, 1.0, 0.0, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False
+            return 0.0, 0.0, 1.0, 0.0, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False, i
         wx, wy, wz = wx / d, wy / d, wz / d
         cos_y = abs(sx * wx + sy * wy + sz * wz)
         pdf = d * d / (4.0 * math.pi * r * r * cos_y) if cos_y > 0.0 else 0.0
@@ -231,10 +232,10 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
     if flip:
         nx, ny, nz = -nx, -ny, -nz
     if -(nx * wx + ny * wy + nz * wz) <= 0.0 or pdf <= 0.0:
-        return wx, wy, wz, d, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False
+        return wx, wy, wz, d, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False, i
     pdf /= n
     return (wx, wy, wz, d, yx, yy, yz, L.shape_emit[sh, 0] / pdf, L.shape_emit[sh, 1] / pdf,
-            L.shape_emit[sh, 2] / pdf, pdf, False)
+            L.shape_emit[sh, 2] / pdf, pdf, False, i)
 
 
 @njit(cache=True)

@@ -68,7 +68,7 @@ max_depth   int    -1       Mitsuba's meaning (1 = emitters only, 2 =
                             direct light, -1 = unbounded)
 rr_depth    int    5        Russian roulette from this depth on
 mis         bool   true     MIS (power heuristic) of light and BSDF samples
-spectral    bool   false    spectral rendering (not implemented: refused)
+spectral    bool   false    hero-wavelength spectral rendering (impl.spectral)
 debug_bias  str    none     none | rr_no_reweight | mis_unnormalised
 (rays)                      intersect, precision, offset, epsilon
 ==========  =====  =======  ===============================================
@@ -103,6 +103,8 @@ from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
 from .rng import uniform
 from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
 from .scene_arrays import SceneArrays
+from .spectral import (SpectralArrays, rgb_arrays_placeholder, sample_wavelengths, spectral_arrays,
+                       spectrum_at, to_linear_srgb)
 
 __all__ = ["render", "COUNTERS", "DEBUG_BIAS", "ALGORITHM"]
 
@@ -116,6 +118,8 @@ _BIAS_NONE, _BIAS_RR, _BIAS_MIS = range(3)
 
 #: Random dimensions used per path vertex (light: 3, BSDF: 3, roulette: 1).
 _DIMS_PER_VERTEX = 8
+#: The random dimension of the hero wavelength (beyond any path's vertices).
+_DIM_WAVELENGTH = 1 << 30
 
 
 @njit(inline="always", cache=True)
@@ -128,8 +132,10 @@ def _power(a, b):
 
 @njit(cache=True)
 def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B: MaterialArrays,
-          R: RayConfig, max_depth, rr_depth, mis, bias, seed, pixel, sample, counts):
-    """Radiance (r, g, b) carried to the eye along one sampled path."""
+          R: RayConfig, S: SpectralArrays, spectral, w0, w1, w2, max_depth, rr_depth, mis, bias,
+          seed, pixel, sample, counts):
+    """Radiance carried to the eye along one sampled path: (r, g, b), or in spectral
+    mode the radiance at the three wavelengths of grid positions (w0, w1, w2)."""
     ns = A.sph_radius.shape[0]
     r = g = b = 0.0
     tr = tg = tb = 1.0               # path throughput
@@ -163,9 +169,15 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
                     w = _power(prev_pdf, emitter_pdf(A, L, shape, ppx, ppy, ppz, t, cos_y))
                 else:
                     w = 0.0          # plain NEE: the light sample already counted this
-            r += tr * w * L.shape_emit[shape, 0]
-            g += tg * w * L.shape_emit[shape, 1]
-            b += tb * w * L.shape_emit[shape, 2]
+            if spectral:
+                er = spectrum_at(S.emit_spec[shape], w0)
+                eg = spectrum_at(S.emit_spec[shape], w1)
+                eb = spectrum_at(S.emit_spec[shape], w2)
+            else:
+                er, eg, eb = L.shape_emit[shape, 0], L.shape_emit[shape, 1], L.shape_emit[shape, 2]
+            r += tr * w * er
+            g += tg * w * eg
+            b += tb * w * eb
 
         if max_depth >= 0 and depth + 1 >= max_depth:
             counts[_C_DEPTH] += 1
@@ -177,7 +189,12 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
             gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
         fx, fy, fz, qx, qy, qz = frame(sx, sy, sz)
         wix, wiy, wiz = to_local(fx, fy, fz, qx, qy, qz, sx, sy, sz, vx, vy, vz)
-        rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+        if spectral:
+            rho_r = spectrum_at(S.mat_spec[mat], w0)
+            rho_g = spectrum_at(S.mat_spec[mat], w1)
+            rho_b = spectrum_at(S.mat_spec[mat], w2)
+        else:
+            rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
         dim = 2 + _DIMS_PER_VERTEX * depth
 
         # Next-event estimation: one light sample, shadow ray, MIS weight.
@@ -185,8 +202,12 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
             u0 = uniform(seed, pixel, sample, dim)
             u1 = uniform(seed, pixel, sample, dim + 1)
             u2 = uniform(seed, pixel, sample, dim + 2)
-            lx, ly, lz, ldist, yx, yy, yz, er, eg, eb, lpdf, ldelta = sample_light(
+            lx, ly, lz, ldist, yx, yy, yz, er, eg, eb, lpdf, ldelta, li = sample_light(
                 A, L, px, py, pz, u0, u1, u2)
+            if spectral:                 # L and A carry unit emission: scale by the spectrum
+                er *= spectrum_at(S.light_spec[li], w0)
+                eg *= spectrum_at(S.light_spec[li], w1)
+                eb *= spectrum_at(S.light_spec[li], w2)
             if er > 0.0 or eg > 0.0 or eb > 0.0:
                 wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, sx, sy, sz, lx, ly, lz)
                 fr, fg, fb = bsdf_eval(B, mat, rho_r, rho_g, rho_b, 1.0, wix, wiy, wiz, wox, woy, woz)
@@ -256,8 +277,8 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
 
 
 @njit(cache=True)
-def _pixel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, x, y, spp, max_depth,
-           rr_depth, mis, bias, seed, mean, var, counts):
+def _pixel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
+           spectral, x, y, spp, max_depth, rr_depth, mis, bias, seed, mean, var, counts):
     """One pixel: its paths, Welford mean and variance of the mean, counters (thread-private)."""
     W = int(cam[14])
     pixel = y * W + x
@@ -268,8 +289,13 @@ def _pixel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
     for s in range(spp):
         fx, fy = pixel_sample(spp, k, s, seed, pixel)
         ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-        r, g, b = _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A, L, B, R, max_depth, rr_depth, mis,
-                        bias, seed, pixel, s, cnt)
+        w0 = w1 = w2 = 0.0
+        if spectral:
+            w0, w1, w2 = sample_wavelengths(uniform(seed, pixel, s, _DIM_WAVELENGTH))
+        r, g, b = _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A, L, B, R, S, spectral, w0, w1, w2,
+                        max_depth, rr_depth, mis, bias, seed, pixel, s, cnt)
+        if spectral:
+            r, g, b = to_linear_srgb(S, r, g, b, w0, w1, w2)
         m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
     mean[y, x, 0] = m0
     mean[y, x, 1] = m1
@@ -282,12 +308,13 @@ def _pixel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
 
 
 @njit(parallel=True, cache=True)
-def _render_kernel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, spp,
-                   max_depth, rr_depth, mis, bias, seed, mean, var, counts):
+def _render_kernel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
+                   S: SpectralArrays, spectral, spp, max_depth, rr_depth, mis, bias, seed, mean, var,
+                   counts):
     W, H = int(cam[14]), int(cam[15])
     for pixel in prange(W * H):
-        _pixel(cam, A, L, B, R, pixel % W, pixel // W, spp, max_depth, rr_depth, mis, bias, seed,
-               mean, var, counts)
+        _pixel(cam, A, L, B, R, S, spectral, pixel % W, pixel // W, spp, max_depth, rr_depth, mis,
+               bias, seed, mean, var, counts)
 
 
 # ------------------------------------------------------------- orchestration ---
@@ -299,8 +326,6 @@ def _check(params: dict) -> None:
                          f"directly), got {params['max_depth']}")
     if params["rr_depth"] < 1:
         raise ValueError(f"path: rr_depth must be >= 1, got {params['rr_depth']}")
-    if params["spectral"]:
-        raise NotImplementedError("path: spectral=true is not implemented yet (RGB only)")
 
 
 def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
@@ -315,7 +340,15 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     var = np.zeros((H, W, 3))
     counts = np.zeros((H * W, len(COUNTERS)), dtype=np.int64)
     R = ray_config(A, params, algorithm="path")
-    _render_kernel(cam, A, L, B, R, spp, int(params["max_depth"]), int(params["rr_depth"]),
+    spectral = bool(params["spectral"])
+    if spectral:
+        S = spectral_arrays(scene, A, L)
+        # Unit emission in A and L: the kernel scales light samples by S.light_spec.
+        L = L._replace(shape_emit=(L.shape_emit > 0.0).any(axis=1)[:, None] * np.ones((1, 3)))
+        A = A._replace(light_rad=np.ones_like(A.light_rad))
+    else:
+        S = rgb_arrays_placeholder()
+    _render_kernel(cam, A, L, B, R, S, spectral, spp, int(params["max_depth"]), int(params["rr_depth"]),
                    bool(params["mis"]), DEBUG_BIAS.index(params["debug_bias"]), seed, mean, var,
                    counts)
     totals = counts.sum(axis=0)
@@ -339,7 +372,8 @@ ALGORITHM = register(Algorithm(
         Param("rr_depth", int, 5, "Russian roulette from this path depth on (Mitsuba's rule)"),
         Param("mis", bool, True, "multiple importance sampling (power heuristic) of light and "
               "BSDF samples; false = plain next-event estimation"),
-        Param("spectral", bool, False, "spectral rendering (hero wavelength)"),
+        Param("spectral", bool, False, "spectral rendering: three hero-rotated wavelengths per "
+              "path, scene spectra, CIE 1931 to linear sRGB (impl.spectral)"),
         Param("debug_bias", str, "none", "deliberately biased variant, for the Z-test's power "
               "only", choices=DEBUG_BIAS),
         *RAY_PARAMS,

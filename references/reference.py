@@ -64,7 +64,7 @@ from lxml import etree
 
 from gibench.imageio import ImageError, as_rgb, check_finite, read_exr, write_exr
 
-from .mitsuba_env import load_mitsuba, mitsuba_versions
+from .mitsuba_env import load_mitsuba, mitsuba_versions, spectral_variant
 
 __all__ = [
     "STORE_FORMAT",
@@ -782,7 +782,8 @@ def _check_args(transport, spp, passes, seed, rfilter) -> None:
 def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passes: int = 8,
                   seed: int = 0, rfilter: str = "box", store=DEFAULT_STORE,
                   render_missing: bool = True, force: bool = False,
-                  defines: dict | None = None, max_depth: int | None = None) -> Reference:
+                  defines: dict | None = None, max_depth: int | None = None,
+                  spectral: bool = False) -> Reference:
     """Return the Mitsuba reference of a scene, rendering it if needed.
 
     Parameters
@@ -813,6 +814,11 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     max_depth
         ``transport="full"`` only: the path integrator's ``max_depth`` instead
         of the file's (part of the key when given).
+    spectral
+        Render with Mitsuba's spectral variant (``llvm_ad_spectral``, or
+        ``scalar_spectral`` without a usable libLLVM; see
+        :func:`references.mitsuba_env.spectral_variant`) instead of the RGB one;
+        keyed through the variant family (``spectral``).
 
     Returns
     -------
@@ -826,6 +832,11 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     ReferenceMissing
         No usable entry and ``render_missing=False``.
     """
+    if spectral:
+        with spectral_variant():
+            return get_reference(scene_path, transport=transport, spp=spp, passes=passes, seed=seed,
+                                 rfilter=rfilter, store=store, render_missing=render_missing,
+                                 force=force, defines=defines, max_depth=max_depth)
     _check_args(transport, spp, passes, seed, rfilter)
     _check_max_depth(max_depth, transport)
     scene = _scene_file(scene_path)

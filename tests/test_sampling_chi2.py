@@ -159,7 +159,7 @@ def _light_samples(n, seed, A, L, p):
     np.random.seed(seed)
     out = np.empty((n, 4))
     for i in range(n):
-        wx, wy, wz, d, yx, yy, yz, er, eg, eb, pdf, delta = light_sampling.sample_light(
+        wx, wy, wz, d, yx, yy, yz, er, eg, eb, pdf, delta, _ = light_sampling.sample_light(
             A, L, p[0], p[1], p[2], np.random.random(), np.random.random(), np.random.random())
         out[i] = wx, wy, wz, er
     return out
