@@ -90,7 +90,8 @@ _PROPS = {
     ("bsdf", "diffuse"): {"reflectance"},
     ("bsdf", "twosided"): set(),
     ("bsdf", "conductor"): {"material", "eta", "k", "specular_reflectance"},
-    ("bsdf", "dielectric"): {"int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"},
+    ("bsdf", "dielectric"): {"int_ior", "ext_ior", "specular_reflectance", "specular_transmittance",
+                             "cauchy_b"},   # cauchy_b: gibench-only dispersion (impl.spectral)
     ("bsdf", "roughconductor"): {"material", "eta", "k", "specular_reflectance", "alpha", "alpha_u",
                                  "alpha_v", "distribution", "sample_visible"},
     ("bsdf", "roughdielectric"): {"int_ior", "ext_ior", "specular_reflectance", "specular_transmittance",

@@ -103,8 +103,8 @@ from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
 from .rng import uniform
 from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
 from .scene_arrays import SceneArrays
-from .spectral import (SpectralArrays, rgb_arrays_placeholder, sample_wavelengths, spectral_arrays,
-                       spectrum_at, to_linear_srgb)
+from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
+                       spectral_arrays, spectrum_at, to_linear_srgb)
 
 __all__ = ["render", "COUNTERS", "DEBUG_BIAS", "ALGORITHM"]
 
@@ -144,6 +144,7 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
     prev_pdf = 1.0
     prev_delta = True                # the eye ray counts as a delta "bounce" for MIS
     ppx, ppy, ppz = ox, oy, oz       # previous vertex (for the light pdf of an emitter hit)
+    single = False                   # secondary wavelengths dropped (after dispersion)
     t0, t1 = tmin, tmax
     counts[_C_PATH] += 1
     while True:
@@ -196,6 +197,7 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
         else:
             rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
         dim = 2 + _DIMS_PER_VERTEX * depth
+        eta_scale = eta_scale_at(S, mat, w0) if spectral else 1.0
 
         # Next-event estimation: one light sample, shadow ray, MIS weight.
         if not delta and L.n_lights > 0:
@@ -210,7 +212,8 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
                 eb *= spectrum_at(S.light_spec[li], w2)
             if er > 0.0 or eg > 0.0 or eb > 0.0:
                 wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, sx, sy, sz, lx, ly, lz)
-                fr, fg, fb = bsdf_eval(B, mat, rho_r, rho_g, rho_b, 1.0, wix, wiy, wiz, wox, woy, woz)
+                fr, fg, fb = bsdf_eval(B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox,
+                                       woy, woz)
                 if fr > 0.0 or fg > 0.0 or fb > 0.0:
                     counts[_C_SHADOW] += 1
                     side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
@@ -226,7 +229,7 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
                     if not blocked:
                         w = 1.0
                         if not ldelta and mis:
-                            bpdf = bsdf_pdf(B, mat, 1.0, wix, wiy, wiz, wox, woy, woz)
+                            bpdf = bsdf_pdf(B, mat, eta_scale, wix, wiy, wiz, wox, woy, woz)
                             if bias == _BIAS_MIS:   # debug: the classic swapped-argument bug
                                 w = _power(bpdf, lpdf)
                             else:
@@ -240,13 +243,18 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
         u1 = uniform(seed, pixel, sample, dim + 4)
         u2 = uniform(seed, pixel, sample, dim + 5)
         wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample(
-            B, mat, rho_r, rho_g, rho_b, 1.0, wix, wiy, wiz, u0, u1, u2)
+            B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
         if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
             break
         tr *= wr
         tg *= wg
         tb *= wb
         eta *= seta
+        if eta_scale != 1.0 and not single:
+            # Dispersion: the direction is the hero wavelength's; drop the others.
+            tr *= 3.0
+            tg = tb = 0.0
+            single = True
         ndx, ndy, ndz = to_world(fx, fy, fz, qx, qy, qz, sx, sy, sz, wox, woy, woz)
         inv = 1.0 / math.sqrt(ndx * ndx + ndy * ndy + ndz * ndz)
         ndx, ndy, ndz = ndx * inv, ndy * inv, ndz * inv

@@ -22,6 +22,18 @@ wavelengths instead of three RGB channels:
   spectral variants upsample RGB emission against D65 the same way); coloured
   RGB would need Jakob-Hanika upsampling, which is not implemented (refused).
 
+**Dispersion** (thesis 2.4.4: the index of refraction depends on the
+wavelength): a ``dielectric`` may carry the gibench-specific parameter
+``<float name="cauchy_b" value="B"/>`` (µm²), Cauchy's law
+n(λ) = A + B/λ² with A chosen so that n(589.3 nm) = ``int_ior`` (the sodium
+D line at which IOR tables are quoted).  RGB rendering ignores it (n =
+``int_ior``); Mitsuba cannot render such a file (it refuses the unknown
+property), so dispersion is validated against the analytic deviation of a
+prism instead.  In spectral mode the hero wavelength's index decides the
+refracted (or reflected) direction and the two other wavelengths are dropped
+at that vertex, the hero's weight multiplied by 3 (their estimate would need
+other directions; Wilkie et al. 2014, §4.3).
+
 Leaves out: RGB-to-spectrum upsampling of coloured values, spectral conductor
 IORs, textures in spectral mode, fluorescence and polarisation.
 """
@@ -35,7 +47,8 @@ from numba import njit
 
 from gibench.scene import Scene, Spectrum, cie_tables
 
-__all__ = ["SpectralArrays", "spectral_arrays", "rgb_arrays_placeholder", "LAMBDA_MIN",
+__all__ = ["SpectralArrays", "spectral_arrays", "rgb_arrays_placeholder", "cauchy_arrays",
+           "cauchy_ior", "eta_scale_at", "LAMBDA_D_UM", "LAMBDA_MIN",
            "LAMBDA_MAX", "sample_wavelengths", "spectrum_at", "to_linear_srgb"]
 
 LAMBDA_MIN, LAMBDA_MAX = 360.0, 830.0
@@ -48,6 +61,8 @@ class SpectralArrays(NamedTuple):
     mat_spec: np.ndarray        # (M, K) diffuse reflectance spectra
     emit_spec: np.ndarray       # (N, K) area emission spectra per shape (0 if none)
     light_spec: np.ndarray      # (n_lights, K) per NEE light entry (delta, mesh, sphere emitters)
+    cauchy_b: np.ndarray        # (M,) dispersion B (µm²) of dielectrics, 0 = none
+    ior_d: np.ndarray           # (M,) their int_ior, n at 589.3 nm
     cmf: np.ndarray             # (K, 3) x̄ ȳ z̄
     to_rgb: np.ndarray          # (3, 3) XYZ -> linear sRGB
     scale: float                # (470 / 3) / ∫ȳ dλ
@@ -114,14 +129,55 @@ def spectral_arrays(scene: Scene, A, L) -> SpectralArrays:
     rows += [emit_spec[sh] for sh in A.em_shape]
     rows += [emit_spec[A.prim_shape[p]] for p in L.sph_em_prim]
     light_spec = np.array(rows).reshape(-1, K) if rows else np.zeros((0, K))
-    return SpectralArrays(mat_spec, emit_spec, light_spec, np.ascontiguousarray(xyz),
+    cauchy_b, ior_d = cauchy_arrays(scene)
+    return SpectralArrays(mat_spec, emit_spec, light_spec, cauchy_b, ior_d, np.ascontiguousarray(xyz),
                           np.ascontiguousarray(M), float(_RANGE / 3.0 / xyz[:, 1].sum()))
+
+
+#: Wavelength (µm) at which a dispersive dielectric's n equals its int_ior.
+LAMBDA_D_UM = 0.5893
+
+
+def cauchy_arrays(scene: Scene):
+    """Per-material Cauchy B (µm², 0 = none) and int_ior; checks ``cauchy_b``."""
+    from .fresnel import lookup_ior
+
+    M = len(scene.materials)
+    b, n_d = np.zeros(M), np.ones(M)
+    for i, m in enumerate(scene.materials):
+        if "cauchy_b" not in m.params:
+            continue
+        where = f"material '{m.name or i}' ({m.kind})"
+        v = m.params["cauchy_b"]
+        if m.kind != "dielectric" or not isinstance(v, int | float) or not (0.0 <= v < 1.0):
+            raise ValueError(f"path: {where}: 'cauchy_b' must be a float in [0, 1) µm² on a "
+                             f"dielectric, got {v!r}")
+        n_d[i] = lookup_ior(m.params.get("int_ior", "bk7"), what=f"{where}: int_ior")
+        b[i] = float(v)
+    return b, n_d
+
+
+def cauchy_ior(n_d, b, wavelength_nm):
+    """n(λ) = A + B/λ² with n(589.3 nm) = n_d (λ in nm, B in µm²)."""
+    lam = np.asarray(wavelength_nm, dtype=np.float64) / 1000.0
+    return n_d + b * (1.0 / lam ** 2 - 1.0 / LAMBDA_D_UM ** 2)
+
+
+@njit(inline="always", cache=True)
+def eta_scale_at(S, mat, pos):
+    """n(λ)/int_ior of material ``mat`` at grid position ``pos`` (1 without dispersion)."""
+    b = S.cauchy_b[mat]
+    if b == 0.0:
+        return 1.0
+    lam = (LAMBDA_MIN + pos) / 1000.0
+    n_d = S.ior_d[mat]
+    return (n_d + b * (1.0 / (lam * lam) - 1.0 / (LAMBDA_D_UM * LAMBDA_D_UM))) / n_d
 
 
 def rgb_arrays_placeholder() -> SpectralArrays:
     """Empty tables for the RGB mode (the kernel does not read them)."""
     z = np.zeros((1, 1))
-    return SpectralArrays(z, z, z, np.zeros((1, 3)), np.eye(3), 1.0)
+    return SpectralArrays(z, z, z, np.zeros(1), np.ones(1), np.zeros((1, 3)), np.eye(3), 1.0)
 
 
 @njit(inline="always", cache=True)

@@ -165,3 +165,109 @@ def test_measured_cornell_box_against_mitsuba_spectral_and_rgb():
     print("model error of RGB rendering (Mitsuba RGB vs Mitsuba spectral references): "
           f"relMSE {relmse(out[True].image, out[False].image):.4g}, image mean RGB/spectral "
           f"{out[False].image.mean(axis=(0, 1)) / out[True].image.mean(axis=(0, 1))}")
+
+
+# ------------------------------------------------------------- dispersion ---
+
+def _prism_deviation(n, apex, theta1):
+    """Analytic deviation δ = θ1 + θ2 − A of a ray through a prism of apex angle A."""
+    t1p = np.arcsin(np.sin(theta1) / n)
+    return theta1 + np.arcsin(n * np.sin(apex - t1p)) - apex
+
+
+def _through_face(B, eta_scale, d, n):
+    """Refract direction d at a smooth dielectric face of outward normal n, by the
+    path tracer's own BSDF code (frame, local transform, bsdf_sample)."""
+    from impl import bsdf
+
+    f = bsdf.frame(*n)
+    wi = bsdf.to_local(*f, *n, *(-d))
+    out = bsdf.bsdf_sample(B, 0, 0.0, 0.0, 0.0, eta_scale, *wi, 0.999999, 0.5, 0.5)
+    assert out[6] > 0.0 and out[3] > 0.0 and out[7]          # the transmitted delta lobe
+    wo = np.array(bsdf.to_world(*f, *n, *out[:3]))
+    return wo / np.linalg.norm(wo)
+
+
+@pytest.mark.parametrize("wavelength", [400.0, 486.1, 589.3, 656.3, 700.0])
+def test_prism_deviation_follows_cauchy_dispersion(wavelength):
+    """A 60° prism of Cauchy glass (n_d = 1.5168, B = 0.0042 µm², BK7-like), ray at
+    50° incidence: the deviation through two faces of the path tracer's dielectric
+    equals the analytic δ(λ) to 1e-9 rad; blue is deviated more than red."""
+    from impl.materials import MAT_DIELECTRIC, MaterialArrays
+    from impl.spectral import SpectralArrays, cauchy_ior, eta_scale_at
+
+    n_d, b = 1.5168, 0.0042
+    n = float(cauchy_ior(n_d, b, wavelength))
+    o = np.ones((1, 3))
+    B = MaterialArrays(o, o, np.zeros((1, 3)), o.copy(), np.array([n_d]), np.array([n_d]),
+                       np.ones(1), np.array([MAT_DIELECTRIC]), np.zeros(1), np.ones(1, np.int64))
+    S = SpectralArrays(*(np.zeros((1, 1)),) * 3, np.array([b]), np.array([n_d]), np.zeros((1, 3)),
+                       np.eye(3), 1.0)
+    scale = eta_scale_at(S, 0, wavelength - 360.0)
+    assert scale == pytest.approx(n / n_d, rel=1e-12)
+    apex, theta1 = np.deg2rad(60.0), np.deg2rad(50.0)
+    n1 = np.array([-np.cos(apex / 2), np.sin(apex / 2), 0.0])
+    n2 = np.array([np.cos(apex / 2), np.sin(apex / 2), 0.0])
+    # Incoming direction: −n1 (at angle −A/2) turned by θ1 towards the apex, so that
+    # the refracted ray crosses the prism towards face 2.
+    phi = -apex / 2 + theta1
+    d0 = np.array([np.cos(phi), np.sin(phi), 0.0])
+    d1 = _through_face(B, scale, d0, n1)
+    d2 = _through_face(B, scale, d1, n2)
+    delta = np.arccos(np.clip(d0 @ d2, -1, 1))
+    expected = _prism_deviation(n, apex, theta1)
+    print(f"λ = {wavelength} nm: n = {n:.5f}, δ = {np.rad2deg(delta):.6f}° "
+          f"(analytic {np.rad2deg(expected):.6f}°)")
+    assert delta == pytest.approx(expected, abs=1e-9)
+    if wavelength != 589.3:
+        nd_delta = _prism_deviation(n_d, apex, theta1)
+        assert (delta > nd_delta) == (wavelength < 589.3)   # normal dispersion
+
+
+PRISM = """<?xml version="1.0"?>
+<scene version="3.0.0">
+    <sensor type="perspective">
+        <float name="fov" value="40"/>
+        <transform name="to_world"><lookat origin="0, 0, 4" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/></film>
+    </sensor>
+    <shape type="sphere">
+        <float name="radius" value="0.7"/>
+        <bsdf type="dielectric">
+            <float name="int_ior" value="1.5168"/>
+            {cauchy}
+        </bsdf>
+    </shape>
+    <shape type="rectangle">
+        <transform name="to_world"><translate z="-2"/></transform>
+        <bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>
+        <emitter type="area"><rgb name="radiance" value="1"/></emitter>
+    </shape>
+</scene>
+"""
+
+
+def test_cauchy_dielectric_renders_rgb_unchanged_and_spectral_finite(tmp_path):
+    """RGB rendering ignores cauchy_b (n = int_ior); spectral rendering of the
+    dispersive glass is finite and differs from the non-dispersive one."""
+    disp, plain = tmp_path / "disp.xml", tmp_path / "plain.xml"
+    disp.write_text(PRISM.format(cauchy='<float name="cauchy_b" value="0.0042"/>'))
+    plain.write_text(PRISM.format(cauchy=""))
+    p = {"spp": 16, "max_depth": 8}
+    a = PATH.render(load_scene(disp), PATH.parse_params(p), seed=0)
+    b_ = PATH.render(load_scene(plain), PATH.parse_params(p), seed=0)
+    np.testing.assert_array_equal(a.image, b_.image)
+    s = PATH.render(load_scene(disp), PATH.parse_params({**p, "spectral": True}), seed=0)
+    s0 = PATH.render(load_scene(plain), PATH.parse_params({**p, "spectral": True}), seed=0)
+    assert np.all(np.isfinite(s.image)) and not np.array_equal(s.image, s0.image)
+    with pytest.raises(ValueError, match="cauchy_b"):
+        bad = tmp_path / "bad.xml"
+        bad.write_text(PRISM.format(cauchy='<float name="cauchy_b" value="-1"/>'))
+        PATH.render(load_scene(bad), PATH.parse_params({**p, "spectral": True}))
+
+
+@pytest.mark.mitsuba
+def test_mitsuba_refuses_the_cauchy_parameter(mitsuba):
+    with pytest.raises(Exception, match="cauchy_b"):
+        mitsuba.load_string('<bsdf version="3.0.0" type="dielectric">'
+                            '<float name="cauchy_b" value="0.0042"/></bsdf>')
