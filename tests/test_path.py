@@ -177,3 +177,37 @@ def test_ztest_has_the_power_to_reject_biased_variants(bias, params):
     z = _ztest(ref, res)
     print(f"{bias}: {z}")
     assert z.passed == (bias == "none"), f"{bias}: {z}"
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("scene", ["spheres/spot_directional.xml", "spheres/lit_sphere.xml"])
+def test_max_depth_two_is_mitsubas_direct_illumination(scene):
+    """max_depth = 2 (emitters seen directly + one scattering) is what Mitsuba's
+    ``direct`` integrator computes: point, spot and directional lights through the
+    path tracer's light sampling, Z-tested against the stored direct references."""
+    from references.reference import get_reference
+
+    ref = get_reference(SUITES / scene, transport="direct", spp=1024, passes=8)
+    res = render(SUITES / scene, spp=16, max_depth=2, seed=4)
+    z = _ztest(ref, res)
+    print(f"{scene}: {z}")
+    assert z.passed, f"{scene}: {z}"
+
+
+def test_reference_max_depth_override_is_keyed_and_checked():
+    """references.reference: max_depth replaces the file's path depth, is part of the
+    key only when given (old keys unchanged), and is refused for other transports."""
+    from references.reference import prepare_scene_xml, reference_key
+
+    scene = SUITES / "cornell" / "cornell_box.xml"
+    _, used, _ = prepare_scene_xml(scene, transport="full", max_depth=3)
+    assert used == {"type": "path", "max_depth": 3}
+    _, used, _ = prepare_scene_xml(scene, transport="full")
+    assert used["max_depth"] == 8
+    k0 = reference_key(scene, transport="full")
+    assert reference_key(scene, transport="full", max_depth=None) == k0
+    assert reference_key(scene, transport="full", max_depth=3) != k0
+    with pytest.raises(ValueError, match="transport='full' only"):
+        prepare_scene_xml(scene, transport="direct", max_depth=3)
+    with pytest.raises(ValueError, match="max_depth"):
+        prepare_scene_xml(scene, transport="full", max_depth=0)
