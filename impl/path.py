@@ -38,6 +38,17 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   ``roughdielectric`` (Beckmann, Smith G; :mod:`impl.microfacet`);
   two-sided opaque materials.
 
+Spectral mode (``spectral=true``, :mod:`impl.spectral`): each path carries
+three hero-rotated wavelengths instead of RGB; reflectances and emissions come
+from the scene's ``<spectrum>`` elements (grey RGB values accepted, coloured
+RGB refused), and each sample is converted to linear sRGB through the CIE
+1931 colour matching functions before the pixel mean.  A dielectric with the
+gibench-only ``cauchy_b`` disperses: the hero wavelength's index decides the
+direction and the other two wavelengths are dropped there.  Validated
+against Mitsuba's ``llvm_ad_spectral`` on ``suites/cornell/cornell_spectral.xml``
+and, for dispersion (which Mitsuba cannot render), against a prism's
+analytic deviation angles.
+
 Deliberately biased variants (``debug_bias``) exist only to show that the
 Z-test against Mitsuba has the power to reject a biased estimator:
 ``rr_no_reweight`` (Russian roulette without the 1/q weight) and
