@@ -112,9 +112,12 @@ def test_counters_are_consistent():
 
 # ------------------------------------------------- against Mitsuba's path ---
 
-#: scene, reference max_depth override (None: the file's own path max_depth)
-ZTEST_SCENES = [("cornell/cornell_box.xml", None), ("cornell/diffuse_room.xml", None),
-                ("spheres/glass_sphere.xml", None)]
+#: scene, reference max_depth override (None: the file's own path max_depth), own spp.
+#: rough_spheres needs 64 spp: the glossy reflection of the area light in the rough
+#: metal is heavy-tailed (measured at 16 spp: 0.9874 of the blocks consistent, image
+#: mean 0.990 of Mitsuba's; 64 spp: 0.9987, 0.9965; 256 spp per pixel: 0.99967, 0.998).
+ZTEST_SCENES = [("cornell/cornell_box.xml", None, 16), ("cornell/diffuse_room.xml", None, 16),
+                ("spheres/glass_sphere.xml", None, 16), ("spheres/rough_spheres.xml", None, 64)]
 
 #: The Z-test compares k×k pixel blocks (box filter: the pixel integrals of a
 #: film k times coarser, for both images).
@@ -141,8 +144,8 @@ def _ztest(ref, res):
 
 
 @pytest.mark.mitsuba
-@pytest.mark.parametrize("scene,ref_depth", ZTEST_SCENES)
-def test_ztest_passes_against_mitsuba_path(scene, ref_depth):
+@pytest.mark.parametrize("scene,ref_depth,spp", ZTEST_SCENES)
+def test_ztest_passes_against_mitsuba_path(scene, ref_depth, spp):
     """Own path (16 spp) vs Mitsuba ``path`` at the same max_depth (1024 spp).
 
     Compared in 4×4-pixel blocks: with 16 samples a pixel's sample variance
@@ -153,7 +156,7 @@ def test_ztest_passes_against_mitsuba_path(scene, ref_depth):
     """
     ref = _reference(scene, ref_depth)
     depth = ref.manifest["integrator"]["max_depth"]
-    res = render(SUITES / scene, spp=16, max_depth=depth, seed=1)
+    res = render(SUITES / scene, spp=spp, max_depth=depth, seed=1)
     z = _ztest(ref, res)
     print(f"{scene} (max_depth {depth}): {z}")
     assert z.passed, f"{scene}: {z}"
