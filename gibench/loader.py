@@ -32,11 +32,16 @@ path             ``value``: a search directory for relative file names (meshes,
                  images, includes), relative to the declaring file; the latest
                  is searched first, then the scene file's directory
 transform        lookat, translate, rotate, scale, matrix — composed in order
-values           rgb, float, integer, boolean, string, point, vector, ref / id
+values           rgb, float, integer, boolean, string, point, vector, ref / id;
+                 ``spectrum`` (a constant, or ``"λ:v, λ:v, ..."`` pairs in nm,
+                 increasing): a :class:`gibench.scene.Spectrum`, converted to
+                 RGB where an RGB value is read (as Mitsuba's RGB variants do)
+                 and kept as a spectrum for spectral rendering (material
+                 ``params``, ``Shape.emitter_spectrum``)
 shape            sphere (center/radius or to_world), rectangle, cube, obj, ply,
                  disk, cylinder (p0, p1, radius; both tessellated, see
                  :mod:`gibench.meshes`), flip_normals, face_normals
-bsdf             diffuse, conductor, dielectric, roughconductor, twosided
+bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric, twosided
 texture          nested in a diffuse bsdf as its ``reflectance``:
                  ``checkerboard`` (color0, color1, to_uv) and ``bitmap``
                  (filename: PNG/JPEG sRGB-decoded unless ``raw``, EXR linear;
@@ -65,13 +70,13 @@ from lxml import etree
 
 from . import transforms as tf
 from .meshes import MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_uvs, rectangle
-from .scene import Camera, Film, Light, Material, Scene, Shape
+from .scene import Camera, Film, Light, Material, Scene, Shape, Spectrum
 
 __all__ = ["SceneError", "load_scene", "SUPPORTED"]
 
 SUPPORTED = {
     "shape": ("sphere", "rectangle", "cube", "disk", "cylinder", "obj", "ply"),
-    "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "twosided"),
+    "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric", "twosided"),
     "emitter": ("point", "directional", "spot", "area", "constant"),
     "sensor": ("perspective",),
     "film": ("hdrfilm",),
@@ -90,7 +95,8 @@ _SRC = "{urn:gibench:loader}source"
 #: Mitsuba's limit on nested ``<include>`` files (parser.cpp ``max_include_depth``).
 _MAX_INCLUDE_DEPTH = 15
 
-_VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector", "transform")
+_VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector",
+               "transform")
 
 # Properties each plugin accepts: name -> what the own algorithms do with it.
 _PROPS = {
@@ -108,9 +114,12 @@ _PROPS = {
     ("bsdf", "diffuse"): {"reflectance"},
     ("bsdf", "twosided"): set(),
     ("bsdf", "conductor"): {"material", "eta", "k", "specular_reflectance"},
-    ("bsdf", "dielectric"): {"int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"},
+    ("bsdf", "dielectric"): {"int_ior", "ext_ior", "specular_reflectance", "specular_transmittance",
+                             "cauchy_b"},   # cauchy_b: gibench-only dispersion (impl.spectral)
     ("bsdf", "roughconductor"): {"material", "eta", "k", "specular_reflectance", "alpha", "alpha_u",
                                  "alpha_v", "distribution", "sample_visible"},
+    ("bsdf", "roughdielectric"): {"int_ior", "ext_ior", "specular_reflectance", "specular_transmittance",
+                                  "alpha", "alpha_u", "alpha_v", "distribution", "sample_visible"},
     ("emitter", "point"): {"intensity", "position", "to_world"},
     ("emitter", "directional"): {"irradiance", "direction", "to_world"},
     ("emitter", "spot"): {"intensity", "cutoff_angle", "beam_width", "to_world"},
@@ -278,6 +287,8 @@ def _value(ctx, el):
         return v.lower() == "true"
     if tag == "string":
         return v
+    if tag == "spectrum":
+        return _spectrum(ctx, el, v)
     if tag == "rgb":
         vals = _floats(ctx, el, v)
         if len(vals) == 1:
@@ -333,8 +344,34 @@ class _Plugin:
                 raise self.ctx.error(c, f"unsupported element inside {self.kind} '{self.type}'")
 
 
+def _spectrum(ctx, el, text: str) -> Spectrum:
+    """``<spectrum value="0.5"/>`` or ``value="400:0.1, 500:0.2, ..."`` (nm, increasing)."""
+    items = [t for t in re.split(r"[,\s]+", text.strip()) if t]
+    if not items:
+        raise ctx.error(el, "spectrum needs a value")
+    if len(items) == 1 and ":" not in items[0]:
+        return Spectrum(values=(float(_floats(ctx, el, items[0], 1)[0]),))
+    wl, vals = [], []
+    for item in items:
+        parts = item.split(":")
+        if len(parts) != 2:
+            raise ctx.error(el, f"spectrum entry '{item}' is not 'wavelength:value'")
+        try:
+            wl.append(float(parts[0]))
+            vals.append(float(parts[1]))
+        except ValueError:
+            raise ctx.error(el, f"spectrum entry '{item}' is not 'wavelength:value'") from None
+    if len(wl) < 2 or any(b <= a for a, b in zip(wl, wl[1:])):
+        raise ctx.error(el, "spectrum wavelengths must be at least two and strictly increasing")
+    if not all(np.isfinite(wl + vals)) or min(wl) <= 0:
+        raise ctx.error(el, "spectrum wavelengths must be positive and values finite")
+    return Spectrum(wavelengths=tuple(wl), values=tuple(vals))
+
+
 def _rgb(ctx, plugin, name, default):
     v = plugin.get(name, default)
+    if isinstance(v, Spectrum):
+        v = v.to_rgb(emitter=plugin.kind == "emitter")
     if isinstance(v, float | int):
         v = np.repeat(float(v), 3)
     v = np.asarray(v, dtype=np.float64)
@@ -476,13 +513,14 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
     if len(bsdfs) > 1:
         raise ctx.error(el, "a shape takes at most one bsdf")
     mat = _material(ctx, bsdfs[0], materials, cache) if bsdfs else default_mat()
-    emit = None
+    emit = emit_spectrum = None
     for e in p.child_elements("emitter"):
         ep = _Plugin(ctx, e, "emitter")
         if ep.type != "area":
             raise ctx.error(e, "only an 'area' emitter can be attached to a shape")
         ep.unexpected_children(())
         emit = _rgb(ctx, ep, "radiance", 1.0)
+        emit_spectrum = ep.get("radiance") if isinstance(ep.get("radiance"), Spectrum) else None
     flip = bool(p.get("flip_normals", False))
     name = ctx.attr(el, "id", "") or ""
     tex = materials[mat].texture
@@ -497,7 +535,7 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
             raise ctx.error(el, "sphere to_world must be a similarity transform (uniform scale)")
         return Shape(kind="sphere", material=mat, name=name, source="sphere",
                      center=tf.transform_points(m, center), radius=radius * s,
-                     flip_normals=flip, emitter_radiance=emit)
+                     flip_normals=flip, emitter_radiance=emit, emitter_spectrum=emit_spectrum)
     uvs = None
     if p.type in ("disk", "cylinder"):
         v, f, n, m = _analytic_mesh(ctx, p, m)
@@ -527,7 +565,8 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
     if np.linalg.det(m[:3, :3]) < 0:
         f = f[:, ::-1].copy()          # a mirroring transform flips the winding; keep normals outward
     return Shape(kind="mesh", material=mat, name=name, source=p.type, vertices=v_world,
-                 faces=f, normals=n_world, flip_normals=flip, emitter_radiance=emit, uvs=uvs)
+                 faces=f, normals=n_world, flip_normals=flip, emitter_radiance=emit, uvs=uvs,
+                 emitter_spectrum=emit_spectrum)
 
 
 def _analytic_mesh(ctx, p, m):

@@ -15,12 +15,70 @@ shapes (:mod:`gibench.meshes`).  A ``constant`` environment emitter is
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Film", "Camera", "Material", "Shape", "Light", "Scene"]
+__all__ = ["Film", "Camera", "Material", "Shape", "Light", "Scene", "Spectrum", "cie_tables"]
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """A spectrum as a scene file's ``<spectrum>`` gives it (thesis 2.4.1-2.4.3).
+
+    Either a constant (``wavelengths`` empty, ``values`` one number) or
+    piecewise-linear samples ``(λ_i, v_i)`` in nanometres, increasing; zero
+    outside [λ_0, λ_n] (as Mitsuba's ``irregular``/``regular`` spectra).
+    RGB algorithms read :meth:`to_rgb`, which converts as Mitsuba 3's RGB
+    variants do; the spectral path tracer reads the samples.
+    """
+
+    wavelengths: tuple = ()
+    values: tuple = (1.0,)
+
+    @property
+    def is_constant(self) -> bool:
+        return len(self.wavelengths) == 0
+
+    def __call__(self, wavelengths):
+        """Values at ``wavelengths`` (nm): linear interpolation, 0 outside the range."""
+        w = np.asarray(wavelengths, dtype=np.float64)
+        if self.is_constant:
+            return np.full(w.shape, float(self.values[0]))
+        lo, hi = self.wavelengths[0], self.wavelengths[-1]
+        return np.where((w >= lo) & (w <= hi), np.interp(w, self.wavelengths, self.values), 0.0)
+
+    def to_rgb(self, *, emitter: bool) -> np.ndarray:
+        """Linear sRGB as Mitsuba 3's RGB variants convert it (CIE 1931 2°, colour-science).
+
+        Reflectances (``emitter=False``): XYZ = ∫ s D65 x̄ dλ / ∫ D65 ȳ dλ, so a
+        constant 1 is white (1, 1, 1); a constant stays that grey.  Emission:
+        XYZ = ∫ s x̄ dλ / ∫ ȳ dλ (illuminant E, as Mitsuba), then XYZ → linear sRGB.
+        """
+        if self.is_constant and not emitter:
+            return np.full(3, float(self.values[0]))
+        wl, xyz, d65, to_rgb = cie_tables()
+        s = self(wl)
+        w = np.ones_like(wl) if emitter else d65
+        XYZ = (s * w) @ xyz / (w @ xyz[:, 1])          # 1 nm steps: the sums are the integrals
+        return to_rgb @ XYZ
+
+
+@functools.lru_cache(maxsize=1)
+def cie_tables():
+    """``(λ, x̄ȳz̄, D65, M)``: the CIE 1931 2° colour matching functions and the D65
+    illuminant on 360-830 nm at 1 nm (colour-science), and the XYZ → linear sRGB matrix."""
+    import colour
+
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    shape = colour.SpectralShape(360, 830, 1)
+    cmfs = cmfs.copy().align(shape)
+    d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
+    M = np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_XYZ_to_RGB, dtype=np.float64)
+    return (np.asarray(cmfs.wavelengths, dtype=np.float64), np.asarray(cmfs.values, dtype=np.float64),
+            np.asarray(d65.values, dtype=np.float64), M)
 
 
 @dataclass(frozen=True)
@@ -116,6 +174,7 @@ class Shape:
     uvs: np.ndarray | None = None       # (V, 2) texture coordinates, or None (see the loader)
     flip_normals: bool = False
     emitter_radiance: np.ndarray | None = None  # RGB radiance of an area emitter, or None
+    emitter_spectrum: Spectrum | None = None    # its spectrum, when the file gives one
 
     @property
     def is_emitter(self) -> bool:

@@ -10,6 +10,9 @@ Public API
 find_libllvm()      path of the newest usable libLLVM (major >= 17) or None
 probe_llvm(path)    True if Dr.Jit + Mitsuba render correctly with that library
 load_mitsuba()      the ``mitsuba`` module with a variant set (idempotent)
+spectral_variant()  context manager: Mitsuba in its spectral variant (``llvm_ad_spectral``
+                    with a usable libLLVM, else ``scalar_spectral``), the previous
+                    variant restored on exit
 mitsuba_versions()  versions, variant and libLLVM path, for manifests/reports
 
 The environment variable ``GIBENCH_MITSUBA_VARIANT`` overrides the variant
@@ -18,6 +21,7 @@ choice (e.g. ``scalar_rgb`` to skip LLVM entirely).
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import hashlib
 import json
@@ -36,6 +40,7 @@ __all__ = [
     "probe_llvm",
     "load_mitsuba",
     "mitsuba_versions",
+    "spectral_variant",
 ]
 
 #: Oldest libLLVM major version Dr.Jit is known to work with here.
@@ -53,6 +58,8 @@ LIB_DIRS = (
 PROBE_TIMEOUT_S = 120.0
 FALLBACK_VARIANT = "scalar_rgb"
 LLVM_VARIANT = "llvm_ad_rgb"
+SPECTRAL_FALLBACK_VARIANT = "scalar_spectral"
+SPECTRAL_LLVM_VARIANT = "llvm_ad_spectral"
 
 _CACHE_FILE = Path(__file__).resolve().parent / "cache" / "libllvm_probe.json"
 
@@ -272,6 +279,24 @@ def load_mitsuba(variant: str | None = None):
     mi.set_variant(chosen)
     _state["module"], _state["variant"] = mi, chosen
     return mi
+
+
+@contextlib.contextmanager
+def spectral_variant():
+    """Mitsuba switched to its spectral variant for the ``with`` block.
+
+    ``llvm_ad_spectral`` when the default choice found a usable libLLVM (the
+    same probe as :func:`load_mitsuba`), else ``scalar_spectral``; the
+    variant that was set before is restored on exit.  Yields the module.
+    """
+    mi = load_mitsuba()
+    previous = _state["variant"]
+    chosen = SPECTRAL_LLVM_VARIANT if _state["libllvm"] and previous.startswith("llvm_") \
+        else SPECTRAL_FALLBACK_VARIANT
+    try:
+        yield load_mitsuba(chosen)
+    finally:
+        load_mitsuba(previous)
 
 
 def mitsuba_versions() -> dict:

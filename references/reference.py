@@ -7,7 +7,9 @@ for Mitsuba to resolve):
 
 * the ``<integrator>`` is replaced according to ``transport``:
   ``"full"`` -> ``path`` with ``max_depth`` taken from the file's own
-  integrator if that is ``path`` and sets ``max_depth`` (else -1, unbounded);
+  integrator if that is ``path`` and sets ``max_depth`` (else -1, unbounded),
+  or from the ``max_depth`` argument when given (the own ``path`` tracer's
+  matched depth; keyed only when given, so existing entries keep their keys);
   ``"direct"`` -> ``direct``; ``"whitted"`` -> the Python integrator
   ``whitted`` of :mod:`references.whitted_integrator` (delta chains, then
   direct light from every emitter) with ``max_depth`` =
@@ -62,7 +64,7 @@ from lxml import etree
 
 from gibench.imageio import ImageError, as_rgb, check_finite, read_exr, write_exr
 
-from .mitsuba_env import load_mitsuba, mitsuba_versions
+from .mitsuba_env import load_mitsuba, mitsuba_versions, spectral_variant
 
 __all__ = [
     "STORE_FORMAT",
@@ -341,7 +343,7 @@ def scene_dependencies(scene_path, defines: dict | None = None) -> list[dict]:
 
 def reference_key(scene_path, *, transport: str = "full", spp: int = 1024, passes: int = 8,
                   seed: int = 0, rfilter: str = "box", variant_family: str = "rgb",
-                  defines: dict | None = None) -> str:
+                  defines: dict | None = None, max_depth: int | None = None) -> str:
     """Full sha256 cache key of a reference (see module docstring)."""
     scene = _scene_file(scene_path)
     defines = _check_defines(defines)
@@ -361,6 +363,8 @@ def reference_key(scene_path, *, transport: str = "full", spp: int = 1024, passe
         payload["whitted_lobe_choice"] = WHITTED_LOBE_CHOICE
     if defines:                        # scenes without -D overrides keep their existing keys
         payload["defines"] = dict(sorted(defines.items()))
+    if max_depth is not None:          # only the full transport takes it (checked by the callers)
+        payload["max_depth"] = int(max_depth)
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
 
@@ -444,7 +448,8 @@ def _override_sensors(root, sampler_factory, rfilter: str) -> dict:
 def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int = 1,
                       seed: int = 0, rfilter: str = "box", integrator: dict | None = None,
                       sampler: dict | None = None,
-                      defines: dict | None = None) -> tuple[str, dict, dict]:
+                      defines: dict | None = None,
+                      max_depth: int | None = None) -> tuple[str, dict, dict]:
     """Apply the reference overrides to a scene file.
 
     Parameters
@@ -463,6 +468,10 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
     defines
         ``{name: value}`` replacing the file's ``<default>`` values (Mitsuba's
         ``-D name=value``); recorded under ``overrides["defines"]``.
+    max_depth
+        ``transport="full"`` only: the path integrator's ``max_depth``, replacing
+        the file's own (Mitsuba's meaning: 1 = emitters seen directly, -1 =
+        unbounded).
 
     Returns
     -------
@@ -477,6 +486,7 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
         raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
     if rfilter not in RFILTERS:
         raise ValueError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
+    _check_max_depth(max_depth, transport)
     scene = _scene_file(scene_path)
     tree = _parse(scene)
     root = tree.getroot()
@@ -506,6 +516,8 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
                 for c in own:
                     if c.get("name") == "max_depth" and c.get("value") is not None:
                         raw_depth = c.get("value")
+            if max_depth is not None:
+                raw_depth = str(int(max_depth))
             new = _make("integrator", {"type": "path"},
                         [_prop("integer", "max_depth", raw_depth if raw_depth is not None else -1)])
             used = {"type": "path",
@@ -648,7 +660,7 @@ def _install(tmp: Path, final: Path) -> None:
 
 def _render_reference(scene: Path, key: str, directory: Path, *, transport: str, spp: int,
                       passes: int, seed: int, rfilter: str,
-                      defines: dict | None = None) -> Reference:
+                      defines: dict | None = None, max_depth: int | None = None) -> Reference:
     mi = load_mitsuba()
     import drjit as dr
 
@@ -656,7 +668,7 @@ def _render_reference(scene: Path, key: str, directory: Path, *, transport: str,
     spp_pass = spp // passes
     xml, integrator, overrides = prepare_scene_xml(
         scene, transport=transport, spp_per_pass=spp_pass, seed=seed, rfilter=rfilter,
-        defines=defines)
+        defines=defines, max_depth=max_depth)
     deps = scene_dependencies(scene, defines)
     t0 = time.perf_counter()
     mscene = load_scene(mi, scene, xml)
@@ -798,6 +810,17 @@ def reference_device_variant(device: str | None = None) -> str | None:
     return None
 
 
+def _check_max_depth(max_depth, transport) -> None:
+    if max_depth is None:
+        return
+    if not isinstance(max_depth, (int, np.integer)) or isinstance(max_depth, bool):
+        raise TypeError(f"max_depth must be an integer, got {max_depth!r}")
+    if transport != "full":
+        raise ValueError(f"max_depth applies to transport='full' only, got transport={transport!r}")
+    if max_depth < -1 or max_depth == 0:
+        raise ValueError(f"max_depth must be -1 (unbounded) or >= 1, got {max_depth}")
+
+
 def _check_args(transport, spp, passes, seed, rfilter) -> None:
     if transport not in TRANSPORTS:
         raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
@@ -817,7 +840,8 @@ def _check_args(transport, spp, passes, seed, rfilter) -> None:
 def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passes: int = 8,
                   seed: int = 0, rfilter: str = "box", store=DEFAULT_STORE,
                   render_missing: bool = True, force: bool = False,
-                  defines: dict | None = None) -> Reference:
+                  defines: dict | None = None, max_depth: int | None = None,
+                  spectral: bool = False) -> Reference:
     """Return the Mitsuba reference of a scene, rendering it if needed.
 
     Parameters
@@ -845,6 +869,14 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     defines
         ``{name: value}`` overriding the scene's ``<default>`` values (Mitsuba's
         ``-D name=value``); part of the key when given.
+    max_depth
+        ``transport="full"`` only: the path integrator's ``max_depth`` instead
+        of the file's (part of the key when given).
+    spectral
+        Render with Mitsuba's spectral variant (``llvm_ad_spectral``, or
+        ``scalar_spectral`` without a usable libLLVM; see
+        :func:`references.mitsuba_env.spectral_variant`) instead of the RGB one;
+        keyed through the variant family (``spectral``).
 
     Returns
     -------
@@ -858,13 +890,20 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     ReferenceMissing
         No usable entry and ``render_missing=False``.
     """
+    if spectral:
+        with spectral_variant():
+            return get_reference(scene_path, transport=transport, spp=spp, passes=passes, seed=seed,
+                                 rfilter=rfilter, store=store, render_missing=render_missing,
+                                 force=force, defines=defines, max_depth=max_depth)
     _check_args(transport, spp, passes, seed, rfilter)
+    _check_max_depth(max_depth, transport)
     scene = _scene_file(scene_path)
     mi = load_mitsuba()
     family = _variant_family(mi.variant())
     defines = _check_defines(defines)
     key = reference_key(scene, transport=transport, spp=spp, passes=passes, seed=seed,
-                        rfilter=rfilter, variant_family=family, defines=defines)
+                        rfilter=rfilter, variant_family=family, defines=defines,
+                        max_depth=max_depth)
     directory = Path(store) / key[:16]
     cause = "re-render requested (force)"
     if not force:
@@ -877,13 +916,15 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
         raise ReferenceMissing(f"{scene}: no usable reference in {where} ({cause})")
     print(f"gibench: rendering reference for {_display_path(scene)} ({transport}, {spp} spp): "
           f"{where}: {cause}", file=sys.stderr, flush=True)
-    variant = reference_device_variant()
+    # The CUDA device renders the RGB family only; spectral references stay on LLVM/scalar.
+    variant = reference_device_variant() if family == "rgb" else None
     previous = mi.variant()
     if variant is not None:
         load_mitsuba(variant)
     try:
         return _render_reference(scene, key, directory, transport=transport, spp=spp,
-                                 passes=passes, seed=seed, rfilter=rfilter, defines=defines)
+                                 passes=passes, seed=seed, rfilter=rfilter, defines=defines,
+                                 max_depth=max_depth)
     finally:
         if variant is not None:
             load_mitsuba(previous)
@@ -895,7 +936,8 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
 
 
 def time_mitsuba(scene_path, *, transport: str, spp: int, seed: int = 0, repeats: int = 3,
-                 rfilter: str = "box", defines: dict | None = None) -> dict:
+                 rfilter: str = "box", defines: dict | None = None,
+                 max_depth: int | None = None) -> dict:
     """Time Mitsuba rendering a scene with the reference overrides.
 
     The scene is loaded once; one untimed warm-up render (JIT compilation)
@@ -918,7 +960,7 @@ def time_mitsuba(scene_path, *, transport: str, spp: int, seed: int = 0, repeats
     import drjit as dr
 
     xml, _, _ = prepare_scene_xml(scene, transport=transport, spp_per_pass=spp, seed=seed,
-                                  rfilter=rfilter, defines=defines)
+                                  rfilter=rfilter, defines=defines, max_depth=max_depth)
     mscene = load_scene(mi, scene, xml)
     t0 = time.perf_counter()
     dr.eval(mi.render(mscene, spp=spp, seed=seed))

@@ -1,0 +1,232 @@
+"""BSDF sampling, evaluation and pdf for the path tracer (thesis 3.2.1: the BRDF ρ).
+
+Each material kind has three scalar ``@njit`` functions in the *local shading
+frame* (z = shading normal, ``wi`` towards the viewer, ``wo`` towards the
+light), with Mitsuba 3's conventions so that ``path`` estimates what
+Mitsuba's ``path`` integrator estimates:
+
+* ``sample(wi, u) -> (wo, weight, pdf, delta, eta)``: ``weight`` is
+  f(wi, wo)·|cos θ_o| / pdf (the throughput factor), ``eta`` the relative IOR
+  crossed (1 unless transmitted);
+* ``eval(wi, wo) -> f(wi, wo)·|cos θ_o|`` (0 for delta lobes);
+* ``pdf(wi, wo)`` (solid angle; 0 for delta lobes).
+
+Kinds
+-----
+``diffuse`` (Lambert): f = ρ/π, cosine-weighted hemisphere sampling
+(Malley's method: a uniform disk point lifted to the hemisphere), pdf =
+cos θ_o / π, weight = ρ.  One-sided: 0 when wi or wo is below the surface.
+
+``conductor`` (smooth): the mirror direction, weight =
+``specular_reflectance`` × the exact conductor Fresnel reflectance of
+``eta + i k`` (:func:`impl.fresnel.fresnel_conductor`); one-sided.
+
+``dielectric`` (smooth): reflection with probability F (exact unpolarised
+Fresnel, :func:`impl.fresnel.fresnel_dielectric`), else refraction by Snell's
+law; weights ``specular_reflectance`` and ``specular_transmittance`` ×
+η_ti² (radiance scaling of Mitsuba's Radiance transport mode).  Two-sided by
+construction (the normal points outward; cos θ_i < 0 is inside).
+
+``roughconductor`` and ``roughdielectric`` (Beckmann, Smith G, visible-normal
+sampling by default): Mitsuba's microfacet BSDFs of :mod:`impl.microfacet`
+(Walter et al. 2007), with the conductor Fresnel term at the sampled
+microfacet and ``specular_reflectance`` / ``specular_transmittance``.
+
+Material rows come from :func:`impl.materials.material_arrays`; kind codes
+are :data:`impl.materials.KIND_CODES`.
+
+Warps come as ``sample_*(u)`` / ``*_pdf`` pairs (:func:`sample_cosine_hemisphere`,
+:func:`cosine_hemisphere_pdf`), each checked by a chi-square test
+(``tests/test_sampling_chi2.py``).
+"""
+
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from gibench.scene import Scene
+
+from . import microfacet as mf
+from .fresnel import fresnel_conductor, fresnel_dielectric
+from .materials import (KIND_CODES, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_ROUGHCONDUCTOR,
+                        MAT_ROUGHDIELECTRIC, MaterialArrays, material_arrays)
+
+__all__ = ["bsdf_arrays", "MODELLED", "frame", "to_local", "to_world", "sample_cosine_hemisphere",
+           "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "is_delta",
+           "is_dielectric"]
+
+#: The Mitsuba BSDF plugins the path tracer models.
+MODELLED = tuple(KIND_CODES)
+
+INV_PI = 1.0 / math.pi
+
+
+def bsdf_arrays(scene: Scene, *, algorithm: str = "path") -> MaterialArrays:
+    """:func:`impl.materials.material_arrays` for every BSDF this module models.
+
+    Raises
+    ------
+    NotImplementedError
+        A BSDF kind not modelled, naming the shape (and see ``material_arrays``).
+    """
+    return material_arrays(scene, algorithm=algorithm, model="the path tracer", kinds=MODELLED)
+
+
+# ------------------------------------------------------------------ frames ---
+
+@njit(inline="always", cache=True)
+def frame(nx, ny, nz):
+    """An orthonormal basis (s, t) completing the unit normal n (Duff et al. 2017, branchless)."""
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    return (1.0 + sign * nx * nx * a, sign * b, -sign * nx,
+            b, sign + ny * ny * a, -ny)
+
+
+@njit(inline="always", cache=True)
+def to_local(sx, sy, sz, tx, ty, tz, nx, ny, nz, vx, vy, vz):
+    return (sx * vx + sy * vy + sz * vz, tx * vx + ty * vy + tz * vz, nx * vx + ny * vy + nz * vz)
+
+
+@njit(inline="always", cache=True)
+def to_world(sx, sy, sz, tx, ty, tz, nx, ny, nz, lx, ly, lz):
+    return (sx * lx + tx * ly + nx * lz, sy * lx + ty * ly + ny * lz, sz * lx + tz * ly + nz * lz)
+
+
+# ------------------------------------------------------------------- warps ---
+
+@njit(inline="always", cache=True)
+def sample_cosine_hemisphere(u1, u2):
+    """Cosine-weighted direction about +z (Malley: concentric disk point lifted to the hemisphere)."""
+    # Shirley–Chiu concentric map of [0,1)² to the unit disk.
+    a = 2.0 * u1 - 1.0
+    b = 2.0 * u2 - 1.0
+    if a == 0.0 and b == 0.0:
+        return 0.0, 0.0, 1.0
+    if abs(a) > abs(b):
+        r, phi = a, (math.pi / 4.0) * (b / a)
+    else:
+        r, phi = b, math.pi / 2.0 - (math.pi / 4.0) * (a / b)
+    x, y = r * math.cos(phi), r * math.sin(phi)
+    return x, y, math.sqrt(max(0.0, 1.0 - x * x - y * y))
+
+
+@njit(inline="always", cache=True)
+def cosine_hemisphere_pdf(z):
+    """pdf (solid angle) of :func:`sample_cosine_hemisphere`: cos θ / π above the surface."""
+    return z * INV_PI if z > 0.0 else 0.0
+
+
+# ------------------------------------------------------------------- BSDFs ---
+
+@njit(inline="always", cache=True)
+def is_delta(B: MaterialArrays, mat):
+    k = B.kind[mat]
+    return k == MAT_CONDUCTOR or k == MAT_DIELECTRIC
+
+
+@njit(inline="always", cache=True)
+def is_dielectric(B: MaterialArrays, mat):
+    k = B.kind[mat]
+    return k == MAT_DIELECTRIC or k == MAT_ROUGHDIELECTRIC
+
+
+@njit(inline="always", cache=True)
+def _conductor_fresnel(B: MaterialArrays, mat, cos_i):
+    return (fresnel_conductor(cos_i, B.cond_eta[mat, 0], B.cond_k[mat, 0]) * B.spec_refl[mat, 0],
+            fresnel_conductor(cos_i, B.cond_eta[mat, 1], B.cond_k[mat, 1]) * B.spec_refl[mat, 1],
+            fresnel_conductor(cos_i, B.cond_eta[mat, 2], B.cond_k[mat, 2]) * B.spec_refl[mat, 2])
+
+
+@njit(cache=True)
+def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2):
+    """Sample wo for material ``mat`` (diffuse albedo ρ given, textures resolved by the caller).
+
+    ``eta_scale`` multiplies a dielectric's relative index (dispersion: the
+    ratio n(λ)/n of the hero wavelength; 1 otherwise).  Returns
+    ``(wox, woy, woz, w_r, w_g, w_b, pdf, delta, eta)`` with ``eta`` the
+    relative index η_t/η_i crossed (1 unless transmitted, Mitsuba's
+    ``bs.eta``); a zero weight ends the path.
+    """
+    k = B.kind[mat]
+    if k == MAT_DIFFUSE:
+        if wiz <= 0.0:
+            return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, 1.0
+        x, y, z = sample_cosine_hemisphere(u1, u2)
+        return x, y, z, rho_r, rho_g, rho_b, cosine_hemisphere_pdf(z), False, 1.0
+    if k == MAT_CONDUCTOR:
+        if wiz <= 0.0:
+            return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, True, 1.0
+        fr, fg, fb = _conductor_fresnel(B, mat, wiz)
+        return -wix, -wiy, wiz, fr, fg, fb, 1.0, True, 1.0
+    if k == MAT_ROUGHCONDUCTOR:
+        ox, oy, oz, w, pdf, cos_ih = mf.conductor_sample(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
+                                                         B.visible[mat], wix, wiy, wiz, u1, u2)
+        if w <= 0.0 or pdf <= 0.0:
+            return ox, oy, oz, 0.0, 0.0, 0.0, 0.0, False, 1.0
+        fr, fg, fb = _conductor_fresnel(B, mat, cos_ih)
+        return ox, oy, oz, w * fr, w * fg, w * fb, pdf, False, 1.0
+    eta = B.diel_eta[mat] * eta_scale
+    if k == MAT_ROUGHDIELECTRIC:
+        ox, oy, oz, w, pdf, refl, eti = mf.dielectric_sample(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
+                                                             B.visible[mat], eta, wix, wiy, wiz,
+                                                             u0, u1, u2)
+        if w <= 0.0 or pdf <= 0.0:
+            return ox, oy, oz, 0.0, 0.0, 0.0, 0.0, False, 1.0
+        if refl:
+            return (ox, oy, oz, w * B.spec_refl[mat, 0], w * B.spec_refl[mat, 1],
+                    w * B.spec_refl[mat, 2], pdf, False, 1.0)
+        return (ox, oy, oz, w * B.spec_trans[mat, 0], w * B.spec_trans[mat, 1],
+                w * B.spec_trans[mat, 2], pdf, False, 1.0 / eti)
+    # Smooth dielectric: pick the reflected lobe with probability F.
+    F, cos_t, eta_it, eta_ti = fresnel_dielectric(wiz, eta)
+    if u0 < F:
+        return (-wix, -wiy, wiz, B.spec_refl[mat, 0], B.spec_refl[mat, 1], B.spec_refl[mat, 2],
+                F, True, 1.0)
+    # T = −η_ti wi + (η_ti cos θ_i + cos θ_t) n with n = +z, i.e. (−η_ti wi_xy, cos θ_t).
+    s = eta_ti * eta_ti
+    return (-eta_ti * wix, -eta_ti * wiy, cos_t, s * B.spec_trans[mat, 0],
+            s * B.spec_trans[mat, 1], s * B.spec_trans[mat, 2], 1.0 - F, True, eta_it)
+
+
+@njit(cache=True)
+def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz):
+    """f(wi, wo)·|cos θ_o| (RGB) of the non-delta lobes; 0 for delta BSDFs."""
+    k = B.kind[mat]
+    if k == MAT_DIFFUSE:
+        if wiz > 0.0 and woz > 0.0:
+            c = woz * INV_PI
+            return rho_r * c, rho_g * c, rho_b * c
+        return 0.0, 0.0, 0.0
+    if k == MAT_ROUGHCONDUCTOR:
+        v, cos_ih = mf.conductor_eval(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH, wix, wiy, wiz,
+                                      wox, woy, woz)
+        if v <= 0.0:
+            return 0.0, 0.0, 0.0
+        fr, fg, fb = _conductor_fresnel(B, mat, cos_ih)
+        return v * fr, v * fg, v * fb
+    if k == MAT_ROUGHDIELECTRIC:
+        v, refl = mf.dielectric_eval(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
+                                     B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz)
+        if refl:
+            return v * B.spec_refl[mat, 0], v * B.spec_refl[mat, 1], v * B.spec_refl[mat, 2]
+        return v * B.spec_trans[mat, 0], v * B.spec_trans[mat, 1], v * B.spec_trans[mat, 2]
+    return 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
+def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
+    """Solid-angle pdf of :func:`bsdf_sample` producing wo (0 for delta lobes)."""
+    k = B.kind[mat]
+    if k == MAT_DIFFUSE:
+        return cosine_hemisphere_pdf(woz) if wiz > 0.0 else 0.0
+    if k == MAT_ROUGHCONDUCTOR:
+        return mf.conductor_pdf(mf.clamp_alpha(B.alpha[mat]), B.visible[mat], wix, wiy, wiz,
+                                wox, woy, woz)
+    if k == MAT_ROUGHDIELECTRIC:
+        return mf.dielectric_pdf(mf.clamp_alpha(B.alpha[mat]), B.visible[mat],
+                                 B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz)
+    return 0.0

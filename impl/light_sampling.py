@@ -1,0 +1,261 @@
+"""Light sampling for next-event estimation in the path tracer (thesis 3.2.2).
+
+Every light of the scene — delta lights (``point``, ``spot``,
+``directional``) and area emitters (triangle meshes and spheres) — is one
+entry of a list; next-event estimation picks one entry uniformly (as
+Mitsuba's ``scene.sample_emitter_direction`` does) and samples a direction
+towards it:
+
+* triangle-mesh emitters: a point uniform by area (:func:`impl.lighting.sample_emitter`),
+  pdf (solid angle) = d² / (A |cos θ_y|);
+* sphere emitters seen from outside: a direction uniform in the cone of
+  directions subtending the sphere (:func:`sample_sphere_cone`), pdf =
+  1 / (2π (1 − cos α_max)), cos α_max = √(1 − r²/d²) — the solid-angle
+  sampling of Mitsuba's ``sphere``; from inside, uniform by area;
+* point and spot lights: the direction to the light, weight I·falloff / d²;
+  directional: the reverse of its direction, weight E (irradiance).
+
+The arrays here hold what :mod:`impl.scene_arrays` does not: sphere
+emitters and the shape → emitter map the MIS weights need.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from gibench.scene import Scene
+
+from .lighting import sample_emitter
+from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
+
+__all__ = ["LightArrays", "flatten_with_lights", "sample_sphere_cone", "sphere_cone_pdf",
+           "sample_light", "emitter_pdf", "sample_uniform_sphere"]
+
+TWO_PI = 2.0 * math.pi
+
+
+class LightArrays(NamedTuple):
+    """Emitters for next-event estimation (numba takes it as one argument)."""
+
+    shape_emit: np.ndarray      # (N, 3) area-emitter radiance of every shape (0 if none)
+    shape_tri_em: np.ndarray    # (N,) index into em_area of a mesh emitter, or -1
+    sph_em_prim: np.ndarray     # (Q,) sphere primitive of each sphere emitter
+    shape_sph_em: np.ndarray    # (N,) index into sph_em_prim, or -1
+    n_lights: int               # delta lights + mesh emitters + sphere emitters
+
+
+def flatten_with_lights(scene: Scene) -> tuple[SceneArrays, LightArrays]:
+    """:func:`impl.scene_arrays.flatten` plus the path tracer's emitter tables.
+
+    Sphere emitters are handed to ``flatten`` without their emission (it
+    samples triangle emitters only) and kept here.
+    """
+    stripped = [dataclasses.replace(s, emitter_radiance=None)
+                if s.kind == "sphere" and s.is_emitter else s for s in scene.shapes]
+    A = flatten(dataclasses.replace(scene, shapes=stripped))
+    N = len(scene.shapes)
+    shape_emit = np.zeros((N, 3))
+    for i, s in enumerate(scene.shapes):
+        if s.is_emitter:
+            shape_emit[i] = s.emitter_radiance
+    shape_tri_em = np.full(N, -1, dtype=np.int64)
+    for e, sh in enumerate(A.em_shape):
+        shape_tri_em[sh] = e
+    spheres = [i for i, s in enumerate(scene.shapes) if s.kind == "sphere"]
+    sph_em_prim, shape_sph_em = [], np.full(N, -1, dtype=np.int64)
+    for prim, i in enumerate(spheres):            # spheres come first among primitives
+        if scene.shapes[i].is_emitter:
+            shape_sph_em[i] = len(sph_em_prim)
+            sph_em_prim.append(prim)
+    n = len(A.light_kind) + len(A.em_area) + len(sph_em_prim)
+    return A, LightArrays(shape_emit, shape_tri_em, np.asarray(sph_em_prim, dtype=np.int64),
+                          shape_sph_em, int(n))
+
+
+#: A point within this relative distance of a sphere counts as inside it: a path
+#: vertex *on* a sphere emitter (the inside of a closed emitting sphere) must be
+#: sampled by area, not by the cone, which degenerates there to the point itself.
+SPHERE_SURFACE_RTOL = 1e-6
+
+
+@njit(inline="always", cache=True)
+def _outside(d2, r):
+    return d2 > r * r * (1.0 + SPHERE_SURFACE_RTOL)
+
+
+# ------------------------------------------------------------------- warps ---
+
+@njit(inline="always", cache=True)
+def sample_uniform_sphere(u1, u2):
+    z = 1.0 - 2.0 * u1
+    r = math.sqrt(max(0.0, 1.0 - z * z))
+    phi = TWO_PI * u2
+    return r * math.cos(phi), r * math.sin(phi), z
+
+
+@njit(cache=True)
+def sphere_cone_pdf(cx, cy, cz, r, px, py, pz):
+    """Solid-angle pdf of :func:`sample_sphere_cone` from p (outside the sphere), else 0."""
+    d2 = (cx - px) ** 2 + (cy - py) ** 2 + (cz - pz) ** 2
+    if not _outside(d2, r):
+        return 0.0
+    sin2 = r * r / d2
+    # 1 − cos α_max, written to avoid cancellation for small spheres.
+    one_minus = sin2 / (1.0 + math.sqrt(max(0.0, 1.0 - sin2)))
+    return 1.0 / (TWO_PI * one_minus)
+
+
+@njit(cache=True)
+def sample_sphere_cone(cx, cy, cz, r, px, py, pz, u1, u2):
+    """A direction from p uniform in the cone subtending the sphere (c, r), and its point.
+
+    Returns ``(wx, wy, wz, yx, yy, yz, pdf)``: unit direction, the sphere point
+    it meets first, solid-angle pdf.  p must lie outside the sphere.
+    """
+    ax, ay, az = cx - px, cy - py, cz - pz
+    d = math.sqrt(ax * ax + ay * ay + az * az)
+    ax, ay, az = ax / d, ay / d, az / d
+    sin2_max = (r / d) ** 2
+    one_minus = sin2_max / (1.0 + math.sqrt(max(0.0, 1.0 - sin2_max)))
+    # cos θ uniform in [cos α_max, 1].
+    one_minus_cos = u1 * one_minus
+    cos_t = 1.0 - one_minus_cos
+    sin_t = math.sqrt(max(0.0, one_minus_cos * (2.0 - one_minus_cos)))
+    phi = TWO_PI * u2
+    # Basis about the axis (Duff et al. 2017).
+    sign = 1.0 if az >= 0.0 else -1.0
+    a = -1.0 / (sign + az)
+    b = ax * ay * a
+    sx, sy, sz = 1.0 + sign * ax * ax * a, sign * b, -sign * ax
+    tx, ty, tz = b, sign + ay * ay * a, -ay
+    cp, sp = math.cos(phi) * sin_t, math.sin(phi) * sin_t
+    wx = cp * sx + sp * tx + cos_t * ax
+    wy = cp * sy + sp * ty + cos_t * ay
+    wz = cp * sz + sp * tz + cos_t * az
+    # First hit along w: t = d cos θ − √(r² − d² sin² θ).
+    disc = max(0.0, r * r - d * d * sin_t * sin_t)
+    t = d * cos_t - math.sqrt(disc)
+    return wx, wy, wz, px + t * wx, py + t * wy, pz + t * wz, 1.0 / (TWO_PI * one_minus)
+
+
+# ------------------------------------------------------------- emitters ---
+
+@njit(inline="always", cache=True)
+def _tri_normal(v, flip):
+    e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
+    e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
+    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+    if flip:
+        inv = -inv
+    return nx * inv, ny * inv, nz * inv
+
+
+@njit(cache=True)
+def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
+    """Next-event estimation: pick a light uniformly and sample a direction from p.
+
+    Returns ``(wx, wy, wz, dist, y_x, y_y, y_z, w_r, w_g, w_b, pdf, delta, i)``:
+    unit direction to the light, distance (inf for directional), the light
+    point, the weight L_e / pdf (incl. the 1/n_lights selection; I/d² etc. for
+    delta lights), the solid-angle pdf (incl. selection; 0 for delta lights)
+    whether the light is a delta light, and the light entry ``i`` (delta
+    lights, then mesh emitters, then sphere emitters).  A zero weight means no
+    contribution (back of an emitter, outside a spot cone).
+    """
+    n = L.n_lights
+    i = min(int(u0 * n), n - 1)
+    nd = A.light_kind.shape[0]
+    ne = A.em_area.shape[0]
+    if i < nd:
+        kind = A.light_kind[i]
+        if kind == LIGHT_DIRECTIONAL:
+            wx, wy, wz = -A.light_dir[i, 0], -A.light_dir[i, 1], -A.light_dir[i, 2]
+            return (wx, wy, wz, np.inf, px + wx, py + wy, pz + wz, n * A.light_rad[i, 0],
+                    n * A.light_rad[i, 1], n * A.light_rad[i, 2], 0.0, True, i)
+        yx, yy, yz = A.light_pos[i, 0], A.light_pos[i, 1], A.light_pos[i, 2]
+        wx, wy, wz = yx - px, yy - py, yz - pz
+        d = math.sqrt(wx * wx + wy * wy + wz * wz)
+        wx, wy, wz = wx / d, wy / d, wz / d
+        falloff = 1.0
+        if kind == LIGHT_SPOT:
+            # Mitsuba's spot: 1 inside beam_width, linear in angle to 0 at cutoff_angle.
+            cos_t = -(wx * A.light_dir[i, 0] + wy * A.light_dir[i, 1] + wz * A.light_dir[i, 2])
+            if cos_t <= A.light_cos_cutoff[i]:
+                falloff = 0.0
+            elif cos_t < A.light_cos_beam[i]:
+                falloff = (A.light_cutoff[i] - math.acos(min(cos_t, 1.0))) * A.light_inv_tw[i]
+        s = n * falloff / (d * d)
+        return (wx, wy, wz, d, yx, yy, yz, s * A.light_rad[i, 0], s * A.light_rad[i, 1],
+                s * A.light_rad[i, 2], 0.0, True, i)
+    if i < nd + ne:
+        e = i - nd
+        sh = A.em_shape[e]
+        yx, yy, yz, tri = sample_emitter(e, u1, u2, A.em_offset, A.em_tri, A.em_cdf, A.tri_v)
+        nx, ny, nz = _tri_normal(A.tri_v[tri], A.shape_flip[sh])
+        wx, wy, wz = yx - px, yy - py, yz - pz
+        d2 = wx * wx + wy * wy + wz * wz
+        d = math.sqrt(d2)
+        if d == 0.0:
+            return 0.0, 0.0, 1.0, 0.0, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False, i
+        wx, wy, wz = wx / d, wy / d, wz / d
+        cos_y = -(nx * wx + ny * wy + nz * wz)
+        if cos_y <= 0.0:                        # area emitters radiate from their front only
+            return wx, wy, wz, d, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False, i
+        pdf = d2 / (A.em_area[e] * cos_y) / n
+        return (wx, wy, wz, d, yx, yy, yz, L.shape_emit[sh, 0] / pdf, L.shape_emit[sh, 1] / pdf,
+                L.shape_emit[sh, 2] / pdf, pdf, False, i)
+    q = i - nd - ne
+    prim = L.sph_em_prim[q]
+    sh = A.prim_shape[prim]
+    cx, cy, cz, r = A.sph_center[prim, 0], A.sph_center[prim, 1], A.sph_center[prim, 2], A.sph_radius[prim]
+    flip = A.shape_flip[sh]
+    if _outside((cx - px) ** 2 + (cy - py) ** 2 + (cz - pz) ** 2, r):
+        wx, wy, wz, yx, yy, yz, pdf = sample_sphere_cone(cx, cy, cz, r, px, py, pz, u1, u2)
+        d = math.sqrt((yx - px) ** 2 + (yy - py) ** 2 + (yz - pz) ** 2)
+    else:                                       # inside: uniform by area
+        sx, sy, sz = sample_uniform_sphere(u1, u2)
+        yx, yy, yz = cx + r * sx, cy + r * sy, cz + r * sz
+        wx, wy, wz = yx - px, yy - py, yz - pz
+        d = math.sqrt(wx * wx + wy * wy + wz * wz)
+        if d == 0.0:
+            return 0.0, 0.0, 1.0, 0.0, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False, i
+        wx, wy, wz = wx / d, wy / d, wz / d
+        cos_y = abs(sx * wx + sy * wy + sz * wz)
+        pdf = d * d / (4.0 * math.pi * r * r * cos_y) if cos_y > 0.0 else 0.0
+    nx, ny, nz = (yx - cx) / r, (yy - cy) / r, (yz - cz) / r
+    if flip:
+        nx, ny, nz = -nx, -ny, -nz
+    if -(nx * wx + ny * wy + nz * wz) <= 0.0 or pdf <= 0.0:
+        return wx, wy, wz, d, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False, i
+    pdf /= n
+    return (wx, wy, wz, d, yx, yy, yz, L.shape_emit[sh, 0] / pdf, L.shape_emit[sh, 1] / pdf,
+            L.shape_emit[sh, 2] / pdf, pdf, False, i)
+
+
+@njit(cache=True)
+def emitter_pdf(A: SceneArrays, L: LightArrays, shape, px, py, pz, dist, cos_y):
+    """Solid-angle pdf (incl. selection) with which :func:`sample_light` from p would
+    produce the emitter point at distance ``dist`` on ``shape`` (|cos θ_y| there)."""
+    n = L.n_lights
+    e = L.shape_tri_em[shape]
+    if e >= 0:
+        if cos_y <= 0.0:
+            return 0.0
+        return dist * dist / (A.em_area[e] * cos_y) / n
+    q = L.shape_sph_em[shape]
+    if q >= 0:
+        prim = L.sph_em_prim[q]
+        cx, cy, cz, r = (A.sph_center[prim, 0], A.sph_center[prim, 1], A.sph_center[prim, 2],
+                         A.sph_radius[prim])
+        if _outside((cx - px) ** 2 + (cy - py) ** 2 + (cz - pz) ** 2, r):
+            return sphere_cone_pdf(cx, cy, cz, r, px, py, pz) / n
+        if cos_y <= 0.0:
+            return 0.0
+        return dist * dist / (4.0 * math.pi * r * r * cos_y) / n
+    return 0.0

@@ -1,0 +1,401 @@
+"""Unbiased Monte Carlo path tracing of the rendering equation — registered as ``path``.
+
+The rendering equation (Kajiya 1986, :doi:`10.1145/15886.15902`; thesis
+3.2.2) ``L(x, ω) = L_e(x, ω) + ∫ f(x, ω, ω') L(x', −ω') cos θ' dω'`` is
+estimated by random walks from the eye: at every vertex the BSDF
+(:mod:`impl.bsdf`, thesis 3.2.1) is sampled for the next direction, and
+*next-event estimation* adds a light sample (:mod:`impl.light_sampling`)
+combined with the BSDF-sampled hits of emitters by *multiple importance
+sampling* with Veach's power heuristic (E. Veach, L. Guibas, "Optimally
+combining sampling techniques for Monte Carlo rendering", SIGGRAPH 1995,
+:doi:`10.1145/218380.218498`).  Paths are ended by Russian roulette
+(Arvo & Kirk 1990) with Mitsuba 3's rule.
+
+What it computes
+----------------
+Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
+``max_depth``, so the two are compared with a per-pixel Z-test:
+
+* ``max_depth`` counts path *vertices after the eye*: 1 sees only emitters
+  met by eye rays, 2 adds direct light, m adds light scattered m − 1 times;
+  −1 is unbounded.  Emission at vertex k is added, and a light sample /
+  BSDF sample taken only while k + 1 < ``max_depth`` (Mitsuba's
+  ``active_next``).
+* Emission: front side of area emitters only.  The BSDF-sampled hit of an
+  emitter after a non-delta bounce is weighted w = p_bsdf² / (p_bsdf² +
+  p_light²), the light sample by w = p_light² / (p_light² + p_bsdf²) (delta
+  lights and delta BSDFs take w = 1).  ``mis=false`` turns MIS off: light
+  samples with weight 1 and BSDF-sampled emitter hits after non-delta
+  bounces ignored (plain next-event estimation, still unbiased).
+* Russian roulette from depth ``rr_depth`` on (after the depth counter is
+  incremented, as Mitsuba): continue with q = min(max(throughput)·η², 0.95),
+  η the product of the relative IORs crossed; survivors are divided by q.
+* Lights: area emitters (triangle meshes and spheres), point, spot and
+  directional lights; one light is picked uniformly per vertex.  No
+  environment light: rays that leave the scene carry nothing.
+* Materials (:mod:`impl.bsdf`): ``diffuse`` (textures included), smooth
+  ``conductor`` and ``dielectric``, ``roughconductor`` and
+  ``roughdielectric`` (Beckmann, Smith G; :mod:`impl.microfacet`);
+  two-sided opaque materials.
+
+Spectral mode (``spectral=true``, :mod:`impl.spectral`): each path carries
+three hero-rotated wavelengths instead of RGB; reflectances and emissions come
+from the scene's ``<spectrum>`` elements (grey RGB values accepted, coloured
+RGB refused), and each sample is converted to linear sRGB through the CIE
+1931 colour matching functions before the pixel mean.  A dielectric with the
+gibench-only ``cauchy_b`` disperses: the hero wavelength's index decides the
+direction and the other two wavelengths are dropped there.  Validated
+against Mitsuba's ``llvm_ad_spectral`` on ``suites/cornell/cornell_spectral.xml``
+and, for dispersion (which Mitsuba cannot render), against a prism's
+analytic deviation angles.
+
+Deliberately biased variants (``debug_bias``) exist only to show that the
+Z-test against Mitsuba has the power to reject a biased estimator:
+``rr_no_reweight`` (Russian roulette without the 1/q weight) and
+``mis_unnormalised`` (the light sample's power-heuristic weight computed
+with its two pdfs swapped, a classic bug: w_light + w_bsdf =
+2 p_bsdf² / (p_light² + p_bsdf²) ≠ 1, so direct light from area emitters
+is mostly lost).  A variant that over-weights the *BSDF-sampled* emitter
+hits is biased too, but its excess comes from rare, large samples, which a
+per-pixel Z-test at test sample counts cannot see (z ≈ √(p n) for an event
+of probability p per sample and n samples).
+
+Pixel sampling as in ``raycast``/``whitted`` (:mod:`impl.sampling`):
+``spp = k²`` jittered strata with a box filter, returning the variance of
+the pixel mean.  Every ray goes through :mod:`impl.rays` (parameters
+``intersect``, ``precision``, ``offset``, ``epsilon``).
+
+Counters: ``paths`` (= eye rays), ``shadow_rays``, ``bounce_rays``
+(BSDF-sampled rays), ``rr_terminated``, ``depth_cut`` (paths stopped by
+``max_depth``), ``segments`` and ``mean_path_length`` (segments per path).
+
+Parameters
+----------
+==========  =====  =======  ===============================================
+name        type   default  meaning
+==========  =====  =======  ===============================================
+spp         int    16       pixel samples: 1 = centre, k² = k×k strata
+max_depth   int    -1       Mitsuba's meaning (1 = emitters only, 2 =
+                            direct light, -1 = unbounded)
+rr_depth    int    5        Russian roulette from this depth on
+mis         bool   true     MIS (power heuristic) of light and BSDF samples
+spectral    bool   false    hero-wavelength spectral rendering (impl.spectral)
+debug_bias  str    none     none | rr_no_reweight | mis_unnormalised
+(rays)                      intersect, precision, offset, epsilon
+==========  =====  =======  ===============================================
+
+Example::
+
+    from gibench import registry
+    from gibench.loader import load_scene
+    algo = registry.get("path")
+    res = algo.render(load_scene("suites/cornell/cornell_box.xml"),
+                      algo.parse_params({"spp": 64, "max_depth": 8}), seed=0)
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from gibench.registry import Algorithm, Param, RenderResult, register
+from gibench.scene import Scene
+
+from .bsdf import bsdf_arrays, bsdf_eval, bsdf_pdf, bsdf_sample, frame, is_delta, is_dielectric
+from .bsdf import to_local, to_world
+from .materials import MaterialArrays
+from .camera import camera_params, eye_ray
+from .light_sampling import LightArrays, emitter_pdf, flatten_with_lights, sample_light
+from .lighting import diffuse_albedo, surface
+from .rays import PARAMS as RAY_PARAMS
+from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
+from .rng import uniform
+from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
+from .scene_arrays import SceneArrays
+from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
+                       spectral_arrays, spectrum_at, to_linear_srgb)
+
+__all__ = ["render", "COUNTERS", "DEBUG_BIAS", "ALGORITHM"]
+
+#: Per-pixel integer counters, in kernel order.
+COUNTERS = ("paths", "shadow_rays", "bounce_rays", "rr_terminated", "depth_cut", "segments")
+_C_PATH, _C_SHADOW, _C_BOUNCE, _C_RR, _C_DEPTH, _C_SEG = range(6)
+
+#: Deliberately biased variants (for the power of the Z-test), by code.
+DEBUG_BIAS = ("none", "rr_no_reweight", "mis_unnormalised")
+_BIAS_NONE, _BIAS_RR, _BIAS_MIS = range(3)
+
+#: Random dimensions used per path vertex (light: 3, BSDF: 3, roulette: 1).
+_DIMS_PER_VERTEX = 8
+#: The random dimension of the hero wavelength (beyond any path's vertices).
+_DIM_WAVELENGTH = 1 << 30
+
+
+@njit(inline="always", cache=True)
+def _power(a, b):
+    """Power heuristic weight a² / (a² + b²) (0 when both vanish, as Mitsuba)."""
+    a2 = a * a
+    s = a2 + b * b
+    return a2 / s if s > 0.0 and math.isfinite(s) else (1.0 if math.isinf(a) else 0.0)
+
+
+@njit(cache=True)
+def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B: MaterialArrays,
+          R: RayConfig, S: SpectralArrays, spectral, w0, w1, w2, max_depth, rr_depth, mis, bias,
+          seed, pixel, sample, counts):
+    """Radiance carried to the eye along one sampled path: (r, g, b), or in spectral
+    mode the radiance at the three wavelengths of grid positions (w0, w1, w2)."""
+    ns = A.sph_radius.shape[0]
+    r = g = b = 0.0
+    tr = tg = tb = 1.0               # path throughput
+    eta = 1.0                        # product of the relative IORs crossed
+    depth = 0
+    prev_pdf = 1.0
+    prev_delta = True                # the eye ray counts as a delta "bounce" for MIS
+    ppx, ppy, ppz = ox, oy, oz       # previous vertex (for the light pdf of an emitter hit)
+    single = False                   # secondary wavelengths dropped (after dispersion)
+    t0, t1 = tmin, tmax
+    counts[_C_PATH] += 1
+    while True:
+        counts[_C_SEG] += 1
+        ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
+        t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, t0, t1)
+        if prim < 0:
+            break                    # no environment light
+        shape = A.prim_shape[prim]
+        px, py, pz = refine(R, prim, ox + t * dx, oy + t * dy, oz + t * dz)
+        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
+                                         A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+        vx, vy, vz = -dx, -dy, -dz
+        cos_v = sx * vx + sy * vy + sz * vz
+
+        # Emitted radiance (front side), MIS-weighted after a non-delta bounce.
+        if cos_v > 0.0 and (L.shape_emit[shape, 0] > 0.0 or L.shape_emit[shape, 1] > 0.0
+                            or L.shape_emit[shape, 2] > 0.0):
+            w = 1.0
+            if not prev_delta:
+                if mis:
+                    cos_y = abs(gx * vx + gy * vy + gz * vz)
+                    w = _power(prev_pdf, emitter_pdf(A, L, shape, ppx, ppy, ppz, t, cos_y))
+                else:
+                    w = 0.0          # plain NEE: the light sample already counted this
+            if spectral:
+                er = spectrum_at(S.emit_spec[shape], w0)
+                eg = spectrum_at(S.emit_spec[shape], w1)
+                eb = spectrum_at(S.emit_spec[shape], w2)
+            else:
+                er, eg, eb = L.shape_emit[shape, 0], L.shape_emit[shape, 1], L.shape_emit[shape, 2]
+            r += tr * w * er
+            g += tg * w * eg
+            b += tb * w * eb
+
+        if max_depth >= 0 and depth + 1 >= max_depth:
+            counts[_C_DEPTH] += 1
+            break
+        mat = A.shape_material[shape]
+        delta = is_delta(B, mat)
+        # A two-sided opaque BSDF is seen from the front on both sides.
+        if not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+        fx, fy, fz, qx, qy, qz = frame(sx, sy, sz)
+        wix, wiy, wiz = to_local(fx, fy, fz, qx, qy, qz, sx, sy, sz, vx, vy, vz)
+        if spectral:
+            rho_r = spectrum_at(S.mat_spec[mat], w0)
+            rho_g = spectrum_at(S.mat_spec[mat], w1)
+            rho_b = spectrum_at(S.mat_spec[mat], w2)
+        else:
+            rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+        dim = 2 + _DIMS_PER_VERTEX * depth
+        eta_scale = eta_scale_at(S, mat, w0) if spectral else 1.0
+
+        # Next-event estimation: one light sample, shadow ray, MIS weight.
+        if not delta and L.n_lights > 0:
+            u0 = uniform(seed, pixel, sample, dim)
+            u1 = uniform(seed, pixel, sample, dim + 1)
+            u2 = uniform(seed, pixel, sample, dim + 2)
+            lx, ly, lz, ldist, yx, yy, yz, er, eg, eb, lpdf, ldelta, li = sample_light(
+                A, L, px, py, pz, u0, u1, u2)
+            if spectral:                 # L and A carry unit emission: scale by the spectrum
+                er *= spectrum_at(S.light_spec[li], w0)
+                eg *= spectrum_at(S.light_spec[li], w1)
+                eb *= spectrum_at(S.light_spec[li], w2)
+            if er > 0.0 or eg > 0.0 or eb > 0.0:
+                wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, sx, sy, sz, lx, ly, lz)
+                fr, fg, fb = bsdf_eval(B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox,
+                                       woy, woz)
+                if fr > 0.0 or fg > 0.0 or fb > 0.0:
+                    counts[_C_SHADOW] += 1
+                    side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
+                    sox, soy, soz, st0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+                    if math.isinf(ldist):
+                        blocked = occluded(R, sox, soy, soz, lx, ly, lz, st0, np.inf)
+                    else:
+                        hx, hy, hz = yx - sox, yy - soy, yz - soz
+                        hd = math.sqrt(hx * hx + hy * hy + hz * hz)
+                        shrink = R.shrink_point if ldelta else R.shrink_area
+                        blocked = hd == 0.0 or occluded(R, sox, soy, soz, hx / hd, hy / hd, hz / hd,
+                                                        st0, hd * (1.0 - shrink))
+                    if not blocked:
+                        w = 1.0
+                        if not ldelta and mis:
+                            bpdf = bsdf_pdf(B, mat, eta_scale, wix, wiy, wiz, wox, woy, woz)
+                            if bias == _BIAS_MIS:   # debug: the classic swapped-argument bug
+                                w = _power(bpdf, lpdf)
+                            else:
+                                w = _power(lpdf, bpdf)
+                        r += tr * w * fr * er
+                        g += tg * w * fg * eg
+                        b += tb * w * fb * eb
+
+        # BSDF sampling: the next direction.
+        u0 = uniform(seed, pixel, sample, dim + 3)
+        u1 = uniform(seed, pixel, sample, dim + 4)
+        u2 = uniform(seed, pixel, sample, dim + 5)
+        wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample(
+            B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+        if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
+            break
+        tr *= wr
+        tg *= wg
+        tb *= wb
+        eta *= seta
+        if eta_scale != 1.0 and not single:
+            # Dispersion: the direction is the hero wavelength's; drop the others.
+            tr *= 3.0
+            tg = tb = 0.0
+            single = True
+        ndx, ndy, ndz = to_world(fx, fy, fz, qx, qy, qz, sx, sy, sz, wox, woy, woz)
+        inv = 1.0 / math.sqrt(ndx * ndx + ndy * ndy + ndz * ndz)
+        ndx, ndy, ndz = ndx * inv, ndy * inv, ndz * inv
+        side = 1.0 if gx * ndx + gy * ndy + gz * ndz >= 0.0 else -1.0
+        ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+        dx, dy, dz = ndx, ndy, ndz
+        t1 = np.inf
+        ppx, ppy, ppz = px, py, pz
+        prev_pdf = pdf
+        prev_delta = sdelta
+        counts[_C_BOUNCE] += 1
+
+        # Russian roulette (Mitsuba: after the depth increment, q = min(max(T)·η², 0.95)).
+        depth += 1
+        tmax_ = max(tr, tg, tb)
+        if tmax_ <= 0.0:
+            break
+        if depth >= rr_depth:
+            q = min(tmax_ * eta * eta, 0.95)
+            if uniform(seed, pixel, sample, dim + 6) >= q:
+                counts[_C_RR] += 1
+                break
+            if bias != _BIAS_RR:
+                tr /= q
+                tg /= q
+                tb /= q
+    return r, g, b
+
+
+@njit(cache=True)
+def _pixel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
+           spectral, x, y, spp, max_depth, rr_depth, mis, bias, seed, mean, var, counts):
+    """One pixel: its paths, Welford mean and variance of the mean, counters (thread-private)."""
+    W = int(cam[14])
+    pixel = y * W + x
+    k = strata(spp)
+    cnt = np.zeros(len(COUNTERS), dtype=np.int64)
+    m0 = m1 = m2 = 0.0
+    q0 = q1 = q2 = 0.0
+    for s in range(spp):
+        fx, fy = pixel_sample(spp, k, s, seed, pixel)
+        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
+        w0 = w1 = w2 = 0.0
+        if spectral:
+            w0, w1, w2 = sample_wavelengths(uniform(seed, pixel, s, _DIM_WAVELENGTH))
+        r, g, b = _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A, L, B, R, S, spectral, w0, w1, w2,
+                        max_depth, rr_depth, mis, bias, seed, pixel, s, cnt)
+        if spectral:
+            r, g, b = to_linear_srgb(S, r, g, b, w0, w1, w2)
+        m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
+    mean[y, x, 0] = m0
+    mean[y, x, 1] = m1
+    mean[y, x, 2] = m2
+    var[y, x, 0] = variance_of_mean(q0, spp)
+    var[y, x, 1] = variance_of_mean(q1, spp)
+    var[y, x, 2] = variance_of_mean(q2, spp)
+    for i in range(cnt.shape[0]):
+        counts[pixel, i] = cnt[i]
+
+
+@njit(parallel=True, cache=True)
+def _render_kernel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
+                   S: SpectralArrays, spectral, spp, max_depth, rr_depth, mis, bias, seed, mean, var,
+                   counts):
+    W, H = int(cam[14]), int(cam[15])
+    for pixel in prange(W * H):
+        _pixel(cam, A, L, B, R, S, spectral, pixel % W, pixel // W, spp, max_depth, rr_depth, mis,
+               bias, seed, mean, var, counts)
+
+
+# ------------------------------------------------------------- orchestration ---
+
+def _check(params: dict) -> None:
+    check_spp(params["spp"], "path")
+    if params["max_depth"] < -1 or params["max_depth"] == 0:
+        raise ValueError(f"path: max_depth must be -1 (unbounded) or >= 1 (1 = emitters seen "
+                         f"directly), got {params['max_depth']}")
+    if params["rr_depth"] < 1:
+        raise ValueError(f"path: rr_depth must be >= 1, got {params['rr_depth']}")
+
+
+def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
+    """Render ``scene`` with the path tracer; ``params`` as from ``ALGORITHM.parse_params``."""
+    _check(params)
+    B = bsdf_arrays(scene, algorithm="path")
+    A, L = flatten_with_lights(scene)
+    cam = camera_params(scene.camera)
+    H, W = scene.camera.film.height, scene.camera.film.width
+    spp = params["spp"]
+    mean = np.zeros((H, W, 3))
+    var = np.zeros((H, W, 3))
+    counts = np.zeros((H * W, len(COUNTERS)), dtype=np.int64)
+    R = ray_config(A, params, algorithm="path")
+    spectral = bool(params["spectral"])
+    if spectral:
+        S = spectral_arrays(scene, A, L)
+        # Unit emission in A and L: the kernel scales light samples by S.light_spec.
+        L = L._replace(shape_emit=(L.shape_emit > 0.0).any(axis=1)[:, None] * np.ones((1, 3)))
+        A = A._replace(light_rad=np.ones_like(A.light_rad))
+    else:
+        S = rgb_arrays_placeholder()
+    _render_kernel(cam, A, L, B, R, S, spectral, spp, int(params["max_depth"]), int(params["rr_depth"]),
+                   bool(params["mis"]), DEBUG_BIAS.index(params["debug_bias"]), seed, mean, var,
+                   counts)
+    totals = counts.sum(axis=0)
+    counters = {name: int(v) for name, v in zip(COUNTERS, totals)}
+    counters["mean_path_length"] = counters["segments"] / max(1, counters["paths"])
+    return RenderResult(image=mean.astype(np.float32),
+                        variance=var.astype(np.float32) if spp > 1 else None,
+                        counters=counters)
+
+
+ALGORITHM = register(Algorithm(
+    name="path",
+    summary="Unbiased path tracing: BSDF sampling, next-event estimation with MIS (power "
+            "heuristic), Russian roulette; Mitsuba's max_depth",
+    section="thesis 3.2.1-3.2.2; Kajiya 1986, Veach & Guibas 1995",
+    transport="full",
+    params=(
+        Param("spp", int, 16, "pixel samples: 1 = pixel centre, k² = k×k jittered strata (box filter)"),
+        Param("max_depth", int, -1, "Mitsuba's max_depth: 1 = emitters only, 2 = direct light, "
+              "-1 = unbounded"),
+        Param("rr_depth", int, 5, "Russian roulette from this path depth on (Mitsuba's rule)"),
+        Param("mis", bool, True, "multiple importance sampling (power heuristic) of light and "
+              "BSDF samples; false = plain next-event estimation"),
+        Param("spectral", bool, False, "spectral rendering: three hero-rotated wavelengths per "
+              "path, scene spectra, CIE 1931 to linear sRGB (impl.spectral)"),
+        Param("debug_bias", str, "none", "deliberately biased variant, for the Z-test's power "
+              "only", choices=DEBUG_BIAS),
+        *RAY_PARAMS,
+    ),
+    render=render,
+))
