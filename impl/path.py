@@ -31,8 +31,12 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   incremented, as Mitsuba): continue with q = min(max(throughput)·η², 0.95),
   η the product of the relative IORs crossed; survivors are divided by q.
 * Lights: area emitters (triangle meshes and spheres), point, spot and
-  directional lights; one light is picked uniformly per vertex.  No
-  environment light: rays that leave the scene carry nothing.
+  directional lights; one light is picked uniformly per vertex.  A
+  ``constant`` environment emitter is reached by BSDF sampling only: a ray
+  that leaves the scene adds throughput · L_env with weight 1 (it is never
+  light-sampled, so no MIS weight applies; unbiased, and noisier than
+  sampling it would be on small-aperture views of the sky).  Without one,
+  rays that leave the scene carry nothing.
 * Materials (:mod:`impl.bsdf`): ``diffuse`` (textures included), smooth
   ``conductor`` and ``dielectric``, ``roughconductor`` and
   ``roughdielectric`` (Beckmann, Smith G; :mod:`impl.microfacet`);
@@ -108,7 +112,7 @@ from .bsdf import to_local, to_world
 from .materials import MaterialArrays
 from .camera import camera_params, eye_ray
 from .light_sampling import LightArrays, emitter_pdf, flatten_with_lights, sample_light
-from .lighting import diffuse_albedo, surface
+from .lighting import diffuse_albedo, environment_radiance, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
 from .rng import uniform
@@ -162,8 +166,12 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
         counts[_C_SEG] += 1
         ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
         t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, t0, t1)
-        if prim < 0:
-            break                    # no environment light
+        if prim < 0:                 # left the scene: the environment (BSDF-sampled only)
+            er, eg, eb = environment_radiance(A, dx, dy, dz)
+            r += tr * er
+            g += tg * eg
+            b += tb * eb
+            break
         shape = A.prim_shape[prim]
         px, py, pz = refine(R, prim, ox + t * dx, oy + t * dy, oz + t * dz)
         gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
@@ -360,6 +368,9 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     counts = np.zeros((H * W, len(COUNTERS)), dtype=np.int64)
     R = ray_config(A, params, algorithm="path")
     spectral = bool(params["spectral"])
+    if spectral and scene.environment is not None:
+        raise NotImplementedError("path: spectral=true does not model the constant environment "
+                                  "emitter (its radiance is RGB); render it with spectral=false")
     if spectral:
         S = spectral_arrays(scene, A, L)
         # Unit emission in A and L: the kernel scales light samples by S.light_spec.

@@ -183,11 +183,13 @@ def test_ztest_has_the_power_to_reject_biased_variants(bias, params):
 
 
 @pytest.mark.mitsuba
-@pytest.mark.parametrize("scene", ["spheres/spot_directional.xml", "spheres/lit_sphere.xml"])
+@pytest.mark.parametrize("scene", ["spheres/spot_directional.xml", "spheres/lit_sphere.xml",
+                                   "vocabulary/constant_env.xml"])
 def test_max_depth_two_is_mitsubas_direct_illumination(scene):
     """max_depth = 2 (emitters seen directly + one scattering) is what Mitsuba's
     ``direct`` integrator computes: point, spot and directional lights through the
-    path tracer's light sampling, Z-tested against the stored direct references."""
+    path tracer's light sampling, and a constant environment reached by BSDF sampling,
+    Z-tested against the stored direct references."""
     from references.reference import get_reference
 
     ref = get_reference(SUITES / scene, transport="direct", spp=1024, passes=8)
