@@ -27,7 +27,7 @@ transform        lookat, translate, rotate, scale, matrix — composed in order
 values           rgb, float, integer, boolean, string, point, vector, ref / id
 shape            sphere (center/radius or to_world), rectangle, cube, obj, ply
                  (filename relative to the scene file), flip_normals, face_normals
-bsdf             diffuse, conductor, dielectric, roughconductor, twosided
+bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric, twosided
 texture          ``checkerboard`` (color0, color1, to_uv) nested in a diffuse bsdf
                  as its ``reflectance``, on ``rectangle`` shapes only (their uv
                  is Mitsuba's: the local [-1, 1]² square mapped to [0, 1]²)
@@ -57,7 +57,7 @@ __all__ = ["SceneError", "load_scene", "SUPPORTED"]
 
 SUPPORTED = {
     "shape": ("sphere", "rectangle", "cube", "obj", "ply"),
-    "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "twosided"),
+    "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric", "twosided"),
     "emitter": ("point", "directional", "spot", "area"),
     "sensor": ("perspective",),
     "film": ("hdrfilm",),
@@ -87,6 +87,8 @@ _PROPS = {
     ("bsdf", "dielectric"): {"int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"},
     ("bsdf", "roughconductor"): {"material", "eta", "k", "specular_reflectance", "alpha", "alpha_u",
                                  "alpha_v", "distribution", "sample_visible"},
+    ("bsdf", "roughdielectric"): {"int_ior", "ext_ior", "specular_reflectance", "specular_transmittance",
+                                  "alpha", "alpha_u", "alpha_v", "distribution", "sample_visible"},
     ("emitter", "point"): {"intensity", "position", "to_world"},
     ("emitter", "directional"): {"irradiance", "direction", "to_world"},
     ("emitter", "spot"): {"intensity", "cutoff_angle", "beam_width", "to_world"},

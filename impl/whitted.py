@@ -157,8 +157,6 @@ Example::
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 from numba import njit, prange
 
@@ -166,8 +164,9 @@ from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
 from .camera import camera_params, eye_ray
-from .fresnel import fresnel_conductor, fresnel_dielectric, lookup_ior, reflect, refract
+from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import diffuse_albedo, direct_light_rays, surface
+from .materials import SpecularArrays, material_arrays
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
@@ -189,88 +188,6 @@ _C_EYE, _C_SHADOW, _C_REFL, _C_TRANS, _C_HALL, _C_DEPTH, _C_TIR, _C_IOR, _C_DIFF
 
 #: Two IORs closer than this count as the same medium (Mitsuba stores them as float32).
 IOR_TOLERANCE = 1e-5
-
-
-class SpecularArrays(NamedTuple):
-    """Per-material parameters of the delta BSDFs (numba takes it as one argument)."""
-
-    spec_refl: np.ndarray       # (M, 3) specular_reflectance
-    spec_trans: np.ndarray      # (M, 3) specular_transmittance (dielectric)
-    cond_eta: np.ndarray        # (M, 3) conductor: real part of the relative IOR
-    cond_k: np.ndarray          # (M, 3) conductor: imaginary part
-    diel_eta: np.ndarray        # (M,) dielectric: int_ior / ext_ior
-    diel_int: np.ndarray        # (M,) dielectric: int_ior
-    diel_ext: np.ndarray        # (M,) dielectric: ext_ior
-
-
-def _rgb_param(params: dict, name: str, default: float, where: str) -> np.ndarray:
-    v = params.get(name, default)
-    a = np.asarray(v, dtype=np.float64).reshape(-1)
-    if a.shape == (1,):
-        a = np.repeat(a, 3)
-    if a.shape != (3,):
-        raise ValueError(f"{where}: '{name}' must be a float or rgb value, got {v!r}")
-    return a
-
-
-def material_arrays(scene: Scene) -> SpecularArrays:
-    """Check every shape's material and decode the delta-BSDF parameters.
-
-    Raises
-    ------
-    NotImplementedError
-        A material the algorithm does not model (naming the shape and the
-        material), a named conductor (``material="Au"``: spectral IOR tables
-        are not tabulated here; give ``eta`` and ``k``), a two-sided dielectric.
-    ValueError
-        Conflicting or malformed parameters (e.g. both ``material`` and
-        ``eta`` on a conductor, an unknown IOR name).
-    """
-    M = len(scene.materials)
-    spec_refl = np.ones((M, 3))
-    spec_trans = np.ones((M, 3))
-    cond_eta = np.zeros((M, 3))
-    cond_k = np.ones((M, 3))
-    diel_eta = np.ones(M)
-    diel_int = np.ones(M)
-    diel_ext = np.ones(M)
-    users = {}
-    for shape in scene.shapes:
-        users.setdefault(shape.material, shape.name or shape.source)
-    for i, m in enumerate(scene.materials):
-        if i not in users:
-            continue
-        where = f"whitted: shape '{users[i]}'"
-        if m.kind not in ("diffuse", "conductor", "dielectric"):
-            raise NotImplementedError(
-                f"{where} has a '{m.kind}' BSDF, which the Whitted ray tracer does not model "
-                "(diffuse, conductor and dielectric are modelled)")
-        p = m.params
-        if m.kind == "conductor":
-            material = p.get("material", "none")
-            if "eta" in p and material != "none":
-                raise ValueError(f"{where}: conductor gives both 'material' ('{material}') and "
-                                 "'eta'; give one of them (as Mitsuba requires)")
-            if material != "none" and "eta" not in p:
-                raise NotImplementedError(
-                    f"{where}: conductor material '{material}' is not tabulated (its spectral "
-                    "IOR is not modelled); give 'eta' and 'k' as rgb values, or material='none'")
-            cond_eta[i] = _rgb_param(p, "eta", 0.0, where)
-            cond_k[i] = _rgb_param(p, "k", 1.0, where)
-            spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
-        elif m.kind == "dielectric":
-            if m.twosided:
-                raise NotImplementedError(f"{where}: a two-sided dielectric is not modelled")
-            # Mitsuba's defaults: BK7 glass inside, air outside.
-            n_int = lookup_ior(p.get("int_ior", "bk7"), what=f"{where}: int_ior")
-            n_ext = lookup_ior(p.get("ext_ior", "air"), what=f"{where}: ext_ior")
-            if n_int <= 0.0 or n_ext <= 0.0:
-                raise ValueError(f"{where}: indices of refraction must be positive "
-                                 f"(int_ior={n_int}, ext_ior={n_ext})")
-            diel_int[i], diel_ext[i], diel_eta[i] = n_int, n_ext, n_int / n_ext
-            spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
-            spec_trans[i] = _rgb_param(p, "specular_transmittance", 1.0, where)
-    return SpecularArrays(spec_refl, spec_trans, cond_eta, cond_k, diel_eta, diel_int, diel_ext)
 
 
 # ------------------------------------------------------------------ kernels ---

@@ -1,0 +1,198 @@
+"""Per-material BSDF parameters as arrays for the numba tracers.
+
+:func:`material_arrays` checks every used material of a scene against the
+BSDFs an algorithm models and decodes Mitsuba's parameters (with Mitsuba's
+defaults) into a :class:`MaterialArrays` named tuple, one row per material of
+``scene.materials`` (numba takes the tuple as one typed argument):
+
+* ``conductor`` / ``roughconductor``: ``specular_reflectance`` × the conductor
+  Fresnel term of the complex index ``eta + i k`` (RGB).  ``material="none"``
+  (Mitsuba's default) is ``eta = 0, k = 1``: Fresnel = 1.  Named conductors
+  (``material="Au"``) are refused: their spectral IOR tables are not
+  tabulated here; give ``eta`` and ``k``.
+* ``dielectric`` / ``roughdielectric``: ``int_ior`` (default BK7),
+  ``ext_ior`` (default air), ``specular_reflectance``,
+  ``specular_transmittance``.
+* ``roughconductor`` / ``roughdielectric``: ``alpha`` (default 0.1, Mitsuba's),
+  ``distribution`` (``beckmann``, the default; ``ggx`` is refused),
+  ``sample_visible`` (default true).  Anisotropic ``alpha_u``/``alpha_v`` are
+  accepted only when equal.
+
+The microfacet functions these rows feed are in :mod:`impl.microfacet`.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from gibench.scene import Scene
+
+from .fresnel import lookup_ior
+from .scene_arrays import MATERIAL_CODES
+
+__all__ = ["MaterialArrays", "SpecularArrays", "material_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
+           "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "KIND_CODES",
+           "DEFAULT_ALPHA"]
+
+MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
+MAT_CONDUCTOR = MATERIAL_CODES["conductor"]
+MAT_DIELECTRIC = MATERIAL_CODES["dielectric"]
+MAT_ROUGHCONDUCTOR = MATERIAL_CODES["roughconductor"]
+MAT_ROUGHDIELECTRIC = MATERIAL_CODES["roughdielectric"]
+#: Material kind codes of :attr:`MaterialArrays.kind` (those of ``scene_arrays.MATERIAL_CODES``).
+KIND_CODES = {"diffuse": MAT_DIFFUSE, "conductor": MAT_CONDUCTOR, "dielectric": MAT_DIELECTRIC,
+              "roughconductor": MAT_ROUGHCONDUCTOR, "roughdielectric": MAT_ROUGHDIELECTRIC}
+
+#: Mitsuba's default roughness of roughconductor / roughdielectric.
+DEFAULT_ALPHA = 0.1
+
+
+class MaterialArrays(NamedTuple):
+    """Per-material parameters of the specular and microfacet BSDFs (one row per material)."""
+
+    spec_refl: np.ndarray       # (M, 3) specular_reflectance
+    spec_trans: np.ndarray      # (M, 3) specular_transmittance (dielectrics)
+    cond_eta: np.ndarray        # (M, 3) conductors: real part of the relative IOR
+    cond_k: np.ndarray          # (M, 3) conductors: imaginary part
+    diel_eta: np.ndarray        # (M,) dielectrics: int_ior / ext_ior
+    diel_int: np.ndarray        # (M,) dielectrics: int_ior
+    diel_ext: np.ndarray        # (M,) dielectrics: ext_ior
+    kind: np.ndarray            # (M,) int: KIND_CODES
+    alpha: np.ndarray           # (M,) Beckmann roughness of the rough BSDFs (0 for smooth ones)
+    visible: np.ndarray         # (M,) int: 1 = sample visible normals (Mitsuba's sample_visible)
+
+
+#: The name whitted's tests and callers know (the first seven fields are the old ones).
+SpecularArrays = MaterialArrays
+
+
+def _rgb_param(params: dict, name: str, default: float, where: str) -> np.ndarray:
+    v = params.get(name, default)
+    a = np.asarray(v, dtype=np.float64).reshape(-1)
+    if a.shape == (1,):
+        a = np.repeat(a, 3)
+    if a.shape != (3,):
+        raise ValueError(f"{where}: '{name}' must be a float or rgb value, got {v!r}")
+    return a
+
+
+def _and_list(items) -> str:
+    items = list(items)
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def _roughness(p: dict, where: str) -> tuple[float, int]:
+    """(alpha, sample_visible) of a rough BSDF, Mitsuba's defaults and checks."""
+    dist = str(p.get("distribution", "beckmann")).lower()
+    if dist == "ggx":
+        raise NotImplementedError(f"{where}: distribution 'ggx' is not modelled; only 'beckmann' "
+                                  "(the thesis's Cook-Torrance D) is")
+    if dist != "beckmann":
+        raise ValueError(f"{where}: invalid distribution '{dist}' (Mitsuba accepts 'beckmann' or 'ggx')")
+    has_uv = "alpha_u" in p or "alpha_v" in p
+    if "alpha" in p and has_uv:
+        raise ValueError(f"{where}: give either 'alpha' or 'alpha_u'/'alpha_v' (as Mitsuba requires)")
+    if has_uv:
+        if "alpha_u" not in p or "alpha_v" not in p:
+            raise ValueError(f"{where}: both 'alpha_u' and 'alpha_v' must be given")
+        if float(p["alpha_u"]) != float(p["alpha_v"]):
+            raise NotImplementedError(f"{where}: anisotropic roughness (alpha_u={p['alpha_u']}, "
+                                      f"alpha_v={p['alpha_v']}) is not modelled; give one 'alpha'")
+        alpha = float(p["alpha_u"])
+    else:
+        alpha = p.get("alpha", DEFAULT_ALPHA)
+        if not isinstance(alpha, int | float):
+            raise ValueError(f"{where}: 'alpha' must be a float, got {alpha!r}")
+        alpha = float(alpha)
+    if not alpha >= 0.0:
+        raise ValueError(f"{where}: 'alpha' must be >= 0, got {alpha}")
+    return alpha, int(bool(p.get("sample_visible", True)))
+
+
+def material_arrays(scene: Scene, *, algorithm: str = "whitted",
+                    model: str = "the Whitted ray tracer",
+                    kinds: tuple[str, ...] = ("diffuse", "conductor", "dielectric")) -> MaterialArrays:
+    """Check every used material against ``kinds`` and decode its BSDF parameters.
+
+    Parameters
+    ----------
+    scene
+        The scene; only materials some shape uses are checked.
+    algorithm, model
+        Name the caller in error messages (``"{algorithm}: shape 'x' has a
+        'y' BSDF, which {model} does not model"``).
+    kinds
+        The BSDF types the caller models (keys of :data:`KIND_CODES`).
+
+    Raises
+    ------
+    NotImplementedError
+        A material the algorithm does not model (naming the shape and the
+        material), a named conductor (``material="Au"``), a two-sided
+        dielectric, a GGX distribution, anisotropic roughness.
+    ValueError
+        Conflicting or malformed parameters (e.g. both ``material`` and
+        ``eta`` on a conductor, an unknown IOR name, equal indices on a
+        roughdielectric, a negative alpha).
+    """
+    unknown = [k for k in kinds if k not in KIND_CODES]
+    if unknown:
+        raise ValueError(f"material_arrays: unknown BSDF kinds {unknown} (known: {', '.join(KIND_CODES)})")
+    M = len(scene.materials)
+    spec_refl = np.ones((M, 3))
+    spec_trans = np.ones((M, 3))
+    cond_eta = np.zeros((M, 3))
+    cond_k = np.ones((M, 3))
+    diel_eta = np.ones(M)
+    diel_int = np.ones(M)
+    diel_ext = np.ones(M)
+    kind = np.zeros(M, dtype=np.int64)
+    alpha = np.zeros(M)
+    visible = np.ones(M, dtype=np.int64)
+    users = {}
+    for shape in scene.shapes:
+        users.setdefault(shape.material, shape.name or shape.source)
+    for i, m in enumerate(scene.materials):
+        if m.kind in KIND_CODES:
+            kind[i] = KIND_CODES[m.kind]
+        if i not in users:
+            continue
+        where = f"{algorithm}: shape '{users[i]}'"
+        if m.kind not in kinds:
+            raise NotImplementedError(
+                f"{where} has a '{m.kind}' BSDF, which {model} does not model "
+                f"({_and_list(kinds)} are modelled)")
+        p = m.params
+        if m.kind in ("conductor", "roughconductor"):
+            material = p.get("material", "none")
+            if "eta" in p and material != "none":
+                raise ValueError(f"{where}: conductor gives both 'material' ('{material}') and "
+                                 "'eta'; give one of them (as Mitsuba requires)")
+            if material != "none" and "eta" not in p:
+                raise NotImplementedError(
+                    f"{where}: conductor material '{material}' is not tabulated (its spectral "
+                    "IOR is not modelled); give 'eta' and 'k' as rgb values, or material='none'")
+            cond_eta[i] = _rgb_param(p, "eta", 0.0, where)
+            cond_k[i] = _rgb_param(p, "k", 1.0, where)
+            spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
+        elif m.kind in ("dielectric", "roughdielectric"):
+            if m.twosided:
+                raise NotImplementedError(f"{where}: a two-sided dielectric is not modelled")
+            # Mitsuba's defaults: BK7 glass inside, air outside.
+            n_int = lookup_ior(p.get("int_ior", "bk7"), what=f"{where}: int_ior")
+            n_ext = lookup_ior(p.get("ext_ior", "air"), what=f"{where}: ext_ior")
+            if n_int <= 0.0 or n_ext <= 0.0:
+                raise ValueError(f"{where}: indices of refraction must be positive "
+                                 f"(int_ior={n_int}, ext_ior={n_ext})")
+            if m.kind == "roughdielectric" and n_int == n_ext:
+                raise ValueError(f"{where}: roughdielectric needs int_ior != ext_ior "
+                                 f"(both {n_int}), as Mitsuba requires")
+            diel_int[i], diel_ext[i], diel_eta[i] = n_int, n_ext, n_int / n_ext
+            spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
+            spec_trans[i] = _rgb_param(p, "specular_transmittance", 1.0, where)
+        if m.kind in ("roughconductor", "roughdielectric"):
+            alpha[i], visible[i] = _roughness(p, where)
+    return MaterialArrays(spec_refl, spec_trans, cond_eta, cond_k, diel_eta, diel_int, diel_ext,
+                          kind, alpha, visible)
