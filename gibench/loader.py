@@ -19,7 +19,11 @@ default          ``name``/``value``; ``$name`` is substituted in every attribute
                  Mitsuba's ``-D name=value`` and ``mi.load_file(path, name=value)``)
 integrator       any type (read for the reference's transport; own algorithms ignore it)
 sensor           ``perspective``: fov, fov_axis, near_clip, far_clip, to_world
-                 (focus_distance is accepted and ignored: a pinhole has no focus)
+                 (focus_distance is accepted and ignored: a pinhole has no focus);
+                 ``thinlens``: the same plus aperture_radius (required, as in
+                 Mitsuba) and focus_distance (default far_clip);
+                 ``orthographic``: near_clip, far_clip, to_world; every sensor:
+                 shutter_open, shutter_close
 film             ``hdrfilm``: width, height, rfilter, pixel_format, component_format
 rfilter          ``box``, ``gaussian`` (stddev)
 sampler          any type: sample_count (seed, jitter accepted)
@@ -59,7 +63,7 @@ SUPPORTED = {
     "shape": ("sphere", "rectangle", "cube", "obj", "ply"),
     "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric", "twosided"),
     "emitter": ("point", "directional", "spot", "area"),
-    "sensor": ("perspective",),
+    "sensor": ("perspective", "thinlens", "orthographic"),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian"),
     "texture": ("checkerboard",),
@@ -72,7 +76,11 @@ _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "point", "vector"
 
 # Properties each plugin accepts: name -> what the own algorithms do with it.
 _PROPS = {
-    ("sensor", "perspective"): {"fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance"},
+    ("sensor", "perspective"): {"fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance",
+                                "shutter_open", "shutter_close"},
+    ("sensor", "thinlens"): {"fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance",
+                             "aperture_radius", "shutter_open", "shutter_close"},
+    ("sensor", "orthographic"): {"near_clip", "far_clip", "to_world", "shutter_open", "shutter_close"},
     ("film", "hdrfilm"): {"width", "height", "pixel_format", "component_format"},
     ("rfilter", "box"): set(),
     ("rfilter", "gaussian"): {"stddev"},
@@ -447,14 +455,32 @@ def _camera(ctx, el) -> Camera:
     for s in p.child_elements("sampler"):
         sp = _Plugin(ctx, s, "sampler")
         spp = int(sp.get("sample_count", 4))
+    near, far = float(p.get("near_clip", 1e-2)), float(p.get("far_clip", 1e4))
+    if not 0.0 < near < far:
+        raise ctx.error(el, f"need 0 < near_clip < far_clip, got near_clip={near}, far_clip={far}")
+    s_open, s_close = float(p.get("shutter_open", 0.0)), float(p.get("shutter_close", 0.0))
+    if s_close < s_open:
+        raise ctx.error(el, f"shutter_close ({s_close}) must not be before shutter_open ({s_open})")
+    common = dict(to_world=p.get("to_world", np.eye(4)), near_clip=near, far_clip=far, film=film,
+                  sample_count=spp, kind=p.type, shutter_open=s_open, shutter_close=s_close)
+    if p.type == "orthographic":
+        return Camera(**common)
     axis = p.get("fov_axis", "x")
     if axis not in ("x", "y", "diagonal", "smaller", "larger"):
         raise ctx.error(el, f"unknown fov_axis '{axis}' (x, y, diagonal, smaller, larger)")
     if "fov" not in p.props:
-        raise ctx.error(el, "perspective sensor needs 'fov' (focal_length is not supported)")
-    return Camera(to_world=p.get("to_world", np.eye(4)), fov=float(p.get("fov")), fov_axis=axis,
-                  near_clip=float(p.get("near_clip", 1e-2)), far_clip=float(p.get("far_clip", 1e4)),
-                  film=film, sample_count=spp)
+        raise ctx.error(el, f"{p.type} sensor needs 'fov' (focal_length is not supported)")
+    lens = {}
+    if p.type == "thinlens":
+        if "aperture_radius" not in p.props:
+            raise ctx.error(el, "thinlens sensor needs 'aperture_radius'")
+        radius = float(p.get("aperture_radius"))
+        focus = float(p.get("focus_distance", far))
+        if radius < 0.0 or not focus > 0.0:
+            raise ctx.error(el, f"thinlens needs aperture_radius >= 0 and focus_distance > 0, "
+                                f"got {radius} and {focus}")
+        lens = dict(aperture_radius=radius, focus_distance=focus)
+    return Camera(fov=float(p.get("fov")), fov_axis=axis, **common, **lens)
 
 
 def _integrator(ctx, el) -> dict:
