@@ -29,7 +29,10 @@ rfilter          ``box``, ``gaussian`` (stddev)
 sampler          any type: sample_count (seed, jitter accepted)
 transform        lookat, translate, rotate, scale, matrix — composed in order
 values           rgb, float, integer, boolean, string, point, vector, ref / id
-shape            sphere (center/radius or to_world), rectangle, cube, obj, ply
+shape            sphere (center/radius or to_world; gibench's own
+                 ``<vector name="gibench_velocity">`` makes it move linearly,
+                 centre(τ) = center + velocity·τ over the sensor's shutter — see
+                 references/motion_blur.py), rectangle, cube, obj, ply
                  (filename relative to the scene file), flip_normals, face_normals
 bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric, twosided
 texture          ``checkerboard`` (color0, color1, to_uv) nested in a diffuse bsdf
@@ -84,7 +87,7 @@ _PROPS = {
     ("film", "hdrfilm"): {"width", "height", "pixel_format", "component_format"},
     ("rfilter", "box"): set(),
     ("rfilter", "gaussian"): {"stddev"},
-    ("shape", "sphere"): {"center", "radius", "to_world", "flip_normals"},
+    ("shape", "sphere"): {"center", "radius", "to_world", "flip_normals", "gibench_velocity"},
     ("shape", "rectangle"): {"to_world", "flip_normals"},
     ("shape", "cube"): {"to_world", "flip_normals"},
     ("shape", "obj"): {"filename", "to_world", "flip_normals", "face_normals"},
@@ -382,9 +385,10 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
         s = tf.uniform_scale_factor(m)
         if s is None:
             raise ctx.error(el, "sphere to_world must be a similarity transform (uniform scale)")
+        velocity = _velocity(ctx, el, p)
         return Shape(kind="sphere", material=mat, name=name, source="sphere",
                      center=tf.transform_points(m, center), radius=radius * s,
-                     flip_normals=flip, emitter_radiance=emit)
+                     flip_normals=flip, emitter_radiance=emit, velocity=velocity)
     uvs = None
     if p.type in ("rectangle", "cube"):
         v, f, n = rectangle() if p.type == "rectangle" else cube()
@@ -410,6 +414,23 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
         f = f[:, ::-1].copy()          # a mirroring transform flips the winding; keep normals outward
     return Shape(kind="mesh", material=mat, name=name, source=p.type, vertices=v_world,
                  faces=f, normals=n_world, flip_normals=flip, emitter_radiance=emit, uvs=uvs)
+
+
+def _velocity(ctx, el, p):
+    """A moving sphere's ``<vector name="gibench_velocity">`` (world units per unit of
+    shutter time; gibench-only: references/motion_blur.py strips it before Mitsuba
+    reads the file and moves ``center`` instead, so the sphere must give ``center``
+    and no ``to_world``)."""
+    v = p.get("gibench_velocity")
+    if v is None:
+        return None
+    if "to_world" in p.props or "center" not in p.props:
+        raise ctx.error(el, "a moving sphere (gibench_velocity) needs a 'center' point and no "
+                            "'to_world' (its reference moves the center)")
+    v = np.asarray(v, dtype=np.float64).reshape(-1)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ctx.error(el, f"gibench_velocity must be a finite vector, got {v.tolist()}")
+    return v
 
 
 def _light(ctx, el) -> Light:

@@ -122,6 +122,7 @@ class Shape:
     uvs: np.ndarray | None = None       # (V, 2) texture coordinates, or None (see the loader)
     flip_normals: bool = False
     emitter_radiance: np.ndarray | None = None  # RGB radiance of an area emitter, or None
+    velocity: np.ndarray | None = None  # sphere moving linearly: centre(τ) = center + velocity·τ
 
     @property
     def is_emitter(self) -> bool:

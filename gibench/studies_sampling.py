@@ -33,7 +33,6 @@ warm-up render per study keeps compilation out).
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from pathlib import Path
 

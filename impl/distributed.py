@@ -30,6 +30,10 @@ plus:
   ``specular_reflectance``/``specular_transmittance``;
 * **depth of field** — eye rays of a ``thinlens`` sensor start on the lens
   disk (:func:`impl.camera.eye_ray_lens`);
+* **motion blur** (2.5.7) — every sample has its own time τ, uniform over
+  the sensor's shutter [``shutter_open``, ``shutter_close``]; spheres with a
+  ``gibench_velocity`` sit at ``center + velocity·τ`` for that sample's eye
+  ray and every ray of its tree, shadow rays included (so shadows blur too);
 * the thesis's Cook–Torrance terms with the V-cavity G are an option
   (``g=vcavity``); the difference from Smith (what Mitsuba uses) is a model
   difference, reported, not tested against Mitsuba.
@@ -93,6 +97,7 @@ anisotropic roughness, delta lights on glossy surfaces.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -101,7 +106,7 @@ from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
 from .camera import camera_params, eye_ray_lens
-from .filters import FILTER_BOX, S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
+from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import diffuse_albedo, direct_light_rays, surface
 from .materials import (MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC,
@@ -116,7 +121,7 @@ from .samplers import (adaptive_children, adaptive_disagree, gaussian_jitter_pat
 from .scene_arrays import SceneArrays, flatten
 from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit, _push
 
-__all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS"]
+__all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS", "Motion", "motion_arrays"]
 
 SAMPLERS = ("uniform", "random", "jitter", "poisson", "adaptive", "statistical")
 SMP_UNIFORM, SMP_RANDOM, SMP_JITTER, SMP_POISSON, SMP_ADAPTIVE, SMP_STATISTICAL = range(6)
@@ -131,7 +136,27 @@ COUNTERS = ("eye_rays", "shadow_rays", "reflection_rays", "transmission_rays", "
 #: Seed offset of the tracer's own random stream (lens, time, BSDF samples), apart from the
 #: light samples of :func:`impl.lighting.direct_light_rays` and the pixel patterns.
 _STREAM = 0x2545F491
-_D_LENS, _D_BSDF = 0, 8        # dimensions of the stream: lens (2); bounce k: 8 + 3k .. 10 + 3k
+_D_LENS, _D_TIME, _D_BSDF = 0, 2, 8  # dimensions of the stream: lens (2), time; bounce k: 8 + 3k ..
+
+
+class Motion(NamedTuple):
+    """Linearly moving spheres (motion blur): centre(τ) = center + velocity·τ."""
+
+    index: np.ndarray       # (K,) sphere index into SceneArrays.sph_*
+    center: np.ndarray      # (K, 3) centre at τ = 0
+    velocity: np.ndarray    # (K, 3) world units per unit time
+    shutter: np.ndarray     # (2,) shutter_open, shutter_close
+
+
+def motion_arrays(scene: Scene, A: SceneArrays) -> Motion:
+    """The moving spheres of ``scene`` (``gibench_velocity``) as kernel arrays."""
+    spheres = [s for s in scene.shapes if s.kind == "sphere"]
+    moving = [(i, s) for i, s in enumerate(spheres) if s.velocity is not None]
+    cam = scene.camera
+    return Motion(index=np.array([i for i, _ in moving], dtype=np.int64),
+                  center=np.array([s.center for _, s in moving], dtype=np.float64).reshape(-1, 3),
+                  velocity=np.array([s.velocity for _, s in moving], dtype=np.float64).reshape(-1, 3),
+                  shutter=np.array([cam.shutter_open, cam.shutter_close], dtype=np.float64))
 
 
 @njit(inline="always", cache=True)
@@ -145,7 +170,7 @@ def _frame(nx, ny, nz):
 
 
 @njit(cache=True)
-def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays, R: RayConfig,
+def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays, R: RayConfig, sph_c,
           gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
           shadows, light_samples, seed, pixel, sample, spp, stack_f, stack_i, counts, cut_w):
     """Radiance (r, g, b) of one eye ray: whitted's ray tree plus sampled glossy bounces."""
@@ -187,7 +212,7 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             continue
         shape = A.prim_shape[prim]
         px, py, pz = refine(R, prim, rox + t * rdx, roy + t * rdy, roz + t * rdz)
-        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
+        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, sph_c, A.sph_radius,
                                          A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
         vx, vy, vz = -rdx, -rdy, -rdz
         cos_v = sx * vx + sy * vy + sz * vz
@@ -324,15 +349,31 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
 
 
 @njit(cache=True)
-def _radiance(cam, A, S, R, fx, fy, sample, spp, gmodel, max_depth, hall_threshold, ka, ambient, ks,
-              shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
-              counts, cut_w):
-    """Radiance of the pixel sample number ``sample`` at film position (fx, fy)."""
+def _radiance(cam, A, S, R, M: Motion, cen, cen64, fx, fy, sample, spp, gmodel, max_depth,
+              hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
+              seed, pixel, stack_f, stack_i, counts, cut_w):
+    """Radiance of the pixel sample number ``sample`` at film position (fx, fy).
+
+    The sample's own lens point and shutter time; moving spheres are placed at
+    that time in the per-pixel copies ``cen`` (intersection precision) and
+    ``cen64`` (shading) of the sphere centres, and the ray configuration the
+    tree (and its shadow rays) intersects with is rebuilt around them.
+    """
     u1 = uniform(seed + _STREAM, pixel, sample, _D_LENS)
     u2 = uniform(seed + _STREAM, pixel, sample, _D_LENS + 1)
     ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray_lens(cam, fx, fy, u1, u2)
     counts[_C_SAMPLES] += 1
-    return _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, R, gmodel, max_depth, hall_threshold,
+    if M.index.shape[0] > 0:
+        tau = M.shutter[0] + (M.shutter[1] - M.shutter[0]) * uniform(seed + _STREAM, pixel, sample,
+                                                                     _D_TIME)
+        for k in range(M.index.shape[0]):
+            i = M.index[k]
+            for c in range(3):
+                p = M.center[k, c] + M.velocity[k, c] * tau
+                cen64[i, c] = p
+                cen[i, c] = p
+    Rt = RayConfig(R.form, R.strategy, R.eps, R.shrink_point, R.shrink_area, cen, R.sph_radius, R.tri_v)
+    return _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, Rt, cen64, gmodel, max_depth, hall_threshold,
                  ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
                  pixel, sample, spp, stack_f, stack_i, counts, cut_w)
 
@@ -348,7 +389,7 @@ def _store(rec, i, fx, fy, w, r, g, b):
 
 
 @njit(cache=True)
-def _pixel(cam, A, S, R, x, y, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
+def _pixel(cam, A, S, R, M, x, y, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
            tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
            fclamp, shadows, light_samples, seed, rec, counts):
     """One pixel's sample records ``rec[:n] = (x, y, weight, r, g, b)``; returns n."""
@@ -357,6 +398,8 @@ def _pixel(cam, A, S, R, x, y, sampler, spp, jitter_gauss, gamma, sigma, thresho
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
     cut_w = np.zeros(2)
+    cen = R.sph_center.copy()
+    cen64 = A.sph_center.copy()
     if sampler == SMP_ADAPTIVE:
         # Whitted's adaptive supersampling: squares of (corner, size, depth, 5 value indices).
         cap = max(spp, 5)
@@ -373,7 +416,7 @@ def _pixel(cam, A, S, R, x, y, sampler, spp, jitter_gauss, gamma, sigma, thresho
         pos[3, 0], pos[3, 1] = 1.0, 1.0
         pos[4, 0], pos[4, 1] = 0.5, 0.5
         for i in range(5):
-            rr, gg, bb = _radiance(cam, A, S, R, x + pos[i, 0], y + pos[i, 1], i, cap, gmodel,
+            rr, gg, bb = _radiance(cam, A, S, R, M, cen, cen64, x + pos[i, 0], y + pos[i, 1], i, cap, gmodel,
                                    max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
                                    fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
                                    counts, cut_w)
@@ -393,7 +436,7 @@ def _pixel(cam, A, S, R, x, y, sampler, spp, jitter_gauss, gamma, sigma, thresho
                 adaptive_children(x0, y0, size, pts)
                 for q in range(8):
                     pos[n + q, 0], pos[n + q, 1] = pts[q, 0], pts[q, 1]
-                    rr, gg, bb = _radiance(cam, A, S, R, x + pts[q, 0], y + pts[q, 1], n + q, cap,
+                    rr, gg, bb = _radiance(cam, A, S, R, M, cen, cen64, x + pts[q, 0], y + pts[q, 1], n + q, cap,
                                            gmodel, max_depth, hall_threshold, ka, ambient, ks,
                                            shininess, c1, c2, c3, fclamp, shadows, light_samples,
                                            seed, pixel, stack_f, stack_i, counts, cut_w)
@@ -442,7 +485,7 @@ def _pixel(cam, A, S, R, x, y, sampler, spp, jitter_gauss, gamma, sigma, thresho
             else:
                 fx = uniform(seed + _STREAM, pixel, n, 6)
                 fy = uniform(seed + _STREAM, pixel, n, 7)
-            rr, gg, bb = _radiance(cam, A, S, R, x + fx, y + fy, n, cap, gmodel, max_depth,
+            rr, gg, bb = _radiance(cam, A, S, R, M, cen, cen64, x + fx, y + fy, n, cap, gmodel, max_depth,
                                    hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
                                    shadows, light_samples, seed, pixel, stack_f, stack_i, counts,
                                    cut_w)
@@ -474,7 +517,7 @@ def _pixel(cam, A, S, R, x, y, sampler, spp, jitter_gauss, gamma, sigma, thresho
     else:
         n, _r = poisson_disk_pattern(spp, seed, pixel, pts)
     for s in range(n):
-        rr, gg, bb = _radiance(cam, A, S, R, x + pts[s, 0], y + pts[s, 1], s, n, gmodel, max_depth,
+        rr, gg, bb = _radiance(cam, A, S, R, M, cen, cen64, x + pts[s, 0], y + pts[s, 1], s, n, gmodel, max_depth,
                                hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
                                shadows, light_samples, seed, pixel, stack_f, stack_i, counts, cut_w)
         _store(rec, s, x + pts[s, 0], y + pts[s, 1], 1.0, rr, gg, bb)
@@ -482,12 +525,12 @@ def _pixel(cam, A, S, R, x, y, sampler, spp, jitter_gauss, gamma, sigma, thresho
 
 
 @njit(parallel=True, cache=True)
-def _render_kernel(cam, A, S, R, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
+def _render_kernel(cam, A, S, R, M, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
                    tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1,
                    c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts):
     W, H = int(cam[14]), int(cam[15])
     for pixel in prange(W * H):
-        nrec[pixel] = _pixel(cam, A, S, R, pixel % W, pixel // W, sampler, spp, jitter_gauss, gamma,
+        nrec[pixel] = _pixel(cam, A, S, R, M, pixel % W, pixel // W, sampler, spp, jitter_gauss, gamma,
                              sigma, threshold, adaptive_depth, tolerance, z, gmodel, max_depth,
                              hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
                              light_samples, seed, recs[pixel], counts[pixel])
@@ -547,7 +590,8 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     counts = np.zeros((W * H, len(COUNTERS)), dtype=np.int64)
     R = ray_config(A, params, algorithm="distributed")
     z = float(norm.ppf(0.5 * (1.0 + params["confidence"])))
-    _render_kernel(cam, A, S, R, sampler, spp, params["jitter"] == "gaussian", float(params["gamma"]),
+    M = motion_arrays(scene, A)
+    _render_kernel(cam, A, S, R, M, sampler, spp, params["jitter"] == "gaussian", float(params["gamma"]),
                    float(params["sigma"]), float(params["threshold"]), int(params["adaptive_depth"]),
                    float(params["tolerance"]), z, G_MODELS[params["g"]], params["max_depth"],
                    float(params["hall_threshold"]), params["ka"], params["ambient"], params["ks"],
