@@ -38,6 +38,16 @@ plus:
   (``g=vcavity``); the difference from Smith (what Mitsuba uses) is a model
   difference, reported, not tested against Mitsuba.
 
+``shading=hall`` — Hall's shading model (thesis 2.4.5.5; Hall & Greenberg
+1983, Fig. 2.20): at every *specular* hit the light-source terms
+``k_sr Σ_j I_j F_sr (N·H_j)^n`` (lights on the viewer's side, shadow-tested)
+and ``k_st Σ_j I_j F_st (N·H'_j)^n'`` (lights behind a dielectric), from delta
+lights; the reflected/transmitted rays as before, the transmitted ones
+attenuated by ``T_t^Δ`` over the distance Δ they travel; diffuse and ambient
+terms as ``whitted``'s.  Not physically based (a perfect mirror has no
+highlight from a point light): its error against full transport is reported
+as a model error (suites/distributed.toml).
+
 Glossy surfaces receive light only along their sampled rays (an area emitter
 hit by the continuing ray adds its emission); delta lights do not light them.
 With ``g=smith`` this is what the matched reference
@@ -81,7 +91,10 @@ tolerance       float   0.01            statistical: CI half-width to reach
 confidence      float   0.95            statistical: CI level
 rfilter         str     film            film | box | gaussian
 g               str     smith           smith | vcavity (masking–shadowing)
-shading         str     cook-torrance   cook-torrance (microfacet BSDFs)
+shading         str     cook-torrance   cook-torrance | hall (Hall's model, below)
+hall_ks         float   1               Hall: weight k_sr = k_st of the highlights
+hall_n          float   50              Hall: highlight exponent n = n'
+hall_t          float   1               Hall: transmissivity per unit length T_t
 max_depth       int     10              deepest ray of a branch (eye ray = 1)
 hall_threshold  float   1e-5            cut a branch whose weight is below this
 light_samples   int     1               shadow rays per area emitter per diffuse hit
@@ -114,11 +127,11 @@ from .materials import (MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MAT_R
 from .microfacet import G_SMITH, G_VCAVITY, conductor_sample, dielectric_sample
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
-from .rays import RayConfig, hit, ray_config, refine, round_ray
+from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
 from .rng import uniform
 from .samplers import (adaptive_children, adaptive_disagree, gaussian_jitter_pattern, jitter_pattern,
                        poisson_disk_pattern, random_pattern, statistical_done, uniform_pattern)
-from .scene_arrays import SceneArrays, flatten
+from .scene_arrays import LIGHT_DIRECTIONAL, SceneArrays, flatten
 from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit, _push
 
 __all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS", "Motion", "motion_arrays"]
@@ -170,8 +183,76 @@ def _frame(nx, ny, nz):
 
 
 @njit(cache=True)
+def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, hall_ks,
+                     hall_n, shadows, counts):
+    """Hall's light-source terms at a specular surface (thesis 2.4.5.5, Fig. 2.20):
+    k_s Σ_j I_j F(V·H_j) (N·H_j)^n for lights on the viewer's side and, at a
+    dielectric, k_s Σ_j I_j (1 − F) |N·H'_j|^n for lights behind the surface, H'_j
+    the refraction half-vector −(η_v V + η_l L) (Walter 2007).  Delta lights only:
+    area emitters already reach specular surfaces along their reflected and
+    transmitted rays.  I_j is the light's intensity / d² (point, spot without its
+    cone) or irradiance (directional); reflection terms cast shadow rays.
+    """
+    r = g = b = 0.0
+    for li in range(A.light_kind.shape[0]):
+        if A.light_kind[li] == LIGHT_DIRECTIONAL:
+            lx, ly, lz = -A.light_dir[li, 0], -A.light_dir[li, 1], -A.light_dir[li, 2]
+            inv_d2 = 1.0
+            dist = np.inf
+        else:
+            lx = A.light_pos[li, 0] - px
+            ly = A.light_pos[li, 1] - py
+            lz = A.light_pos[li, 2] - pz
+            dist = math.sqrt(lx * lx + ly * ly + lz * lz)
+            lx, ly, lz = lx / dist, ly / dist, lz / dist
+            inv_d2 = 1.0 / (dist * dist)
+        cos_l = sx * lx + sy * ly + sz * lz
+        if cos_l > 0.0:
+            hx, hy, hz = lx + vx, ly + vy, lz + vz
+            hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+            hx, hy, hz = hx / hn, hy / hn, hz / hn
+            ndh = sx * hx + sy * hy + sz * hz
+            vdh = vx * hx + vy * hy + vz * hz
+            if ndh <= 0.0:
+                continue
+            if shadows:
+                counts[_C_SHADOW] += 1
+                side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
+                ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+                t1 = (dist * (1.0 - R.shrink_point)) if dist < np.inf else np.inf
+                if occluded(R, ox, oy, oz, lx, ly, lz, t0, t1):
+                    continue
+            spec = hall_ks * ndh ** hall_n * inv_d2
+            if mkind == MAT_DIELECTRIC:
+                F, _, _, _ = fresnel_dielectric(vdh, S.diel_eta[mat])
+                fr = fg = fb = F
+            else:
+                fr = fresnel_conductor(vdh, S.cond_eta[mat, 0], S.cond_k[mat, 0])
+                fg = fresnel_conductor(vdh, S.cond_eta[mat, 1], S.cond_k[mat, 1])
+                fb = fresnel_conductor(vdh, S.cond_eta[mat, 2], S.cond_k[mat, 2])
+            r += spec * fr * S.spec_refl[mat, 0] * A.light_rad[li, 0]
+            g += spec * fg * S.spec_refl[mat, 1] * A.light_rad[li, 1]
+            b += spec * fb * S.spec_refl[mat, 2] * A.light_rad[li, 2]
+        elif mkind == MAT_DIELECTRIC and cos_l < 0.0:
+            outside = sx * vx + sy * vy + sz * vz >= 0.0
+            eta_v = S.diel_ext[mat] if outside else S.diel_int[mat]
+            eta_l = S.diel_int[mat] if outside else S.diel_ext[mat]
+            hx, hy, hz = -(eta_v * vx + eta_l * lx), -(eta_v * vy + eta_l * ly), -(eta_v * vz + eta_l * lz)
+            hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+            if hn == 0.0:
+                continue
+            ndh = abs(sx * hx + sy * hy + sz * hz) / hn
+            F, _, _, _ = fresnel_dielectric(sx * vx + sy * vy + sz * vz, S.diel_eta[mat])
+            spec = hall_ks * ndh ** hall_n * inv_d2 * (1.0 - F)
+            r += spec * S.spec_trans[mat, 0] * A.light_rad[li, 0]
+            g += spec * S.spec_trans[mat, 1] * A.light_rad[li, 1]
+            b += spec * S.spec_trans[mat, 2] * A.light_rad[li, 2]
+    return r, g, b
+
+
+@njit(cache=True)
 def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays, R: RayConfig, sph_c,
-          gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
+          hall, hall_ks, hall_n, hall_t, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
           shadows, light_samples, seed, pixel, sample, spp, stack_f, stack_i, counts, cut_w):
     """Radiance (r, g, b) of one eye ray: whitted's ray tree plus sampled glossy bounces."""
     ns = A.sph_radius.shape[0]
@@ -210,6 +291,11 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
         t, prim, b1, b2 = hit(R, rox, roy, roz, rdx, rdy, rdz, t0, t1)
         if prim < 0:
             continue
+        if hall and kind == RAY_TRANSMISSION and hall_t < 1.0:
+            att = hall_t ** t             # Hall's T_t^Δ: transmissivity per unit length ^ distance
+            wr *= att
+            wg *= att
+            wb *= att
         shape = A.prim_shape[prim]
         px, py, pz = refine(R, prim, rox + t * rdx, roy + t * rdy, roz + t * rdz)
         gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, sph_c, A.sph_radius,
@@ -222,6 +308,13 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             b += wb * A.shape_emit[shape, 2]
         mat = A.shape_material[shape]
         mkind = S.kind[mat]
+
+        if hall and (mkind == MAT_DIELECTRIC or mkind == MAT_CONDUCTOR):
+            hr, hg, hb = _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz,
+                                          vx, vy, vz, hall_ks, hall_n, shadows, counts)
+            r += wr * hr
+            g += wg * hg
+            b += wb * hb
 
         if mkind == MAT_DIELECTRIC:
             eta = S.diel_eta[mat]
@@ -349,7 +442,7 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
 
 
 @njit(cache=True)
-def _radiance(cam, A, S, R, M: Motion, cen, cen64, fx, fy, sample, spp, gmodel, max_depth,
+def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, fx, fy, sample, spp, gmodel, max_depth,
               hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
               seed, pixel, stack_f, stack_i, counts, cut_w):
     """Radiance of the pixel sample number ``sample`` at film position (fx, fy).
@@ -373,7 +466,8 @@ def _radiance(cam, A, S, R, M: Motion, cen, cen64, fx, fy, sample, spp, gmodel, 
                 cen64[i, c] = p
                 cen[i, c] = p
     Rt = RayConfig(R.form, R.strategy, R.eps, R.shrink_point, R.shrink_area, cen, R.sph_radius, R.tri_v)
-    return _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, Rt, cen64, gmodel, max_depth, hall_threshold,
+    return _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, Rt, cen64, HL[0] > 0.0, HL[1], HL[2], HL[3], gmodel,
+                 max_depth, hall_threshold,
                  ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
                  pixel, sample, spp, stack_f, stack_i, counts, cut_w)
 
@@ -389,7 +483,7 @@ def _store(rec, i, fx, fy, w, r, g, b):
 
 
 @njit(cache=True)
-def _pixel(cam, A, S, R, M, x, y, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
+def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
            tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
            fclamp, shadows, light_samples, seed, rec, counts):
     """One pixel's sample records ``rec[:n] = (x, y, weight, r, g, b)``; returns n."""
@@ -416,7 +510,7 @@ def _pixel(cam, A, S, R, M, x, y, sampler, spp, jitter_gauss, gamma, sigma, thre
         pos[3, 0], pos[3, 1] = 1.0, 1.0
         pos[4, 0], pos[4, 1] = 0.5, 0.5
         for i in range(5):
-            rr, gg, bb = _radiance(cam, A, S, R, M, cen, cen64, x + pos[i, 0], y + pos[i, 1], i, cap, gmodel,
+            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pos[i, 0], y + pos[i, 1], i, cap, gmodel,
                                    max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
                                    fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
                                    counts, cut_w)
@@ -436,7 +530,7 @@ def _pixel(cam, A, S, R, M, x, y, sampler, spp, jitter_gauss, gamma, sigma, thre
                 adaptive_children(x0, y0, size, pts)
                 for q in range(8):
                     pos[n + q, 0], pos[n + q, 1] = pts[q, 0], pts[q, 1]
-                    rr, gg, bb = _radiance(cam, A, S, R, M, cen, cen64, x + pts[q, 0], y + pts[q, 1], n + q, cap,
+                    rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pts[q, 0], y + pts[q, 1], n + q, cap,
                                            gmodel, max_depth, hall_threshold, ka, ambient, ks,
                                            shininess, c1, c2, c3, fclamp, shadows, light_samples,
                                            seed, pixel, stack_f, stack_i, counts, cut_w)
@@ -485,7 +579,7 @@ def _pixel(cam, A, S, R, M, x, y, sampler, spp, jitter_gauss, gamma, sigma, thre
             else:
                 fx = uniform(seed + _STREAM, pixel, n, 6)
                 fy = uniform(seed + _STREAM, pixel, n, 7)
-            rr, gg, bb = _radiance(cam, A, S, R, M, cen, cen64, x + fx, y + fy, n, cap, gmodel, max_depth,
+            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + fx, y + fy, n, cap, gmodel, max_depth,
                                    hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
                                    shadows, light_samples, seed, pixel, stack_f, stack_i, counts,
                                    cut_w)
@@ -517,7 +611,7 @@ def _pixel(cam, A, S, R, M, x, y, sampler, spp, jitter_gauss, gamma, sigma, thre
     else:
         n, _r = poisson_disk_pattern(spp, seed, pixel, pts)
     for s in range(n):
-        rr, gg, bb = _radiance(cam, A, S, R, M, cen, cen64, x + pts[s, 0], y + pts[s, 1], s, n, gmodel, max_depth,
+        rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pts[s, 0], y + pts[s, 1], s, n, gmodel, max_depth,
                                hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
                                shadows, light_samples, seed, pixel, stack_f, stack_i, counts, cut_w)
         _store(rec, s, x + pts[s, 0], y + pts[s, 1], 1.0, rr, gg, bb)
@@ -525,12 +619,12 @@ def _pixel(cam, A, S, R, M, x, y, sampler, spp, jitter_gauss, gamma, sigma, thre
 
 
 @njit(parallel=True, cache=True)
-def _render_kernel(cam, A, S, R, M, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
+def _render_kernel(cam, A, S, R, M, HL, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
                    tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1,
                    c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts):
     W, H = int(cam[14]), int(cam[15])
     for pixel in prange(W * H):
-        nrec[pixel] = _pixel(cam, A, S, R, M, pixel % W, pixel // W, sampler, spp, jitter_gauss, gamma,
+        nrec[pixel] = _pixel(cam, A, S, R, M, HL, pixel % W, pixel // W, sampler, spp, jitter_gauss, gamma,
                              sigma, threshold, adaptive_depth, tolerance, z, gmodel, max_depth,
                              hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
                              light_samples, seed, recs[pixel], counts[pixel])
@@ -569,6 +663,8 @@ def _check(p: dict) -> None:
         raise ValueError(f"{name}: hall_threshold must be >= 0, got {p['hall_threshold']}")
     if p["light_samples"] < 0:
         raise ValueError(f"{name}: light_samples must be >= 0")
+    if not 0.0 < p["hall_t"] <= 1.0 or p["hall_ks"] < 0.0 or p["hall_n"] < 0.0:
+        raise ValueError(f"{name}: Hall needs 0 < hall_t <= 1, hall_ks >= 0, hall_n >= 0")
 
 
 def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
@@ -591,7 +687,9 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     R = ray_config(A, params, algorithm="distributed")
     z = float(norm.ppf(0.5 * (1.0 + params["confidence"])))
     M = motion_arrays(scene, A)
-    _render_kernel(cam, A, S, R, M, sampler, spp, params["jitter"] == "gaussian", float(params["gamma"]),
+    HL = np.array([1.0 if params["shading"] == "hall" else 0.0, params["hall_ks"], params["hall_n"],
+                   params["hall_t"]])
+    _render_kernel(cam, A, S, R, M, HL, sampler, spp, params["jitter"] == "gaussian", float(params["gamma"]),
                    float(params["sigma"]), float(params["threshold"]), int(params["adaptive_depth"]),
                    float(params["tolerance"]), z, G_MODELS[params["g"]], params["max_depth"],
                    float(params["hall_threshold"]), params["ka"], params["ambient"], params["ks"],
@@ -627,8 +725,12 @@ ALGORITHM = register(Algorithm(
         Param("rfilter", str, "film", "reconstruction filter (film = the scene film's rfilter)",
               choices=("film", "box", "gaussian")),
         Param("g", str, "smith", "microfacet masking-shadowing G", choices=tuple(G_MODELS)),
-        Param("shading", str, "cook-torrance", "shading model of the glossy surfaces",
-              choices=("cook-torrance",)),
+        Param("shading", str, "cook-torrance", "cook-torrance (microfacet BSDFs, Mitsuba's model) or "
+              "hall (adds Hall's light-source highlights at specular surfaces and T^Δ)",
+              choices=("cook-torrance", "hall")),
+        Param("hall_ks", float, 1.0, "Hall: k_sr = k_st, weight of the light-source highlights"),
+        Param("hall_n", float, 50.0, "Hall: highlight exponent n = n'"),
+        Param("hall_t", float, 1.0, "Hall: transmissivity per unit length T_t of transmitted rays"),
         Param("max_depth", int, 10, "deepest ray of a tree branch (eye ray = 1)"),
         Param("hall_threshold", float, 1e-5, "cut a branch whose weight (every RGB channel) is below this"),
         Param("light_samples", int, 1, "shadow rays per area emitter per diffuse hit"),
