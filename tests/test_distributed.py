@@ -170,7 +170,7 @@ def test_motion_blur_matches_the_mean_of_mitsuba_renders_over_the_shutter():
 
     from references.motion_blur import motion_reference
 
-    path = SUITES / "distributed/motion.xml"
+    path = SUITES / "distributed/motion/moving_sphere.xml"
     ref = motion_reference(path, times=64, spp=64, render=False)
     scene = load_scene(path)
     own = DIST.render(scene, DIST.parse_params({"spp": 256, "light_samples": 1}), seed=1)
@@ -188,7 +188,7 @@ def test_motion_syntax_is_stripped_for_mitsuba_and_checked_by_the_loader(tmp_pat
     from gibench.loader import SceneError
     from references.motion_blur import scene_at_time
 
-    path = SUITES / "distributed/motion.xml"
+    path = SUITES / "distributed/motion/moving_sphere.xml"
     xml = scene_at_time(path, 0.5)
     assert "gibench_velocity" not in xml and 'value="-0.6, 0.75, 0.0"' in xml
     ball = [s for s in load_scene(path).shapes if s.name == "ball"][0]
