@@ -51,7 +51,8 @@ as a model error (suites/distributed.toml).
 Glossy surfaces receive light only along their sampled rays (an area emitter
 hit by the continuing ray adds its emission); delta lights do not light them.
 With ``g=smith`` this is what the matched reference
-(:mod:`references.whitted_integrator` with ``glossy="follow"``) computes.
+(:mod:`references.whitted_integrator`, which follows glossy lobes by
+``bsdf.sample``) computes.
 
 Pixel samplers (``sampler``)
 ----------------------------
