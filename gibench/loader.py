@@ -19,7 +19,11 @@ default          ``name``/``value``; ``$name`` is substituted in every attribute
                  Mitsuba's ``-D name=value`` and ``mi.load_file(path, name=value)``)
 integrator       any type (read for the reference's transport; own algorithms ignore it)
 sensor           ``perspective``: fov, fov_axis, near_clip, far_clip, to_world
-                 (focus_distance is accepted and ignored: a pinhole has no focus)
+                 (focus_distance is accepted and ignored: a pinhole has no focus);
+                 ``thinlens``: the same plus aperture_radius (required, as in
+                 Mitsuba) and focus_distance (default far_clip);
+                 ``orthographic``: near_clip, far_clip, to_world; every sensor:
+                 shutter_open, shutter_close
 film             ``hdrfilm``: width, height, rfilter, pixel_format, component_format
 rfilter          ``box``, ``gaussian`` (stddev)
 sampler          any type: sample_count (seed, jitter accepted)
@@ -38,7 +42,10 @@ values           rgb, float, integer, boolean, string, point, vector, ref / id;
                  RGB where an RGB value is read (as Mitsuba's RGB variants do)
                  and kept as a spectrum for spectral rendering (material
                  ``params``, ``Shape.emitter_spectrum``)
-shape            sphere (center/radius or to_world), rectangle, cube, obj, ply,
+shape            sphere (center/radius or to_world; gibench's own
+                 ``<vector name="gibench_velocity">`` makes it move linearly,
+                 centre(τ) = center + velocity·τ over the sensor's shutter — see
+                 references/motion_blur.py), rectangle, cube, obj, ply,
                  disk, cylinder (p0, p1, radius; both tessellated, see
                  :mod:`gibench.meshes`), flip_normals, face_normals
 bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric, twosided
@@ -78,7 +85,7 @@ SUPPORTED = {
     "shape": ("sphere", "rectangle", "cube", "disk", "cylinder", "obj", "ply"),
     "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric", "twosided"),
     "emitter": ("point", "directional", "spot", "area", "constant"),
-    "sensor": ("perspective",),
+    "sensor": ("perspective", "thinlens", "orthographic"),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian"),
     "texture": ("checkerboard", "bitmap"),
@@ -100,11 +107,15 @@ _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "poin
 
 # Properties each plugin accepts: name -> what the own algorithms do with it.
 _PROPS = {
-    ("sensor", "perspective"): {"fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance"},
+    ("sensor", "perspective"): {"fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance",
+                                "shutter_open", "shutter_close"},
+    ("sensor", "thinlens"): {"fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance",
+                             "aperture_radius", "shutter_open", "shutter_close"},
+    ("sensor", "orthographic"): {"near_clip", "far_clip", "to_world", "shutter_open", "shutter_close"},
     ("film", "hdrfilm"): {"width", "height", "pixel_format", "component_format"},
     ("rfilter", "box"): set(),
     ("rfilter", "gaussian"): {"stddev"},
-    ("shape", "sphere"): {"center", "radius", "to_world", "flip_normals"},
+    ("shape", "sphere"): {"center", "radius", "to_world", "flip_normals", "gibench_velocity"},
     ("shape", "rectangle"): {"to_world", "flip_normals"},
     ("shape", "cube"): {"to_world", "flip_normals"},
     ("shape", "disk"): {"to_world", "flip_normals"},
@@ -533,9 +544,11 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
         s = tf.uniform_scale_factor(m)
         if s is None:
             raise ctx.error(el, "sphere to_world must be a similarity transform (uniform scale)")
+        velocity = _velocity(ctx, el, p)
         return Shape(kind="sphere", material=mat, name=name, source="sphere",
                      center=tf.transform_points(m, center), radius=radius * s,
-                     flip_normals=flip, emitter_radiance=emit, emitter_spectrum=emit_spectrum)
+                     flip_normals=flip, emitter_radiance=emit, emitter_spectrum=emit_spectrum,
+                     velocity=velocity)
     uvs = None
     if p.type in ("disk", "cylinder"):
         v, f, n, m = _analytic_mesh(ctx, p, m)
@@ -606,6 +619,23 @@ def _environment(ctx, el) -> np.ndarray:
     return _rgb(ctx, p, "radiance", 1.0)
 
 
+def _velocity(ctx, el, p):
+    """A moving sphere's ``<vector name="gibench_velocity">`` (world units per unit of
+    shutter time; gibench-only: references/motion_blur.py strips it before Mitsuba
+    reads the file and moves ``center`` instead, so the sphere must give ``center``
+    and no ``to_world``)."""
+    v = p.get("gibench_velocity")
+    if v is None:
+        return None
+    if "to_world" in p.props or "center" not in p.props:
+        raise ctx.error(el, "a moving sphere (gibench_velocity) needs a 'center' point and no "
+                            "'to_world' (its reference moves the center)")
+    v = np.asarray(v, dtype=np.float64).reshape(-1)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ctx.error(el, f"gibench_velocity must be a finite vector, got {v.tolist()}")
+    return v
+
+
 def _light(ctx, el) -> Light:
     p = _Plugin(ctx, el, "emitter")
     p.unexpected_children(())
@@ -649,14 +679,32 @@ def _camera(ctx, el) -> Camera:
     for s in p.child_elements("sampler"):
         sp = _Plugin(ctx, s, "sampler")
         spp = int(sp.get("sample_count", 4))
+    near, far = float(p.get("near_clip", 1e-2)), float(p.get("far_clip", 1e4))
+    if not 0.0 < near < far:
+        raise ctx.error(el, f"need 0 < near_clip < far_clip, got near_clip={near}, far_clip={far}")
+    s_open, s_close = float(p.get("shutter_open", 0.0)), float(p.get("shutter_close", 0.0))
+    if s_close < s_open:
+        raise ctx.error(el, f"shutter_close ({s_close}) must not be before shutter_open ({s_open})")
+    common = dict(to_world=p.get("to_world", np.eye(4)), near_clip=near, far_clip=far, film=film,
+                  sample_count=spp, kind=p.type, shutter_open=s_open, shutter_close=s_close)
+    if p.type == "orthographic":
+        return Camera(**common)
     axis = p.get("fov_axis", "x")
     if axis not in ("x", "y", "diagonal", "smaller", "larger"):
         raise ctx.error(el, f"unknown fov_axis '{axis}' (x, y, diagonal, smaller, larger)")
     if "fov" not in p.props:
-        raise ctx.error(el, "perspective sensor needs 'fov' (focal_length is not supported)")
-    return Camera(to_world=p.get("to_world", np.eye(4)), fov=float(p.get("fov")), fov_axis=axis,
-                  near_clip=float(p.get("near_clip", 1e-2)), far_clip=float(p.get("far_clip", 1e4)),
-                  film=film, sample_count=spp)
+        raise ctx.error(el, f"{p.type} sensor needs 'fov' (focal_length is not supported)")
+    lens = {}
+    if p.type == "thinlens":
+        if "aperture_radius" not in p.props:
+            raise ctx.error(el, "thinlens sensor needs 'aperture_radius'")
+        radius = float(p.get("aperture_radius"))
+        focus = float(p.get("focus_distance", far))
+        if radius < 0.0 or not focus > 0.0:
+            raise ctx.error(el, f"thinlens needs aperture_radius >= 0 and focus_distance > 0, "
+                                f"got {radius} and {focus}")
+        lens = dict(aperture_radius=radius, focus_distance=focus)
+    return Camera(fov=float(p.get("fov")), fov_axis=axis, **common, **lens)
 
 
 def _integrator(ctx, el) -> dict:

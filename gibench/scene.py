@@ -95,7 +95,14 @@ class Film:
 
 @dataclass(frozen=True)
 class Camera:
-    """Perspective pinhole camera (Mitsuba ``perspective``)."""
+    """The sensor: Mitsuba's ``perspective`` (pinhole), ``thinlens`` or ``orthographic``.
+
+    ``thinlens`` adds a lens of ``aperture_radius`` focused at
+    ``focus_distance`` (both in scene units, along the camera's +z);
+    ``orthographic`` ignores ``fov``: its view spans camera-space
+    x ∈ [−1, 1], y ∈ [−1/aspect, 1/aspect], scaled by ``to_world``.
+    ``shutter_open``/``shutter_close`` bound the ray times (motion blur).
+    """
 
     to_world: np.ndarray               # 4x4 camera-to-world; camera +z forward, +y up, +x left
     fov: float = 90.0                  # degrees, along ``fov_axis``
@@ -104,6 +111,11 @@ class Camera:
     far_clip: float = 1e4
     film: Film = field(default_factory=Film)
     sample_count: int = 4              # the scene's sampler sample_count
+    kind: str = "perspective"          # perspective | thinlens | orthographic
+    aperture_radius: float = 0.0       # thinlens
+    focus_distance: float = 1e4        # thinlens (Mitsuba's default: far_clip)
+    shutter_open: float = 0.0
+    shutter_close: float = 0.0
 
     @property
     def origin(self) -> np.ndarray:
@@ -127,7 +139,7 @@ class Camera:
         return float(t * aspect / np.hypot(aspect, 1.0))
 
     def __repr__(self) -> str:
-        return (f"Camera(origin={np.round(self.origin, 4).tolist()}, fov={self.fov} ({self.fov_axis}), "
+        return (f"Camera({self.kind}, origin={np.round(self.origin, 4).tolist()}, fov={self.fov} ({self.fov_axis}), "
                 f"film={self.film.width}x{self.film.height}, spp={self.sample_count})")
 
 
@@ -175,6 +187,7 @@ class Shape:
     flip_normals: bool = False
     emitter_radiance: np.ndarray | None = None  # RGB radiance of an area emitter, or None
     emitter_spectrum: Spectrum | None = None    # its spectrum, when the file gives one
+    velocity: np.ndarray | None = None  # sphere moving linearly: centre(τ) = center + velocity·τ
 
     @property
     def is_emitter(self) -> bool:

@@ -41,6 +41,7 @@ _source_keyed_cache_dir()
 
 from . import raycast  # noqa: E402,F401  (registers 'raycast')
 from . import whitted  # noqa: E402,F401  (registers 'whitted')
+from . import distributed  # noqa: E402,F401  (registers 'distributed')
 from . import radiosity  # noqa: E402,F401  (registers 'radiosity')
 from . import zbuffer  # noqa: E402,F401  (registers 'zbuffer')
 from . import depth_sort  # noqa: E402,F401  (registers 'depthsort')

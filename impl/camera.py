@@ -1,11 +1,26 @@
-"""Eye rays of the pinhole camera (thesis 1.3.3: "a ray from the centre of
-projection through the centre of each pixel"), with Mitsuba's conventions.
+"""Eye rays of the sensors, with Mitsuba's conventions: the pinhole camera
+(thesis 1.3.3: "a ray from the centre of projection through the centre of each
+pixel"), the thin lens of depth of field (thesis 2.5.5; R. L. Cook, T. Porter,
+L. Carpenter, "Distributed ray tracing", SIGGRAPH 1984; Mitsuba ``thinlens``)
+and the orthographic camera (Mitsuba ``orthographic``).
 
 Film coordinates (u, v) ∈ [0, 1]² run right and down; the camera frame has +z
-forward, +y up and +x to the *left*, so the camera-space direction is
-``((1 − 2u)·tx, (1 − 2v)·tx / aspect, 1)`` with tx = tan(fov_x / 2).  As in
-Mitsuba's ``perspective`` sensor, the ray's valid range starts at the near
-clip plane and ends at the far one: t ∈ [near / d_z, far / d_z].
+forward, +y up and +x to the *left*.
+
+* ``perspective``: the camera-space direction is
+  ``((1 − 2u)·tx, (1 − 2v)·tx / aspect, 1)`` with tx = tan(fov_x / 2), from the
+  camera origin; as in Mitsuba the ray's valid range starts at the near clip
+  plane and ends at the far one: t ∈ [near / d_z, far / d_z].
+* ``thinlens``: the pinhole direction's point at depth ``focus_distance``,
+  ``f = focus_distance · ((1 − 2u)·tx, (1 − 2v)·tx / aspect, 1)``, is in focus;
+  the ray starts at a point ``a`` of the lens disk of radius
+  ``aperture_radius`` (camera plane z = 0, Shirley–Chiu concentric map of two
+  uniforms) and goes towards f: ``d = normalise(f − a)``, t ∈ [near/d_z,
+  far/d_z] (Mitsuba's ``thinlens::sample_ray``).
+* ``orthographic``: the ray starts at camera-space
+  ``((1 − 2u), (1 − 2v)/aspect, near)`` and runs along +z (both through
+  ``to_world``, so its scale sets the view size), t ∈ [0, far − near]
+  (Mitsuba's ``orthographic::sample_ray``).
 """
 
 import math
@@ -15,26 +30,60 @@ from numba import njit
 
 from gibench.scene import Camera
 
-__all__ = ["camera_params", "eye_ray"]
+__all__ = ["camera_params", "eye_ray", "eye_ray_lens", "concentric_disk", "SENSOR_CODES",
+           "SENSOR_PERSPECTIVE", "SENSOR_THINLENS", "SENSOR_ORTHOGRAPHIC"]
+
+SENSOR_PERSPECTIVE, SENSOR_THINLENS, SENSOR_ORTHOGRAPHIC = 0, 1, 2
+SENSOR_CODES = {"perspective": SENSOR_PERSPECTIVE, "thinlens": SENSOR_THINLENS,
+                "orthographic": SENSOR_ORTHOGRAPHIC}
 
 
-def camera_params(camera: Camera) -> np.ndarray:
-    """Pack a camera into the float64 vector that :func:`eye_ray` reads."""
+def camera_params(camera: Camera, *, lens: bool = False) -> np.ndarray:
+    """Pack a camera into the float64 vector that :func:`eye_ray` reads.
+
+    Layout: 0–11 the to_world columns (x, y, z axes, origin), 12 tan(fov_x/2),
+    13 aspect, 14 width, 15 height, 16 near_clip, 17 far_clip, 18 sensor code,
+    19 aperture_radius, 20 focus_distance.
+
+    Raises
+    ------
+    NotImplementedError
+        A ``thinlens`` camera when the caller traces pinhole rays only
+        (``lens=False``: it calls :func:`eye_ray`, which has no lens samples).
+    """
+    if camera.kind not in SENSOR_CODES:
+        raise NotImplementedError(f"camera_params: unknown sensor '{camera.kind}' "
+                                  f"(known: {', '.join(SENSOR_CODES)})")
+    if camera.kind == "thinlens" and not lens:
+        raise NotImplementedError(
+            "camera_params: a 'thinlens' sensor (depth of field) is modelled only by the "
+            "'distributed' ray tracer; use a 'perspective' sensor with this algorithm")
     m = camera.to_world
     f = camera.film
+    tx = camera.tan_half_fov_x if camera.kind != "orthographic" else 1.0
     return np.array([*m[:3, 0], *m[:3, 1], *m[:3, 2], *m[:3, 3],
-                     camera.tan_half_fov_x, f.aspect, f.width, f.height,
-                     camera.near_clip, camera.far_clip], dtype=np.float64)
+                     tx, f.aspect, f.width, f.height,
+                     camera.near_clip, camera.far_clip, SENSOR_CODES[camera.kind],
+                     camera.aperture_radius, camera.focus_distance], dtype=np.float64)
 
 
 @njit(inline="always", cache=True)
 def eye_ray(cam, px, py):
-    """World-space eye ray through film position (px, py) in pixels.
+    """World-space eye ray through film position (px, py) in pixels (pinhole or orthographic).
 
     Returns ``(ox, oy, oz, dx, dy, dz, tmin, tmax, dz_camera)``.
     """
     u = px / cam[14]
     v = py / cam[15]
+    if cam[18] == SENSOR_ORTHOGRAPHIC:
+        x = 1.0 - 2.0 * u
+        y = (1.0 - 2.0 * v) / cam[13]
+        z = cam[16]
+        ox = cam[0] * x + cam[3] * y + cam[6] * z + cam[9]
+        oy = cam[1] * x + cam[4] * y + cam[7] * z + cam[10]
+        oz = cam[2] * x + cam[5] * y + cam[8] * z + cam[11]
+        inv = 1.0 / math.sqrt(cam[6] * cam[6] + cam[7] * cam[7] + cam[8] * cam[8])
+        return ox, oy, oz, cam[6] * inv, cam[7] * inv, cam[8] * inv, 0.0, cam[17] - cam[16], 1.0
     cx = (1.0 - 2.0 * u) * cam[12]
     cy = (1.0 - 2.0 * v) * cam[12] / cam[13]
     inv = 1.0 / math.sqrt(cx * cx + cy * cy + 1.0)
@@ -45,3 +94,46 @@ def eye_ray(cam, px, py):
     dy = cam[1] * cx + cam[4] * cy + cam[7] * cz
     dz = cam[2] * cx + cam[5] * cy + cam[8] * cz
     return cam[9], cam[10], cam[11], dx, dy, dz, cam[16] / cz, cam[17] / cz, cz
+
+
+@njit(inline="always", cache=True)
+def concentric_disk(u1, u2):
+    """Shirley–Chiu concentric map of [0, 1)² onto the unit disk (uniform by area)."""
+    a = 2.0 * u1 - 1.0
+    b = 2.0 * u2 - 1.0
+    if a == 0.0 and b == 0.0:
+        return 0.0, 0.0
+    if abs(a) > abs(b):
+        r = a
+        phi = (math.pi / 4.0) * (b / a)
+    else:
+        r = b
+        phi = math.pi / 2.0 - (math.pi / 4.0) * (a / b)
+    return r * math.cos(phi), r * math.sin(phi)
+
+
+@njit(inline="always", cache=True)
+def eye_ray_lens(cam, px, py, u1, u2):
+    """:func:`eye_ray`, through the lens point of (u1, u2) for a ``thinlens`` sensor."""
+    if cam[18] != SENSOR_THINLENS:
+        return eye_ray(cam, px, py)
+    u = px / cam[14]
+    v = py / cam[15]
+    fd = cam[20]
+    fx = (1.0 - 2.0 * u) * cam[12] * fd
+    fy = (1.0 - 2.0 * v) * cam[12] / cam[13] * fd
+    ax, ay = concentric_disk(u1, u2)
+    ax *= cam[19]
+    ay *= cam[19]
+    cx, cy, cz = fx - ax, fy - ay, fd
+    inv = 1.0 / math.sqrt(cx * cx + cy * cy + cz * cz)
+    cx *= inv
+    cy *= inv
+    cz *= inv
+    ox = cam[0] * ax + cam[3] * ay + cam[9]
+    oy = cam[1] * ax + cam[4] * ay + cam[10]
+    oz = cam[2] * ax + cam[5] * ay + cam[11]
+    dx = cam[0] * cx + cam[3] * cy + cam[6] * cz
+    dy = cam[1] * cx + cam[4] * cy + cam[7] * cz
+    dz = cam[2] * cx + cam[5] * cy + cam[8] * cz
+    return ox, oy, oz, dx, dy, dz, cam[16] / cz, cam[17] / cz, cz

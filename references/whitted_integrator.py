@@ -4,8 +4,8 @@ Whitted-style transport (:mod:`impl.whitted`) computed with Mitsuba's own
 ray intersection, BSDFs and emitters, so that it checks the own ray tracer
 independently of its intersection, Fresnel and lighting code:
 
-* follow *delta* BSDF bounces (smooth ``conductor``, ``dielectric``) by
-  ``bsdf.sample``.  Where the own tracer *splits* a ray at a dielectric into
+* follow *delta* BSDF bounces (smooth ``conductor``, ``dielectric``) — and
+  *glossy* ones (see below) — by ``bsdf.sample``.  Where the own tracer *splits* a ray at a dielectric into
   a reflected and a transmitted branch, this reference follows one of them at
   random, so it estimates the expectation of the own deterministic tree (and
   is noisier: its variance is stored with it).  ``lobe_choice`` picks how:
@@ -46,8 +46,13 @@ lobe_choice    string   ``uniform`` or ``fresnel`` (see above)        uniform
 hide_emitters  boolean  hide emitters seen directly by eye rays      false
 =============  =======  ==========================================  =======
 
-Leaves out what ``whitted`` leaves out: indirect diffuse light, caustics,
-glossy BSDFs (a rough BSDF is treated as non-delta: direct light only), media.
+Glossy BSDFs (``roughconductor``, ``roughdielectric``) continue the chain like
+delta ones, by ``bsdf.sample`` (the rough dielectric's two lobes by the same
+``lobe_choice``): that is what the own ``distributed`` tracer computes at a
+glossy hit (one sampled direction, no light sampling there).  The own
+``whitted`` refuses rough BSDFs, so its references are unchanged.
+
+Leaves out what ``whitted`` leaves out: indirect diffuse light, caustics, media.
 """
 
 from __future__ import annotations
@@ -113,7 +118,9 @@ def _make_class():
             depth = depth + 1
 
             bsdf = si.bsdf(ray)
-            delta = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Delta)
+            # Delta and glossy (rough) BSDFs continue the chain; diffuse ones end it.
+            delta = (mi.has_flag(bsdf.flags(), mi.BSDFFlags.Delta)
+                     | mi.has_flag(bsdf.flags(), mi.BSDFFlags.Glossy))
 
             # First non-delta hit: direct light from every emitter, then stop.
             lit = active & neg(delta)
@@ -142,10 +149,13 @@ def _make_class():
             if self.lobe_choice == "fresnel":
                 bs, weight = bsdf.sample(ctx, si, u1, u2, go)
                 return bs.wo, weight
-            # Two delta lobes (a dielectric): follow each with probability 1/2.
+            # Two lobes (a dielectric, smooth or rough): follow each with probability 1/2.
             flags = bsdf.flags()
-            split = (go & mi.has_flag(flags, mi.BSDFFlags.DeltaReflection)
-                     & mi.has_flag(flags, mi.BSDFFlags.DeltaTransmission))
+            F = mi.BSDFFlags
+            refl = F.DeltaReflection | F.GlossyReflection
+            trans = F.DeltaTransmission | F.GlossyTransmission
+            split = (go & (mi.has_flag(flags, F.DeltaReflection) | mi.has_flag(flags, F.GlossyReflection))
+                     & (mi.has_flag(flags, F.DeltaTransmission) | mi.has_flag(flags, F.GlossyTransmission)))
             pick_t = split & (u1 >= 0.5)
             pick_r = split & neg(pick_t)
             single = go & neg(split)
@@ -157,12 +167,12 @@ def _make_class():
                 wo = dr.select(single, bs.wo, wo)
                 weight = dr.select(single, w, weight)
             if jit or pick_r:
-                ctx_r = mi.BSDFContext(mode, mi.BSDFFlags.DeltaReflection)
+                ctx_r = mi.BSDFContext(mode, refl)
                 bs, w = bsdf.sample(ctx_r, si, u1, u2, pick_r)
                 wo = dr.select(pick_r, bs.wo, wo)
                 weight = dr.select(pick_r, 2.0 * w, weight)
             if jit or pick_t:
-                ctx_t = mi.BSDFContext(mode, mi.BSDFFlags.DeltaTransmission)
+                ctx_t = mi.BSDFContext(mode, trans)
                 bs, w = bsdf.sample(ctx_t, si, u1, u2, pick_t)
                 wo = dr.select(pick_t, bs.wo, wo)
                 weight = dr.select(pick_t, 2.0 * w, weight)

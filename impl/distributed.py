@@ -1,0 +1,743 @@
+"""Distributed ray tracing — registered as ``distributed``.
+
+The Whitted ray tracer (:mod:`impl.whitted`) with the distributed effects of
+R. L. Cook, T. Porter, L. Carpenter, "Distributed ray tracing", SIGGRAPH 1984
+(:doi:`10.1145/800031.808590`), as thesis 2.5.5–2.5.9 describes them, and the
+anti-aliasing samplers of 2.5.1–2.5.4 (:mod:`impl.samplers`) with box or
+Gaussian reconstruction (:mod:`impl.filters`).  Each pixel sample carries its
+own random numbers for every other dimension of the pixel integral — lens
+position, shutter time, light point, glossy direction — so one ray tree per
+sample distributes the rays over all of them at once (2.5.8).
+
+What it computes
+----------------
+Per sample, the ray tree of ``whitted`` (delta ``conductor`` and smooth
+``dielectric`` split deterministically, Fresnel-weighted; Hall's adaptive
+depth; emission of area emitters met by any ray; direct light at the first
+diffuse hit of a branch, ``light_samples`` shadow rays per area emitter, each
+at a point drawn uniformly over the emitter's area — the *penumbra* of 2.5.6),
+plus:
+
+* **gloss** — at a ``roughconductor`` the branch continues along *one*
+  reflected direction sampled from the Cook–Torrance/Walter microfacet BSDF
+  (:mod:`impl.microfacet`: Beckmann D, G = Smith (default) or the thesis's
+  V-cavity, ``g=smith|vcavity``), weighted f·cos/pdf × conductor Fresnel ×
+  ``specular_reflectance``; visible-normal or D·cos sampling per the
+  material's ``sample_visible``;
+* **translucency** — at a ``roughdielectric`` one sampled direction,
+  reflected with probability F(wi·m) else refracted (Mitsuba's lobe choice),
+  weight f·|cos|/pdf (radiance scaling η² on transmission) ×
+  ``specular_reflectance``/``specular_transmittance``;
+* **depth of field** — eye rays of a ``thinlens`` sensor start on the lens
+  disk (:func:`impl.camera.eye_ray_lens`);
+* **motion blur** (2.5.7) — every sample has its own time τ, uniform over
+  the sensor's shutter [``shutter_open``, ``shutter_close``]; spheres with a
+  ``gibench_velocity`` sit at ``center + velocity·τ`` for that sample's eye
+  ray and every ray of its tree, shadow rays included (so shadows blur too);
+* the thesis's Cook–Torrance terms with the V-cavity G are an option
+  (``g=vcavity``); the difference from Smith (what Mitsuba uses) is a model
+  difference, reported, not tested against Mitsuba.
+
+``shading=hall`` — Hall's shading model (thesis 2.4.5.5; Hall & Greenberg
+1983, Fig. 2.20): at every *specular* hit the light-source terms
+``k_sr Σ_j I_j F_sr (N·H_j)^n`` (lights on the viewer's side, shadow-tested)
+and ``k_st Σ_j I_j F_st (N·H'_j)^n'`` (lights behind a dielectric), from delta
+lights; the reflected/transmitted rays as before, the transmitted ones
+attenuated by ``T_t^Δ`` over the distance Δ they travel; diffuse and ambient
+terms as ``whitted``'s.  Not physically based (a perfect mirror has no
+highlight from a point light): its error against full transport is reported
+as a model error (suites/distributed.toml).
+
+Glossy surfaces receive light only along their sampled rays (an area emitter
+hit by the continuing ray adds its emission); delta lights do not light them.
+With ``g=smith`` this is what the matched reference
+(:mod:`references.whitted_integrator`, which follows glossy lobes by
+``bsdf.sample``) computes.
+
+Pixel samplers (``sampler``)
+----------------------------
+``uniform`` k×k sub-pixel centres; ``random``; ``jitter`` (``jitter=white``
+with ``gamma``, or ``jitter=gaussian`` with ``sigma``); ``poisson`` (dart
+throwing); ``adaptive`` (Whitted's corners + centre, recursive subdivision
+while the five samples disagree by more than ``threshold``, depth limit
+``adaptive_depth``, at most ``spp`` radiance samples per pixel); ``statistical``
+(4 stratified samples, then random ones until the ``confidence`` interval of
+the pixel mean is narrower than ±``tolerance`` or ``spp`` samples are spent).
+For the fixed patterns ``spp`` is the number of samples per pixel (a square
+k² for ``uniform`` and ``jitter``); for ``adaptive`` and ``statistical`` it is
+the per-pixel cap, and the counter ``samples`` (÷ pixels = the mean spp
+actually spent) says what was used.
+
+Reconstruction (``rfilter``): ``film`` (default) uses the scene film's
+``rfilter`` — ``box`` or Mitsuba's ``gaussian`` — so the own image estimates
+the reference's pixel values; ``box``/``gaussian`` override it.  The variance
+of each pixel mean (for the Z-test) is the delta-method variance of the
+normalised weighted sum (:mod:`impl.filters`).
+
+Parameters
+----------
+==============  ======  ==============  ==========================================
+name            type    default         meaning
+==============  ======  ==============  ==========================================
+spp             int     16              samples per pixel (cap for adaptive ones)
+sampler         str     jitter          uniform | random | jitter | poisson |
+                                        adaptive | statistical
+jitter          str     white           white (U[−γT, γT]) | gaussian (N(0, σ²T²))
+gamma           float   0.5             white-noise jitter amplitude γ
+sigma           float   0.1538          Gaussian jitter σ (thesis: T/6.5)
+threshold       float   0.02            adaptive: subdivide when a sample differs
+                                        from the five's mean by more than this
+adaptive_depth  int     3               adaptive: deepest subdivision
+tolerance       float   0.01            statistical: CI half-width to reach
+confidence      float   0.95            statistical: CI level
+rfilter         str     film            film | box | gaussian
+g               str     smith           smith | vcavity (masking–shadowing)
+shading         str     cook-torrance   cook-torrance | hall (Hall's model, below)
+hall_ks         float   1               Hall: weight k_sr = k_st of the highlights
+hall_n          float   50              Hall: highlight exponent n = n'
+hall_t          float   1               Hall: transmissivity per unit length T_t
+max_depth       int     10              deepest ray of a branch (eye ray = 1)
+hall_threshold  float   1e-5            cut a branch whose weight is below this
+light_samples   int     1               shadow rays per area emitter per diffuse hit
+(Phong)                                 ka, ambient, ks, shininess, c1–c3, fatt_clamp
+shadows         bool    true            cast shadow rays
+(rays)                                  intersect, precision, offset, epsilon
+==============  ======  ==============  ==========================================
+
+Leaves out: indirect diffuse light and caustics (as ``whitted``), GGX and
+anisotropic roughness, delta lights on glossy surfaces.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit, prange
+
+from gibench.registry import Algorithm, Param, RenderResult, register
+from gibench.scene import Scene
+
+from .camera import camera_params, eye_ray_lens
+from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
+from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
+from .lighting import diffuse_albedo, direct_light_rays, surface
+from .materials import (MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC,
+                        MaterialArrays, material_arrays)
+from .microfacet import G_SMITH, G_VCAVITY, conductor_sample, dielectric_sample
+from .phong import PHONG_PARAMS
+from .rays import PARAMS as RAY_PARAMS
+from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
+from .rng import uniform
+from .samplers import (adaptive_children, adaptive_disagree, gaussian_jitter_pattern, jitter_pattern,
+                       poisson_disk_pattern, random_pattern, statistical_done, uniform_pattern)
+from .scene_arrays import LIGHT_DIRECTIONAL, SceneArrays, flatten
+from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit, _push
+
+__all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS", "Motion", "motion_arrays"]
+
+SAMPLERS = ("uniform", "random", "jitter", "poisson", "adaptive", "statistical")
+SMP_UNIFORM, SMP_RANDOM, SMP_JITTER, SMP_POISSON, SMP_ADAPTIVE, SMP_STATISTICAL = range(6)
+G_MODELS = {"smith": G_SMITH, "vcavity": G_VCAVITY}
+
+#: Per-pixel integer counters, in kernel order (whitted's, then the distributed ones).
+COUNTERS = ("eye_rays", "shadow_rays", "reflection_rays", "transmission_rays", "hall_cuts",
+            "depth_cuts", "tir", "ior_mismatches", "diffuse_hits", "glossy_bounces", "samples")
+(_C_EYE, _C_SHADOW, _C_REFL, _C_TRANS, _C_HALL, _C_DEPTH, _C_TIR, _C_IOR, _C_DIFFUSE, _C_GLOSSY,
+ _C_SAMPLES) = range(11)
+
+#: Seed offset of the tracer's own random stream (lens, time, BSDF samples), apart from the
+#: light samples of :func:`impl.lighting.direct_light_rays` and the pixel patterns.
+_STREAM = 0x2545F491
+_D_LENS, _D_TIME, _D_BSDF = 0, 2, 8  # dimensions of the stream: lens (2), time; bounce k: 8 + 3k ..
+
+
+class Motion(NamedTuple):
+    """Linearly moving spheres (motion blur): centre(τ) = center + velocity·τ."""
+
+    index: np.ndarray       # (K,) sphere index into SceneArrays.sph_*
+    center: np.ndarray      # (K, 3) centre at τ = 0
+    velocity: np.ndarray    # (K, 3) world units per unit time
+    shutter: np.ndarray     # (2,) shutter_open, shutter_close
+
+
+def motion_arrays(scene: Scene, A: SceneArrays) -> Motion:
+    """The moving spheres of ``scene`` (``gibench_velocity``) as kernel arrays."""
+    spheres = [s for s in scene.shapes if s.kind == "sphere"]
+    moving = [(i, s) for i, s in enumerate(spheres) if s.velocity is not None]
+    cam = scene.camera
+    return Motion(index=np.array([i for i, _ in moving], dtype=np.int64),
+                  center=np.array([s.center for _, s in moving], dtype=np.float64).reshape(-1, 3),
+                  velocity=np.array([s.velocity for _, s in moving], dtype=np.float64).reshape(-1, 3),
+                  shutter=np.array([cam.shutter_open, cam.shutter_close], dtype=np.float64))
+
+
+@njit(inline="always", cache=True)
+def _frame(nx, ny, nz):
+    """An orthonormal tangent frame (t, b) of the unit normal n (Duff et al. 2017)."""
+    sign = 1.0 if nz >= 0.0 else -1.0
+    a = -1.0 / (sign + nz)
+    b = nx * ny * a
+    return (1.0 + sign * nx * nx * a, sign * b, -sign * nx,
+            b, sign + ny * ny * a, -ny)
+
+
+@njit(cache=True)
+def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, hall_ks,
+                     hall_n, shadows, counts):
+    """Hall's light-source terms at a specular surface (thesis 2.4.5.5, Fig. 2.20):
+    k_s Σ_j I_j F(V·H_j) (N·H_j)^n for lights on the viewer's side and, at a
+    dielectric, k_s Σ_j I_j (1 − F) |N·H'_j|^n for lights behind the surface, H'_j
+    the refraction half-vector −(η_v V + η_l L) (Walter 2007).  Delta lights only:
+    area emitters already reach specular surfaces along their reflected and
+    transmitted rays.  I_j is the light's intensity / d² (point, spot without its
+    cone) or irradiance (directional); reflection terms cast shadow rays.
+    """
+    r = g = b = 0.0
+    for li in range(A.light_kind.shape[0]):
+        if A.light_kind[li] == LIGHT_DIRECTIONAL:
+            lx, ly, lz = -A.light_dir[li, 0], -A.light_dir[li, 1], -A.light_dir[li, 2]
+            inv_d2 = 1.0
+            dist = np.inf
+        else:
+            lx = A.light_pos[li, 0] - px
+            ly = A.light_pos[li, 1] - py
+            lz = A.light_pos[li, 2] - pz
+            dist = math.sqrt(lx * lx + ly * ly + lz * lz)
+            lx, ly, lz = lx / dist, ly / dist, lz / dist
+            inv_d2 = 1.0 / (dist * dist)
+        cos_l = sx * lx + sy * ly + sz * lz
+        if cos_l > 0.0:
+            hx, hy, hz = lx + vx, ly + vy, lz + vz
+            hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+            hx, hy, hz = hx / hn, hy / hn, hz / hn
+            ndh = sx * hx + sy * hy + sz * hz
+            vdh = vx * hx + vy * hy + vz * hz
+            if ndh <= 0.0:
+                continue
+            if shadows:
+                counts[_C_SHADOW] += 1
+                side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
+                ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+                t1 = (dist * (1.0 - R.shrink_point)) if dist < np.inf else np.inf
+                if occluded(R, ox, oy, oz, lx, ly, lz, t0, t1):
+                    continue
+            spec = hall_ks * ndh ** hall_n * inv_d2
+            if mkind == MAT_DIELECTRIC:
+                F, _, _, _ = fresnel_dielectric(vdh, S.diel_eta[mat])
+                fr = fg = fb = F
+            else:
+                fr = fresnel_conductor(vdh, S.cond_eta[mat, 0], S.cond_k[mat, 0])
+                fg = fresnel_conductor(vdh, S.cond_eta[mat, 1], S.cond_k[mat, 1])
+                fb = fresnel_conductor(vdh, S.cond_eta[mat, 2], S.cond_k[mat, 2])
+            r += spec * fr * S.spec_refl[mat, 0] * A.light_rad[li, 0]
+            g += spec * fg * S.spec_refl[mat, 1] * A.light_rad[li, 1]
+            b += spec * fb * S.spec_refl[mat, 2] * A.light_rad[li, 2]
+        elif mkind == MAT_DIELECTRIC and cos_l < 0.0:
+            outside = sx * vx + sy * vy + sz * vz >= 0.0
+            eta_v = S.diel_ext[mat] if outside else S.diel_int[mat]
+            eta_l = S.diel_int[mat] if outside else S.diel_ext[mat]
+            hx, hy, hz = -(eta_v * vx + eta_l * lx), -(eta_v * vy + eta_l * ly), -(eta_v * vz + eta_l * lz)
+            hn = math.sqrt(hx * hx + hy * hy + hz * hz)
+            if hn == 0.0:
+                continue
+            ndh = abs(sx * hx + sy * hy + sz * hz) / hn
+            F, _, _, _ = fresnel_dielectric(sx * vx + sy * vy + sz * vz, S.diel_eta[mat])
+            spec = hall_ks * ndh ** hall_n * inv_d2 * (1.0 - F)
+            r += spec * S.spec_trans[mat, 0] * A.light_rad[li, 0]
+            g += spec * S.spec_trans[mat, 1] * A.light_rad[li, 1]
+            b += spec * S.spec_trans[mat, 2] * A.light_rad[li, 2]
+    return r, g, b
+
+
+@njit(cache=True)
+def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays, R: RayConfig, sph_c,
+          hall, hall_ks, hall_n, hall_t, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
+          shadows, light_samples, seed, pixel, sample, spp, stack_f, stack_i, counts, cut_w):
+    """Radiance (r, g, b) of one eye ray: whitted's ray tree plus sampled glossy bounces."""
+    ns = A.sph_radius.shape[0]
+    r = g = b = 0.0
+    stack_f[0, 0] = ox
+    stack_f[0, 1] = oy
+    stack_f[0, 2] = oz
+    stack_f[0, 3] = dx
+    stack_f[0, 4] = dy
+    stack_f[0, 5] = dz
+    stack_f[0, 6] = 1.0
+    stack_f[0, 7] = 1.0
+    stack_f[0, 8] = 1.0
+    stack_f[0, 9] = 0.0
+    stack_f[0, 10] = tmin
+    stack_i[0, 0] = 1
+    stack_i[0, 1] = RAY_EYE
+    sp = 1
+    leaf = 0
+    bounce = 0
+    while sp > 0:
+        sp -= 1
+        rox, roy, roz = stack_f[sp, 0], stack_f[sp, 1], stack_f[sp, 2]
+        rdx, rdy, rdz = stack_f[sp, 3], stack_f[sp, 4], stack_f[sp, 5]
+        wr, wg, wb = stack_f[sp, 6], stack_f[sp, 7], stack_f[sp, 8]
+        medium = stack_f[sp, 9]
+        depth = stack_i[sp, 0]
+        kind = stack_i[sp, 1]
+        if kind == RAY_EYE:
+            counts[_C_EYE] += 1
+            t0, t1 = tmin, tmax
+        else:
+            counts[_C_REFL if kind == RAY_REFLECTION else _C_TRANS] += 1
+            t0, t1 = stack_f[sp, 10], np.inf
+        rox, roy, roz, rdx, rdy, rdz = round_ray(R, rox, roy, roz, rdx, rdy, rdz)
+        t, prim, b1, b2 = hit(R, rox, roy, roz, rdx, rdy, rdz, t0, t1)
+        if prim < 0:
+            continue
+        if hall and kind == RAY_TRANSMISSION and hall_t < 1.0:
+            att = hall_t ** t             # Hall's T_t^Δ: transmissivity per unit length ^ distance
+            wr *= att
+            wg *= att
+            wb *= att
+        shape = A.prim_shape[prim]
+        px, py, pz = refine(R, prim, rox + t * rdx, roy + t * rdy, roz + t * rdz)
+        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, sph_c, A.sph_radius,
+                                         A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+        vx, vy, vz = -rdx, -rdy, -rdz
+        cos_v = sx * vx + sy * vy + sz * vz
+        if cos_v > 0.0:
+            r += wr * A.shape_emit[shape, 0]
+            g += wg * A.shape_emit[shape, 1]
+            b += wb * A.shape_emit[shape, 2]
+        mat = A.shape_material[shape]
+        mkind = S.kind[mat]
+
+        if hall and (mkind == MAT_DIELECTRIC or mkind == MAT_CONDUCTOR):
+            hr, hg, hb = _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz,
+                                          vx, vy, vz, hall_ks, hall_n, shadows, counts)
+            r += wr * hr
+            g += wg * hg
+            b += wb * hb
+
+        if mkind == MAT_DIELECTRIC:
+            eta = S.diel_eta[mat]
+            if medium > 0.0:
+                expected = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+                if abs(medium - expected) > IOR_TOLERANCE:
+                    counts[_C_IOR] += 1
+            F, cos_t, eta_it, eta_ti = fresnel_dielectric(cos_v, eta)
+            if F == 1.0 and cos_t == 0.0:
+                counts[_C_TIR] += 1
+            here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+            there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
+            if F < 1.0:
+                scale = (1.0 - F) * eta_ti * eta_ti
+                twr = wr * scale * S.spec_trans[mat, 0]
+                twg = wg * scale * S.spec_trans[mat, 1]
+                twb = wb * scale * S.spec_trans[mat, 2]
+                if _admit(twr, twg, twb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                    tx, ty, tz = refract(rdx, rdy, rdz, sx, sy, sz, cos_v, cos_t, eta_ti)
+                    sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, tx, ty, tz,
+                               twr, twg, twb, depth + 1, RAY_TRANSMISSION, there)
+            rwr = wr * F * S.spec_refl[mat, 0]
+            rwg = wg * F * S.spec_refl[mat, 1]
+            rwb = wb * F * S.spec_refl[mat, 2]
+            if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
+                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
+                           rwr, rwg, rwb, depth + 1, RAY_REFLECTION, here)
+            continue
+
+        if mkind == MAT_ROUGHDIELECTRIC:
+            # Translucency (2.5.6): one direction from the rough interface's BSDF.
+            tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
+            wix = tx_ * vx + ty_ * vy + tz_ * vz
+            wiy = bx * vx + by * vy + bz * vz
+            dim = _D_BSDF + 3 * bounce
+            bounce += 1
+            u0 = uniform(seed + _STREAM, pixel, sample, dim)
+            u1 = uniform(seed + _STREAM, pixel, sample, dim + 1)
+            u2 = uniform(seed + _STREAM, pixel, sample, dim + 2)
+            lx, ly, lz, w, pdf, refl, _eti = dielectric_sample(S.alpha[mat], gmodel, S.visible[mat] == 1,
+                                                              S.diel_eta[mat], wix, wiy, cos_v,
+                                                              u0, u1, u2)
+            if w <= 0.0:
+                continue
+            counts[_C_GLOSSY] += 1
+            ox_ = tx_ * lx + bx * ly + sx * lz
+            oy_ = ty_ * lx + by * ly + sy * lz
+            oz_ = tz_ * lx + bz * ly + sz * lz
+            if refl:
+                cw = S.spec_refl[mat]
+                nxt = RAY_REFLECTION
+                med = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+            else:
+                cw = S.spec_trans[mat]
+                nxt = RAY_TRANSMISSION
+                med = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
+            nwr, nwg, nwb = wr * w * cw[0], wg * w * cw[1], wb * w * cw[2]
+            if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
+                           nwr, nwg, nwb, depth + 1, nxt, med)
+            continue
+
+        if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+            cos_v = -cos_v
+        if cos_v <= 0.0:
+            continue
+
+        if mkind == MAT_CONDUCTOR:
+            fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
+            fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
+            fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
+            rwr = wr * fr * S.spec_refl[mat, 0]
+            rwg = wg * fg * S.spec_refl[mat, 1]
+            rwb = wb * fb * S.spec_refl[mat, 2]
+            if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
+                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
+                           rwr, rwg, rwb, depth + 1, RAY_REFLECTION, medium)
+            continue
+
+        if mkind == MAT_ROUGHCONDUCTOR:
+            # Gloss (2.5.6): one reflected direction from the microfacet BSDF.
+            tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
+            wix = tx_ * vx + ty_ * vy + tz_ * vz
+            wiy = bx * vx + by * vy + bz * vz
+            dim = _D_BSDF + 3 * bounce
+            bounce += 1
+            u1 = uniform(seed + _STREAM, pixel, sample, dim + 1)
+            u2 = uniform(seed + _STREAM, pixel, sample, dim + 2)
+            lx, ly, lz, w, pdf, cos_ih = conductor_sample(S.alpha[mat], gmodel, S.visible[mat] == 1,
+                                                          wix, wiy, cos_v, u1, u2)
+            if w <= 0.0:
+                continue
+            counts[_C_GLOSSY] += 1
+            fr = fresnel_conductor(cos_ih, S.cond_eta[mat, 0], S.cond_k[mat, 0])
+            fg = fresnel_conductor(cos_ih, S.cond_eta[mat, 1], S.cond_k[mat, 1])
+            fb = fresnel_conductor(cos_ih, S.cond_eta[mat, 2], S.cond_k[mat, 2])
+            nwr = wr * w * fr * S.spec_refl[mat, 0]
+            nwg = wg * w * fg * S.spec_refl[mat, 1]
+            nwb = wb * w * fb * S.spec_refl[mat, 2]
+            ox_ = tx_ * lx + bx * ly + sx * lz
+            oy_ = ty_ * lx + by * ly + sy * lz
+            oz_ = tz_ * lx + bz * ly + sz * lz
+            if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
+                           nwr, nwg, nwb, depth + 1, RAY_REFLECTION, medium)
+            continue
+
+        # Diffuse: direct light from every emitter (penumbra: area emitters sampled by area).
+        rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+        amb = ambient * ka
+        lr, lg, lb, nsh = direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+                                            rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3,
+                                            fclamp, shadows, light_samples, seed, pixel,
+                                            sample + leaf * spp, R)
+        leaf += 1
+        counts[_C_SHADOW] += nsh
+        counts[_C_DIFFUSE] += 1
+        r += wr * (amb * rho_r + lr)
+        g += wg * (amb * rho_g + lg)
+        b += wb * (amb * rho_b + lb)
+    return r, g, b
+
+
+@njit(cache=True)
+def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, fx, fy, sample, spp, gmodel, max_depth,
+              hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
+              seed, pixel, stack_f, stack_i, counts, cut_w):
+    """Radiance of the pixel sample number ``sample`` at film position (fx, fy).
+
+    The sample's own lens point and shutter time; moving spheres are placed at
+    that time in the per-pixel copies ``cen`` (intersection precision) and
+    ``cen64`` (shading) of the sphere centres, and the ray configuration the
+    tree (and its shadow rays) intersects with is rebuilt around them.
+    """
+    u1 = uniform(seed + _STREAM, pixel, sample, _D_LENS)
+    u2 = uniform(seed + _STREAM, pixel, sample, _D_LENS + 1)
+    ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray_lens(cam, fx, fy, u1, u2)
+    counts[_C_SAMPLES] += 1
+    if M.index.shape[0] > 0:
+        tau = M.shutter[0] + (M.shutter[1] - M.shutter[0]) * uniform(seed + _STREAM, pixel, sample,
+                                                                     _D_TIME)
+        for k in range(M.index.shape[0]):
+            i = M.index[k]
+            for c in range(3):
+                p = M.center[k, c] + M.velocity[k, c] * tau
+                cen64[i, c] = p
+                cen[i, c] = p
+    Rt = RayConfig(R.form, R.strategy, R.eps, R.shrink_point, R.shrink_area, cen, R.sph_radius, R.tri_v)
+    return _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, Rt, cen64, HL[0] > 0.0, HL[1], HL[2], HL[3], gmodel,
+                 max_depth, hall_threshold,
+                 ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
+                 pixel, sample, spp, stack_f, stack_i, counts, cut_w)
+
+
+@njit(cache=True)
+def _store(rec, i, fx, fy, w, r, g, b):
+    rec[i, S_X] = fx
+    rec[i, S_Y] = fy
+    rec[i, S_W] = w
+    rec[i, S_R] = r
+    rec[i, S_G] = g
+    rec[i, S_B] = b
+
+
+@njit(cache=True)
+def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
+           tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
+           fclamp, shadows, light_samples, seed, rec, counts):
+    """One pixel's sample records ``rec[:n] = (x, y, weight, r, g, b)``; returns n."""
+    W = int(cam[14])
+    pixel = y * W + x
+    stack_f = np.empty((max_depth + 2, 11))
+    stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
+    cut_w = np.zeros(2)
+    cen = R.sph_center.copy()
+    cen64 = A.sph_center.copy()
+    if sampler == SMP_ADAPTIVE:
+        # Whitted's adaptive supersampling: squares of (corner, size, depth, 5 value indices).
+        cap = max(spp, 5)
+        vals = np.zeros((cap, 3))
+        pos = np.zeros((cap, 2))
+        wts = np.zeros(cap)
+        pts = np.zeros((8, 2))
+        sq_f = np.zeros((4 * adaptive_depth + 4, 3))
+        sq_i = np.zeros((4 * adaptive_depth + 4, 6), dtype=np.int64)
+        # Root: corners c00, c10, c01, c11 and the centre.
+        pos[0, 0], pos[0, 1] = 0.0, 0.0
+        pos[1, 0], pos[1, 1] = 1.0, 0.0
+        pos[2, 0], pos[2, 1] = 0.0, 1.0
+        pos[3, 0], pos[3, 1] = 1.0, 1.0
+        pos[4, 0], pos[4, 1] = 0.5, 0.5
+        for i in range(5):
+            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pos[i, 0], y + pos[i, 1], i, cap, gmodel,
+                                   max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
+                                   fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
+                                   counts, cut_w)
+            vals[i, 0], vals[i, 1], vals[i, 2] = rr, gg, bb
+        n = 5
+        sq_f[0, 0], sq_f[0, 1], sq_f[0, 2] = 0.0, 0.0, 1.0
+        sq_i[0, 0], sq_i[0, 1], sq_i[0, 2], sq_i[0, 3], sq_i[0, 4], sq_i[0, 5] = 0, 1, 2, 3, 4, 0
+        sp = 1
+        idx = np.zeros(5, dtype=np.int64)
+        while sp > 0:
+            sp -= 1
+            x0, y0, size = sq_f[sp, 0], sq_f[sp, 1], sq_f[sp, 2]
+            for q in range(5):
+                idx[q] = sq_i[sp, q]
+            d = sq_i[sp, 5]
+            if d < adaptive_depth and n + 8 <= cap and adaptive_disagree(vals, idx, threshold):
+                adaptive_children(x0, y0, size, pts)
+                for q in range(8):
+                    pos[n + q, 0], pos[n + q, 1] = pts[q, 0], pts[q, 1]
+                    rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pts[q, 0], y + pts[q, 1], n + q, cap,
+                                           gmodel, max_depth, hall_threshold, ka, ambient, ks,
+                                           shininess, c1, c2, c3, fclamp, shadows, light_samples,
+                                           seed, pixel, stack_f, stack_i, counts, cut_w)
+                    vals[n + q, 0], vals[n + q, 1], vals[n + q, 2] = rr, gg, bb
+                e_b, e_l, e_r, e_t = n, n + 1, n + 2, n + 3
+                c = idx[4]
+                h = 0.5 * size
+                # Quadrants (corners c00, c10, c01, c11, centre), pushed 11, 01, 10, 00.
+                quads = ((x0 + h, y0 + h, e_r, idx[3], c, e_t, n + 7),
+                         (x0, y0 + h, e_l, c, idx[2], e_t, n + 6),
+                         (x0 + h, y0, e_b, idx[1], c, e_r, n + 5),
+                         (x0, y0, idx[0], e_b, e_l, c, n + 4))
+                # (corner order per quadrant: c00, c10, c01, c11)
+                quad_c = ((c, e_r, e_t, idx[3]), (e_l, c, idx[2], e_t),
+                          (e_b, idx[1], c, e_r), (idx[0], e_b, e_l, c))
+                for k in range(4):
+                    qx0, qy0 = quads[k][0], quads[k][1]
+                    sq_f[sp, 0], sq_f[sp, 1], sq_f[sp, 2] = qx0, qy0, h
+                    sq_i[sp, 0] = quad_c[k][0]
+                    sq_i[sp, 1] = quad_c[k][1]
+                    sq_i[sp, 2] = quad_c[k][2]
+                    sq_i[sp, 3] = quad_c[k][3]
+                    sq_i[sp, 4] = quads[k][6]
+                    sq_i[sp, 5] = d + 1
+                    sp += 1
+                n += 8
+            else:
+                a = size * size / 5.0            # a leaf: its five samples share its area
+                for q in range(5):
+                    wts[idx[q]] += a
+        for i in range(n):
+            _store(rec, i, x + pos[i, 0], y + pos[i, 1], wts[i], vals[i, 0], vals[i, 1], vals[i, 2])
+        return n
+
+    if sampler == SMP_STATISTICAL:
+        # 4 stratified samples, then uniform ones until the CI is narrow enough.
+        pts = np.zeros((4, 2))
+        jitter_pattern(2, 0.5, seed, pixel, pts)
+        m0 = m1 = m2 = 0.0
+        q0 = q1 = q2 = 0.0
+        n = 0
+        cap = max(spp, 4)
+        while n < cap:
+            if n < 4:
+                fx, fy = pts[n, 0], pts[n, 1]
+            else:
+                fx = uniform(seed + _STREAM, pixel, n, 6)
+                fy = uniform(seed + _STREAM, pixel, n, 7)
+            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + fx, y + fy, n, cap, gmodel, max_depth,
+                                   hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
+                                   shadows, light_samples, seed, pixel, stack_f, stack_i, counts,
+                                   cut_w)
+            _store(rec, n, x + fx, y + fy, 1.0, rr, gg, bb)
+            c = n + 1.0
+            d0, d1, d2 = rr - m0, gg - m1, bb - m2
+            m0 += d0 / c
+            m1 += d1 / c
+            m2 += d2 / c
+            q0 += d0 * (rr - m0)
+            q1 += d1 * (gg - m1)
+            q2 += d2 * (bb - m2)
+            n += 1
+            if statistical_done(n, q0, q1, q2, z, tolerance):
+                break
+        return n
+
+    pts = np.zeros((spp, 2))
+    k = int(math.sqrt(spp) + 0.5)
+    if sampler == SMP_UNIFORM:
+        n = uniform_pattern(k, pts)
+    elif sampler == SMP_RANDOM:
+        n = random_pattern(spp, seed, pixel, pts)
+    elif sampler == SMP_JITTER:
+        if jitter_gauss:
+            n = gaussian_jitter_pattern(k, sigma, seed, pixel, pts)
+        else:
+            n = jitter_pattern(k, gamma, seed, pixel, pts)
+    else:
+        n, _r = poisson_disk_pattern(spp, seed, pixel, pts)
+    for s in range(n):
+        rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pts[s, 0], y + pts[s, 1], s, n, gmodel, max_depth,
+                               hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
+                               shadows, light_samples, seed, pixel, stack_f, stack_i, counts, cut_w)
+        _store(rec, s, x + pts[s, 0], y + pts[s, 1], 1.0, rr, gg, bb)
+    return n
+
+
+@njit(parallel=True, cache=True)
+def _render_kernel(cam, A, S, R, M, HL, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
+                   tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1,
+                   c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts):
+    W, H = int(cam[14]), int(cam[15])
+    for pixel in prange(W * H):
+        nrec[pixel] = _pixel(cam, A, S, R, M, HL, pixel % W, pixel // W, sampler, spp, jitter_gauss, gamma,
+                             sigma, threshold, adaptive_depth, tolerance, z, gmodel, max_depth,
+                             hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+                             light_samples, seed, recs[pixel], counts[pixel])
+
+
+# ------------------------------------------------------------- orchestration ---
+
+def _check(p: dict) -> None:
+    name = "distributed"
+    spp, sampler = p["spp"], p["sampler"]
+    if spp < 1:
+        raise ValueError(f"{name}: spp must be >= 1, got {spp}")
+    if sampler in ("uniform", "jitter"):
+        k = int(round(math.sqrt(spp)))
+        if k * k != spp:
+            raise ValueError(f"{name}: sampler={sampler} needs a square spp (k×k grid), got {spp}")
+    if sampler == "adaptive" and spp < 5:
+        raise ValueError(f"{name}: sampler=adaptive needs spp >= 5 (corners + centre), got {spp}")
+    if sampler == "statistical" and spp < 4:
+        raise ValueError(f"{name}: sampler=statistical needs spp >= 4, got {spp}")
+    if not 0.0 <= p["gamma"] <= 0.5:
+        raise ValueError(f"{name}: gamma must be in [0, 0.5] (ζ within ±γT), got {p['gamma']}")
+    if not p["sigma"] >= 0.0:
+        raise ValueError(f"{name}: sigma must be >= 0, got {p['sigma']}")
+    if not p["threshold"] >= 0.0:
+        raise ValueError(f"{name}: threshold must be >= 0, got {p['threshold']}")
+    if not 0 <= p["adaptive_depth"] <= 8:
+        raise ValueError(f"{name}: adaptive_depth must be in 0..8, got {p['adaptive_depth']}")
+    if not p["tolerance"] > 0.0:
+        raise ValueError(f"{name}: tolerance must be > 0, got {p['tolerance']}")
+    if not 0.0 < p["confidence"] < 1.0:
+        raise ValueError(f"{name}: confidence must be in (0, 1), got {p['confidence']}")
+    if p["max_depth"] < 1:
+        raise ValueError(f"{name}: max_depth must be >= 1 (1 = eye rays only), got {p['max_depth']}")
+    if not p["hall_threshold"] >= 0.0:
+        raise ValueError(f"{name}: hall_threshold must be >= 0, got {p['hall_threshold']}")
+    if p["light_samples"] < 0:
+        raise ValueError(f"{name}: light_samples must be >= 0")
+    if not 0.0 < p["hall_t"] <= 1.0 or p["hall_ks"] < 0.0 or p["hall_n"] < 0.0:
+        raise ValueError(f"{name}: Hall needs 0 < hall_t <= 1, hall_ks >= 0, hall_n >= 0")
+
+
+def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
+    """Render ``scene`` with distributed ray tracing; ``params`` as from ``ALGORITHM.parse_params``."""
+    from scipy.stats import norm
+
+    _check(params)
+    S = material_arrays(scene, algorithm="distributed", model="the distributed ray tracer",
+                        kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric"))
+    A = flatten(scene)
+    cam = camera_params(scene.camera, lens=True)
+    H, W = scene.camera.film.height, scene.camera.film.width
+    fkind, stddev = film_filter(scene.camera.film, params["rfilter"])
+    spp = params["spp"]
+    sampler = SAMPLERS.index(params["sampler"])
+    cap = max(spp, 5)
+    recs = np.zeros((W * H, cap, 6))
+    nrec = np.zeros(W * H, dtype=np.int64)
+    counts = np.zeros((W * H, len(COUNTERS)), dtype=np.int64)
+    R = ray_config(A, params, algorithm="distributed")
+    z = float(norm.ppf(0.5 * (1.0 + params["confidence"])))
+    M = motion_arrays(scene, A)
+    HL = np.array([1.0 if params["shading"] == "hall" else 0.0, params["hall_ks"], params["hall_n"],
+                   params["hall_t"]])
+    _render_kernel(cam, A, S, R, M, HL, sampler, spp, params["jitter"] == "gaussian", float(params["gamma"]),
+                   float(params["sigma"]), float(params["threshold"]), int(params["adaptive_depth"]),
+                   float(params["tolerance"]), z, G_MODELS[params["g"]], params["max_depth"],
+                   float(params["hall_threshold"]), params["ka"], params["ambient"], params["ks"],
+                   params["shininess"], params["c1"], params["c2"], params["c3"], params["fatt_clamp"],
+                   params["shadows"], params["light_samples"], seed, recs, nrec, counts)
+    mean, var = reconstruct(recs, nrec, W, H, fkind, stddev)
+    totals = counts.sum(axis=0)
+    counters = {name: int(v) for name, v in zip(COUNTERS, totals)}
+    counters["mean_spp"] = counters["samples"] / (W * H)
+    spp_img = counts[:, _C_SAMPLES].reshape(H, W).astype(np.float32)
+    return RenderResult(image=mean.astype(np.float32), variance=var.astype(np.float32),
+                        counters=counters, aovs={"spp": spp_img})
+
+
+ALGORITHM = register(Algorithm(
+    name="distributed",
+    summary="Distributed ray tracing: Whitted's ray tree with anti-aliasing samplers, box/Gaussian "
+            "reconstruction, area-light penumbrae, glossy and translucent microfacet BSDFs, thin-lens "
+            "depth of field",
+    section="thesis 2.4.5, 2.5.1-2.5.9; Cook, Porter, Carpenter 1984",
+    transport="whitted",
+    params=(
+        Param("spp", int, 16, "samples per pixel (the cap for adaptive and statistical)"),
+        Param("sampler", str, "jitter", "pixel sampling pattern", choices=SAMPLERS),
+        Param("jitter", str, "white", "jitter kind: white-noise (gamma) or Gaussian (sigma)",
+              choices=("white", "gaussian")),
+        Param("gamma", float, 0.5, "white-noise jitter: ζ ~ U[-γT, γT]"),
+        Param("sigma", float, 1.0 / 6.5, "Gaussian jitter: ζ ~ N(0, (σT)²)"),
+        Param("threshold", float, 0.02, "adaptive: subdivide when a sample differs from the mean by more"),
+        Param("adaptive_depth", int, 3, "adaptive: deepest subdivision"),
+        Param("tolerance", float, 0.01, "statistical: target half-width of the pixel-mean CI"),
+        Param("confidence", float, 0.95, "statistical: confidence level of that interval"),
+        Param("rfilter", str, "film", "reconstruction filter (film = the scene film's rfilter)",
+              choices=("film", "box", "gaussian")),
+        Param("g", str, "smith", "microfacet masking-shadowing G", choices=tuple(G_MODELS)),
+        Param("shading", str, "cook-torrance", "cook-torrance (microfacet BSDFs, Mitsuba's model) or "
+              "hall (adds Hall's light-source highlights at specular surfaces and T^Δ)",
+              choices=("cook-torrance", "hall")),
+        Param("hall_ks", float, 1.0, "Hall: k_sr = k_st, weight of the light-source highlights"),
+        Param("hall_n", float, 50.0, "Hall: highlight exponent n = n'"),
+        Param("hall_t", float, 1.0, "Hall: transmissivity per unit length T_t of transmitted rays"),
+        Param("max_depth", int, 10, "deepest ray of a tree branch (eye ray = 1)"),
+        Param("hall_threshold", float, 1e-5, "cut a branch whose weight (every RGB channel) is below this"),
+        Param("light_samples", int, 1, "shadow rays per area emitter per diffuse hit"),
+        *PHONG_PARAMS,
+        Param("shadows", bool, True, "cast shadow rays"),
+        *RAY_PARAMS,
+    ),
+    render=render,
+))
