@@ -122,7 +122,7 @@ from gibench.scene import Scene
 from .camera import camera_params, eye_ray_lens
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import diffuse_albedo, direct_light_rays, surface
+from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, surface
 from .materials import (MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC,
                         MaterialArrays, material_arrays)
 from .microfacet import G_SMITH, G_VCAVITY, conductor_sample, dielectric_sample
@@ -290,7 +290,11 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             t0, t1 = stack_f[sp, 10], np.inf
         rox, roy, roz, rdx, rdy, rdz = round_ray(R, rox, roy, roz, rdx, rdy, rdz)
         t, prim, b1, b2 = hit(R, rox, roy, roz, rdx, rdy, rdz, t0, t1)
-        if prim < 0:
+        if prim < 0:                     # escaped: a constant environment, if any, else black
+            er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
+            r += wr * er
+            g += wg * eg
+            b += wb * eb
             continue
         if hall and kind == RAY_TRANSMISSION and hall_t < 1.0:
             att = hall_t ** t             # Hall's T_t^Δ: transmissivity per unit length ^ distance

@@ -165,7 +165,7 @@ from gibench.scene import Scene
 
 from .camera import camera_params, eye_ray
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import diffuse_albedo, direct_light_rays, surface
+from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, surface
 from .materials import SpecularArrays, material_arrays
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, ray_config, refine, round_ray
@@ -277,8 +277,12 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: SpecularArrays,
         # Intersect (and shade) the ray as rounded to the intersection precision.
         rox, roy, roz, rdx, rdy, rdz = round_ray(R, rox, roy, roz, rdx, rdy, rdz)
         t, prim, b1, b2 = hit(R, rox, roy, roz, rdx, rdy, rdz, t0, t1)
-        if prim < 0:
-            continue                     # no environment light: the branch ends in black
+        if prim < 0:                     # escaped: a constant environment, if any, else black
+            er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
+            r += wr * er
+            g += wg * eg
+            b += wb * eb
+            continue
         shape = A.prim_shape[prim]
         px, py, pz = refine(R, prim, rox + t * rdx, roy + t * rdy, roz + t * rdz)
         gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,

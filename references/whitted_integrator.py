@@ -23,7 +23,8 @@ independently of its intersection, Fresnel and lighting code:
     a correct own tracer (measured: 87 of 19200 pixels of ``glass_sphere``
     with reference 0 ± 0 where the branch carries ~7e-5).  Uniform choice
     sees a depth-6 branch once in 32 paths.
-* add the emitted radiance of every area emitter a ray of the chain hits;
+* add the emitted radiance of every area emitter a ray of the chain hits, and
+  the environment emitter's radiance when a ray of the chain leaves the scene;
 * at the first non-delta hit, add the direct light of *every* emitter — one
   ``sample_direction`` per emitter with a shadow-ray visibility test, times
   ``bsdf.eval`` (which includes the cosine) — and stop.
@@ -104,17 +105,18 @@ def _make_class():
             """One hit of the chain: emission, direct light or the next delta ray."""
             ctx = mi.BSDFContext()
             si = scene.ray_intersect(ray, active)
-            active = active & si.is_valid()
-            if not jit and not active:
-                return ray, L, beta, depth + 1, active
-
-            # Emitted radiance of an area emitter hit by the ray.
+            # Emitted radiance of an area emitter hit by the ray, or of the
+            # environment emitter when the ray leaves the scene (si.emitter
+            # returns it for a miss).
             show = active if not self.hide_emitters else active & (depth > 0)
             emitter = si.emitter(scene, show)
             if jit:
                 L = L + beta * emitter.eval(si, show)
             elif emitter is not None and show:
                 L = L + beta * emitter.eval(si, show)
+            active = active & si.is_valid()
+            if not jit and not active:
+                return ray, L, beta, depth + 1, active
             depth = depth + 1
 
             bsdf = si.bsdf(ray)

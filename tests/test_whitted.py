@@ -23,7 +23,7 @@ WHITTED = registry.get("whitted")
 RAYCAST = registry.get("raycast")
 WHITTED_SCENES = ["spheres/mirror_sphere.xml", "spheres/glass_sphere.xml", "spheres/nested_glass.xml",
                   "spheres/whitted_classic.xml", "spheres/sphere_grid.xml",
-                  "cornell/cornell_mirror_glass.xml"]
+                  "cornell/cornell_mirror_glass.xml", "spheres/mirror_env.xml"]
 
 
 def render(path, seed=0, algo=WHITTED, **params):
