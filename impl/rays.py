@@ -72,6 +72,7 @@ from numba import njit
 
 from gibench.registry import Param
 
+from . import accel as _accel
 from .intersect import SPHERE_FORMS, any_hit_form, closest_hit_form, like
 from .offset import STRATEGIES, spawn
 
@@ -95,6 +96,12 @@ PARAMS = (
     Param("offset", str, "robust", "how secondary and shadow rays leave a surface: t_min = ε, "
           "origin + ε·n, or Wächter-Binder ulp offset", choices=OFFSETS),
     Param("epsilon", float, 1e-4, "ε of offset=epsilon (t_min) and offset=normal (scene units)"),
+    Param("accel", str, "bvh-sah", "acceleration structure of every ray query (thesis 2.6; "
+          "impl.accel): none = brute force", choices=_accel.ACCELS),
+    Param("slab_normals", int, 7, "plane normals of accel=slabs (3 axes, 7 = + cube diagonals, "
+          "13 = + face diagonals)", choices=_accel.SLAB_COUNTS),
+    Param("packets", bool, False, "trace primary rays as coherent packets (8×8 pixel tiles) "
+          "through the BVH (accel=bvh-*)"),
 )
 
 
@@ -115,6 +122,14 @@ class RayConfig(NamedTuple):
     sph_center: np.ndarray      # (S, 3) the primitives in the intersection precision
     sph_radius: np.ndarray      # (S,)
     tri_v: np.ndarray           # (T, 3, 3)
+    accel: int                  # traversal code (impl.accel.KIND; 0 = brute force)
+    node_lo: np.ndarray         # the structure's flat arrays (impl.accel.Accel; empty if none)
+    node_hi: np.ndarray
+    node_a: np.ndarray
+    node_b: np.ndarray
+    prim_idx: np.ndarray
+    acc_f: np.ndarray
+    acc_i: np.ndarray
 
 
 def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
@@ -125,19 +140,26 @@ def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
         raise ValueError(f"{algorithm}: epsilon must be finite and >= 0, got {eps}")
     single = params["precision"] == "float32"
     F = np.float32 if single else np.float64
-    return RayConfig(form=SPHERE_FORMS.index(params["intersect"]),
-                     strategy=_OFFSET_CODE[params["offset"]], eps=eps,
-                     shrink_point=1e-4 if single else 1e-9,
-                     shrink_area=1e-4 if single else 1e-7,
-                     sph_center=np.ascontiguousarray(A.sph_center, dtype=F),
-                     sph_radius=np.ascontiguousarray(A.sph_radius, dtype=F),
-                     tri_v=np.ascontiguousarray(A.tri_v, dtype=F))
+    sph_center = np.ascontiguousarray(A.sph_center, dtype=F)
+    sph_radius = np.ascontiguousarray(A.sph_radius, dtype=F)
+    tri_v = np.ascontiguousarray(A.tri_v, dtype=F)
+    name = params.get("accel", "none")
+    if name not in _accel.ACCELS:
+        raise ValueError(f"{algorithm}: unknown accel {name!r} (valid: {', '.join(_accel.ACCELS)})")
+    acc = _accel.build(name, sph_center, sph_radius, tri_v, A.prim_shape,
+                       slab_normals=params.get("slab_normals", 7))
+    return RayConfig(SPHERE_FORMS.index(params["intersect"]), _OFFSET_CODE[params["offset"]], eps,
+                     1e-4 if single else 1e-9, 1e-4 if single else 1e-7,
+                     sph_center, sph_radius, tri_v, *acc)
 
 
 @njit(cache=True)
 def legacy_config(A, eps):
     """The rule before issue 3: stable form, float64, origin p + eps·(1 + max|p_i|)·n."""
-    return RayConfig(2, _SCALED, eps, 1e-9, 1e-7, A.sph_center, A.sph_radius, A.tri_v)
+    z2 = np.empty((0, 3))
+    zi = np.empty(0, dtype=np.int64)
+    return RayConfig(2, _SCALED, eps, 1e-9, 1e-7, A.sph_center, A.sph_radius, A.tri_v,
+                     0, z2, z2, zi, zi, zi, np.empty(0), zi)
 
 
 @njit(inline="always", cache=True)
@@ -152,6 +174,11 @@ def round_ray(R: RayConfig, ox, oy, oz, dx, dy, dz):
 def hit(R: RayConfig, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2)`` (float64 t and barycentrics) in R's form and precision."""
     g = R.sph_radius
+    if R.accel != 0:
+        t, prim, b1, b2, _, _ = _accel.closest(R, like(g, ox), like(g, oy), like(g, oz),
+                                               like(g, dx), like(g, dy), like(g, dz),
+                                               like(g, tmin), like(g, tmax))
+        return float(t), prim, float(b1), float(b2)
     t, prim, b1, b2 = closest_hit_form(R.form, like(g, ox), like(g, oy), like(g, oz),
                                        like(g, dx), like(g, dy), like(g, dz),
                                        like(g, tmin), like(g, tmax),
@@ -180,6 +207,10 @@ def refine(R: RayConfig, prim, px, py, pz):
 def occluded(R: RayConfig, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Whether anything lies on the ray within (tmin, tmax), in R's form and precision."""
     g = R.sph_radius
+    if R.accel != 0:
+        h, _, _ = _accel.any_hit(R, like(g, ox), like(g, oy), like(g, oz), like(g, dx),
+                                 like(g, dy), like(g, dz), like(g, tmin), like(g, tmax))
+        return h
     return any_hit_form(R.form, like(g, ox), like(g, oy), like(g, oz), like(g, dx), like(g, dy),
                         like(g, dz), like(g, tmin), like(g, tmax),
                         R.sph_center, R.sph_radius, R.tri_v)
