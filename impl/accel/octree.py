@@ -4,8 +4,12 @@ Thesis 2.6.2: a uniform grid wastes voxels on empty space and overloads the
 voxels of dense regions; an octree subdivides only where the primitives are.
 The scene's box is cut into eight octants, recursively, while a cell holds
 more than ``LEAF_MAX`` primitives (padded bounding boxes overlapping the cell)
-and is shallower than ``MAX_DEPTH``; a cell whose every child would keep all
-its primitives (large overlapping primitives) stays a leaf.  Empty octants get
+and is shallower than ``MAX_DEPTH``, unless the split cannot separate them:
+a cell whose children would together hold more than ``DUP_MAX`` times its
+references (cells already smaller than the primitives, or many overlapping
+boxes there), or whose fullest child would keep them all, stays a leaf.
+Without that rule a finely tessellated mesh makes millions of tiny cells
+wherever more than ``LEAF_MAX`` triangle boxes overlap.  Empty octants get
 no node.
 
 Traversal: the octree is flattened to the layout of :mod:`impl.accel.tree`
@@ -34,7 +38,8 @@ from .tree import STACK, tree_depth
 __all__ = ["build_octree", "LEAF_MAX", "MAX_DEPTH"]
 
 LEAF_MAX = 8
-MAX_DEPTH = 12
+MAX_DEPTH = 16
+DUP_MAX = 4
 
 
 @njit(cache=True)
@@ -66,7 +71,7 @@ def _build(lo, hi, leaf_max, max_depth):
     na = np.empty(cap, dtype=np.int64)
     nb = np.empty(cap, dtype=np.int64)
     depth = np.empty(cap, dtype=np.int64)
-    rs = np.empty(cap, dtype=np.int64)  # each pending node's segment of `work`
+    rs = np.empty(cap, dtype=np.int64)  # each pending node's segment of `work` (a LIFO stack)
     rc = np.empty(cap, dtype=np.int64)
     work = np.empty(max(2 * P, 16), dtype=np.int64)
     work[:P] = np.arange(P)
@@ -104,14 +109,16 @@ def _build(lo, hi, leaf_max, max_depth):
                             ok = ok and lo[p, a] <= mid[a]
                     if ok:
                         kid_cnt[o] += 1
-            # A cell whose every non-empty child would keep all its primitives stays a leaf.
-            n_full = np.count_nonzero(kid_cnt == cnt)
-            split = n_full < np.count_nonzero(kid_cnt)
+            # A split that cannot separate the primitives (the children together would
+            # hold more than DUP_MAX times the references: cells smaller than the
+            # primitives, or many boxes overlapping there) makes a leaf instead.
+            split = kid_cnt.sum() <= DUP_MAX * cnt and kid_cnt.max() < cnt
         if not split:
             out = _grow_i(out, n_out + cnt)
             out[n_out:n_out + cnt] = work[s:s + cnt]
             na[node], nb[node] = n_out, cnt
             n_out += cnt
+            w_top = s                        # LIFO: this node's segment is the topmost
             continue
         n_kids = np.count_nonzero(kid_cnt)
         first = n_nodes
@@ -161,8 +168,13 @@ def _build(lo, hi, leaf_max, max_depth):
             sp += 1
             c += 1
         n_nodes = need
-        if sp == 0:
-            w_top = 0
+        # The parent's segment is dead: move the children's segments down onto it,
+        # so that `work` holds only the segments of pending nodes.
+        shift = w_top - (s + cnt)
+        work[s:s + shift] = work[s + cnt:w_top].copy()
+        for q in range(first, need):
+            rs[q] -= cnt
+        w_top = s + shift
     return (nlo[:n_nodes].copy(), nhi[:n_nodes].copy(), na[:n_nodes].copy(),
             nb[:n_nodes].copy(), out[:n_out].copy())
 
