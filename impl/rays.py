@@ -16,7 +16,19 @@ offset     epsilon|normal|robust       robust   how secondary and shadow rays le
                                                 a surface (:mod:`impl.offset`)
 epsilon    float                       1e-4     ε of ``epsilon`` and ``normal``
                                                 (scene units)
+accel      none|bv|bv-sphere|slabs|    bvh-sah  acceleration structure of every
+           bvh-median|bvh-sah|bvh-gs|           query (:mod:`impl.accel`, thesis
+           grid|octree                          2.6); none = brute force
+slab_normals  3|7|13                   7        plane normals of ``accel=slabs``
 =========  ==========================  =======  ===================================
+
+Acceleration.  :func:`ray_config` builds the chosen structure over the
+primitives *in the intersection precision* and the ray configuration carries
+its flat arrays (empty for ``none``); :func:`hit` and :func:`occluded`
+dispatch on ``RayConfig.accel``.  Every structure tests the primitives it
+reaches with the same kernels, form and precision as brute force and breaks
+ties as brute force does, so the closest hit — and the image — is the same
+(``tests/test_accel.py``); only the number of tests changes.
 
 Precision.  With ``float32`` every ray is rounded to float32 before it is
 intersected (origin and direction; the ray tracer then shades the rounded
@@ -100,8 +112,6 @@ PARAMS = (
           "impl.accel): none = brute force", choices=_accel.ACCELS),
     Param("slab_normals", int, 7, "plane normals of accel=slabs (3 axes, 7 = + cube diagonals, "
           "13 = + face diagonals)", choices=_accel.SLAB_COUNTS),
-    Param("packets", bool, False, "trace primary rays as coherent packets (8×8 pixel tiles) "
-          "through the BVH (accel=bvh-*)"),
 )
 
 
