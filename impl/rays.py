@@ -16,9 +16,9 @@ offset     epsilon|normal|robust       robust   how secondary and shadow rays le
                                                 a surface (:mod:`impl.offset`)
 epsilon    float                       1e-4     ε of ``epsilon`` and ``normal``
                                                 (scene units)
-accel      none|bv|bv-sphere|slabs|    bvh-sah  acceleration structure of every
-           bvh-median|bvh-sah|bvh-gs|           query (:mod:`impl.accel`, thesis
-           grid|octree                          2.6); none = brute force
+accel      auto|none|bv|bv-sphere|     auto     acceleration structure of every
+           slabs|bvh-median|bvh-sah|            query (:mod:`impl.accel`, thesis
+           bvh-gs|grid|octree                   2.6); none = brute force
 slab_normals  3|7|13                   7        plane normals of ``accel=slabs``
 =========  ==========================  =======  ===================================
 
@@ -29,6 +29,16 @@ dispatch on ``RayConfig.accel``.  Every structure tests the primitives it
 reaches with the same kernels, form and precision as brute force and breaks
 ties as brute force does, so the closest hit — and the image — is the same
 (``tests/test_accel.py``); only the number of tests changes.
+
+Except where the sphere test itself is wrong: far from a sphere the
+algebraic and geometric forms in float32 report hits that lie nowhere near
+it (thesis 2.3.3: the cancelled discriminant; ``test_whitted``'s distant
+sphere: the geometric form "hits" all 1024 pixels).  A bounding volume culls
+those rays, so a structure would hide the very error those forms are kept to
+show.  ``accel=auto`` (the default) therefore uses :data:`AUTO_ACCEL` with the
+stable form only and brute force with the other two; an explicit structure
+with them is honoured, with equal results wherever the form's hits lie on
+its sphere (to within the bounds' padding).
 
 Precision.  With ``float32`` every ray is rounded to float32 before it is
 intersected (origin and direction; the ray tracer then shades the rounded
@@ -99,6 +109,10 @@ _OFFSET_CODE = {"epsilon": STRATEGIES.index("tmin"), "normal": STRATEGIES.index(
                 "robust": STRATEGIES.index("robust")}
 _SCALED = STRATEGIES.index("scaled")
 
+#: The structure of ``accel=auto``: the fastest measured (benchmarks/bench_accel.py,
+#: the scaling study), with the fastest build among the hierarchies.
+AUTO_ACCEL = "bvh-sah"
+
 #: The parameter-table rows of the ray tracers that take a ray configuration.
 PARAMS = (
     Param("intersect", str, "stable", "ray-sphere form of every sphere test (eye, secondary, "
@@ -108,8 +122,9 @@ PARAMS = (
     Param("offset", str, "robust", "how secondary and shadow rays leave a surface: t_min = ε, "
           "origin + ε·n, or Wächter-Binder ulp offset", choices=OFFSETS),
     Param("epsilon", float, 1e-4, "ε of offset=epsilon (t_min) and offset=normal (scene units)"),
-    Param("accel", str, "bvh-sah", "acceleration structure of every ray query (thesis 2.6; "
-          "impl.accel): none = brute force", choices=_accel.ACCELS),
+    Param("accel", str, "auto", "acceleration structure of every ray query (thesis 2.6; "
+          "impl.accel): none = brute force; auto = bvh-sah with the stable sphere form, none "
+          "with the algebraic/geometric forms", choices=("auto",) + _accel.ACCELS),
     Param("slab_normals", int, 7, "plane normals of accel=slabs (3 axes, 7 = + cube diagonals, "
           "13 = + face diagonals)", choices=_accel.SLAB_COUNTS),
 )
@@ -153,9 +168,11 @@ def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
     sph_center = np.ascontiguousarray(A.sph_center, dtype=F)
     sph_radius = np.ascontiguousarray(A.sph_radius, dtype=F)
     tri_v = np.ascontiguousarray(A.tri_v, dtype=F)
-    name = params.get("accel", "none")
+    name = params.get("accel", "auto")
+    if name == "auto":
+        name = AUTO_ACCEL if params["intersect"] == "stable" else "none"
     if name not in _accel.ACCELS:
-        raise ValueError(f"{algorithm}: unknown accel {name!r} (valid: {', '.join(_accel.ACCELS)})")
+        raise ValueError(f"{algorithm}: unknown accel {name!r} (valid: auto, {', '.join(_accel.ACCELS)})")
     acc = _accel.build(name, sph_center, sph_radius, tri_v, A.prim_shape,
                        slab_normals=params.get("slab_normals", 7))
     return RayConfig(SPHERE_FORMS.index(params["intersect"]), _OFFSET_CODE[params["offset"]], eps,

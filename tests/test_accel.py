@@ -285,3 +285,16 @@ def test_packets_return_the_single_ray_hits_of_the_same_tree():
     np.testing.assert_array_equal(p1.reshape(-1), p0)
     with pytest.raises(ValueError, match="packets need a tree"):
         primary_hits(R0, scene.camera, packets=True)
+
+
+def test_auto_uses_the_bvh_with_the_stable_form_only():
+    """accel=auto (the default): BVH-SAH for the stable sphere form; brute force for the
+    algebraic and geometric forms, whose far-field false hits a bounding volume would cull."""
+    A = flatten(load_scene(SUITES / "spheres" / "lit_sphere.xml"))
+    algo = registry.get("whitted")
+    assert algo.parse_params({})["accel"] == "auto"
+    kinds = {form: ray_config(A, algo.parse_params({"intersect": form}), algorithm="whitted").accel
+             for form in ("stable", "algebraic", "geometric")}
+    assert kinds == {"stable": accel.TREE, "algebraic": accel.NONE, "geometric": accel.NONE}
+    R = ray_config(A, algo.parse_params({"intersect": "geometric", "accel": "grid"}), algorithm="whitted")
+    assert R.accel == accel.GRID
