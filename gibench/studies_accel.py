@@ -24,9 +24,12 @@ Scenes are generated in code with a fixed seed (nothing is written to disk):
 
 Times are wall-clock on whatever machine runs the study (median of
 ``repeats``), after one untimed warm-up render per structure that compiles
-the kernels.  ``trace_s`` is the render time minus the time of
-:func:`impl.rays.ray_config` (which builds the structure) and of flattening
-the scene: the ray tracing itself.  ``primary_query_s`` times that pass alone (closest hits of
+the kernels.  ``render_s`` is the whole Whitted render (flatten, build,
+trace); ``build_s`` the time of :func:`impl.rays.ray_config` (which builds
+the structure); ``trace_s`` the same render with the flattened scene and
+the ray configuration handed in prebuilt (patched into :mod:`impl.whitted`
+for the measurement; the image is checked identical): the ray tracing
+itself, fitted against N.  ``primary_query_s`` times that pass alone (closest hits of
 the pixel-centre camera rays, :func:`impl.accel.trace_batch`); ``tests_per_ray`` and ``nodes_per_ray``
 come from it too: a separate counting pass over the camera's pixel-centre rays
 (:func:`impl.accel.trace_batch`), not from the timed render.  Brute force
@@ -176,7 +179,10 @@ def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=
     ``sizes``: ``{family: [N, ...]}``; ``structures``: names of :data:`impl.accel.ACCELS`.
     A structure whose render exceeds ``time_limit_s`` is not run at larger N of that
     family (the row says so in ``note``)."""
+    from unittest import mock
+
     import impl  # noqa: F401  (registers the algorithms)
+    import impl.whitted as whitted
     from impl import accel
     from impl.rays import ray_config
     from impl.scene_arrays import flatten
@@ -217,11 +223,18 @@ def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=
                 config_s, R = _median_time(lambda: ray_config(A, params, algorithm="whitted"), reps)
                 acc_arrays = accel.Accel(*R[8:])
                 render_s, res = _median_time(lambda: algo.render(scene, params), reps)
+                # The same render with the flattened scene and the structure prebuilt:
+                # the ray tracing alone.
+                with mock.patch.object(whitted, "flatten", lambda _s: A), \
+                        mock.patch.object(whitted, "ray_config", lambda *_a, **_k: R):
+                    trace_s, res2 = _median_time(lambda: algo.render(scene, params), reps)
+                if not np.array_equal(res2.image, res.image):
+                    raise RuntimeError(f"scaling: {fam} N={N} {name}: the prebuilt render differs")
                 query_s, (_, prim, _, counts) = _median_time(lambda: accel.trace_batch(R, o, d), reps)
                 rays = sum(res.counters.get(k, 0) for k in
                            ("eye_rays", "shadow_rays", "reflection_rays", "transmission_rays"))
                 row.update(build_s=config_s, render_s=render_s,
-                           trace_s=max(render_s - config_s - flatten_s, 0.0),
+                           trace_s=trace_s, flatten_s=flatten_s,
                            primary_query_s=query_s,
                            tests_per_ray=float(counts[:, 1].mean()),
                            nodes_per_ray=float(counts[:, 0].mean()),
@@ -249,11 +262,13 @@ def fit_exponents(rows: list[dict], *, n_min: int = 100) -> list[dict]:
             continue
         n = np.log([r["prims"] for r in pts])
         k_time = float(np.polyfit(n, np.log([r["trace_s"] for r in pts]), 1)[0])
+        k_query = float(np.polyfit(n, np.log([max(r["primary_query_s"], 1e-9) for r in pts]), 1)[0])
         k_tests = float(np.polyfit(n, np.log([max(r["tests_per_ray"], 1e-9) for r in pts]), 1)[0])
         k_log = float(np.polyfit(n, np.log(n), 1)[0])
         out.append({"family": fam, "accel": name, "sizes": len(pts),
                     "N_range": f"{pts[0]['prims']}–{pts[-1]['prims']}",
-                    "exponent_trace_time": k_time, "exponent_tests_per_ray": k_tests,
+                    "exponent_trace_time": k_time, "exponent_primary_query": k_query,
+                    "exponent_tests_per_ray": k_tests,
                     "exponent_log_N": k_log})
     return out
 
