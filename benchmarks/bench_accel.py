@@ -80,10 +80,12 @@ def bench_trace(benchmark, name, rays, structure):
 @pytest.mark.parametrize("precision", ["float32", "float64"])
 @pytest.mark.parametrize("rays", ["primary", "diffuse"])
 @pytest.mark.parametrize("name", list(SCENES))
-def bench_vs_mitsuba(benchmark, mitsuba, name, rays, precision):
+def bench_vs_mitsuba(benchmark, name, rays, precision):
     """Own BVH-SAH closest hits vs Mitsuba on the same rays, timed in one run."""
+    from references.mitsuba_env import load_mitsuba
     from references.raybench import mitsuba_scene, time_mitsuba
 
+    mitsuba = load_mitsuba()
     _, A, ray_sets = scene(name)
     o, d = ray_sets[rays]
     R = config(A, "bvh-sah", precision)
