@@ -20,8 +20,10 @@ Conventions of every structure in :mod:`impl.accel`:
   ``best_t`` and keep a hit at equal ``t`` only if its id is lower
   (:func:`closer`): shared mesh edges then resolve as in brute force.
 * Counters: each traversal returns the number of nodes (or cells, or bounding
-  volumes) visited and of primitive tests with its hit; the production path
-  (:func:`impl.rays.hit`) drops them, and numba removes the dead additions.
+  volumes) visited and of primitive tests with its hit, kept in two local
+  integers (no memory traffic, no branch); the production path
+  (:func:`impl.rays.hit`) drops them.  Their cost — two integer additions per
+  node — was not measured apart.
 """
 
 from __future__ import annotations
