@@ -7,7 +7,8 @@ images and counters.
 The numba kernels are compiled once and cached (``cache=True``).  Numba keys a
 cached kernel on its own source file only, so a change in a kernel it calls
 (say ``intersect.py`` under ``raycast.py``) would leave a stale machine-code
-cache behind.  The cache therefore lives in ``.numba_cache/<hash of impl/*.py>``
+cache behind.  The cache therefore lives in ``.numba_cache/<hash of impl/**/*.py>``
+(sub-packages such as ``impl/accel`` included)
 at the repository root: any change to this package starts a fresh cache.  Set
 ``NUMBA_CACHE_DIR`` to override.
 """
@@ -23,8 +24,8 @@ def _source_keyed_cache_dir() -> None:
         return
     here = _Path(__file__).resolve().parent
     digest = _hashlib.sha1()
-    for src in sorted(here.glob("*.py")):
-        digest.update(src.name.encode() + b"\0" + src.read_bytes())
+    for src in sorted(here.rglob("*.py")):
+        digest.update(src.relative_to(here).as_posix().encode() + b"\0" + src.read_bytes())
     root = here.parent / ".numba_cache"
     cache = root / digest.hexdigest()[:16]
     if root.is_dir():                       # caches of older sources are stale by construction

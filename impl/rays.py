@@ -16,7 +16,29 @@ offset     epsilon|normal|robust       robust   how secondary and shadow rays le
                                                 a surface (:mod:`impl.offset`)
 epsilon    float                       1e-4     ε of ``epsilon`` and ``normal``
                                                 (scene units)
+accel      auto|none|bv|bv-sphere|     auto     acceleration structure of every
+           slabs|bvh-median|bvh-sah|            query (:mod:`impl.accel`, thesis
+           bvh-gs|grid|octree                   2.6); none = brute force
+slab_normals  3|7|13                   7        plane normals of ``accel=slabs``
 =========  ==========================  =======  ===================================
+
+Acceleration.  :func:`ray_config` builds the chosen structure over the
+primitives *in the intersection precision* and the ray configuration carries
+its flat arrays (empty for ``none``); :func:`hit` and :func:`occluded`
+dispatch on ``RayConfig.accel``.  Every structure tests the primitives it
+reaches with the same kernels, form and precision as brute force and breaks
+ties as brute force does, so the closest hit — and the image — is the same
+(``tests/test_accel.py``); only the number of tests changes.
+
+Except where the sphere test itself is wrong: far from a sphere the
+algebraic and geometric forms in float32 report hits that lie nowhere near
+it (thesis 2.3.3: the cancelled discriminant; ``test_whitted``'s distant
+sphere: the geometric form "hits" all 1024 pixels).  A bounding volume culls
+those rays, so a structure would hide the very error those forms are kept to
+show.  ``accel=auto`` (the default) therefore uses :data:`AUTO_ACCEL` with the
+stable form only and brute force with the other two; an explicit structure
+with them is honoured, with equal results wherever the form's hits lie on
+its sphere (to within the bounds' padding).
 
 Precision.  With ``float32`` every ray is rounded to float32 before it is
 intersected (origin and direction; the ray tracer then shades the rounded
@@ -72,6 +94,7 @@ from numba import njit
 
 from gibench.registry import Param
 
+from . import accel as _accel
 from .intersect import SPHERE_FORMS, any_hit_form, closest_hit_form, like
 from .offset import STRATEGIES, spawn
 
@@ -86,6 +109,10 @@ _OFFSET_CODE = {"epsilon": STRATEGIES.index("tmin"), "normal": STRATEGIES.index(
                 "robust": STRATEGIES.index("robust")}
 _SCALED = STRATEGIES.index("scaled")
 
+#: The structure of ``accel=auto``: the fastest measured (benchmarks/bench_accel.py,
+#: the scaling study), with the fastest build among the hierarchies.
+AUTO_ACCEL = "bvh-sah"
+
 #: The parameter-table rows of the ray tracers that take a ray configuration.
 PARAMS = (
     Param("intersect", str, "stable", "ray-sphere form of every sphere test (eye, secondary, "
@@ -95,6 +122,11 @@ PARAMS = (
     Param("offset", str, "robust", "how secondary and shadow rays leave a surface: t_min = ε, "
           "origin + ε·n, or Wächter-Binder ulp offset", choices=OFFSETS),
     Param("epsilon", float, 1e-4, "ε of offset=epsilon (t_min) and offset=normal (scene units)"),
+    Param("accel", str, "auto", "acceleration structure of every ray query (thesis 2.6; "
+          "impl.accel): none = brute force; auto = bvh-sah with the stable sphere form, none "
+          "with the algebraic/geometric forms", choices=("auto",) + _accel.ACCELS),
+    Param("slab_normals", int, 7, "plane normals of accel=slabs (3 axes, 7 = + cube diagonals, "
+          "13 = + face diagonals)", choices=_accel.SLAB_COUNTS),
 )
 
 
@@ -115,6 +147,14 @@ class RayConfig(NamedTuple):
     sph_center: np.ndarray      # (S, 3) the primitives in the intersection precision
     sph_radius: np.ndarray      # (S,)
     tri_v: np.ndarray           # (T, 3, 3)
+    accel: int                  # traversal code (impl.accel.KIND; 0 = brute force)
+    node_lo: np.ndarray         # the structure's flat arrays (impl.accel.Accel; empty if none)
+    node_hi: np.ndarray
+    node_a: np.ndarray
+    node_b: np.ndarray
+    prim_idx: np.ndarray
+    acc_f: np.ndarray
+    acc_i: np.ndarray
 
 
 def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
@@ -125,19 +165,28 @@ def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
         raise ValueError(f"{algorithm}: epsilon must be finite and >= 0, got {eps}")
     single = params["precision"] == "float32"
     F = np.float32 if single else np.float64
-    return RayConfig(form=SPHERE_FORMS.index(params["intersect"]),
-                     strategy=_OFFSET_CODE[params["offset"]], eps=eps,
-                     shrink_point=1e-4 if single else 1e-9,
-                     shrink_area=1e-4 if single else 1e-7,
-                     sph_center=np.ascontiguousarray(A.sph_center, dtype=F),
-                     sph_radius=np.ascontiguousarray(A.sph_radius, dtype=F),
-                     tri_v=np.ascontiguousarray(A.tri_v, dtype=F))
+    sph_center = np.ascontiguousarray(A.sph_center, dtype=F)
+    sph_radius = np.ascontiguousarray(A.sph_radius, dtype=F)
+    tri_v = np.ascontiguousarray(A.tri_v, dtype=F)
+    name = params.get("accel", "auto")
+    if name == "auto":
+        name = AUTO_ACCEL if params["intersect"] == "stable" else "none"
+    if name not in _accel.ACCELS:
+        raise ValueError(f"{algorithm}: unknown accel {name!r} (valid: auto, {', '.join(_accel.ACCELS)})")
+    acc = _accel.build(name, sph_center, sph_radius, tri_v, A.prim_shape,
+                       slab_normals=params.get("slab_normals", 7))
+    return RayConfig(SPHERE_FORMS.index(params["intersect"]), _OFFSET_CODE[params["offset"]], eps,
+                     1e-4 if single else 1e-9, 1e-4 if single else 1e-7,
+                     sph_center, sph_radius, tri_v, *acc)
 
 
 @njit(cache=True)
 def legacy_config(A, eps):
     """The rule before issue 3: stable form, float64, origin p + eps·(1 + max|p_i|)·n."""
-    return RayConfig(2, _SCALED, eps, 1e-9, 1e-7, A.sph_center, A.sph_radius, A.tri_v)
+    z2 = np.empty((0, 3))
+    zi = np.empty(0, dtype=np.int64)
+    return RayConfig(2, _SCALED, eps, 1e-9, 1e-7, A.sph_center, A.sph_radius, A.tri_v,
+                     0, z2, z2, zi, zi, zi, np.empty(0), zi)
 
 
 @njit(inline="always", cache=True)
@@ -152,6 +201,11 @@ def round_ray(R: RayConfig, ox, oy, oz, dx, dy, dz):
 def hit(R: RayConfig, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2)`` (float64 t and barycentrics) in R's form and precision."""
     g = R.sph_radius
+    if R.accel != 0:
+        t, prim, b1, b2, _, _ = _accel.closest(R, like(g, ox), like(g, oy), like(g, oz),
+                                               like(g, dx), like(g, dy), like(g, dz),
+                                               like(g, tmin), like(g, tmax))
+        return float(t), prim, float(b1), float(b2)
     t, prim, b1, b2 = closest_hit_form(R.form, like(g, ox), like(g, oy), like(g, oz),
                                        like(g, dx), like(g, dy), like(g, dz),
                                        like(g, tmin), like(g, tmax),
@@ -180,6 +234,10 @@ def refine(R: RayConfig, prim, px, py, pz):
 def occluded(R: RayConfig, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Whether anything lies on the ray within (tmin, tmax), in R's form and precision."""
     g = R.sph_radius
+    if R.accel != 0:
+        h, _, _ = _accel.any_hit(R, like(g, ox), like(g, oy), like(g, oz), like(g, dx),
+                                 like(g, dy), like(g, dz), like(g, tmin), like(g, tmax))
+        return h
     return any_hit_form(R.form, like(g, ox), like(g, oy), like(g, oz), like(g, dx), like(g, dy),
                         like(g, dz), like(g, tmin), like(g, tmax),
                         R.sph_center, R.sph_radius, R.tri_v)

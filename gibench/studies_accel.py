@@ -1,0 +1,305 @@
+"""Acceleration-structure studies (thesis 2.6, issue 7): scaling with scene size.
+
+=============  ==============================================================
+study          what it measures
+=============  ==============================================================
+``scaling``    per structure × scene size: build time, Whitted render and
+               trace time, primitive tests and nodes visited per camera
+               ray, memory — on N random spheres (N = 10 … 1e5) and on
+               tessellated meshes (up to 1e6 triangles)
+``scaling_fit``  per structure × scene family: the exponent k of a
+               least-squares fit trace_s ∝ N^k (log–log), next to the
+               exponent of log N over the same sizes (what a logarithmic
+               structure should not exceed) and of tests per ray
+=============  ==============================================================
+
+Scenes are generated in code with a fixed seed (nothing is written to disk):
+
+* ``spheres`` — N spheres, centres uniform in [-1, 1]³, radius
+  0.3·N^(-1/3) (constant fill fraction, so the number of spheres along a ray
+  is the same at every N), diffuse with one in five a mirror, a floor
+  quad, one point light; camera outside the cube.
+* ``mesh`` — five UV-sphere meshes (:func:`impl.tessellate.uv_sphere`) of
+  N/5 triangles each (one a mirror) on the floor, same light and camera.
+
+Times are wall-clock on whatever machine runs the study (median of
+``repeats``), after one untimed warm-up render per structure that compiles
+the kernels.  ``render_s`` is the whole Whitted render (flatten, build,
+trace); ``build_s`` the time of :func:`impl.rays.ray_config` (which builds
+the structure); ``trace_s`` the same render with the flattened scene and
+the ray configuration handed in prebuilt (patched into :mod:`impl.whitted`
+for the measurement; the image is checked identical): the ray tracing
+itself, fitted against N.  ``primary_query_s`` times that pass alone (closest hits of
+the pixel-centre camera rays, :func:`impl.accel.trace_batch`); ``tests_per_ray`` and ``nodes_per_ray``
+come from it too: a separate counting pass over the camera's pixel-centre rays
+(:func:`impl.accel.trace_batch`), not from the timed render.  Brute force
+runs only up to ``brute_max`` primitives (it grows as N).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .provenance import REPO_ROOT
+from .scene import Camera, Film, Light, Material, Scene, Shape
+from .studies import StudyInfo, read_config, run_registered
+from .transforms import look_at
+
+__all__ = ["STUDIES", "TABLES", "DEFAULT_CONFIG", "load_config", "run_studies", "scaling",
+           "fit_exponents", "sphere_field", "mesh_field", "camera_rays", "bounce_rays"]
+
+DEFAULT_CONFIG = REPO_ROOT / "suites" / "scaling" / "studies.toml"
+
+
+# ================================================================== scenes ===
+
+def _camera(width, height):
+    return Camera(to_world=look_at([2.6, 1.9, 3.4], [0.0, -0.1, 0.0], [0.0, 1.0, 0.0]), fov=45.0,
+                  film=Film(width=width, height=height, rfilter="box"), sample_count=1)
+
+
+def _floor(material):
+    v = np.array([[-3.0, -1.05, -3.0], [3.0, -1.05, -3.0], [3.0, -1.05, 3.0], [-3.0, -1.05, 3.0]])
+    return Shape("mesh", material, name="floor", source="rectangle", vertices=v,
+                 faces=np.array([[0, 2, 1], [0, 3, 2]]))
+
+
+def _materials():
+    return [Material("diffuse", (0.7, 0.4, 0.3), name="red"),
+            Material("diffuse", (0.6, 0.6, 0.6), name="grey"),
+            Material("conductor", (1.0, 1.0, 1.0), params={"material": "none"}, name="mirror")]
+
+
+def _light():
+    return Light("point", np.array([40.0, 40.0, 40.0]), position=np.array([2.0, 4.0, 3.0]), name="key")
+
+
+def sphere_field(n: int, *, seed: int = 0, width: int = 64, height: int = 48) -> Scene:
+    """N random spheres in [-1, 1]³ (radius 0.3·N^(-1/3)), one in five a mirror."""
+    if n < 1:
+        raise ValueError(f"sphere_field: n must be >= 1, got {n}")
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-1.0, 1.0, (n, 3))
+    r = 0.3 * n ** (-1.0 / 3.0)
+    shapes = [Shape("sphere", 2 if i % 5 == 4 else 0, name=f"s{i}", source="sphere",
+                    center=centres[i], radius=r) for i in range(n)]
+    shapes.append(_floor(1))
+    return Scene(Path(f"<generated spheres N={n}>"), _camera(width, height), shapes, _materials(), [_light()])
+
+
+def mesh_field(n_triangles: int, *, width: int = 64, height: int = 48) -> Scene:
+    """Five tessellated spheres of about N/5 triangles each (the middle one a mirror)."""
+    from impl.tessellate import uv_sphere
+
+    if n_triangles < 40:
+        raise ValueError(f"mesh_field: n_triangles must be >= 40, got {n_triangles}")
+    seg = max(3, int(round(math.sqrt(n_triangles / 5.0))))     # uv_sphere(n) has ~n² triangles
+    spots = [(-0.6, -0.55, -0.6, 0.45), (0.6, -0.55, -0.6, 0.45), (0.0, -0.35, 0.0, 0.65),
+             (-0.6, -0.55, 0.6, 0.45), (0.6, -0.55, 0.6, 0.45)]
+    shapes = []
+    for i, (x, y, z, r) in enumerate(spots):
+        v, f = uv_sphere([x, y, z], r, seg)
+        shapes.append(Shape("mesh", 2 if i == 2 else 0, name=f"m{i}", source="generated",
+                            vertices=v, faces=f))
+    shapes.append(_floor(1))
+    return Scene(Path(f"<generated mesh N~{n_triangles}>"), _camera(width, height), shapes, _materials(), [_light()])
+
+
+FAMILIES = {"spheres": sphere_field, "mesh": mesh_field}
+
+
+# ==================================================================== rays ===
+
+def camera_rays(scene: Scene):
+    """Pixel-centre eye rays ``(origins (N, 3), directions (N, 3))`` of the scene's camera."""
+    cam = scene.camera
+    W, H = cam.film.width, cam.film.height
+    u = (np.arange(W) + 0.5) / W
+    v = (np.arange(H) + 0.5) / H
+    tx = cam.tan_half_fov_x
+    d = np.stack(np.broadcast_arrays((1 - 2 * u)[None, :] * tx, (1 - 2 * v)[:, None] * tx / cam.film.aspect,
+                                     np.ones((H, W))), axis=-1).reshape(-1, 3)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d @ cam.to_world[:3, :3].T
+    return np.broadcast_to(cam.origin, d.shape).copy(), np.ascontiguousarray(d)
+
+
+def bounce_rays(A, o, d, t, prim, *, seed: int = 0):
+    """Incoherent rays: at each hit of the rays (o, d) (``prim`` ≥ 0), a cosine-
+    distributed direction about the normal facing the ray, from the hit point
+    offset by 1e-6·(1 + |p|) along that normal.  ``(origins, directions)``."""
+    keep = prim >= 0
+    o, d, t, prim = o[keep], d[keep], t[keep], prim[keep]
+    p = o + t[:, None] * d
+    ns = len(A.sph_radius)
+    n = np.empty_like(p)
+    s = prim < ns
+    n[s] = (p[s] - A.sph_center[prim[s]]) / A.sph_radius[prim[s], None]
+    tv = A.tri_v[prim[~s] - ns]
+    n[~s] = np.cross(tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    n *= -np.sign(np.einsum("ij,ij->i", n, d))[:, None]
+    rng = np.random.default_rng(seed)
+    # Malley's method: uniform on the unit disc, lifted to the hemisphere (pdf cos θ/π).
+    u1, u2 = rng.random(len(p)), rng.random(len(p))
+    rad, phi = np.sqrt(u1), 2.0 * np.pi * u2
+    local = np.stack([rad * np.cos(phi), rad * np.sin(phi), np.sqrt(np.maximum(1.0 - u1, 0.0))], 1)
+    # Frame (s, t, n) about each normal (Duff et al. 2017).
+    sign = np.where(n[:, 2] >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + n[:, 2])
+    b = n[:, 0] * n[:, 1] * a
+    s_ax = np.stack([1 + sign * n[:, 0] ** 2 * a, sign * b, -sign * n[:, 0]], 1)
+    t_ax = np.stack([b, sign + n[:, 1] ** 2 * a, -n[:, 1]], 1)
+    dirs = local[:, :1] * s_ax + local[:, 1:2] * t_ax + local[:, 2:] * n
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    orig = p + 1e-6 * (1 + np.abs(p).max(axis=1, keepdims=True)) * n
+    return np.ascontiguousarray(orig), np.ascontiguousarray(dirs)
+
+
+# ================================================================= scaling ===
+
+def _median_time(fn, repeats):
+    times = []
+    out = None
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times)), out
+
+
+def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=64, height=48,
+            brute_max=20000, repeats=3, max_depth=3, time_limit_s=120.0, log=print) -> list[dict]:
+    """Whitted renders of generated scenes of growing size with every structure.
+
+    ``sizes``: ``{family: [N, ...]}``; ``structures``: names of :data:`impl.accel.ACCELS`.
+    A structure whose render exceeds ``time_limit_s`` is not run at larger N of that
+    family (the row says so in ``note``)."""
+    from unittest import mock
+
+    import impl  # noqa: F401  (registers the algorithms)
+    import impl.whitted as whitted
+    from impl import accel
+    from impl.rays import ray_config
+    from impl.scene_arrays import flatten
+
+    from . import registry
+
+    algo = registry.get("whitted")
+    sizes = sizes or {"spheres": [10, 100, 1000, 10000, 100000], "mesh": [1000, 10000, 100000, 1000000]}
+    structures = list(structures or accel.ACCELS)
+    unknown = sorted(set(structures) - set(accel.ACCELS)) + sorted(set(families) - set(FAMILIES))
+    if unknown:
+        raise ValueError(f"scaling: unknown structure or family {', '.join(unknown)} "
+                         f"(structures: {', '.join(accel.ACCELS)}; families: {', '.join(FAMILIES)})")
+    rows = []
+    for fam in families:
+        make = FAMILIES[fam]
+        stopped = set()
+        warm = make(min(sizes[fam]), width=8, height=6)
+        for name in structures:                                   # compile outside the timings
+            algo.render(warm, algo.parse_params({"accel": name, "max_depth": max_depth}))
+        for N in sizes[fam]:
+            scene = make(N, width=width, height=height)
+            t0 = time.perf_counter()
+            A = flatten(scene)
+            flatten_s = time.perf_counter() - t0
+            n_prims = len(A.sph_radius) + len(A.tri_v)
+            o, d = camera_rays(scene)
+            for name in structures:
+                row = {"family": fam, "N": int(N), "prims": int(n_prims), "accel": name}
+                if name == "none" and n_prims > brute_max:
+                    rows.append({**row, "note": f"skipped: brute force beyond brute_max={brute_max}"})
+                    continue
+                if name in stopped:
+                    rows.append({**row, "note": f"skipped: a smaller N exceeded {time_limit_s} s"})
+                    continue
+                params = algo.parse_params({"accel": name, "max_depth": max_depth})
+                reps = repeats if n_prims <= 100000 else 1
+                config_s, R = _median_time(lambda: ray_config(A, params, algorithm="whitted"), reps)
+                acc_arrays = accel.Accel(*R[8:])
+                render_s, res = _median_time(lambda: algo.render(scene, params), reps)
+                # The same render with the flattened scene and the structure prebuilt:
+                # the ray tracing alone.
+                with mock.patch.object(whitted, "flatten", lambda _s: A), \
+                        mock.patch.object(whitted, "ray_config", lambda *_a, **_k: R):
+                    trace_s, res2 = _median_time(lambda: algo.render(scene, params), reps)
+                if not np.array_equal(res2.image, res.image):
+                    raise RuntimeError(f"scaling: {fam} N={N} {name}: the prebuilt render differs")
+                query_s, (_, prim, _, counts) = _median_time(lambda: accel.trace_batch(R, o, d), reps)
+                rays = sum(res.counters.get(k, 0) for k in
+                           ("eye_rays", "shadow_rays", "reflection_rays", "transmission_rays"))
+                row.update(build_s=config_s, render_s=render_s,
+                           trace_s=trace_s, flatten_s=flatten_s,
+                           primary_query_s=query_s,
+                           tests_per_ray=float(counts[:, 1].mean()),
+                           nodes_per_ray=float(counts[:, 0].mean()),
+                           memory_mb=accel.memory_bytes(acc_arrays) / 1e6,
+                           hit_frac=float((prim >= 0).mean()), rays=int(rays),
+                           image_mean=float(res.image.mean()))
+                rows.append(row)
+                log(f"  scaling {fam} N={N} {name}: build {config_s:.3f}s render {render_s:.3f}s "
+                    f"tests/ray {row['tests_per_ray']:.1f}")
+                if render_s > time_limit_s:
+                    stopped.add(name)
+    return rows
+
+
+def fit_exponents(rows: list[dict], *, n_min: int = 100) -> list[dict]:
+    """Least-squares slope k of log(trace_s) (and of log(tests_per_ray)) against log N
+    per family × structure over N ≥ ``n_min``, with the slope of log(log N) over the
+    same sizes: the exponent a structure of logarithmic cost should not exceed."""
+    out = []
+    keys = dict.fromkeys((r["family"], r["accel"]) for r in rows)
+    for fam, name in keys:
+        pts = [r for r in rows if r["family"] == fam and r["accel"] == name and "trace_s" in r
+               and r["N"] >= n_min and r["trace_s"] > 0]
+        if len(pts) < 2:
+            continue
+        n = np.log([r["prims"] for r in pts])
+        k_time = float(np.polyfit(n, np.log([r["trace_s"] for r in pts]), 1)[0])
+        k_query = float(np.polyfit(n, np.log([max(r["primary_query_s"], 1e-9) for r in pts]), 1)[0])
+        k_tests = float(np.polyfit(n, np.log([max(r["tests_per_ray"], 1e-9) for r in pts]), 1)[0])
+        k_log = float(np.polyfit(n, np.log(n), 1)[0])
+        out.append({"family": fam, "accel": name, "sizes": len(pts),
+                    "N_range": f"{pts[0]['prims']}–{pts[-1]['prims']}",
+                    "exponent_trace_time": k_time, "exponent_primary_query": k_query,
+                    "exponent_tests_per_ray": k_tests,
+                    "exponent_log_N": k_log})
+    return out
+
+
+STUDIES = {s.name: s for s in (
+    StudyInfo("scaling", "Acceleration structures: scaling with scene size",
+              "Whitted renders (64×48, 1 spp, max_depth 3) of N random spheres and of tessellated meshes "
+              "with every structure of impl.accel: build time (ray_config), render and trace time, "
+              "primitive tests and nodes per camera ray (counting pass), memory.", scaling),
+)}
+
+TABLES = {name: (s.title, s.description) for name, s in STUDIES.items()}
+TABLES["scaling_fit"] = (
+    "Acceleration structures: fitted exponent of trace time vs N",
+    "Least-squares slope of log trace time (and of log tests per ray) against log N per structure and "
+    "scene family, next to the slope of log N over the same sizes: brute force should be ≈ 1, a "
+    "hierarchy at most about the log N slope (plus the constant overheads at small N).")
+
+
+def load_config(path=None) -> dict:
+    """The studies' parameters from a TOML file (default ``suites/scaling/studies.toml``)."""
+    return read_config(path, DEFAULT_CONFIG)
+
+
+def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[str, list[dict]]:
+    """Run the studies named in ``config``; adds ``scaling_fit`` when ``scaling`` ran."""
+    if config is None or isinstance(config, (str, Path)):
+        config = load_config(config)
+    cfg = dict(config)
+    fit_min = int(cfg.pop("fit_n_min", 100)) if "fit_n_min" in cfg else 100
+    out = run_registered(STUDIES, cfg, only=only)
+    if "scaling" in out:
+        out["scaling_fit"] = fit_exponents(out["scaling"], n_min=fit_min)
+    return out

@@ -1,0 +1,300 @@
+"""Acceleration structures (impl.accel): every structure returns brute force's
+closest hit (primitive id, and t within 1e-6 relative) and any-hit answer on
+random rays through random scenes of spheres and triangles, in float64 and
+float32, including rays starting inside the scene, axis-parallel rays, rays
+with zero (and −0.0) direction components and rays aimed at shared mesh
+vertices (ties); the trees and the grid are well formed; the ray tracers'
+images do not change with the structure."""
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gibench import registry
+from gibench.loader import load_scene
+from impl import accel
+from impl.accel.bvh import build_bvh
+from impl.accel.goldsmith_salmon import build_goldsmith_salmon
+from impl.accel.grid import build_grid
+from impl.accel.octree import build_octree
+from impl.accel.primitives import prim_bounds
+from impl.accel.slabs import slab_normals
+from impl.rays import RayConfig, ray_config
+from impl.scene_arrays import flatten
+
+SUITES = Path(__file__).resolve().parent.parent / "suites"
+STRUCTURES = [a for a in accel.ACCELS if a != "none"]
+SEED = 20261123
+
+
+def random_scene(rng, n_spheres, n_tris):
+    """Spheres of radius 0.01–0.15 and triangles of size ~0.2 in [-1, 1]³, plus a
+    tessellated axis-aligned floor (shared edges and vertices: exact ties)."""
+    c = rng.uniform(-1, 1, (n_spheres, 3))
+    r = rng.uniform(0.01, 0.15, n_spheres)
+    v = rng.uniform(-1, 1, (n_tris, 1, 3)) + rng.normal(0, 0.1, (n_tris, 3, 3))
+    g = np.linspace(-1, 1, 5)
+    quads = []
+    for i in range(4):
+        for j in range(4):
+            a, b = [g[i], -1.0, g[j]], [g[i + 1], -1.0, g[j]]
+            cc, d = [g[i + 1], -1.0, g[j + 1]], [g[i], -1.0, g[j + 1]]
+            quads += [[a, b, cc], [a, cc, d]]
+    v = np.concatenate([v, np.array(quads)])
+    shape = np.concatenate([np.arange(n_spheres), n_spheres + np.arange(len(v)) // 7])
+    return c, r, v, shape
+
+
+def random_rays(rng, n):
+    """Origins outside and inside the scene box; random, axis-parallel, zero-component
+    directions (±0.0), and rays through the floor's shared vertices."""
+    o = rng.uniform(-2, 2, (n, 3))
+    o[: n // 4] = rng.uniform(-0.9, 0.9, (n // 4, 3))          # inside the scene bounds
+    d = rng.normal(size=(n, 3))
+    k = n // 8
+    axes = rng.integers(0, 3, k)
+    d[k:2 * k] = 0.0
+    d[k + np.arange(k), axes] = rng.choice([-1.0, 1.0], k)     # axis-parallel
+    zero = rng.integers(0, 3, k)
+    d[2 * k + np.arange(k), zero] = rng.choice([0.0, -0.0], k)  # one zero component
+    d[3 * k:4 * k, :2] = rng.choice([0.0, -0.0], (k, 2))        # two zero components
+    d[3 * k:4 * k, 2] = rng.choice([-1.0, 1.0], k)
+    # Through the floor's grid vertices (-1 + 0.5 i, -1, -1 + 0.5 j): edges shared by 2–6 triangles.
+    gv = np.stack([-1 + 0.5 * rng.integers(1, 4, k), np.full(k, -1.0), -1 + 0.5 * rng.integers(1, 4, k)], 1)
+    o[4 * k:5 * k] = gv + rng.uniform(-1, 1, (k, 3)) * [1, 0, 1] + [0, 1.5, 0]
+    d[4 * k:5 * k] = gv - o[4 * k:5 * k]
+    # Origins exactly on the scene box's planes.
+    o[5 * k:6 * k, rng.integers(0, 3)] = -1.0
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    return o, d
+
+
+def config(c, r, v, shape, name, dtype, form=2, **kw):
+    c, r, v = (np.ascontiguousarray(x, dtype=dtype) for x in (c, r, v))
+    return RayConfig(form, 2, 1e-4, 1e-9, 1e-7, c, r, v, *accel.build(name, c, r, v, shape, **kw))
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+@pytest.mark.parametrize("seed", [SEED, SEED + 1])
+def test_every_structure_returns_the_brute_force_closest_hit(dtype, seed):
+    rng = np.random.default_rng(seed)
+    c, r, v, shape = random_scene(rng, 150, 150)
+    o, d = random_rays(rng, 4000)
+    t0, p0, b0, _ = accel.trace_batch(config(c, r, v, shape, "none", dtype), o, d)
+    assert (p0 >= 0).mean() > 0.3, "too few hits to test anything"
+    hit = p0 >= 0
+    for name in STRUCTURES:
+        t, p, b, counts = accel.trace_batch(config(c, r, v, shape, name, dtype), o, d)
+        bad = np.flatnonzero(p != p0)
+        assert len(bad) == 0, (f"{name} {dtype.__name__} seed={seed}: primitive differs on "
+                               f"{len(bad)} rays, first o={o[bad[0]].tolist()} d={d[bad[0]].tolist()}: "
+                               f"{p[bad[0]]} at t={t[bad[0]]} vs brute force {p0[bad[0]]} at t={t0[bad[0]]}")
+        np.testing.assert_allclose(t[hit], t0[hit], rtol=1e-6, err_msg=f"{name} seed={seed}")
+        np.testing.assert_array_equal(b[hit], b0[hit], err_msg=f"{name}: barycentrics")
+        assert (counts[:, 1] >= 0).all()
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+def test_every_structure_answers_shadow_rays_as_brute_force(dtype):
+    """Any-hit within (tmin, tmax): segments ending before, at and after the first hit."""
+    rng = np.random.default_rng(SEED + 7)
+    c, r, v, shape = random_scene(rng, 120, 120)
+    o, d = random_rays(rng, 3000)
+    t0, p0, _, _ = accel.trace_batch(config(c, r, v, shape, "none", dtype), o, d)
+    tmax = np.where(p0 >= 0, t0, 3.0) * rng.choice([0.5, 0.999, 1.001, 2.0], len(o))
+    tmin = rng.choice([0.0, 0.05], len(o))
+    want, _ = accel.occluded_batch(config(c, r, v, shape, "none", dtype), o, d, tmin, tmax)
+    assert 0.1 < want.mean() < 0.9, "the shadow rays should be partly blocked"
+    for name in STRUCTURES:
+        got, _ = accel.occluded_batch(config(c, r, v, shape, name, dtype), o, d, tmin, tmax)
+        bad = np.flatnonzero(got != want)
+        assert len(bad) == 0, f"{name} {dtype.__name__}: any-hit differs on {len(bad)} rays (first {bad[:5]})"
+
+
+@pytest.mark.parametrize("form", [0, 1], ids=["algebraic", "geometric"])
+def test_the_structures_keep_the_configured_sphere_form(form):
+    """With the algebraic / geometric sphere test the hits still equal brute force's."""
+    rng = np.random.default_rng(SEED + 3)
+    c, r, v, shape = random_scene(rng, 200, 0)
+    o, d = random_rays(rng, 2000)
+    t0, p0, _, _ = accel.trace_batch(config(c, r, v, shape, "none", np.float32, form), o, d)
+    for name in ("bvh-sah", "grid", "slabs"):
+        t, p, _, _ = accel.trace_batch(config(c, r, v, shape, name, np.float32, form), o, d)
+        np.testing.assert_array_equal(p, p0, err_msg=name)
+        np.testing.assert_array_equal(t, t0, err_msg=name)
+
+
+def test_hierarchies_cost_fewer_tests_than_brute_force():
+    """Tests per ray: ~log n nodes and a handful of primitives for 3000 spheres (brute force 3000)."""
+    rng = np.random.default_rng(SEED + 5)
+    c = rng.uniform(-1, 1, (3000, 3))
+    r = np.full(3000, 0.01)
+    v = np.empty((0, 3, 3))
+    o, d = random_rays(rng, 2000)
+    _, p0, _, _ = accel.trace_batch(config(c, r, v, None, "none", np.float64), o, d)
+    for name in ("bvh-median", "bvh-sah", "bvh-gs", "grid", "octree"):
+        _, p, _, counts = accel.trace_batch(config(c, r, v, None, name, np.float64), o, d)
+        np.testing.assert_array_equal(p, p0)
+        assert counts[:, 1].mean() < 30, f"{name}: {counts[:, 1].mean():.1f} primitive tests per ray"
+        assert counts[:, 0].mean() < 300, f"{name}: {counts[:, 0].mean():.1f} nodes per ray"
+    _, _, _, counts = accel.trace_batch(config(c, r, v, None, "bv", np.float64), o, d)
+    assert (counts[:, 0] == 3000).all(), "per-object volumes: every volume tested (n·B)"
+
+
+@pytest.mark.parametrize("builder", [lambda lo, hi: build_bvh(lo, hi, "median"),
+                                     lambda lo, hi: build_bvh(lo, hi, "sah"),
+                                     build_goldsmith_salmon, build_octree],
+                         ids=["median", "sah", "goldsmith-salmon", "octree"])
+def test_trees_are_well_formed(builder):
+    """Every primitive sits in a leaf whose box (and every ancestor's) contains its bounds;
+    BVHs hold each primitive exactly once."""
+    rng = np.random.default_rng(SEED + 11)
+    c, r, v, _ = random_scene(rng, 300, 300)
+    lo, hi = prim_bounds(c, r, v)
+    nlo, nhi, na, nb, idx = builder(lo, hi)
+    seen = np.zeros(len(lo), dtype=int)
+    stack = [(0, None)]
+    while stack:
+        n, parent = stack.pop()
+        if parent is not None and builder is not build_octree:
+            assert (nlo[n] >= nlo[parent]).all() and (nhi[n] <= nhi[parent]).all()
+        if nb[n] >= 0:
+            prims = idx[na[n]:na[n] + nb[n]]
+            seen[prims] += 1
+            if builder is not build_octree:
+                assert (lo[prims] >= nlo[n]).all() and (hi[prims] <= nhi[n]).all()
+        else:
+            assert na[n] > n, "children must follow their parent"
+            stack += [(k, n) for k in range(na[n], na[n] - nb[n])]
+    if builder is build_octree:
+        assert (seen >= 1).all()
+    else:
+        np.testing.assert_array_equal(seen, 1)
+
+
+def test_grid_lists_every_primitive_in_every_voxel_its_box_overlaps():
+    rng = np.random.default_rng(SEED + 13)
+    c, r, v, _ = random_scene(rng, 100, 100)
+    lo, hi = prim_bounds(c, r, v)
+    glo, ghi, cs, res, off, refs = build_grid(lo, hi)
+    assert res.prod() >= len(lo) and (res >= 1).all()
+    for p in rng.choice(len(lo), 40, replace=False):
+        i0 = np.clip(np.floor((lo[p] - glo[0]) / cs).astype(int), 0, res - 1)
+        i1 = np.clip(np.floor((hi[p] - glo[0]) / cs).astype(int), 0, res - 1)
+        for z in range(i0[2], i1[2] + 1):
+            for y in range(i0[1], i1[1] + 1):
+                for x in range(i0[0], i1[0] + 1):
+                    cell = (z * res[1] + y) * res[0] + x
+                    assert p in refs[off[cell]:off[cell + 1]]
+    assert len(refs) >= len(lo)
+
+
+def test_slab_normals_are_unit_and_distinct():
+    for k in (3, 7, 13):
+        n = slab_normals(k)
+        assert n.shape == (k, 3)
+        np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0)
+        assert np.linalg.matrix_rank(n) == 3 and len(np.unique(np.abs(n @ n.T).round(9), axis=0)) == k
+    with pytest.raises(ValueError, match="slab_normals must be one of"):
+        slab_normals(5)
+
+
+def test_more_slab_normals_cull_more_objects():
+    """Seven normals bound a rotated mesh object more tightly than three: fewer primitive tests."""
+    rng = np.random.default_rng(SEED + 17)
+    c, r, v, shape = random_scene(rng, 0, 400)
+    o, d = random_rays(rng, 3000)
+    tests = {}
+    for k in (3, 7):
+        _, p, _, counts = accel.trace_batch(config(c, r, v, shape, "slabs", np.float64, slab_normals=k), o, d)
+        tests[k] = counts[:, 1].mean()
+    assert tests[7] < tests[3], tests
+
+
+def test_unknown_structure_is_refused_with_the_valid_names():
+    with pytest.raises(ValueError, match="unknown structure 'kd'.*bvh-sah"):
+        accel.build("kd", np.zeros((1, 3)), np.ones(1), np.empty((0, 3, 3)))
+    with pytest.raises(registry.ParamError, match="accel"):
+        registry.get("whitted").parse_params({"accel": "bsp"})
+
+
+def test_empty_scene_misses_with_every_structure():
+    scene = load_scene(SUITES / "spheres" / "lit_sphere.xml")
+    A = flatten(scene)._replace(sph_center=np.empty((0, 3)), sph_radius=np.empty(0),
+                                tri_v=np.empty((0, 3, 3)), prim_shape=np.empty(0, dtype=np.int64))
+    for name in accel.ACCELS:
+        R = ray_config(A, registry.get("whitted").parse_params({"accel": name}), algorithm="whitted")
+        _, p, _, _ = accel.trace_batch(R, np.zeros((4, 3)), np.eye(4, 3) + [0, 0, 1e-3])
+        assert (p == -1).all()
+
+
+# ------------------------------------------------------------ render level ---
+
+def small(path, width, height):
+    sc = load_scene(path)
+    return replace(sc, camera=replace(sc.camera, film=replace(sc.camera.film, width=width, height=height)))
+
+
+@pytest.mark.parametrize("scene", ["cornell/cornell_mirror_glass.xml", "spheres/sphere_grid.xml",
+                                   "spheres/meshes.xml"])
+def test_whitted_images_do_not_depend_on_the_structure(scene):
+    """Same closest hits ⇒ the same image, bit for bit, whatever the structure."""
+    algo = registry.get("whitted")
+    sc = small(SUITES / scene, 40, 32)
+    ref = algo.render(sc, algo.parse_params({"accel": "none", "light_samples": 4})).image
+    assert ref.max() > 0
+    for name in ("bvh-sah", "grid", "octree", "slabs"):
+        img = algo.render(sc, algo.parse_params({"accel": name, "light_samples": 4})).image
+        np.testing.assert_array_equal(img, ref, err_msg=f"{scene}: accel={name}")
+
+
+def test_raycast_float32_image_does_not_depend_on_the_structure():
+    algo = registry.get("raycast")
+    sc = small(SUITES / "cornell" / "cornell_box.xml", 32, 32)
+    p = {"precision": "float32", "light_samples": 4}
+    ref = algo.render(sc, algo.parse_params({**p, "accel": "none"})).image
+    for name in ("bvh-median", "bvh-gs", "bv", "bv-sphere"):
+        img = algo.render(sc, algo.parse_params({**p, "accel": name})).image
+        np.testing.assert_array_equal(img, ref, err_msg=f"accel={name}")
+
+
+# ---------------------------------------------------------------- packets ---
+
+def test_packets_return_the_single_ray_hits_of_the_same_tree():
+    """8×8 eye-ray packets through the BVH: the same depth and primitive buffers as
+    single-ray traversal of that BVH, and as brute force."""
+    from impl.accel.packets import primary_hits
+    from gibench.studies_accel import camera_rays, sphere_field
+
+    scene = sphere_field(400, width=52, height=36)          # tiles cut by the image border
+    A = flatten(scene)
+    algo = registry.get("whitted")
+    for name in ("bvh-sah", "octree"):
+        R = ray_config(A, algo.parse_params({"accel": name}), algorithm="whitted")
+        d1, p1, c1 = primary_hits(R, scene.camera, packets=False)
+        d2, p2, c2 = primary_hits(R, scene.camera, packets=True)
+        np.testing.assert_array_equal(p2, p1, err_msg=name)
+        np.testing.assert_array_equal(d2, d1, err_msg=name)
+        assert (p1 >= 0).mean() > 0.3
+        assert c2[0] < c1[0], f"{name}: a packet opens each node once for its rays ({c2[0]} vs {c1[0]})"
+    R0 = ray_config(A, algo.parse_params({"accel": "none"}), algorithm="whitted")
+    o, d = camera_rays(scene)
+    _, p0, _, _ = accel.trace_batch(R0, o, d, tmin=0.0)
+    np.testing.assert_array_equal(p1.reshape(-1), p0)
+    with pytest.raises(ValueError, match="packets need a tree"):
+        primary_hits(R0, scene.camera, packets=True)
+
+
+def test_auto_uses_the_bvh_with_the_stable_form_only():
+    """accel=auto (the default): BVH-SAH for the stable sphere form; brute force for the
+    algebraic and geometric forms, whose far-field false hits a bounding volume would cull."""
+    A = flatten(load_scene(SUITES / "spheres" / "lit_sphere.xml"))
+    algo = registry.get("whitted")
+    assert algo.parse_params({})["accel"] == "auto"
+    kinds = {form: ray_config(A, algo.parse_params({"intersect": form}), algorithm="whitted").accel
+             for form in ("stable", "algebraic", "geometric")}
+    assert kinds == {"stable": accel.TREE, "algebraic": accel.NONE, "geometric": accel.NONE}
+    R = ray_config(A, algo.parse_params({"intersect": "geometric", "accel": "grid"}), algorithm="whitted")
+    assert R.accel == accel.GRID
