@@ -72,9 +72,14 @@ class ScreenTriangles(NamedTuple):
 def camera_frame(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     """(R, eye): camera axes as the columns of R (x left, y up, z forward) and the eye.
 
-    Raises ``NotImplementedError`` for a camera transform with scale or shear
+    Raises ``NotImplementedError`` for a sensor other than the pinhole
+    ``perspective`` one, and for a camera transform with scale or shear
     (distances along eye rays would not be camera-space lengths).
     """
+    if camera.kind != "perspective":
+        raise NotImplementedError(
+            f"pipeline: the rasterisers (zbuffer, depthsort) project through a pinhole; the scene's "
+            f"'{camera.kind}' sensor is not modelled (render it with raycast, whitted or distributed)")
     m = np.asarray(camera.to_world, dtype=np.float64)
     R = m[:3, :3]
     if not np.allclose(R.T @ R, np.eye(3), atol=1e-9):

@@ -220,3 +220,15 @@ def test_visibility_matches_mitsuba_shape_index(name, mitsuba):
         print(name, algo.name, f"identical {same.mean():.5f}, off borders {same[inner].mean():.5f}")
         assert same.mean() >= 0.998, f"{algo.name}: {np.sum(~same)} pixels differ"
         assert same[inner].mean() >= 0.999, f"{algo.name}: {np.sum(~same & inner)} pixels differ off borders"
+
+
+@pytest.mark.parametrize("scene", ["distributed/dof.xml", "distributed/orthographic.xml"])
+def test_rasterisers_refuse_sensors_they_do_not_model(scene):
+    """A thin-lens or orthographic sensor is refused with its name, not rendered as a pinhole."""
+    import impl  # noqa: F401  (registers 'depthsort' too)
+
+    s = load_scene(Path(__file__).resolve().parents[1] / "suites" / scene)
+    for name in ("zbuffer", "depthsort"):
+        algo = registry.get(name)
+        with pytest.raises(NotImplementedError, match=s.camera.kind):
+            algo.render(s, algo.parse_params({}))
