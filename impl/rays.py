@@ -36,7 +36,8 @@ it (thesis 2.3.3: the cancelled discriminant; ``test_whitted``'s distant
 sphere: the geometric form "hits" all 1024 pixels).  A bounding volume culls
 those rays, so a structure would hide the very error those forms are kept to
 show.  ``accel=auto`` (the default) therefore uses :data:`AUTO_ACCEL` with the
-stable form only and brute force with the other two; an explicit structure
+stable form only, on scenes of at least :data:`AUTO_MIN_PRIMS` primitives
+(below that brute force is faster), and brute force with the other two; an explicit structure
 with them is honoured, with equal results wherever the form's hits lie on
 its sphere (to within the bounds' padding).
 
@@ -112,6 +113,13 @@ _SCALED = STRATEGIES.index("scaled")
 #: The structure of ``accel=auto``: the fastest measured (benchmarks/bench_accel.py,
 #: the scaling study), with the fastest build among the hierarchies.
 AUTO_ACCEL = "bvh-sah"
+#: ``accel=auto`` traces scenes with fewer primitives than this by brute force:
+#: a hierarchy's traversal costs more than it saves there.  Measured (median of
+#: 3 renders, each pair in one run): whitted on mirror_sphere (7 primitives)
+#: 1.3 s brute force vs 3.2–3.7 s with the SAH BVH; raycast on cornell_box (36)
+#: 2.4 s vs 3.9 s; raycast on meshes (330) 0.59–0.76 s vs 0.30 s.  The
+#: crossover lies between 36 and 330; 100 is near its log-midpoint.
+AUTO_MIN_PRIMS = 100
 
 #: The parameter-table rows of the ray tracers that take a ray configuration.
 PARAMS = (
@@ -123,8 +131,8 @@ PARAMS = (
           "origin + ε·n, or Wächter-Binder ulp offset", choices=OFFSETS),
     Param("epsilon", float, 1e-4, "ε of offset=epsilon (t_min) and offset=normal (scene units)"),
     Param("accel", str, "auto", "acceleration structure of every ray query (thesis 2.6; "
-          "impl.accel): none = brute force; auto = bvh-sah with the stable sphere form, none "
-          "with the algebraic/geometric forms", choices=("auto",) + _accel.ACCELS),
+          "impl.accel): none = brute force; auto = bvh-sah with the stable sphere form from "
+          "100 primitives on, none below and with the algebraic/geometric forms", choices=("auto",) + _accel.ACCELS),
     Param("slab_normals", int, 7, "plane normals of accel=slabs (3 axes, 7 = + cube diagonals, "
           "13 = + face diagonals)", choices=_accel.SLAB_COUNTS),
 )
@@ -170,7 +178,8 @@ def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
     tri_v = np.ascontiguousarray(A.tri_v, dtype=F)
     name = params.get("accel", "auto")
     if name == "auto":
-        name = AUTO_ACCEL if params["intersect"] == "stable" else "none"
+        big = len(sph_radius) + len(tri_v) >= AUTO_MIN_PRIMS
+        name = AUTO_ACCEL if params["intersect"] == "stable" and big else "none"
     if name not in _accel.ACCELS:
         raise ValueError(f"{algorithm}: unknown accel {name!r} (valid: auto, {', '.join(_accel.ACCELS)})")
     acc = _accel.build(name, sph_center, sph_radius, tri_v, A.prim_shape,

@@ -288,10 +288,17 @@ def test_packets_return_the_single_ray_hits_of_the_same_tree():
 
 
 def test_auto_uses_the_bvh_with_the_stable_form_only():
-    """accel=auto (the default): BVH-SAH for the stable sphere form; brute force for the
-    algebraic and geometric forms, whose far-field false hits a bounding volume would cull."""
-    A = flatten(load_scene(SUITES / "spheres" / "lit_sphere.xml"))
+    """accel=auto (the default): BVH-SAH for the stable sphere form from AUTO_MIN_PRIMS
+    primitives on; brute force below that, and for the algebraic and geometric forms,
+    whose far-field false hits a bounding volume would cull."""
+    from impl.rays import AUTO_MIN_PRIMS
+
     algo = registry.get("whitted")
+    small = flatten(load_scene(SUITES / "spheres" / "lit_sphere.xml"))
+    assert len(small.sph_radius) + len(small.tri_v) < AUTO_MIN_PRIMS
+    assert ray_config(small, algo.parse_params({}), algorithm="whitted").accel == accel.NONE
+    A = flatten(load_scene(SUITES / "spheres" / "meshes.xml"))
+    assert len(A.sph_radius) + len(A.tri_v) >= AUTO_MIN_PRIMS
     assert algo.parse_params({})["accel"] == "auto"
     kinds = {form: ray_config(A, algo.parse_params({"intersect": form}), algorithm="whitted").accel
              for form in ("stable", "algebraic", "geometric")}
