@@ -252,7 +252,9 @@ def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=
 def fit_exponents(rows: list[dict], *, n_min: int = 100) -> list[dict]:
     """Least-squares slope k of log(trace_s) (and of log(tests_per_ray)) against log N
     per family × structure over N ≥ ``n_min``, with the slope of log(log N) over the
-    same sizes: the exponent a structure of logarithmic cost should not exceed."""
+    same sizes: the exponent a structure of logarithmic cost should not exceed; and
+    the nodes visited per ray fitted as a + b·ln N (slope b, R²), the direct test of
+    logarithmic work (wall time adds cache effects the node count does not have)."""
     out = []
     keys = dict.fromkeys((r["family"], r["accel"]) for r in rows)
     for fam, name in keys:
@@ -265,17 +267,24 @@ def fit_exponents(rows: list[dict], *, n_min: int = 100) -> list[dict]:
         k_query = float(np.polyfit(n, np.log([max(r["primary_query_s"], 1e-9) for r in pts]), 1)[0])
         k_tests = float(np.polyfit(n, np.log([max(r["tests_per_ray"], 1e-9) for r in pts]), 1)[0])
         k_log = float(np.polyfit(n, np.log(n), 1)[0])
+        # Logarithmic cost means work = a + b·ln N: fit the nodes visited per ray
+        # linearly in ln N and report the slope b and R² (1 = exactly logarithmic).
+        nodes = np.array([r["nodes_per_ray"] for r in pts], dtype=np.float64)
+        b_nodes, a_nodes = np.polyfit(n, nodes, 1)
+        resid = nodes - (a_nodes + b_nodes * n)
+        r2 = float(1.0 - resid.var() / nodes.var()) if nodes.var() > 0 else float("nan")
         out.append({"family": fam, "accel": name, "sizes": len(pts),
                     "N_range": f"{pts[0]['prims']}–{pts[-1]['prims']}",
                     "exponent_trace_time": k_time, "exponent_primary_query": k_query,
                     "exponent_tests_per_ray": k_tests,
-                    "exponent_log_N": k_log})
+                    "exponent_log_N": k_log,
+                    "nodes_per_ray_per_lnN": float(b_nodes), "nodes_lnN_r2": r2})
     return out
 
 
 STUDIES = {s.name: s for s in (
     StudyInfo("scaling", "Acceleration structures: scaling with scene size",
-              "Whitted renders (64×48, 1 spp, max_depth 3) of N random spheres and of tessellated meshes "
+              "Whitted renders (1 spp, max_depth 3; film size from the config) of N random spheres and of tessellated meshes "
               "with every structure of impl.accel: build time (ray_config), render and trace time, "
               "primitive tests and nodes per camera ray (counting pass), memory.", scaling),
 )}
@@ -285,7 +294,8 @@ TABLES["scaling_fit"] = (
     "Acceleration structures: fitted exponent of trace time vs N",
     "Least-squares slope of log trace time (and of log tests per ray) against log N per structure and "
     "scene family, next to the slope of log N over the same sizes: brute force should be ≈ 1, a "
-    "hierarchy at most about the log N slope (plus the constant overheads at small N).")
+    "hierarchy at most about the log N slope (plus the constant overheads at small N and cache "
+    "effects at large N); and nodes per ray fitted as a + b·ln N (R² near 1: logarithmic work).")
 
 
 def load_config(path=None) -> dict:

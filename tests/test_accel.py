@@ -305,3 +305,24 @@ def test_auto_uses_the_bvh_with_the_stable_form_only():
     assert kinds == {"stable": accel.TREE, "algebraic": accel.NONE, "geometric": accel.NONE}
     R = ray_config(A, algo.parse_params({"intersect": "geometric", "accel": "grid"}), algorithm="whitted")
     assert R.accel == accel.GRID
+
+
+def test_scaling_fit_recovers_known_exponents_and_logarithmic_work():
+    """gibench.studies_accel.fit_exponents on synthetic rows: trace time ∝ N fits exponent 1,
+    nodes per ray = 3 + 5·ln N fits slope 5 with R² = 1, and a power law in the node count
+    does not fit a line in ln N as well."""
+    from gibench.studies_accel import fit_exponents
+
+    rows = []
+    for N in (1000, 10000, 100000, 1000000):
+        rows.append({"family": "f", "accel": "lin", "N": N, "prims": N, "trace_s": 1e-6 * N,
+                     "primary_query_s": 1e-7 * N, "tests_per_ray": float(N),
+                     "nodes_per_ray": 3.0 + 5.0 * np.log(N)})
+        rows.append({"family": "f", "accel": "pow", "N": N, "prims": N, "trace_s": 1e-3,
+                     "primary_query_s": 1e-4, "tests_per_ray": 1.0, "nodes_per_ray": N ** 0.5})
+    fits = {f["accel"]: f for f in fit_exponents(rows, n_min=1000)}
+    assert fits["lin"]["exponent_trace_time"] == pytest.approx(1.0)
+    assert fits["lin"]["nodes_per_ray_per_lnN"] == pytest.approx(5.0)
+    assert fits["lin"]["nodes_lnN_r2"] == pytest.approx(1.0)
+    assert fits["pow"]["exponent_trace_time"] == pytest.approx(0.0, abs=1e-12)
+    assert fits["pow"]["nodes_lnN_r2"] < 0.95
