@@ -173,7 +173,7 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
             b += tb * eb
             break
         shape = A.prim_shape[prim]
-        px, py, pz = refine(R, prim, ox + t * dx, oy + t * dy, oz + t * dz)
+        px, py, pz = refine(R, prim, b1, b2, ox + t * dx, oy + t * dy, oz + t * dz)
         gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
                                          A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
         vx, vy, vz = -dx, -dy, -dz

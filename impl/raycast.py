@@ -85,7 +85,7 @@ def _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, R: RayConfig, 
         return er, eg, eb, 0
     ns = A.sph_radius.shape[0]
     shape = A.prim_shape[prim]
-    px, py, pz = refine(R, prim, ox + t * dx, oy + t * dy, oz + t * dz)
+    px, py, pz = refine(R, prim, b1, b2, ox + t * dx, oy + t * dy, oz + t * dz)
     gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
                                       A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
     return local_shading(px, py, pz, gx, gy, gz, sx, sy, sz, -dx, -dy, -dz, shape, prim, b1, b2, A, R,

@@ -284,7 +284,7 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: SpecularArrays,
             b += wb * eb
             continue
         shape = A.prim_shape[prim]
-        px, py, pz = refine(R, prim, rox + t * rdx, roy + t * rdy, roz + t * rdz)
+        px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
         gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
                                          A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
         vx, vy, vz = -rdx, -rdy, -rdz
