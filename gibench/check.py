@@ -43,12 +43,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 from .provenance import REPO_ROOT, git_commit, machine, utc_now, versions
+from .imageio import write_text
 
 __all__ = ["BASELINE_FORMAT", "GATED_HIGHER", "GATED_LOWER", "REL_FLOOR", "SPREAD_FACTOR",
            "ABS_FLOOR", "SPEED_FACTOR", "BaselineError", "Finding", "case_key", "make_baseline",
@@ -125,24 +124,9 @@ def make_baseline(runs: list[list[dict]], *, suite: str, suite_file: str, seeds:
             "speed_factor": SPEED_FACTOR, "cases": cases}
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
 def write_baseline(doc: dict, path) -> Path:
     path = Path(path)
-    _atomic_write(path, json.dumps(doc, indent=1, sort_keys=False) + "\n")
+    write_text(path, json.dumps(doc, indent=1, sort_keys=False) + "\n")
     return path
 
 

@@ -306,9 +306,9 @@ def cmd_check(args) -> int:
     failed = [f for f in findings if f.failed]
     import dataclasses
 
-    from .check import _atomic_write
+    from .imageio import write_text
 
-    _atomic_write(out.parent / "check.json", json.dumps(
+    write_text(out.parent / "check.json", json.dumps(
         {"run_id": run_id, "baseline": str(args.baseline), "passed": not failed,
          "findings": [dataclasses.asdict(f) for f in findings]}, indent=1, default=str) + "\n")
     print(f"report:  {out}")

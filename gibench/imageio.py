@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-__all__ = ["ImageError", "read_exr", "write_exr", "check_finite", "as_rgb"]
+__all__ = ["ImageError", "read_exr", "write_exr", "write_text", "check_finite", "as_rgb"]
 
 
 class ImageError(ValueError):
@@ -78,6 +78,25 @@ def write_exr(path, image, *, metadata: dict | None = None) -> Path:
     try:
         with OpenEXR.File(header, {"RGB": a}) as f:
             f.write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
+def write_text(path, text: str) -> Path:
+    """Write a text file (a report page, a baseline, JSON) atomically, fsync'd, mode 0644;
+    return its path.  A crash leaves the old file or the new one, never a torn one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -15,9 +15,9 @@ import base64
 import html
 import io
 import math
-import os
-import tempfile
 from pathlib import Path
+
+from gibench.imageio import write_text
 
 __all__ = ["render_dashboard", "write_dashboard", "DEFAULT_METRICS"]
 
@@ -161,15 +161,4 @@ def write_dashboard(con, out_path, *, metrics=None) -> Path:
     from gibench.history import benchmark_rows, query
 
     text = render_dashboard(query(con), benchmark_rows(con), metrics=metrics or DEFAULT_METRICS)
-    out_path = Path(out_path)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=out_path.name + ".", suffix=".tmp", dir=out_path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, out_path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return out_path
+    return write_text(out_path, text)

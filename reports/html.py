@@ -20,15 +20,13 @@ import base64
 import html
 import io
 import math
-import os
-import tempfile
 from collections import Counter
 from pathlib import Path
 
 import matplotlib.image as mpimg
 import numpy as np
 
-from gibench.imageio import ImageError, read_exr
+from gibench.imageio import ImageError, read_exr, write_text
 from reports.tonemap import tonemap_srgb
 
 __all__ = ["write_report", "fmt"]
@@ -548,16 +546,4 @@ def render_report(records: list[dict], *, root, title: str = "gibench report") -
 
 def write_report(records: list[dict], out_path, *, root, title: str = "gibench report") -> Path:
     """Write the self-contained report page for ``records`` to ``out_path`` atomically."""
-    out_path = Path(out_path)
-    text = render_report(records, root=root, title=title)
-    out_path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=out_path.name + ".", suffix=".tmp", dir=out_path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, out_path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return out_path
+    return write_text(out_path, render_report(records, root=root, title=title))
