@@ -16,8 +16,9 @@ import pytest
 from gibench import cli
 from gibench.check import (BaselineError, compare_with_baseline, format_findings, make_baseline,
                            read_baseline)
-from gibench.provenance import REPO_ROOT
 from reports.metrics import compare
+
+from _suites import raycast_suite
 
 SEED = 1234
 
@@ -88,24 +89,9 @@ def test_bad_baseline_file_is_a_clear_error(tmp_path, capsys):
 
 
 def _suite(tmp_path, name, spp):
-    scene = REPO_ROOT / "suites" / "spheres" / "lit_sphere.xml"
-    p = tmp_path / f"{name}.toml"
-    p.write_text(f"""
-[suite]
-name = "checktest"
-reference_spp = 1024
-reference_passes = 8
-repeats = 1
-[[group]]
-scenes = ["{scene}"]
-algorithm = "raycast"
-transport = "direct"
-[[group.config]]
-label = "raycast strata"
-params = {{ spp = {spp}, light_samples = 4 }}
-expect = "ztest"
-""")
-    return p
+    return raycast_suite(tmp_path / f"{name}.toml", "checktest", ["spheres/lit_sphere.xml"],
+                         spp=spp, light_samples=4, expect="ztest", reference_spp=1024,
+                         reference_passes=8)
 
 
 @pytest.mark.mitsuba

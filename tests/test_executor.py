@@ -11,6 +11,8 @@ from gibench.executor import ExecutorError, parse_executor
 from gibench.provenance import REPO_ROOT
 from reports.results import ResultStore
 
+from _suites import raycast_suite
+
 SCENES = ["spheres/lit_sphere.xml", "spheres/cyclic_overlap.xml"]
 
 
@@ -26,22 +28,7 @@ def test_parse_executor():
 
 
 def _suite(tmp_path):
-    p = tmp_path / "suite.toml"
-    scenes = ", ".join(f'"{REPO_ROOT / "suites" / s}"' for s in SCENES)
-    p.write_text(f"""
-[suite]
-name = "exec"
-repeats = 1
-[[group]]
-scenes = [{scenes}]
-algorithm = "raycast"
-transport = "direct"
-[[group.config]]
-label = "raycast 2x2"
-params = {{ spp = 4, light_samples = 4 }}
-expect = "report"
-""")
-    return p
+    return raycast_suite(tmp_path / "suite.toml", "exec", SCENES, spp=4, light_samples=4)
 
 
 def _run(tmp_path, name, *extra):

@@ -19,6 +19,8 @@ import pytest
 from gibench.provenance import REPO_ROOT
 from reports.results import ResultStore
 
+from _suites import raycast_suite
+
 SCENES = ["vocabulary/defines.xml", "spheres/cyclic_overlap.xml", "spheres/interpenetrating.xml",
           "spheres/coplanar.xml"]
 # The CUDA probe (test_executor.py covers the fallback) would add a child process per run.
@@ -26,24 +28,8 @@ ENV = dict(os.environ, GIBENCH_REFERENCE_DEVICE="llvm")
 
 
 def _suite(tmp_path):
-    p = tmp_path / "suite.toml"
-    scenes = ", ".join(f'"{REPO_ROOT / "suites" / s}"' for s in SCENES)
-    p.write_text(f"""
-[suite]
-name = "interrupt"
-reference_spp = 8
-reference_passes = 2
-repeats = 1
-[[group]]
-scenes = [{scenes}]
-algorithm = "raycast"
-transport = "direct"
-[[group.config]]
-label = "raycast 2x2"
-params = {{ spp = 4, light_samples = 1 }}
-expect = "report"
-""")
-    return p
+    return raycast_suite(tmp_path / "suite.toml", "interrupt", SCENES, spp=4, light_samples=1,
+                         reference_spp=8, reference_passes=2)
 
 
 def _cmd(tmp_path):
