@@ -184,6 +184,7 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
     the record's ``error`` names the cause).  ``defines`` overrides the scene's
     ``<default>`` values in both the own render and the reference (``-D``);
     ``seed`` is the own render's seed."""
+    from references.motion_blur import has_motion
     from references.reference import DEFAULT_STORE, get_reference, time_mitsuba
     from reports.metrics import compare
 
@@ -224,7 +225,10 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
             from reports.pareto import noise_floor_relmse
 
             record["metrics"]["noise_floor_relmse"] = noise_floor_relmse(ref.image, ref.variance)
-        if mitsuba_timing:
+        if mitsuba_timing and has_motion(case.scene):
+            timing["mitsuba_skipped"] = ("moving spheres: Mitsuba 3 cannot move shapes, so it "
+                                         "has no equal-work render to time")
+        elif mitsuba_timing:
             spp = params.get(algo.spp_param, 1) if algo.spp_param else 1
             key = (str(case.scene), case.transport, spp)
             if key not in timing_cache:
@@ -309,6 +313,7 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
     one record (``kind = "ladder"``) per spp with Mitsuba's time and error, measured
     in this run for the speed-vs-error plots."""
     from references.ladder import ladder_points
+    from references.motion_blur import has_motion
     from references.reference import DEFAULT_STORE, get_reference
 
     records = []
@@ -319,6 +324,9 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
                 "defines": dict(defines or {}), "versions": versions(), "commit": git_commit(),
                 "machine": machine(), "created": utc_now(), "error": None}
         try:
+            if has_motion(scene):
+                raise ValueError("moving spheres: Mitsuba 3 cannot move shapes, so it has no "
+                                 "spp ladder for this scene")
             ref = get_reference(scene, transport=transport, spp=suite.reference_spp,
                                 passes=suite.reference_passes,
                                 store=reference_store or DEFAULT_STORE, defines=defines)

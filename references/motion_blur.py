@@ -37,10 +37,24 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-__all__ = ["scene_at_time", "motion_reference", "VELOCITY", "STORE"]
+__all__ = ["scene_at_time", "motion_reference", "has_motion", "VELOCITY", "STORE", "TIMES"]
 
 VELOCITY = "gibench_velocity"
 STORE = Path(__file__).resolve().parent / "store"
+#: Shutter strata of the reference that :func:`references.reference.get_reference`
+#: returns for a scene with moving spheres.
+TIMES = 64
+
+
+def has_motion(scene_path) -> bool:
+    """Whether the scene file gives any shape a ``gibench_velocity`` (its reference
+    must then come from :func:`motion_reference`: Mitsuba would refuse the file).
+    A file that is not well-formed XML has none; its loader reports it."""
+    try:
+        tree = etree.parse(str(scene_path), etree.XMLParser(remove_comments=True))
+    except etree.XMLSyntaxError:
+        return False
+    return any(c.get("name") == VELOCITY for c in tree.getroot().iter("vector"))
 
 
 class MotionReference:
@@ -48,6 +62,10 @@ class MotionReference:
 
     def __init__(self, directory: Path, image, variance, manifest):
         self.directory, self.image, self.variance, self.manifest = directory, image, variance, manifest
+
+    @property
+    def key(self) -> str:
+        return self.manifest["key"]
 
     def __repr__(self) -> str:
         m = self.manifest

@@ -169,9 +169,13 @@ def test_motion_blur_matches_the_mean_of_mitsuba_renders_over_the_shutter():
     import dataclasses
 
     from references.motion_blur import motion_reference
+    from references.reference import get_reference
 
     path = SUITES / "distributed/motion/moving_sphere.xml"
     ref = motion_reference(path, times=64, spp=64, render=False)
+    # get_reference (what suites call) routes a moving scene to that same entry.
+    routed = get_reference(path, transport="direct", spp=1024, passes=8, render_missing=False)
+    assert routed.key == ref.key and np.array_equal(routed.image, ref.image)
     scene = load_scene(path)
     own = DIST.render(scene, DIST.parse_params({"spp": 256, "light_samples": 1}), seed=1)
     z = _ztest(ref, own)
@@ -182,6 +186,46 @@ def test_motion_blur_matches_the_mean_of_mitsuba_renders_over_the_shutter():
     scene.shapes[i] = dataclasses.replace(scene.shapes[i], velocity=None)
     still = DIST.render(scene, DIST.parse_params({"spp": 256, "light_samples": 1}), seed=1)
     assert not _ztest(ref, still).passed
+
+
+@pytest.mark.mitsuba
+def test_motion_blur_runs_as_a_suite_case_without_mitsuba_timing(tmp_path):
+    """A suite case on a moving scene: the motion reference, a Z-test, and the Mitsuba
+    timing skipped with its reason (Mitsuba cannot move shapes) instead of an error;
+    options the motion reference cannot honour are refused by name."""
+    import json
+
+    from gibench import cli
+    from references.reference import get_reference
+    from reports.results import ResultStore
+
+    scene = (SUITES / "distributed/motion/moving_sphere.xml").as_posix()
+    manifest = tmp_path / "motion.toml"
+    manifest.write_text(f"""
+[suite]
+name = "motion"
+reference_spp = 1024
+reference_passes = 8
+repeats = 1
+[[group]]
+scenes = ["{scene}"]
+algorithm = "distributed"
+transport = "direct"
+[[group.config]]
+label = "motion"
+params = {{ spp = 16, light_samples = 1 }}
+expect = "report"
+""")
+    results = tmp_path / "results.jsonl"
+    assert cli.main(["run", str(manifest), "--results", str(results), "--history",
+                     str(tmp_path / "h.sqlite"), "--no-progress"]) == 0
+    (rec,) = [r for r in ResultStore(results).load() if r.get("kind") != "ladder"]
+    assert rec["error"] is None, rec["error"]
+    assert "cannot move shapes" in rec["time"]["mitsuba_skipped"]
+    assert "mitsuba_median_s" not in rec["time"] and rec["metrics"]["relmse"] < 0.1
+    json.dumps(rec)
+    with pytest.raises(ValueError, match="motion-blur reference does not support defines"):
+        get_reference(scene, transport="direct", defines={"spp": "4"}, render_missing=False)
 
 
 def test_motion_syntax_is_stripped_for_mitsuba_and_checked_by_the_loader(tmp_path):
