@@ -100,7 +100,7 @@ def stack_f64():
 
 #: 32-bit words per packed node record: lo (3 × f32), hi (3 × f32), a, b (int32).
 REC_WORDS = 8
-_ALIGN = 64
+_ALIGN = 128
 
 
 @njit(inline="always", cache=True, error_model="numpy")
@@ -109,9 +109,9 @@ def rec_enter(f, r, ox, oy, oz, ix, iy, iz, tmin, tmax):
     viewed as float32): the float64 slab test of its float32 box."""
     k = REC_WORDS * r
     t0, t1 = tmin, tmax
-    t0, t1 = _slab64(float(f[k]), float(f[k + 3]), ox, ix, t0, t1)
-    t0, t1 = _slab64(float(f[k + 1]), float(f[k + 4]), oy, iy, t0, t1)
-    t0, t1 = _slab64(float(f[k + 2]), float(f[k + 5]), oz, iz, t0, t1)
+    t0, t1 = _slab64(f[k], f[k + 3], ox, ix, t0, t1)
+    t0, t1 = _slab64(f[k + 1], f[k + 4], oy, iy, t0, t1)
+    t0, t1 = _slab64(f[k + 2], f[k + 5], oz, iz, t0, t1)
     if t0 > t1:
         return math.inf
     return t0
@@ -149,22 +149,16 @@ def _fill_records(node_lo, node_hi, node_a, node_b, rec_of, f, w):
     m = f.shape[0] // REC_WORDS
     for r in range(m):                      # padding records: empty box, empty leaf
         for a in range(3):
-            f[REC_WORDS * r + a] = np.float32(np.inf)
-            f[REC_WORDS * r + 3 + a] = np.float32(-np.inf)
+            f[REC_WORDS * r + a] = np.inf
+            f[REC_WORDS * r + 3 + a] = -np.inf
         w[REC_WORDS * r + 6] = 0
         w[REC_WORDS * r + 7] = 0
     down, up = np.float32(-np.inf), np.float32(np.inf)
     for i in range(node_a.shape[0]):
         r = rec_of[i]
         for a in range(3):
-            lo = np.float32(node_lo[i, a])
-            if np.float64(lo) > node_lo[i, a]:
-                lo = np.nextafter(lo, down)
-            hi = np.float32(node_hi[i, a])
-            if np.float64(hi) < node_hi[i, a]:
-                hi = np.nextafter(hi, up)
-            f[REC_WORDS * r + a] = lo
-            f[REC_WORDS * r + 3 + a] = hi
+            f[REC_WORDS * r + a] = node_lo[i, a]
+            f[REC_WORDS * r + 3 + a] = node_hi[i, a]
         w[REC_WORDS * r + 6] = rec_of[node_a[i]] if node_b[i] < 0 else node_a[i]
         w[REC_WORDS * r + 7] = node_b[i]
 
@@ -181,13 +175,13 @@ def pack_tree(node_lo, node_hi, node_a, node_b, n_prim_refs: int) -> np.ndarray:
     if m >= 2 ** 31 // REC_WORDS or n_prim_refs >= 2 ** 31:
         raise ValueError(f"pack_tree: {n} nodes / {n_prim_refs} primitive references exceed "
                          "the int32 offsets of the packed records")
-    words = m * REC_WORDS // 2              # float64 words
+    words = m * REC_WORDS
     raw = np.empty(words + _ALIGN // 8, dtype=np.float64)
     skip = (-raw.ctypes.data % _ALIGN) // 8
     buf = raw[skip:skip + words]
     _fill_records(np.ascontiguousarray(node_lo, dtype=np.float64),
                   np.ascontiguousarray(node_hi, dtype=np.float64),
-                  node_a, node_b, rec_of, buf.view(np.float32), buf.view(np.int32))
+                  node_a, node_b, rec_of, buf, buf.view(np.int64))
     return buf
 
 
@@ -195,7 +189,7 @@ def pack_tree(node_lo, node_hi, node_a, node_b, n_prim_refs: int) -> np.ndarray:
 def tree_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and
     t in R's precision, prim = -1 on a miss."""
-    f, w, idx = R.acc_f.view(np.float32), R.acc_f.view(np.int32), R.prim_idx
+    f, w, idx = R.acc_f, R.acc_f.view(np.int64), R.prim_idx
     best_t, best_p = tmax, -1
     bb1 = bb2 = like(tmax, 0.0)
     nodes = tests = 0
@@ -245,7 +239,7 @@ def tree_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
 @njit(cache=True, error_model="numpy")
 def tree_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
-    f, w, idx = R.acc_f.view(np.float32), R.acc_f.view(np.int32), R.prim_idx
+    f, w, idx = R.acc_f, R.acc_f.view(np.int64), R.prim_idx
     nodes = tests = 0
     fox, foy, foz = float(ox), float(oy), float(oz)
     ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
