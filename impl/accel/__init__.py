@@ -43,7 +43,7 @@ from .grid import build_grid, grid_any, grid_closest
 from .octree import build_octree
 from .primitives import prim_bounds
 from .slabs import SLAB_COUNTS, build_slabs, slabs_any, slabs_closest
-from .tree import STACK, pack_tree, tree_any, tree_closest, tree_depth
+from .tree import STACK, tree_any, tree_closest, tree_depth
 
 __all__ = ["ACCELS", "KIND", "Accel", "build", "empty", "closest", "any_hit", "trace_batch",
            "occluded_batch", "SLAB_COUNTS", "memory_bytes"]
@@ -120,8 +120,7 @@ def build(name: str, sph_center, sph_radius, tri_v, prim_shape=None, *, slab_nor
         raise RuntimeError(f"accel {name}: the tree needs a traversal stack of {need} "
                            f"(> {STACK}); the scene is too degenerate for it")
     nlo, nhi, na, nb, idx = arrays
-    # The traversal reads the packed records (acc_f); the arrays stay for impl.accel.packets.
-    return Accel(TREE, nlo, nhi, na, nb, idx, pack_tree(nlo, nhi, na, nb, len(idx)), zi)
+    return Accel(TREE, nlo, nhi, na, nb, idx, np.empty(0), zi)
 
 
 def timed_build(name, *args, **kw):

@@ -23,30 +23,24 @@ hierarchy its logarithmic cost (Kay & Kajiya 1986, their heap of candidate
 nodes is this sorted stack).  The any-hit (shadow) traversal stops at the
 first hit in (tmin, tmax), in any order.
 
-Memory layout of the traversal (issue 7).  The arrays above stay as the
-builders emit them (:mod:`impl.accel.packets` reads them); the two
-traversal kernels read a packed copy, :func:`pack_tree`, in ``acc_f``:
-
-* one 32-byte record per node — its box as float32 rounded *outward* (lo
-  down, hi up, so the box still contains its float64 box and no hit is
-  lost), then two int32: ``a`` (first child's record / first entry of
-  ``prim_idx``) and ``b`` (as ``node_b``);
-* siblings adjacent and every sibling group starting at an even record,
-  so the two children of a binary node — both boxes the traversal tests
-  when it opens the node — share one 64-byte cache line (the buffer is
-  64-byte aligned);
-* groups in depth-first order: the group of a node's children follows the
-  group holding the node's first sibling, so a descent reads forward.
-
-A node visit used to read ``node_a``/``node_b`` of the node and two rows
-of ``node_lo`` and ``node_hi`` per child: 3–4 cache lines in four arrays;
-it now reads one line, the node's own record having been read with its
-siblings' when its parent was opened (pbrt-v4's ``LinearBVHNode`` and
-Embree's wide nodes make the same trade; the float32 boxes with outward
-rounding are Embree's).  The box test itself is float64 as before; a box
-grows by at most one float32 ulp per side, which can only add node visits,
-never change a hit.  Measured on 256×192 camera rays through the SAH BVH of
-the sphere fields: see ``gibench.studies_accel`` and the issue-7 notes.
+Memory layout (issue 7, measured, left as it is).  The builders already
+emit the nodes depth-first with siblings consecutive (a node's children
+are allocated when it is split, and the first child is split next), so a
+descent reads forward through the arrays.  Two interleaved layouts were
+built and timed against these arrays (commits 59cbc6c and 7c33d12 on the
+``bvhlayout`` branch): one 32-byte record per node (float32 box rounded
+outward, int32 child/primitive offset and count; a binary sibling pair in
+one 64-byte line, as pbrt-v4's ``LinearBVHNode`` and Embree's compressed
+boxes) and one 64-byte float64 record.  Camera rays of the 256×192 sphere
+fields, one thread, old and new alternated in one run: the 32-byte records
+took 0.98–1.14× the time of the arrays over N = 1e3 … 1e5, the 64-byte
+ones 0.95–1.09×; on the 1e5 / 1e6-triangle meshes 0.88–1.07×, within the
+noise.  The traversal is not bound by the number of cache lines a node
+visit touches: its loads are independent and issued together, and the
+time per node visited stays ~30–40 ns from 1e3 to 1e5 spheres (study
+``node_cost`` of :mod:`gibench.studies_accel`).  So the packed copy was
+not kept (it would have added memory beside the arrays
+:mod:`impl.accel.packets` reads).
 """
 
 from __future__ import annotations
@@ -59,9 +53,9 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ..intersect import like
-from .primitives import _slab64, closer, prim_test, ulp_above
+from .primitives import box_enter, closer, prim_test, ulp_above
 
-__all__ = ["tree_closest", "tree_any", "STACK", "tree_depth", "pack_tree", "REC_WORDS"]
+__all__ = ["tree_closest", "tree_any", "STACK", "tree_depth"]
 
 #: Traversal stack entries: a binary tree of depth D needs D + 1, an octree
 #: 7 per level; :func:`impl.accel.build` refuses a tree that needs more.
@@ -98,105 +92,18 @@ def stack_f64():
     return carray(_alloca_f64(), STACK)
 
 
-#: 32-bit words per packed node record: lo (3 × f32), hi (3 × f32), a, b (int32).
-REC_WORDS = 8
-_ALIGN = 128
-
-
-@njit(inline="always", cache=True, error_model="numpy")
-def rec_enter(f, r, ox, oy, oz, ix, iy, iz, tmin, tmax):
-    """:func:`impl.accel.primitives.box_enter` of packed record ``r`` (``f`` the records
-    viewed as float32): the float64 slab test of its float32 box."""
-    k = REC_WORDS * r
-    t0, t1 = tmin, tmax
-    t0, t1 = _slab64(f[k], f[k + 3], ox, ix, t0, t1)
-    t0, t1 = _slab64(f[k + 1], f[k + 4], oy, iy, t0, t1)
-    t0, t1 = _slab64(f[k + 2], f[k + 5], oz, iz, t0, t1)
-    if t0 > t1:
-        return math.inf
-    return t0
-
-
-@njit(cache=True)
-def _record_order(node_a, node_b):
-    """Record index of every node: depth-first, siblings adjacent, each sibling group
-    at an even record (root at 0, record 1 padding).  ``(rec_of, n_records)``."""
-    n = node_a.shape[0]
-    rec_of = np.full(n, -1, dtype=np.int64)
-    rec_of[0] = 0
-    pos = 1
-    stack = np.empty(n + 1, dtype=np.int64)
-    stack[0] = 0
-    sp = 1
-    while sp > 0:
-        sp -= 1
-        node = stack[sp]
-        if node_b[node] >= 0:
-            continue
-        k = -node_b[node]
-        pos += pos & 1                      # even start: a binary group fills one cache line
-        for i in range(k):
-            rec_of[node_a[node] + i] = pos + i
-        pos += k
-        for i in range(k - 1, -1, -1):      # first child popped first: its group comes next
-            stack[sp] = node_a[node] + i
-            sp += 1
-    return rec_of, pos + (pos & 1)
-
-
-@njit(cache=True)
-def _fill_records(node_lo, node_hi, node_a, node_b, rec_of, f, w):
-    m = f.shape[0] // REC_WORDS
-    for r in range(m):                      # padding records: empty box, empty leaf
-        for a in range(3):
-            f[REC_WORDS * r + a] = np.inf
-            f[REC_WORDS * r + 3 + a] = -np.inf
-        w[REC_WORDS * r + 6] = 0
-        w[REC_WORDS * r + 7] = 0
-    down, up = np.float32(-np.inf), np.float32(np.inf)
-    for i in range(node_a.shape[0]):
-        r = rec_of[i]
-        for a in range(3):
-            f[REC_WORDS * r + a] = node_lo[i, a]
-            f[REC_WORDS * r + 3 + a] = node_hi[i, a]
-        w[REC_WORDS * r + 6] = rec_of[node_a[i]] if node_b[i] < 0 else node_a[i]
-        w[REC_WORDS * r + 7] = node_b[i]
-
-
-def pack_tree(node_lo, node_hi, node_a, node_b, n_prim_refs: int) -> np.ndarray:
-    """The packed node records of a flattened tree (see the module docstring) as a
-    64-byte-aligned float64 array (the type of ``RayConfig.acc_f``)."""
-    n = len(node_a)
-    rec_of, m = _record_order(np.ascontiguousarray(node_a, dtype=np.int64),
-                              np.ascontiguousarray(node_b, dtype=np.int64))
-    if n == 0 or np.any(rec_of < 0):
-        raise ValueError(f"pack_tree: {int(np.sum(rec_of < 0))} of {n} nodes are not reachable "
-                         "from the root (node_a/node_b do not describe a tree)")
-    if m >= 2 ** 31 // REC_WORDS or n_prim_refs >= 2 ** 31:
-        raise ValueError(f"pack_tree: {n} nodes / {n_prim_refs} primitive references exceed "
-                         "the int32 offsets of the packed records")
-    words = m * REC_WORDS
-    raw = np.empty(words + _ALIGN // 8, dtype=np.float64)
-    skip = (-raw.ctypes.data % _ALIGN) // 8
-    buf = raw[skip:skip + words]
-    _fill_records(np.ascontiguousarray(node_lo, dtype=np.float64),
-                  np.ascontiguousarray(node_hi, dtype=np.float64),
-                  node_a, node_b, rec_of, buf, buf.view(np.int64))
-    return buf
-
-
 @njit(cache=True, error_model="numpy")
 def tree_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and
     t in R's precision, prim = -1 on a miss."""
-    f, w, idx = R.acc_f, R.acc_f.view(np.int64), R.prim_idx
+    lo, hi, na, nb, idx = R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx
     best_t, best_p = tmax, -1
     bb1 = bb2 = like(tmax, 0.0)
     nodes = tests = 0
     fox, foy, foz = float(ox), float(oy), float(oz)
     ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
     ftmin = float(tmin)
-    t_root = rec_enter(f, 0, fox, foy, foz, ix, iy, iz, ftmin, float(tmax))
+    t_root = box_enter(lo, hi, 0, fox, foy, foz, ix, iy, iz, ftmin, float(tmax))
     if t_root == math.inf:
         return best_t, best_p, bb1, bb2, 1, 0
     stack_n = stack_i64()
@@ -209,10 +116,10 @@ def tree_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
         if stack_t[sp] > float(best_t):          # entered beyond the nearest hit: skip
             continue
         nodes += 1
-        a, b = np.int64(w[REC_WORDS * n + 6]), np.int64(w[REC_WORDS * n + 7])
+        b = nb[n]
         if b >= 0:
             # Leaf: the brute-force test of each primitive, tie-inclusive tmax.
-            for k in range(a, a + b):
+            for k in range(na[n], na[n] + b):
                 p = idx[k]
                 tests += 1
                 t, b1, b2 = prim_test(R, p, ox, oy, oz, dx, dy, dz, tmin, ulp_above(best_t))
@@ -222,8 +129,8 @@ def tree_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
             # Interior: push the children hit before best_t, nearest on top.
             fbest = float(best_t)
             sp0 = sp
-            for c in range(a, a - b):
-                tc = rec_enter(f, c, fox, foy, foz, ix, iy, iz, ftmin, fbest)
+            for c in range(na[n], na[n] - b):
+                tc = box_enter(lo, hi, c, fox, foy, foz, ix, iy, iz, ftmin, fbest)
                 if tc != math.inf:
                     j = sp
                     while j > sp0 and stack_t[j - 1] < tc:
@@ -239,12 +146,12 @@ def tree_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
 @njit(cache=True, error_model="numpy")
 def tree_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
-    f, w, idx = R.acc_f, R.acc_f.view(np.int64), R.prim_idx
+    lo, hi, na, nb, idx = R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx
     nodes = tests = 0
     fox, foy, foz = float(ox), float(oy), float(oz)
     ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
     ftmin, ftmax = float(tmin), float(tmax)
-    if rec_enter(f, 0, fox, foy, foz, ix, iy, iz, ftmin, ftmax) == math.inf:
+    if box_enter(lo, hi, 0, fox, foy, foz, ix, iy, iz, ftmin, ftmax) == math.inf:
         return False, 1, 0
     stack_n = stack_i64()
     stack_n[0] = 0
@@ -254,16 +161,16 @@ def tree_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
         sp -= 1
         n = stack_n[sp]
         nodes += 1
-        a, b = np.int64(w[REC_WORDS * n + 6]), np.int64(w[REC_WORDS * n + 7])
+        b = nb[n]
         if b >= 0:
-            for k in range(a, a + b):
+            for k in range(na[n], na[n] + b):
                 tests += 1
                 t, b1, b2 = prim_test(R, idx[k], ox, oy, oz, dx, dy, dz, tmin, tmax)
                 if t > zero:
                     return True, nodes, tests
         else:
-            for c in range(a, a - b):
-                if rec_enter(f, c, fox, foy, foz, ix, iy, iz, ftmin, ftmax) != math.inf:
+            for c in range(na[n], na[n] - b):
+                if box_enter(lo, hi, c, fox, foy, foz, ix, iy, iz, ftmin, ftmax) != math.inf:
                     stack_n[sp] = c
                     sp += 1
     return False, nodes, tests
