@@ -35,12 +35,16 @@ boxes) and one 64-byte float64 record.  Camera rays of the 256×192 sphere
 fields, one thread, old and new alternated in one run: the 32-byte records
 took 0.98–1.14× the time of the arrays over N = 1e3 … 1e5, the 64-byte
 ones 0.95–1.09×; on the 1e5 / 1e6-triangle meshes 0.88–1.07×, within the
-noise.  The traversal is not bound by the number of cache lines a node
-visit touches: its loads are independent and issued together, and the
-time per node visited stays ~30–40 ns from 1e3 to 1e5 spheres (study
-``node_cost`` of :mod:`gibench.studies_accel`).  So the packed copy was
-not kept (it would have added memory beside the arrays
-:mod:`impl.accel.packets` reads).
+noise.  The number of cache lines a node visit touches is not what
+bounds the traversal (a likely reason, not measured: the four arrays'
+loads do not depend on each other and overlap); the time per node visited
+stays 30–43 ns from 1e3 to 1e5 spheres (log–log slope 0.017 against N;
+studies ``node_cost`` and ``scaling`` of :mod:`gibench.studies_accel`),
+and the growth of trace time beyond log N is in the number of nodes
+visited, b·ln(N/N₀) with N₀ ≈ 44, whose own log–log slope (0.19 over
+1e3 … 1e5) exceeds that of ln N (0.11).  So the packed copy was not kept
+(it would also have added memory beside the arrays :mod:`impl.accel.packets`
+reads).
 """
 
 from __future__ import annotations
