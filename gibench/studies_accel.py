@@ -432,7 +432,10 @@ TABLES["scaling_fit"] = (
     "Least-squares slope of log trace time (and of log tests per ray) against log N per structure and "
     "scene family, next to the slope of log N over the same sizes: brute force should be ≈ 1, a "
     "hierarchy at most about the log N slope (plus the constant overheads at small N and cache "
-    "effects at large N); and nodes per ray fitted as a + b·ln N (R² near 1: logarithmic work).")
+    "effects at large N); and nodes per ray fitted as a + b·ln N (R² near 1: logarithmic work). "
+    "Work b·ln(N/N0) with N0 > 1 has a log-log slope above ln N's: exponent_nodes_per_ray is the "
+    "work's own slope, nodes_lnN_N0 its N0, exponent_ns_per_node the slope of the camera-ray query "
+    "time per node visited (0: a node costs the same at every N, i.e. no cache effect).")
 
 
 def load_config(path=None) -> dict:
