@@ -34,7 +34,6 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
-from numpy.lib.array_utils import byte_bounds
 
 from ..intersect import any_hit_form, closest_hit_form, like as _cast
 from .bounding_volumes import BOX, SPHERE, bv_any, bv_closest, build_objects
@@ -44,7 +43,7 @@ from .grid import build_grid, grid_any, grid_closest
 from .octree import build_octree
 from .primitives import prim_bounds
 from .slabs import SLAB_COUNTS, build_slabs, slabs_any, slabs_closest
-from .tree import STACK, interleave, tree_any, tree_closest, tree_depth
+from .tree import STACK, tree_any, tree_closest, tree_depth
 
 __all__ = ["ACCELS", "KIND", "Accel", "build", "empty", "closest", "any_hit", "trace_batch",
            "occluded_batch", "SLAB_COUNTS", "memory_bytes"]
@@ -77,14 +76,8 @@ def empty() -> Accel:
 
 
 def memory_bytes(acc: Accel) -> int:
-    """Bytes of the structure's arrays, memory shared by two of them counted once
-    (a tree's node_hi is a view into its node_lo rows)."""
-    spans = sorted(byte_bounds(a) for a in acc[1:] if a.nbytes)
-    total, end = 0, -1
-    for lo, hi in spans:
-        total += max(0, hi - max(lo, end))
-        end = max(end, hi)
-    return int(total)
+    """Bytes of the structure's arrays."""
+    return int(sum(a.nbytes for a in acc[1:]))
 
 
 def build(name: str, sph_center, sph_radius, tri_v, prim_shape=None, *, slab_normals: int = 7,
@@ -126,8 +119,8 @@ def build(name: str, sph_center, sph_radius, tri_v, prim_shape=None, *, slab_nor
     if need > STACK:
         raise RuntimeError(f"accel {name}: the tree needs a traversal stack of {need} "
                            f"(> {STACK}); the scene is too degenerate for it")
-    nlo, nhi, na, nb = interleave(*arrays[:4])
-    return Accel(TREE, nlo, nhi, na, nb, arrays[4], np.empty(0), zi)
+    nlo, nhi, na, nb, idx = arrays
+    return Accel(TREE, nlo, nhi, na, nb, idx, np.empty(0), zi)
 
 
 def timed_build(name, *args, **kw):

@@ -59,7 +59,7 @@ from numba.extending import intrinsic
 from ..intersect import like
 from .primitives import box_enter, closer, prim_test, ulp_above
 
-__all__ = ["tree_closest", "tree_any", "STACK", "tree_depth", "interleave"]
+__all__ = ["tree_closest", "tree_any", "STACK", "tree_depth"]
 
 #: Traversal stack entries: a binary tree of depth D needs D + 1, an octree
 #: 7 per level; :func:`impl.accel.build` refuses a tree that needs more.
@@ -94,70 +94,6 @@ def stack_i64():
 @njit(inline="always", cache=True)
 def stack_f64():
     return carray(_alloca_f64(), STACK)
-
-
-#: float64 words per interleaved node record: lo (3), hi (3), 2 unused (64 bytes).
-REC = 8
-_ALIGN = 128
-
-
-@njit(cache=True)
-def _record_order(node_a, node_b):
-    """Record index of every node: depth-first, siblings adjacent, each sibling group
-    at an even record (root at 0, record 1 padding).  ``(rec_of, n_records)``."""
-    n = node_a.shape[0]
-    rec_of = np.full(n, -1, dtype=np.int64)
-    rec_of[0] = 0
-    pos = 1
-    stack = np.empty(n + 1, dtype=np.int64)
-    stack[0] = 0
-    sp = 1
-    while sp > 0:
-        sp -= 1
-        node = stack[sp]
-        if node_b[node] >= 0:
-            continue
-        k = -node_b[node]
-        pos += pos & 1                      # even start: a binary pair fills one 128-byte block
-        for i in range(k):
-            rec_of[node_a[node] + i] = pos + i
-        pos += k
-        for i in range(k - 1, -1, -1):      # first child popped first: its group comes next
-            stack[sp] = node_a[node] + i
-            sp += 1
-    return rec_of, pos + (pos & 1)
-
-
-def interleave(node_lo, node_hi, node_a, node_b):
-    """The flat tree with its boxes interleaved: ``(node_lo, node_hi, node_a, node_b)``
-    where node_lo is an (M, 8) float64 array of 64-byte rows ``lo, hi, -, -`` and
-    node_hi the same memory three words on, so ``node_lo[n, :3]`` / ``node_hi[n, :3]``
-    keep their meaning (the box of node n) and a box is one cache line; nodes
-    renumbered depth-first with siblings adjacent and every sibling group at an even
-    row of a 128-byte-aligned buffer; padding rows are empty leaves no link reaches."""
-    node_a = np.ascontiguousarray(node_a, dtype=np.int64)
-    node_b = np.ascontiguousarray(node_b, dtype=np.int64)
-    n = len(node_a)
-    rec_of, m = _record_order(node_a, node_b)
-    if n == 0 or np.any(rec_of < 0):
-        raise ValueError(f"interleave: {int(np.sum(rec_of < 0))} of {n} nodes are not reachable "
-                         "from the root (node_a/node_b do not describe a tree)")
-    words = (m + 1) * REC                   # one spare row: node_hi's view runs 3 words past
-    raw = np.empty(words + _ALIGN // 8, dtype=np.float64)
-    skip = (-raw.ctypes.data % _ALIGN) // 8
-    flat = raw[skip:skip + words]
-    flat[:] = 0.0
-    rec = flat[:m * REC].reshape(m, REC)
-    rec[:, 0:3] = np.inf                    # padding rows: empty boxes
-    rec[:, 3:6] = -np.inf
-    rec[rec_of, 0:3] = node_lo
-    rec[rec_of, 3:6] = node_hi
-    hi = flat[3:3 + m * REC].reshape(m, REC)
-    na = np.zeros(m, dtype=np.int64)
-    nb = np.zeros(m, dtype=np.int64)
-    nb[rec_of] = node_b
-    na[rec_of] = np.where(node_b < 0, rec_of[np.clip(node_a, 0, n - 1)], node_a)
-    return rec, hi, na, nb
 
 
 @njit(cache=True, error_model="numpy")
