@@ -7,6 +7,9 @@ study          what it measures
                trace time, primitive tests and nodes visited per camera
                ray, memory — on N random spheres (N = 10 … 1e5) and on
                tessellated meshes (up to 1e6 triangles)
+``node_cost``  ns per node visited by camera rays through a tree vs N, with
+               two controls: one pixel tile's rays repeated (tree in
+               cache) and the tree's nodes shuffled in memory
 ``scaling_fit``  per structure × scene family: the exponent k of a
                least-squares fit trace_s ∝ N^k (log–log), next to the
                exponent of log N over the same sizes (what a logarithmic
@@ -50,7 +53,7 @@ from .studies import StudyInfo, read_config, run_registered
 from .transforms import look_at
 
 __all__ = ["STUDIES", "TABLES", "DEFAULT_CONFIG", "load_config", "run_studies", "scaling",
-           "fit_exponents", "sphere_field", "mesh_field", "camera_rays", "bounce_rays"]
+           "fit_exponents", "node_cost", "shuffle_node_groups", "sphere_field", "mesh_field", "camera_rays", "bounce_rays"]
 
 DEFAULT_CONFIG = REPO_ROOT / "suites" / "scaling" / "studies.toml"
 
@@ -233,9 +236,12 @@ def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=
                 query_s, (_, prim, _, counts) = _median_time(lambda: accel.trace_batch(R, o, d), reps)
                 rays = sum(res.counters.get(k, 0) for k in
                            ("eye_rays", "shadow_rays", "reflection_rays", "transmission_rays"))
+                n_nodes = int(counts[:, 0].sum())
                 row.update(build_s=config_s, render_s=render_s,
                            trace_s=trace_s, flatten_s=flatten_s,
                            primary_query_s=query_s,
+                           query_ns_per_ray=query_s / len(o) * 1e9,
+                           query_ns_per_node=query_s / n_nodes * 1e9 if n_nodes else float("nan"),
                            tests_per_ray=float(counts[:, 1].mean()),
                            nodes_per_ray=float(counts[:, 0].mean()),
                            memory_mb=accel.memory_bytes(acc_arrays) / 1e6,
@@ -249,12 +255,130 @@ def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=
     return rows
 
 
+def _fit_ln(n, y):
+    """Least squares y = a + b·ln N (``n`` = ln N): ``(a, b, R²)``."""
+    y = np.asarray(y, dtype=np.float64)
+    b, a = np.polyfit(n, y, 1)
+    resid = y - (a + b * n)
+    r2 = float(1.0 - resid.var() / y.var()) if y.var() > 0 else float("nan")
+    return float(a), float(b), r2
+
+
+# =============================================================== node cost ===
+
+def shuffle_node_groups(R, rng):
+    """The ray configuration R with its tree's nodes moved in memory: the sibling groups
+    (the root alone, then each interior node's consecutive children) placed in random
+    order, links renumbered.  The same tree — same answers, same nodes visited — with
+    the builder's depth-first locality destroyed: the control for layout effects."""
+    na, nb = np.asarray(R.node_a), np.asarray(R.node_b)
+    n = len(na)
+    inner = np.flatnonzero(nb < 0)
+    starts = np.concatenate([[0], na[inner]])
+    sizes = np.concatenate([[1], -nb[inner]])
+    order = np.concatenate([[0], 1 + rng.permutation(len(inner))])
+    new_start = np.empty(len(starts), dtype=np.int64)
+    new_start[order] = np.concatenate([[0], np.cumsum(sizes[order])[:-1]])
+    new_of = np.empty(n, dtype=np.int64)
+    for g in range(len(starts)):
+        new_of[starts[g]:starts[g] + sizes[g]] = new_start[g] + np.arange(sizes[g])
+    if np.unique(new_of).size != n:
+        raise ValueError("shuffle_node_groups: the sibling groups do not partition the nodes")
+    lo, hi = np.empty_like(R.node_lo), np.empty_like(R.node_hi)
+    a, b = np.empty_like(na), np.empty_like(nb)
+    lo[new_of], hi[new_of], b[new_of] = R.node_lo, R.node_hi, nb
+    a[new_of] = np.where(nb < 0, new_of[np.clip(na, 0, n - 1)], na)
+    return R._replace(node_lo=lo, node_hi=hi, node_a=a, node_b=b)
+
+
+def node_cost(*, sizes=(1000, 3000, 10000, 30000, 100000), structure="bvh-sah", width=256,
+              height=192, tile=16, repeats=9, threads=1, seed=1, log=print) -> list[dict]:
+    """Cost per node visited of the camera-ray closest-hit query (:func:`impl.accel.trace_batch`)
+    on sphere fields of growing N, and two controls on the same tree (issue 7: is the
+    growth of trace time beyond log N a memory effect?):
+
+    * ``full`` — the pixel-centre rays of the whole image;
+    * ``tile`` — the rays of one ``tile``×``tile`` pixel block at the image centre,
+      repeated to the same ray count: the nodes they visit stay in cache;
+    * ``shuffled`` — the whole image through the tree with its sibling groups in
+      random memory order (:func:`shuffle_node_groups`).
+
+    Time is the median of ``repeats`` after one warm-up, with numba limited to
+    ``threads`` threads (1: no contention for the shared caches).  ns per node is the
+    query time over the nodes visited (per-ray costs included)."""
+    import numba
+
+    import impl  # noqa: F401
+    from impl import accel
+    from impl.rays import ray_config
+    from impl.scene_arrays import flatten
+
+    from . import registry
+
+    if structure not in ("bvh-median", "bvh-sah", "bvh-gs", "octree"):
+        raise ValueError(f"node_cost: structure must be a tree (bvh-median, bvh-sah, bvh-gs, "
+                         f"octree), got {structure!r}")
+    if not (1 <= tile <= min(width, height)):
+        raise ValueError(f"node_cost: tile must be in 1..{min(width, height)}, got {tile}")
+    algo = registry.get("whitted")
+    params = algo.parse_params({"accel": structure})
+    rng = np.random.default_rng(seed)
+    before = numba.get_num_threads()
+    numba.set_num_threads(min(int(threads), numba.config.NUMBA_NUM_THREADS))
+    rows = []
+    try:
+        for N in sizes:
+            scene = sphere_field(int(N), width=width, height=height)
+            A = flatten(scene)
+            R = ray_config(A, params, algorithm="node_cost")
+            o, d = camera_rays(scene)
+            y0, x0 = (height - tile) // 2, (width - tile) // 2
+            pix = ((y0 + np.arange(tile))[:, None] * width + (x0 + np.arange(tile))[None, :]).ravel()
+            reps = max(1, len(o) // len(pix))
+            cases = {"full": (R, o, d),
+                     "tile": (R, np.tile(o[pix], (reps, 1)), np.tile(d[pix], (reps, 1))),
+                     "shuffled": (shuffle_node_groups(R, rng), o, d)}
+            ref = None
+            for case, (RR, oo, dd) in cases.items():
+                t, prim, _, counts = accel.trace_batch(RR, oo, dd)          # warm-up
+                if case == "full":
+                    ref = (t, prim, counts)
+                elif case == "shuffled" and not (np.array_equal(prim, ref[1]) and
+                                                 np.array_equal(counts, ref[2])):
+                    raise RuntimeError(f"node_cost N={N}: the shuffled tree answers differently")
+                secs, _ = _median_time(lambda: accel.trace_batch(RR, oo, dd), repeats)
+                nodes = int(counts[:, 0].sum())
+                rows.append({"N": int(N), "accel": structure, "case": case, "rays": len(oo),
+                             "tree_nodes": len(R.node_a),
+                             "node_bytes": int(R.node_lo.nbytes + R.node_hi.nbytes +
+                                               R.node_a.nbytes + R.node_b.nbytes),
+                             "nodes_per_ray": float(counts[:, 0].mean()),
+                             "tests_per_ray": float(counts[:, 1].mean()), "query_s": secs,
+                             "ns_per_ray": secs / len(oo) * 1e9, "ns_per_node": secs / nodes * 1e9})
+                log(f"  node_cost N={N} {case}: {rows[-1]['ns_per_node']:.1f} ns/node, "
+                    f"{rows[-1]['nodes_per_ray']:.1f} nodes/ray")
+    finally:
+        numba.set_num_threads(before)
+    return rows
+
+
 def fit_exponents(rows: list[dict], *, n_min: int = 100) -> list[dict]:
     """Least-squares slope k of log(trace_s) (and of log(tests_per_ray)) against log N
     per family × structure over N ≥ ``n_min``, with the slope of log(log N) over the
     same sizes: the exponent a structure of logarithmic cost should not exceed; and
     the nodes visited per ray fitted as a + b·ln N (slope b, R²), the direct test of
-    logarithmic work (wall time adds cache effects the node count does not have)."""
+    logarithmic work (wall time adds cache effects the node count does not have).
+
+    Why the first comparison can fail for logarithmic work (issue 7): work
+    a + b·ln N = b·ln(N/N₀) has the log–log slope 1/ln(N/N₀), larger than ln N's
+    1/ln N whenever the intercept a is negative (N₀ = exp(−a/b) > 1; a tree's
+    depth is log(N/leaf size), not log N).  The rows therefore also carry
+    ``exponent_nodes_per_ray`` (the work's own log–log slope), ``nodes_lnN_N0``,
+    the time fitted as a + b·ln N (``trace_lnN_r2``), and the split of the
+    camera-ray query time into per-ray and per-node cost (``query_ns_per_node_fit``
+    = the slope of ns per ray against nodes per ray, ``exponent_ns_per_node`` = the
+    log–log slope of ns per node visited against N: 0 when a node costs the same
+    at every N, > 0 when the cost per node grows, e.g. from cache misses)."""
     out = []
     keys = dict.fromkeys((r["family"], r["accel"]) for r in rows)
     for fam, name in keys:
@@ -270,15 +394,24 @@ def fit_exponents(rows: list[dict], *, n_min: int = 100) -> list[dict]:
         # Logarithmic cost means work = a + b·ln N: fit the nodes visited per ray
         # linearly in ln N and report the slope b and R² (1 = exactly logarithmic).
         nodes = np.array([r["nodes_per_ray"] for r in pts], dtype=np.float64)
-        b_nodes, a_nodes = np.polyfit(n, nodes, 1)
-        resid = nodes - (a_nodes + b_nodes * n)
-        r2 = float(1.0 - resid.var() / nodes.var()) if nodes.var() > 0 else float("nan")
-        out.append({"family": fam, "accel": name, "sizes": len(pts),
-                    "N_range": f"{pts[0]['prims']}–{pts[-1]['prims']}",
-                    "exponent_trace_time": k_time, "exponent_primary_query": k_query,
-                    "exponent_tests_per_ray": k_tests,
-                    "exponent_log_N": k_log,
-                    "nodes_per_ray_per_lnN": float(b_nodes), "nodes_lnN_r2": r2})
+        a_nodes, b_nodes, r2 = _fit_ln(n, nodes)
+        fit = {"family": fam, "accel": name, "sizes": len(pts),
+               "N_range": f"{pts[0]['prims']}–{pts[-1]['prims']}",
+               "exponent_trace_time": k_time, "exponent_primary_query": k_query,
+               "exponent_tests_per_ray": k_tests,
+               "exponent_log_N": k_log,
+               "nodes_per_ray_per_lnN": b_nodes, "nodes_lnN_r2": r2}
+        if (nodes > 0).all():
+            fit["exponent_nodes_per_ray"] = float(np.polyfit(n, np.log(nodes), 1)[0])
+            fit["nodes_lnN_N0"] = float(np.exp(-a_nodes / b_nodes)) if b_nodes > 0 else float("nan")
+        fit["trace_lnN_r2"] = _fit_ln(n, [r["trace_s"] for r in pts])[2]
+        if all(r.get("query_ns_per_node", float("nan")) > 0 for r in pts):
+            per_ray = [r["query_ns_per_ray"] for r in pts]
+            if nodes.var() > 0:
+                fit["query_ns_per_node_fit"] = float(np.polyfit(nodes, per_ray, 1)[0])
+            fit["exponent_ns_per_node"] = float(
+                np.polyfit(n, np.log([r["query_ns_per_node"] for r in pts]), 1)[0])
+        out.append(fit)
     return out
 
 
@@ -287,6 +420,10 @@ STUDIES = {s.name: s for s in (
               "Whitted renders (1 spp, max_depth 3; film size from the config) of N random spheres and of tessellated meshes "
               "with every structure of impl.accel: build time (ray_config), render and trace time, "
               "primitive tests and nodes per camera ray (counting pass), memory.", scaling),
+    StudyInfo("node_cost", "Acceleration structures: cost per node visited vs scene size",
+              "Camera-ray closest-hit queries through a tree on sphere fields of growing N (one "
+              "thread): ns per node visited for the whole image, for one pixel tile's rays repeated "
+              "(tree in cache) and for the same tree with its nodes shuffled in memory.", node_cost),
 )}
 
 TABLES = {name: (s.title, s.description) for name, s in STUDIES.items()}
@@ -295,7 +432,10 @@ TABLES["scaling_fit"] = (
     "Least-squares slope of log trace time (and of log tests per ray) against log N per structure and "
     "scene family, next to the slope of log N over the same sizes: brute force should be ≈ 1, a "
     "hierarchy at most about the log N slope (plus the constant overheads at small N and cache "
-    "effects at large N); and nodes per ray fitted as a + b·ln N (R² near 1: logarithmic work).")
+    "effects at large N); and nodes per ray fitted as a + b·ln N (R² near 1: logarithmic work). "
+    "Work b·ln(N/N0) with N0 > 1 has a log-log slope above ln N's: exponent_nodes_per_ray is the "
+    "work's own slope, nodes_lnN_N0 its N0, exponent_ns_per_node the slope of the camera-ray query "
+    "time per node visited (0: a node costs the same at every N, i.e. no cache effect).")
 
 
 def load_config(path=None) -> dict:

@@ -326,3 +326,58 @@ def test_scaling_fit_recovers_known_exponents_and_logarithmic_work():
     assert fits["lin"]["nodes_lnN_r2"] == pytest.approx(1.0)
     assert fits["pow"]["exponent_trace_time"] == pytest.approx(0.0, abs=1e-12)
     assert fits["pow"]["nodes_lnN_r2"] < 0.95
+
+
+def test_scaling_fit_separates_work_from_cost_per_node():
+    """The issue-7 columns of fit_exponents on synthetic rows: work b·ln(N/N0) has a
+    log–log slope above log N's (and N0 is recovered); a query time of exactly 30 ns
+    per node gives a per-node slope of 30 and a per-node-time exponent of 0; a cost
+    per node growing as N^0.1 gives 0.1."""
+    from gibench.studies_accel import fit_exponents
+
+    rows = []
+    for N in (1000, 3000, 10000, 30000, 100000):
+        nodes = 5.0 * np.log(N / 50.0)
+        rows.append({"family": "f", "accel": "flat", "N": N, "prims": N, "trace_s": 1e-3 * nodes,
+                     "primary_query_s": 1e-4, "tests_per_ray": 1.5, "nodes_per_ray": nodes,
+                     "query_ns_per_ray": 30.0 * nodes, "query_ns_per_node": 30.0})
+        rows.append({"family": "f", "accel": "cache", "N": N, "prims": N, "trace_s": 1e-3,
+                     "primary_query_s": 1e-4, "tests_per_ray": 1.5, "nodes_per_ray": nodes,
+                     "query_ns_per_ray": 30.0 * N ** 0.1 * nodes, "query_ns_per_node": 30.0 * N ** 0.1})
+    fits = {f["accel"]: f for f in fit_exponents(rows, n_min=1000)}
+    flat = fits["flat"]
+    assert flat["nodes_lnN_N0"] == pytest.approx(50.0)
+    assert flat["nodes_lnN_r2"] == pytest.approx(1.0)
+    assert flat["exponent_nodes_per_ray"] > 1.4 * flat["exponent_log_N"]
+    assert flat["exponent_trace_time"] == pytest.approx(flat["exponent_nodes_per_ray"])
+    assert flat["trace_lnN_r2"] == pytest.approx(1.0)
+    assert flat["query_ns_per_node_fit"] == pytest.approx(30.0)
+    assert flat["exponent_ns_per_node"] == pytest.approx(0.0, abs=1e-12)
+    assert fits["cache"]["exponent_ns_per_node"] == pytest.approx(0.1)
+
+
+def test_shuffled_tree_is_the_same_tree_elsewhere_in_memory():
+    """gibench.studies_accel.shuffle_node_groups (the layout control of the node_cost
+    study): same hits and node counts as the builder's layout, the nodes permuted with
+    siblings kept consecutive, and node_cost reports its three cases."""
+    from gibench.studies_accel import camera_rays, node_cost, shuffle_node_groups, sphere_field
+
+    scene = sphere_field(300, width=32, height=24)
+    R = ray_config(flatten(scene), registry.get("whitted").parse_params({"accel": "bvh-sah"}),
+                   algorithm="whitted")
+    S = shuffle_node_groups(R, np.random.default_rng(3))
+    assert not np.array_equal(S.node_a, R.node_a)
+    np.testing.assert_array_equal(np.sort(S.node_b), np.sort(R.node_b))
+    np.testing.assert_array_equal(S.node_lo[0], R.node_lo[0])
+    o, d = camera_rays(scene)
+    t1, p1, _, c1 = accel.trace_batch(R, o, d)
+    t2, p2, _, c2 = accel.trace_batch(S, o, d)
+    np.testing.assert_array_equal(p2, p1)
+    np.testing.assert_array_equal(t2, t1)
+    np.testing.assert_array_equal(c2, c1)
+    rows = node_cost(sizes=(300,), width=32, height=24, tile=8, repeats=1, log=lambda *_: None)
+    assert [r["case"] for r in rows] == ["full", "tile", "shuffled"]
+    assert rows[0]["nodes_per_ray"] == rows[2]["nodes_per_ray"] == pytest.approx(c1[:, 0].mean())
+    assert all(r["ns_per_node"] > 0 and r["rays"] == 32 * 24 for r in rows)
+    with pytest.raises(ValueError, match="structure must be a tree"):
+        node_cost(sizes=(10,), structure="grid")
