@@ -448,8 +448,15 @@ def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[
     if config is None or isinstance(config, (str, Path)):
         config = load_config(config)
     cfg = dict(config)
-    fit_min = int(cfg.pop("fit_n_min", 100)) if "fit_n_min" in cfg else 100
+    fit_min = cfg.pop("fit_n_min", 100)
     out = run_registered(STUDIES, cfg, only=only)
     if "scaling" in out:
-        out["scaling_fit"] = fit_exponents(out["scaling"], n_min=fit_min)
+        # One fit per least size: e.g. the whole range and the large-N part.
+        # A family whose sizes all lie above both minima gets one row.
+        mins = fit_min if isinstance(fit_min, list) else [fit_min]
+        fits = {}
+        for m in mins:
+            for row in fit_exponents(out["scaling"], n_min=int(m)):
+                fits.setdefault((row["family"], row["accel"], row["N_range"]), row)
+        out["scaling_fit"] = list(fits.values())
     return out
