@@ -552,7 +552,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
             rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pos[i, 0], y + pos[i, 1], i, cap, gmodel,
                                    max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
                                    fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
-                                   counts, cut_w, 0.0, NOT_TRACED, 0.0, 0.0)
+                                   counts, cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
             vals[i, 0], vals[i, 1], vals[i, 2] = rr, gg, bb
         n = 5
         sq_f[0, 0], sq_f[0, 1], sq_f[0, 2] = 0.0, 0.0, 1.0
@@ -573,7 +573,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
                                            gmodel, max_depth, hall_threshold, ka, ambient, ks,
                                            shininess, c1, c2, c3, fclamp, shadows, light_samples,
                                            seed, pixel, stack_f, stack_i, counts, cut_w, 0.0,
-                                           NOT_TRACED, 0.0, 0.0)
+                                           np.int64(NOT_TRACED), 0.0, 0.0)
                     vals[n + q, 0], vals[n + q, 1], vals[n + q, 2] = rr, gg, bb
                 e_b, e_l, e_r, e_t = n, n + 1, n + 2, n + 3
                 c = idx[4]
@@ -622,7 +622,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
             rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + fx, y + fy, n, cap, gmodel, max_depth,
                                    hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
                                    shadows, light_samples, seed, pixel, stack_f, stack_i, counts,
-                                   cut_w, 0.0, NOT_TRACED, 0.0, 0.0)
+                                   cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
             _store(rec, n, x + fx, y + fy, 1.0, rr, gg, bb)
             c = n + 1.0
             d0, d1, d2 = rr - m0, gg - m1, bb - m2
@@ -643,7 +643,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
         rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pts[s, 0], y + pts[s, 1], s, n, gmodel, max_depth,
                                hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
                                shadows, light_samples, seed, pixel, stack_f, stack_i, counts, cut_w,
-                               0.0, NOT_TRACED, 0.0, 0.0)
+                               0.0, np.int64(NOT_TRACED), 0.0, 0.0)
         _store(rec, s, x + pts[s, 0], y + pts[s, 1], 1.0, rr, gg, bb)
     return n
 

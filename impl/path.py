@@ -340,7 +340,7 @@ def _pixel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
         if spectral:
             w0, w1, w2 = sample_wavelengths(uniform(seed, pixel, s, _DIM_WAVELENGTH))
         r, g, b = _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A, L, B, R, S, spectral, w0, w1, w2,
-                        max_depth, rr_depth, mis, bias, seed, pixel, s, cnt, 0.0, NOT_TRACED, 0.0,
+                        max_depth, rr_depth, mis, bias, seed, pixel, s, cnt, 0.0, np.int64(NOT_TRACED), 0.0,
                         0.0)
         if spectral:
             r, g, b = to_linear_srgb(S, r, g, b, w0, w1, w2)

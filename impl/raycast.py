@@ -127,7 +127,7 @@ def _pixel(cam, A: SceneArrays, R: RayConfig, x, y, spp, ka, ambient, ks, shinin
         ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
         r, g, b, n = _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A, R, ka, ambient, ks, shininess,
                                c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, s, 0.0,
-                               NOT_TRACED, 0.0, 0.0)
+                               np.int64(NOT_TRACED), 0.0, 0.0)
         nsh += n
         m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
     return (m0, m1, m2, variance_of_mean(q0, spp), variance_of_mean(q1, spp),

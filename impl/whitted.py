@@ -419,7 +419,7 @@ def _pixel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, x, y, spp, max_
         ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
         r, g, b = _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, R, max_depth, hall_threshold,
                         ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                        seed, pixel, s, spp, stack_f, stack_i, cnt, hst, cut_w, 0.0, NOT_TRACED,
+                        seed, pixel, s, spp, stack_f, stack_i, cnt, hst, cut_w, 0.0, np.int64(NOT_TRACED),
                         0.0, 0.0)
         m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
     _store_pixel(x, y, W, spp, m0, m1, m2, q0, q1, q2, cnt, hst, cut_w, mean, var, counts, hist, cut)
@@ -518,7 +518,7 @@ def _trace_one(ox, oy, oz, dx, dy, dz, A: SceneArrays, S: SpecularArrays, R: Ray
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
     return _tree(ox, oy, oz, dx, dy, dz, 0.0, np.inf, A, S, R, max_depth, hall_threshold, ka,
                  ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, 0, 0, 1,
-                 stack_f, stack_i, counts, hist, cut_w, 0.0, NOT_TRACED, 0.0, 0.0)
+                 stack_f, stack_i, counts, hist, cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
 
 
 # ------------------------------------------------------------- orchestration ---

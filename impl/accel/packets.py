@@ -48,7 +48,10 @@ __all__ = ["packet_closest", "packet_hits", "primary_hits", "tile_rect", "tile_c
            "NOT_TRACED"]
 
 TILE = 8
-#: ``pre_prim`` of a tracer's radiance function when no first hit is given.
+#: ``pre_prim`` of a tracer's radiance function when no first hit is given.  Callers
+#: pass it as ``np.int64(NOT_TRACED)``: a bare ``-2`` is typed ``Literal[int]`` and
+#: would compile the radiance function a second time (measured: two signatures of
+#: ``whitted._tree``, one per kernel), doubling the tile kernel's compile time.
 NOT_TRACED = -2
 
 
