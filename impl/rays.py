@@ -46,9 +46,10 @@ chooses :data:`AUTO_ACCEL` (whatever the scene size and sphere form), and an
 explicit non-tree structure is refused.  The default stays ``false``:
 measured in ``benchmarks/bench_packets.py`` (256×192, spp 4, BVH-SAH; 2-core
 VM shared with other work; single / packets render time, medians of 7
-alternated renders), packets gain 1.03–1.15× on 10⁴ spheres and 0.98–1.08× on
-a 10⁵-triangle mesh for raycast, whitted and path — within the spread of the
-machine (the same cases measured 0.88–1.23× in an unalternated run).  Per
+alternated renders, two runs), packets gain 1.03–1.15× on 10⁴ spheres and
+0.98–1.13× on a 10⁵-triangle mesh for raycast, whitted and path — within the
+spread of the machine (the same cases measured 0.88–1.23× from the
+unalternated medians).  Per
 pixel-centre eye ray a packet opens 1.4 nodes (spheres) / 1.07 (mesh) against
 26.5 / 10.1 for single rays, but tests slightly more primitives (1.50 vs 1.46,
 1.82 vs 1.71): scalar numba loops over the packet's rays at every node, so
