@@ -101,8 +101,23 @@ hall_threshold  float   1e-5            cut a branch whose weight is below this
 light_samples   int     1               shadow rays per area emitter per diffuse hit
 (Phong)                                 ka, ambient, ks, shininess, c1–c3, fatt_clamp
 shadows         bool    true            cast shadow rays
-(rays)                                  intersect, precision, offset, epsilon
+(rays)                                  intersect, precision, offset, epsilon,
+                                        accel, slab_normals (:mod:`impl.rays`)
+packets         bool    false           eye rays of 8×8 tiles as coherent packets
 ==============  ======  ==============  ==========================================
+
+Packets (thesis 2.6): with ``packets=true`` the kernel runs over 8×8 pixel
+tiles; for each sample index the eye rays of the tile's pixels that have that
+sample — the same pattern position, lens point and rounding as the per-pixel
+kernel — are traced as one packet through the tree, and each sample's ray tree
+starts from its precomputed eye hit (secondary and shadow rays single-ray:
+incoherent, packets of them are out of scope).  Same records, image and
+counters as ``packets=false`` bit for bit (the reconstruction is unchanged),
+plus ``packet_nodes`` / ``packet_tests``.  Fixed-count samplers only:
+``adaptive`` and ``statistical`` decide each pixel's next sample from its
+previous ones, so a tile has no common sample index to batch, and
+``packets=true`` with them is refused; so are scenes with moving spheres
+(traced by brute force, there is no tree to send packets through).
 
 Leaves out: indirect diffuse light and caustics (as ``whitted``), GGX and
 anisotropic roughness, delta lights on glossy surfaces.
@@ -119,6 +134,7 @@ from numba import njit, prange
 from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
+from .accel.packets import NOT_TRACED, packet_hits, tile_count, tile_rect
 from .camera import camera_params, eye_ray_lens
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
@@ -254,8 +270,13 @@ def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx
 @njit(cache=True)
 def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays, R: RayConfig, sph_c,
           hall, hall_ks, hall_n, hall_t, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
-          shadows, light_samples, seed, pixel, sample, spp, stack_f, stack_i, counts, cut_w):
-    """Radiance (r, g, b) of one eye ray: whitted's ray tree plus sampled glossy bounces."""
+          shadows, light_samples, seed, pixel, sample, spp, stack_f, stack_i, counts, cut_w, pre_t,
+          pre_prim, pre_b1, pre_b2):
+    """Radiance (r, g, b) of one eye ray: whitted's ray tree plus sampled glossy bounces.
+
+    ``pre_*``: the eye ray's closest hit as :func:`impl.rays.hit` returns it, traced
+    in a packet; ``pre_prim = NOT_TRACED`` traces it here like every other ray.
+    """
     ns = A.sph_radius.shape[0]
     r = g = b = 0.0
     stack_f[0, 0] = ox
@@ -289,7 +310,10 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             counts[_C_REFL if kind == RAY_REFLECTION else _C_TRANS] += 1
             t0, t1 = stack_f[sp, 10], np.inf
         rox, roy, roz, rdx, rdy, rdz = round_ray(R, rox, roy, roz, rdx, rdy, rdz)
-        t, prim, b1, b2 = hit(R, rox, roy, roz, rdx, rdy, rdz, t0, t1)
+        if kind == RAY_EYE and pre_prim != NOT_TRACED:
+            t, prim, b1, b2 = pre_t, pre_prim, pre_b1, pre_b2
+        else:
+            t, prim, b1, b2 = hit(R, rox, roy, roz, rdx, rdy, rdz, t0, t1)
         if prim < 0:                     # escaped: a constant environment, if any, else black
             er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
             r += wr * er
@@ -446,20 +470,28 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
     return r, g, b
 
 
+@njit(inline="always", cache=True)
+def _eye(cam, seed, pixel, sample, fx, fy):
+    """The eye ray of pixel sample ``sample`` at film position (fx, fy), through its lens point."""
+    u1 = uniform(seed + _STREAM, pixel, sample, _D_LENS)
+    u2 = uniform(seed + _STREAM, pixel, sample, _D_LENS + 1)
+    return eye_ray_lens(cam, fx, fy, u1, u2)
+
+
 @njit(cache=True)
 def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, fx, fy, sample, spp, gmodel, max_depth,
               hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-              seed, pixel, stack_f, stack_i, counts, cut_w):
+              seed, pixel, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1, pre_b2):
     """Radiance of the pixel sample number ``sample`` at film position (fx, fy).
 
     The sample's own lens point and shutter time; moving spheres are placed at
     that time in the per-pixel copies ``cen`` (intersection precision) and
     ``cen64`` (shading) of the sphere centres, and the ray configuration the
     tree (and its shadow rays) intersects with is rebuilt around them.
+    ``pre_*``: the eye ray's hit traced in a packet (static scenes only), or
+    ``pre_prim = NOT_TRACED``.
     """
-    u1 = uniform(seed + _STREAM, pixel, sample, _D_LENS)
-    u2 = uniform(seed + _STREAM, pixel, sample, _D_LENS + 1)
-    ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray_lens(cam, fx, fy, u1, u2)
+    ox, oy, oz, dx, dy, dz, tmin, tmax, _ = _eye(cam, seed, pixel, sample, fx, fy)
     counts[_C_SAMPLES] += 1
     if M.index.shape[0] > 0:
         tau = M.shutter[0] + (M.shutter[1] - M.shutter[0]) * uniform(seed + _STREAM, pixel, sample,
@@ -476,7 +508,7 @@ def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, fx, fy, sample, spp, gmod
     return _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, Rt, cen64, HL[0] > 0.0, HL[1], HL[2], HL[3], gmodel,
                  max_depth, hall_threshold,
                  ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-                 pixel, sample, spp, stack_f, stack_i, counts, cut_w)
+                 pixel, sample, spp, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1, pre_b2)
 
 
 @njit(cache=True)
@@ -520,7 +552,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
             rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pos[i, 0], y + pos[i, 1], i, cap, gmodel,
                                    max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
                                    fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
-                                   counts, cut_w)
+                                   counts, cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
             vals[i, 0], vals[i, 1], vals[i, 2] = rr, gg, bb
         n = 5
         sq_f[0, 0], sq_f[0, 1], sq_f[0, 2] = 0.0, 0.0, 1.0
@@ -540,7 +572,8 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
                     rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pts[q, 0], y + pts[q, 1], n + q, cap,
                                            gmodel, max_depth, hall_threshold, ka, ambient, ks,
                                            shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                                           seed, pixel, stack_f, stack_i, counts, cut_w)
+                                           seed, pixel, stack_f, stack_i, counts, cut_w, 0.0,
+                                           np.int64(NOT_TRACED), 0.0, 0.0)
                     vals[n + q, 0], vals[n + q, 1], vals[n + q, 2] = rr, gg, bb
                 e_b, e_l, e_r, e_t = n, n + 1, n + 2, n + 3
                 c = idx[4]
@@ -589,7 +622,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
             rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + fx, y + fy, n, cap, gmodel, max_depth,
                                    hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
                                    shadows, light_samples, seed, pixel, stack_f, stack_i, counts,
-                                   cut_w)
+                                   cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
             _store(rec, n, x + fx, y + fy, 1.0, rr, gg, bb)
             c = n + 1.0
             d0, d1, d2 = rr - m0, gg - m1, bb - m2
@@ -605,6 +638,19 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
         return n
 
     pts = np.zeros((spp, 2))
+    n = _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts)
+    for s in range(n):
+        rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pts[s, 0], y + pts[s, 1], s, n, gmodel, max_depth,
+                               hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
+                               shadows, light_samples, seed, pixel, stack_f, stack_i, counts, cut_w,
+                               0.0, np.int64(NOT_TRACED), 0.0, 0.0)
+        _store(rec, s, x + pts[s, 0], y + pts[s, 1], 1.0, rr, gg, bb)
+    return n
+
+
+@njit(inline="always", cache=True)
+def _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts):
+    """A fixed-count sampler's sample positions in the pixel, ``pts[:n]``; returns n."""
     k = int(math.sqrt(spp) + 0.5)
     if sampler == SMP_UNIFORM:
         n = uniform_pattern(k, pts)
@@ -617,12 +663,73 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
             n = jitter_pattern(k, gamma, seed, pixel, pts)
     else:
         n, _r = poisson_disk_pattern(spp, seed, pixel, pts)
-    for s in range(n):
-        rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pts[s, 0], y + pts[s, 1], s, n, gmodel, max_depth,
-                               hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
-                               shadows, light_samples, seed, pixel, stack_f, stack_i, counts, cut_w)
-        _store(rec, s, x + pts[s, 0], y + pts[s, 1], 1.0, rr, gg, bb)
     return n
+
+
+@njit(cache=True)
+def _tile(cam, A, S, R, M, HL, tile, sampler, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
+          hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
+          recs, nrec, counts, packet_counts):
+    """One 8×8 tile of a fixed-count sampler: per sample index s, the eye rays of the
+    tile's pixels that have a sample s (the pattern positions and lens points of
+    :func:`_pixel`) traced as one packet, then each one's ray tree from its eye hit.
+    Static scenes only (the packet is traced through R's tree as built)."""
+    W, H = int(cam[14]), int(cam[15])
+    x0, y0, nx, ny = tile_rect(tile, W, H)
+    P = nx * ny
+    stack_f = np.empty((max_depth + 2, 11))
+    stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
+    cut_w = np.zeros(2)
+    cen = R.sph_center.copy()
+    cen64 = A.sph_center.copy()
+    pts = np.zeros((P, spp, 2))
+    npt = np.zeros(P, dtype=np.int64)
+    n_max = 0
+    for i in range(P):
+        pixel = (y0 + i // nx) * W + x0 + i % nx
+        npt[i] = _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts[i])
+        n_max = max(n_max, npt[i])
+    rays = np.empty((P, 8))
+    who = np.empty(P, dtype=np.int64)      # packet ray j is pixel who[j] of the tile
+    hit_t = np.empty(P)
+    hit_p = np.empty(P, dtype=np.int64)
+    hit_b = np.empty((P, 2))
+    for s in range(n_max):
+        m = 0
+        for i in range(P):
+            if s < npt[i]:
+                x, y = x0 + i % nx, y0 + i // nx
+                ox, oy, oz, dx, dy, dz, tmin, tmax, _ = _eye(cam, seed, y * W + x, s,
+                                                             x + pts[i, s, 0], y + pts[i, s, 1])
+                rays[m, 0], rays[m, 1], rays[m, 2] = ox, oy, oz
+                rays[m, 3], rays[m, 4], rays[m, 5] = dx, dy, dz
+                rays[m, 6], rays[m, 7] = tmin, tmax
+                who[m] = i
+                m += 1
+        packet_hits(R, rays, m, hit_t, hit_p, hit_b, packet_counts)
+        for j in range(m):
+            i = who[j]
+            x, y = x0 + i % nx, y0 + i // nx
+            pixel = y * W + x
+            fx, fy = x + pts[i, s, 0], y + pts[i, s, 1]
+            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, fx, fy, s, npt[i], gmodel,
+                                   max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
+                                   fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
+                                   counts[pixel], cut_w, hit_t[j], hit_p[j], hit_b[j, 0], hit_b[j, 1])
+            _store(recs[pixel], s, fx, fy, 1.0, rr, gg, bb)
+    for i in range(P):
+        nrec[(y0 + i // nx) * W + x0 + i % nx] = npt[i]
+
+
+@njit(parallel=True, cache=True)
+def _render_tiles(cam, A, S, R, M, HL, sampler, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
+                  hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+                  light_samples, seed, recs, nrec, counts, packet_counts):
+    W, H = int(cam[14]), int(cam[15])
+    for tile in prange(tile_count(W, H)):
+        _tile(cam, A, S, R, M, HL, tile, sampler, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
+              hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
+              seed, recs, nrec, counts, packet_counts[tile])
 
 
 @njit(parallel=True, cache=True)
@@ -692,6 +799,15 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     nrec = np.zeros(W * H, dtype=np.int64)
     counts = np.zeros((W * H, len(COUNTERS)), dtype=np.int64)
     M = motion_arrays(scene, A)
+    packets = bool(params.get("packets", False))
+    if packets and params["sampler"] in ("adaptive", "statistical"):
+        raise ValueError(f"distributed: packets=true needs a fixed-count sampler (uniform, random, "
+                         f"jitter, poisson); sampler={params['sampler']} chooses each pixel's next "
+                         "sample from its previous ones, so a tile has no common sample to batch")
+    if packets and M.index.shape[0] > 0:
+        raise ValueError("distributed: packets=true needs a tree, but this scene has moving spheres "
+                         "(gibench_velocity), which are traced by brute force (accel=none); "
+                         "render it with packets=false")
     if M.index.shape[0] > 0:
         # A structure built over the spheres at one time would miss them at
         # another: scenes with moving spheres are traced by brute force.
@@ -704,16 +820,24 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     z = float(norm.ppf(0.5 * (1.0 + params["confidence"])))
     HL = np.array([1.0 if params["shading"] == "hall" else 0.0, params["hall_ks"], params["hall_n"],
                    params["hall_t"]])
-    _render_kernel(cam, A, S, R, M, HL, sampler, spp, params["jitter"] == "gaussian", float(params["gamma"]),
-                   float(params["sigma"]), float(params["threshold"]), int(params["adaptive_depth"]),
-                   float(params["tolerance"]), z, G_MODELS[params["g"]], params["max_depth"],
-                   float(params["hall_threshold"]), params["ka"], params["ambient"], params["ks"],
-                   params["shininess"], params["c1"], params["c2"], params["c3"], params["fatt_clamp"],
-                   params["shadows"], params["light_samples"], seed, recs, nrec, counts)
+    shade = (G_MODELS[params["g"]], params["max_depth"], float(params["hall_threshold"]),
+             params["ka"], params["ambient"], params["ks"], params["shininess"], params["c1"],
+             params["c2"], params["c3"], params["fatt_clamp"], params["shadows"],
+             params["light_samples"], seed, recs, nrec, counts)
+    if packets:
+        packet_counts = np.zeros((tile_count(W, H), 2), dtype=np.int64)
+        _render_tiles(cam, A, S, R, M, HL, sampler, spp, params["jitter"] == "gaussian",
+                      float(params["gamma"]), float(params["sigma"]), *shade, packet_counts)
+    else:
+        _render_kernel(cam, A, S, R, M, HL, sampler, spp, params["jitter"] == "gaussian",
+                       float(params["gamma"]), float(params["sigma"]), float(params["threshold"]),
+                       int(params["adaptive_depth"]), float(params["tolerance"]), z, *shade)
     mean, var = reconstruct(recs, nrec, W, H, fkind, stddev)
     totals = counts.sum(axis=0)
     counters = {name: int(v) for name, v in zip(COUNTERS, totals)}
     counters["mean_spp"] = counters["samples"] / (W * H)
+    if packets:
+        counters["packet_nodes"], counters["packet_tests"] = (int(v) for v in packet_counts.sum(axis=0))
     spp_img = counts[:, _C_SAMPLES].reshape(H, W).astype(np.float32)
     return RenderResult(image=mean.astype(np.float32), variance=var.astype(np.float32),
                         counters=counters, aovs={"spp": spp_img})

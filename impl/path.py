@@ -85,8 +85,19 @@ rr_depth    int    5        Russian roulette from this depth on
 mis         bool   true     MIS (power heuristic) of light and BSDF samples
 spectral    bool   false    hero-wavelength spectral rendering (impl.spectral)
 debug_bias  str    none     none | rr_no_reweight | mis_unnormalised
-(rays)                      intersect, precision, offset, epsilon
+(rays)                      intersect, precision, offset, epsilon, accel,
+                            slab_normals (:mod:`impl.rays`)
+packets     bool   false    trace the eye rays of 8×8 pixel tiles as
+                            coherent packets (:mod:`impl.accel.packets`)
 ==========  =====  =======  ===============================================
+
+Packets (thesis 2.6): with ``packets=true`` the kernel runs over 8×8 pixel
+tiles and, for each sample index, traces the tile's eye rays (the same rays
+as the per-pixel kernel) as one packet through the tree; each path then
+continues from its precomputed first hit, its bounce and shadow rays
+single-ray (incoherent: packets of them are out of scope).  Same image and
+counters bit for bit, plus ``packet_nodes`` / ``packet_tests``; needs a tree
+(``accel=auto`` then means ``bvh-sah``).
 
 Example::
 
@@ -110,6 +121,7 @@ from gibench.scene import Scene
 from .bsdf import bsdf_arrays, bsdf_eval, bsdf_pdf, bsdf_sample, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
 from .materials import MaterialArrays
+from .accel.packets import NOT_TRACED, packet_hits, tile_count, tile_rect
 from .camera import camera_params, eye_ray
 from .light_sampling import LightArrays, emitter_pdf, flatten_with_lights, sample_light
 from .lighting import diffuse_albedo, environment_radiance, surface
@@ -148,9 +160,13 @@ def _power(a, b):
 @njit(cache=True)
 def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B: MaterialArrays,
           R: RayConfig, S: SpectralArrays, spectral, w0, w1, w2, max_depth, rr_depth, mis, bias,
-          seed, pixel, sample, counts):
+          seed, pixel, sample, counts, pre_t, pre_prim, pre_b1, pre_b2):
     """Radiance carried to the eye along one sampled path: (r, g, b), or in spectral
-    mode the radiance at the three wavelengths of grid positions (w0, w1, w2)."""
+    mode the radiance at the three wavelengths of grid positions (w0, w1, w2).
+
+    ``pre_*``: the eye ray's closest hit as :func:`impl.rays.hit` returns it, traced
+    in a packet; ``pre_prim = NOT_TRACED`` traces it here like every other segment.
+    """
     ns = A.sph_radius.shape[0]
     r = g = b = 0.0
     tr = tg = tb = 1.0               # path throughput
@@ -165,7 +181,11 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
     while True:
         counts[_C_SEG] += 1
         ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
-        t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, t0, t1)
+        if pre_prim != NOT_TRACED:   # the eye ray's hit, traced in a packet
+            t, prim, b1, b2 = pre_t, pre_prim, pre_b1, pre_b2
+            pre_prim = NOT_TRACED
+        else:
+            t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, t0, t1)
         if prim < 0:                 # left the scene: the environment (BSDF-sampled only)
             er, eg, eb = environment_radiance(A, dx, dy, dz)
             r += tr * er
@@ -320,10 +340,17 @@ def _pixel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
         if spectral:
             w0, w1, w2 = sample_wavelengths(uniform(seed, pixel, s, _DIM_WAVELENGTH))
         r, g, b = _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A, L, B, R, S, spectral, w0, w1, w2,
-                        max_depth, rr_depth, mis, bias, seed, pixel, s, cnt)
+                        max_depth, rr_depth, mis, bias, seed, pixel, s, cnt, 0.0, np.int64(NOT_TRACED), 0.0,
+                        0.0)
         if spectral:
             r, g, b = to_linear_srgb(S, r, g, b, w0, w1, w2)
         m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
+    _store_pixel(x, y, W, spp, m0, m1, m2, q0, q1, q2, cnt, mean, var, counts)
+
+
+@njit(inline="always", cache=True)
+def _store_pixel(x, y, W, spp, m0, m1, m2, q0, q1, q2, cnt, mean, var, counts):
+    """Write pixel (x, y)'s mean, variance of the mean and counters."""
     mean[y, x, 0] = m0
     mean[y, x, 1] = m1
     mean[y, x, 2] = m2
@@ -331,7 +358,61 @@ def _pixel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
     var[y, x, 1] = variance_of_mean(q1, spp)
     var[y, x, 2] = variance_of_mean(q2, spp)
     for i in range(cnt.shape[0]):
-        counts[pixel, i] = cnt[i]
+        counts[y * W + x, i] = cnt[i]
+
+
+@njit(cache=True)
+def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
+          spectral, tile, spp, max_depth, rr_depth, mis, bias, seed, mean, var, counts, packet_counts):
+    """One 8×8 tile: per sample index, the eye rays of :func:`_pixel` traced as one
+    packet, then each pixel's path from its first hit.  The per-pixel Welford state
+    and counters live here, private to the thread running the tile."""
+    W, H = int(cam[14]), int(cam[15])
+    x0, y0, nx, ny = tile_rect(tile, W, H)
+    P = nx * ny
+    k = strata(spp)
+    cnt = np.zeros((P, len(COUNTERS)), dtype=np.int64)
+    acc = np.zeros((P, 6))                  # Welford m0, m1, m2, q0, q1, q2 per pixel
+    rays = np.empty((P, 8))
+    hit_t = np.empty(P)
+    hit_p = np.empty(P, dtype=np.int64)
+    hit_b = np.empty((P, 2))
+    for s in range(spp):
+        for i in range(P):
+            x, y = x0 + i % nx, y0 + i // nx
+            fx, fy = pixel_sample(spp, k, s, seed, y * W + x)
+            ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
+            rays[i, 0], rays[i, 1], rays[i, 2] = ox, oy, oz
+            rays[i, 3], rays[i, 4], rays[i, 5] = dx, dy, dz
+            rays[i, 6], rays[i, 7] = tmin, tmax
+        packet_hits(R, rays, P, hit_t, hit_p, hit_b, packet_counts)
+        for i in range(P):
+            pixel = (y0 + i // nx) * W + x0 + i % nx
+            w0 = w1 = w2 = 0.0
+            if spectral:
+                w0, w1, w2 = sample_wavelengths(uniform(seed, pixel, s, _DIM_WAVELENGTH))
+            r, g, b = _path(rays[i, 0], rays[i, 1], rays[i, 2], rays[i, 3], rays[i, 4], rays[i, 5],
+                            rays[i, 6], rays[i, 7], A, L, B, R, S, spectral, w0, w1, w2, max_depth,
+                            rr_depth, mis, bias, seed, pixel, s, cnt[i], hit_t[i], hit_p[i],
+                            hit_b[i, 0], hit_b[i, 1])
+            if spectral:
+                r, g, b = to_linear_srgb(S, r, g, b, w0, w1, w2)
+            (acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3], acc[i, 4],
+             acc[i, 5]) = welford_add(s, r, g, b, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
+                                      acc[i, 4], acc[i, 5])
+    for i in range(P):
+        _store_pixel(x0 + i % nx, y0 + i // nx, W, spp, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
+                     acc[i, 4], acc[i, 5], cnt[i], mean, var, counts)
+
+
+@njit(parallel=True, cache=True)
+def _render_tiles(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
+                  S: SpectralArrays, spectral, spp, max_depth, rr_depth, mis, bias, seed, mean, var,
+                  counts, packet_counts):
+    W, H = int(cam[14]), int(cam[15])
+    for tile in prange(tile_count(W, H)):
+        _tile(cam, A, L, B, R, S, spectral, tile, spp, max_depth, rr_depth, mis, bias, seed, mean,
+              var, counts, packet_counts[tile])
 
 
 @njit(parallel=True, cache=True)
@@ -378,11 +459,18 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
         A = A._replace(light_rad=np.ones_like(A.light_rad))
     else:
         S = rgb_arrays_placeholder()
-    _render_kernel(cam, A, L, B, R, S, spectral, spp, int(params["max_depth"]), int(params["rr_depth"]),
-                   bool(params["mis"]), DEBUG_BIAS.index(params["debug_bias"]), seed, mean, var,
-                   counts)
+    args = (cam, A, L, B, R, S, spectral, spp, int(params["max_depth"]), int(params["rr_depth"]),
+            bool(params["mis"]), DEBUG_BIAS.index(params["debug_bias"]), seed, mean, var, counts)
+    packets = bool(params.get("packets", False))
+    if packets:
+        packet_counts = np.zeros((tile_count(W, H), 2), dtype=np.int64)
+        _render_tiles(*args, packet_counts)
+    else:
+        _render_kernel(*args)
     totals = counts.sum(axis=0)
     counters = {name: int(v) for name, v in zip(COUNTERS, totals)}
+    if packets:
+        counters["packet_nodes"], counters["packet_tests"] = (int(v) for v in packet_counts.sum(axis=0))
     counters["mean_path_length"] = counters["segments"] / max(1, counters["paths"])
     return RenderResult(image=mean.astype(np.float32),
                         variance=var.astype(np.float32) if spp > 1 else None,

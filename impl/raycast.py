@@ -47,10 +47,17 @@ precision      str     float64  precision of the intersection arithmetic
 offset         str     robust   epsilon | normal | robust: how shadow rays
                                 leave the surface
 epsilon        float   1e-4     ε of offset=epsilon / normal (scene units)
+accel          str     auto     acceleration structure (thesis 2.6)
+slab_normals   int     7        plane normals of accel=slabs
+packets        bool    false    eye rays of 8×8 tiles as coherent packets
 =============  ======  =======  ==============================================
 
-The last four are the ray configuration of :mod:`impl.rays` (shared with
-``whitted``, which documents them in full).  Before they existed shadow rays
+The last seven are the ray configuration of :mod:`impl.rays` (shared with
+``whitted``, which documents them in full).  With ``packets=true`` the kernel
+runs over 8×8 pixel tiles and traces each sample's 64 eye rays as one packet
+(:mod:`impl.accel.packets`); shading and shadow rays go on per pixel, single
+ray, and the image and counters are those of ``packets=false`` bit for bit,
+plus the counters ``packet_nodes`` and ``packet_tests``.  Before they existed shadow rays
 left the surface p + 1e-7·(1 + max|p_i|)·n.
 """
 
@@ -62,6 +69,7 @@ from numba import njit, prange
 from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
+from .accel.packets import NOT_TRACED, packet_hits, tile_count, tile_rect
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
 from .lighting import environment_radiance, local_shading, surface
@@ -76,10 +84,18 @@ __all__ = ["render", "cast_primary", "ALGORITHM"]
 
 @njit(cache=True)
 def _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, R: RayConfig, ka, ambient, ks,
-              shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, sample):
-    """Radiance along one eye ray: emitted + ambient + Phong direct; (r, g, b, shadow rays)."""
+              shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, sample, pre_t,
+              pre_prim, pre_b1, pre_b2):
+    """Radiance along one eye ray: emitted + ambient + Phong direct; (r, g, b, shadow rays).
+
+    ``pre_*``: the eye ray's closest hit as :func:`impl.rays.hit` returns it, traced
+    in a packet; ``pre_prim = NOT_TRACED`` traces it here.
+    """
     ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
-    t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    if pre_prim == NOT_TRACED:
+        t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    else:
+        t, prim, b1, b2 = pre_t, pre_prim, pre_b1, pre_b2
     if prim < 0:                        # escaped: a constant environment, if any
         er, eg, eb = environment_radiance(A, dx, dy, dz)
         return er, eg, eb, 0
@@ -110,11 +126,64 @@ def _pixel(cam, A: SceneArrays, R: RayConfig, x, y, spp, ka, ambient, ks, shinin
         fx, fy = pixel_sample(spp, k, s, seed, pixel)
         ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
         r, g, b, n = _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A, R, ka, ambient, ks, shininess,
-                               c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, s)
+                               c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, s, 0.0,
+                               np.int64(NOT_TRACED), 0.0, 0.0)
         nsh += n
         m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
     return (m0, m1, m2, variance_of_mean(q0, spp), variance_of_mean(q1, spp),
             variance_of_mean(q2, spp), nsh)
+
+
+@njit(cache=True)
+def _tile(cam, A: SceneArrays, R: RayConfig, tile, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
+          shadows, light_samples, seed, mean, var, shadow_count, packet_counts):
+    """One 8×8 tile: per sample index, its eye rays (those of :func:`_pixel`) traced as
+    one packet, then each pixel's sample shaded from its hit.  The per-pixel Welford
+    state lives here, private to the thread running the tile."""
+    W, H = int(cam[14]), int(cam[15])
+    x0, y0, nx, ny = tile_rect(tile, W, H)
+    P = nx * ny
+    k = strata(spp)
+    rays = np.empty((P, 8))
+    hit_t = np.empty(P)
+    hit_p = np.empty(P, dtype=np.int64)
+    hit_b = np.empty((P, 2))
+    acc = np.zeros((P, 6))                  # Welford m0, m1, m2, q0, q1, q2 per pixel
+    nsh = np.zeros(P, dtype=np.int64)
+    for s in range(spp):
+        for i in range(P):
+            x, y = x0 + i % nx, y0 + i // nx
+            fx, fy = pixel_sample(spp, k, s, seed, y * W + x)
+            ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
+            rays[i, 0], rays[i, 1], rays[i, 2] = ox, oy, oz
+            rays[i, 3], rays[i, 4], rays[i, 5] = dx, dy, dz
+            rays[i, 6], rays[i, 7] = tmin, tmax
+        packet_hits(R, rays, P, hit_t, hit_p, hit_b, packet_counts)
+        for i in range(P):
+            x, y = x0 + i % nx, y0 + i // nx
+            r, g, b, n = _radiance(rays[i, 0], rays[i, 1], rays[i, 2], rays[i, 3], rays[i, 4],
+                                   rays[i, 5], rays[i, 6], rays[i, 7], A, R, ka, ambient, ks,
+                                   shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
+                                   y * W + x, s, hit_t[i], hit_p[i], hit_b[i, 0], hit_b[i, 1])
+            nsh[i] += n
+            (acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3], acc[i, 4],
+             acc[i, 5]) = welford_add(s, r, g, b, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
+                                      acc[i, 4], acc[i, 5])
+    for i in range(P):
+        x, y = x0 + i % nx, y0 + i // nx
+        for c in range(3):
+            mean[y, x, c] = acc[i, c]
+            var[y, x, c] = variance_of_mean(acc[i, 3 + c], spp)
+        shadow_count[y, x] = nsh[i]
+
+
+@njit(parallel=True, cache=True)
+def _render_tiles(cam, A: SceneArrays, R: RayConfig, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
+                  shadows, light_samples, seed, mean, var, shadow_count, packet_counts):
+    W, H = int(cam[14]), int(cam[15])
+    for tile in prange(tile_count(W, H)):
+        _tile(cam, A, R, tile, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+              light_samples, seed, mean, var, shadow_count, packet_counts[tile])
 
 
 @njit(parallel=True, cache=True)
@@ -180,10 +249,17 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     var = np.zeros((H, W, 3))
     shadow = np.zeros((H, W), dtype=np.int64)
     R = ray_config(A, params, algorithm="raycast")
-    _render_kernel(cam, A, R, spp, params["ka"], params["ambient"], params["ks"], params["shininess"],
-                   params["c1"], params["c2"], params["c3"], params["fatt_clamp"], params["shadows"],
-                   params["light_samples"], seed, mean, var, shadow)
+    args = (cam, A, R, spp, params["ka"], params["ambient"], params["ks"], params["shininess"],
+            params["c1"], params["c2"], params["c3"], params["fatt_clamp"], params["shadows"],
+            params["light_samples"], seed, mean, var, shadow)
+    if params.get("packets", False):
+        packet_counts = np.zeros((tile_count(W, H), 2), dtype=np.int64)
+        _render_tiles(*args, packet_counts)
+    else:
+        _render_kernel(*args)
     counters = {"camera_rays": int(W * H * spp), "shadow_rays": int(shadow.sum())}
+    if params.get("packets", False):
+        counters["packet_nodes"], counters["packet_tests"] = (int(v) for v in packet_counts.sum(axis=0))
     return RenderResult(image=mean.astype(np.float32),
                         variance=var.astype(np.float32) if spp > 1 else None,
                         counters=counters)

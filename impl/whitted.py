@@ -144,7 +144,21 @@ offset          str     robust   how secondary and shadow rays leave a
                                  (origin p + ε·n) | robust (Wächter–Binder)
 epsilon         float   1e-4     ε of offset=epsilon and offset=normal, in
                                  scene units (robust ignores it)
+accel           str     auto     acceleration structure of every ray query
+                                 (thesis 2.6, :mod:`impl.accel`)
+slab_normals    int     7        plane normals of accel=slabs
+packets         bool    false    trace the eye rays of 8×8 pixel tiles as
+                                 coherent packets (:mod:`impl.accel.packets`)
 ==============  ======  =======  =============================================
+
+Packets (thesis 2.6, tracing several rays together): with ``packets=true`` the
+kernel runs over 8×8 pixel tiles; for each sample index the tile's eye rays —
+the same rays, samples and rounding as the per-pixel kernel — are traced as
+one packet through the tree, and each pixel's ray tree then starts from its
+precomputed eye hit.  Reflection, transmission and shadow rays stay
+single-ray: they are incoherent, and packets of them are out of scope.  Same
+image and counters as ``packets=false`` bit for bit, plus ``packet_nodes`` and
+``packet_tests``; needs a tree (``accel=auto`` then means ``bvh-sah``).
 
 Example::
 
@@ -163,6 +177,7 @@ from numba import njit, prange
 from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
+from .accel.packets import NOT_TRACED, packet_hits, tile_count, tile_rect
 from .camera import camera_params, eye_ray
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, surface
@@ -235,8 +250,13 @@ def _admit(wr, wg, wb, depth, max_depth, hall_threshold, counts, cut_w):
 def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: SpecularArrays, R: RayConfig,
           max_depth,
           hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-          seed, pixel, sample, spp, stack_f, stack_i, counts, hist, cut_w):
-    """Radiance (r, g, b) of one eye ray by walking its ray tree with an explicit stack."""
+          seed, pixel, sample, spp, stack_f, stack_i, counts, hist, cut_w, pre_t, pre_prim, pre_b1,
+          pre_b2):
+    """Radiance (r, g, b) of one eye ray by walking its ray tree with an explicit stack.
+
+    ``pre_*``: the eye ray's closest hit as :func:`impl.rays.hit` returns it, traced
+    in a packet; ``pre_prim = NOT_TRACED`` traces it here like every other ray.
+    """
     ns = A.sph_radius.shape[0]
     r = g = b = 0.0
     sp = 0
@@ -276,7 +296,10 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: SpecularArrays,
 
         # Intersect (and shade) the ray as rounded to the intersection precision.
         rox, roy, roz, rdx, rdy, rdz = round_ray(R, rox, roy, roz, rdx, rdy, rdz)
-        t, prim, b1, b2 = hit(R, rox, roy, roz, rdx, rdy, rdz, t0, t1)
+        if kind == RAY_EYE and pre_prim != NOT_TRACED:
+            t, prim, b1, b2 = pre_t, pre_prim, pre_b1, pre_b2
+        else:
+            t, prim, b1, b2 = hit(R, rox, roy, roz, rdx, rdy, rdz, t0, t1)
         if prim < 0:                     # escaped: a constant environment, if any, else black
             er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
             r += wr * er
@@ -396,8 +419,16 @@ def _pixel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, x, y, spp, max_
         ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
         r, g, b = _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, R, max_depth, hall_threshold,
                         ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                        seed, pixel, s, spp, stack_f, stack_i, cnt, hst, cut_w)
+                        seed, pixel, s, spp, stack_f, stack_i, cnt, hst, cut_w, 0.0, np.int64(NOT_TRACED),
+                        0.0, 0.0)
         m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
+    _store_pixel(x, y, W, spp, m0, m1, m2, q0, q1, q2, cnt, hst, cut_w, mean, var, counts, hist, cut)
+
+
+@njit(inline="always", cache=True)
+def _store_pixel(x, y, W, spp, m0, m1, m2, q0, q1, q2, cnt, hst, cut_w, mean, var, counts, hist, cut):
+    """Write pixel (x, y)'s mean, variance of the mean, counters and cut weights."""
+    pixel = y * W + x
     mean[y, x, 0] = m0
     mean[y, x, 1] = m1
     mean[y, x, 2] = m2
@@ -410,6 +441,62 @@ def _pixel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, x, y, spp, max_
         hist[pixel, i] = hst[i]
     cut[y, x, 0] = cut_w[0] / spp
     cut[y, x, 1] = cut_w[1] / spp
+
+
+@njit(cache=True)
+def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, tile, spp, max_depth, hall_threshold,
+          ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
+          mean, var, counts, hist, cut, packet_counts):
+    """One 8×8 tile: per sample index, the eye rays of :func:`_pixel` traced as one
+    packet, then each pixel's ray tree from its eye hit.  The per-pixel Welford
+    state, counters and stack live here, private to the thread running the tile."""
+    W, H = int(cam[14]), int(cam[15])
+    x0, y0, nx, ny = tile_rect(tile, W, H)
+    P = nx * ny
+    k = strata(spp)
+    stack_f = np.empty((max_depth + 2, 11))
+    stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
+    cnt = np.zeros((P, len(COUNTERS)), dtype=np.int64)
+    hst = np.zeros((P, max_depth + 1), dtype=np.int64)
+    cut_w = np.zeros((P, 2))
+    acc = np.zeros((P, 6))                  # Welford m0, m1, m2, q0, q1, q2 per pixel
+    rays = np.empty((P, 8))
+    hit_t = np.empty(P)
+    hit_p = np.empty(P, dtype=np.int64)
+    hit_b = np.empty((P, 2))
+    for s in range(spp):
+        for i in range(P):
+            x, y = x0 + i % nx, y0 + i // nx
+            fx, fy = pixel_sample(spp, k, s, seed, y * W + x)
+            ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
+            rays[i, 0], rays[i, 1], rays[i, 2] = ox, oy, oz
+            rays[i, 3], rays[i, 4], rays[i, 5] = dx, dy, dz
+            rays[i, 6], rays[i, 7] = tmin, tmax
+        packet_hits(R, rays, P, hit_t, hit_p, hit_b, packet_counts)
+        for i in range(P):
+            x, y = x0 + i % nx, y0 + i // nx
+            r, g, b = _tree(rays[i, 0], rays[i, 1], rays[i, 2], rays[i, 3], rays[i, 4], rays[i, 5],
+                            rays[i, 6], rays[i, 7], A, S, R, max_depth, hall_threshold, ka, ambient,
+                            ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
+                            y * W + x, s, spp, stack_f, stack_i, cnt[i], hst[i], cut_w[i],
+                            hit_t[i], hit_p[i], hit_b[i, 0], hit_b[i, 1])
+            (acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3], acc[i, 4],
+             acc[i, 5]) = welford_add(s, r, g, b, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
+                                      acc[i, 4], acc[i, 5])
+    for i in range(P):
+        _store_pixel(x0 + i % nx, y0 + i // nx, W, spp, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
+                     acc[i, 4], acc[i, 5], cnt[i], hst[i], cut_w[i], mean, var, counts, hist, cut)
+
+
+@njit(parallel=True, cache=True)
+def _render_tiles(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, spp, max_depth, hall_threshold,
+                  ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
+                  mean, var, counts, hist, cut, packet_counts):
+    W, H = int(cam[14]), int(cam[15])
+    for tile in prange(tile_count(W, H)):
+        _tile(cam, A, S, R, tile, spp, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2,
+              c3, fclamp, shadows, light_samples, seed, mean, var, counts, hist, cut,
+              packet_counts[tile])
 
 
 @njit(parallel=True, cache=True)
@@ -431,7 +518,7 @@ def _trace_one(ox, oy, oz, dx, dy, dz, A: SceneArrays, S: SpecularArrays, R: Ray
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
     return _tree(ox, oy, oz, dx, dy, dz, 0.0, np.inf, A, S, R, max_depth, hall_threshold, ka,
                  ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, 0, 0, 1,
-                 stack_f, stack_i, counts, hist, cut_w)
+                 stack_f, stack_i, counts, hist, cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
 
 
 # ------------------------------------------------------------- orchestration ---
@@ -465,10 +552,18 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     hist = np.zeros((H * W, max_depth + 1), dtype=np.int64)
     cut = np.zeros((H, W, 2))
     R = ray_config(A, params, algorithm="whitted")
-    _render_kernel(cam, A, S, R, spp, max_depth, float(params["hall_threshold"]), *_local_args(params),
-                   seed, mean, var, counts, hist, cut)
+    args = (cam, A, S, R, spp, max_depth, float(params["hall_threshold"]), *_local_args(params),
+            seed, mean, var, counts, hist, cut)
+    packets = bool(params.get("packets", False))
+    if packets:
+        packet_counts = np.zeros((tile_count(W, H), 2), dtype=np.int64)
+        _render_tiles(*args, packet_counts)
+    else:
+        _render_kernel(*args)
     totals = counts.sum(axis=0)
     counters = {name: int(v) for name, v in zip(COUNTERS, totals)}
+    if packets:
+        counters["packet_nodes"], counters["packet_tests"] = (int(v) for v in packet_counts.sum(axis=0))
     counters["tree_depth_histogram"] = [int(v) for v in hist.sum(axis=0)]
     return RenderResult(image=mean.astype(np.float32),
                         variance=var.astype(np.float32) if spp > 1 else None,

@@ -15,9 +15,18 @@ not need them (incoherent packets).
 Here in scalar numba (no SIMD lanes, which is where Wald et al.'s packets get
 most of their 4×): the packet's rays are looped over at each node.
 
-Scope: primary (eye) rays, as :func:`primary_hits` — the depth / primitive
+Scope: primary (eye) rays.  :func:`primary_hits` gives the depth / primitive
 buffers of a camera, by packets or one ray at a time through the same tree.
-The ray tracers' ``hit`` stays single-ray.
+The four ray tracers (``raycast``, ``whitted``, ``distributed``, ``path``)
+take the parameter ``packets=true`` (:data:`impl.rays.PARAMS`): their render
+kernel then runs over :data:`TILE`×:data:`TILE` pixel tiles, and for each
+sample index the tile's eye rays — the very rays the per-pixel kernel traces —
+form one packet (:func:`packet_hits`); each pixel's sample then continues
+from that precomputed first hit (the tracers' radiance functions take it as
+``pre_t, pre_prim, pre_b1, pre_b2``, with ``pre_prim =`` :data:`NOT_TRACED`
+meaning "trace it yourself").  Secondary and shadow rays stay single-ray
+(:func:`impl.rays.hit` / ``occluded``): after the first bounce they are
+incoherent, and packets of them are out of scope.
 
 Reference: I. Wald, P. Slusallek, C. Benthin, M. Wagner, "Interactive
 rendering with coherent ray tracing", *Computer Graphics Forum* 20(3), 2001.
@@ -35,9 +44,15 @@ from ..intersect import like
 from .primitives import box_enter, closer, prim_test, ulp_above
 from .tree import STACK, tree_closest
 
-__all__ = ["packet_closest", "primary_hits", "TILE"]
+__all__ = ["packet_closest", "packet_hits", "primary_hits", "tile_rect", "tile_count", "TILE",
+           "NOT_TRACED"]
 
 TILE = 8
+#: ``pre_prim`` of a tracer's radiance function when no first hit is given.  Callers
+#: pass it as ``np.int64(NOT_TRACED)``: a bare ``-2`` is typed ``Literal[int]`` and
+#: would compile the radiance function a second time (measured: two signatures of
+#: ``whitted._tree``, one per kernel), doubling the tile kernel's compile time.
+NOT_TRACED = -2
 
 
 @njit(cache=True, error_model="numpy")
@@ -111,6 +126,57 @@ def packet_closest(R, o, inv, d, tmin, best_t, best_p, bb, counts):
                 te[j - sp0] = first_t
                 sp += 1
     return
+
+
+@njit(cache=True, error_model="numpy")
+def packet_hits(R, rays, n, hit_t, hit_p, hit_b, counts):
+    """Closest hits of the eye rays ``rays[:n]`` = (ox, oy, oz, dx, dy, dz, tmin, tmax)
+    (float64, as the camera gives them) traced as one packet through R's tree.
+
+    Each ray is rounded to R's precision exactly as :func:`impl.rays.round_ray`
+    and :func:`impl.rays.hit` round it, so ``hit_t[i], hit_p[i], hit_b[i, 0],
+    hit_b[i, 1]`` are bit for bit what ``hit`` returns for it (float64 t and
+    barycentrics, prim = -1 on a miss).  ``counts[0] +=`` nodes opened by the
+    packet, ``counts[1] +=`` primitive tests.
+    """
+    g = R.sph_radius
+    o = np.empty((n, 3), dtype=g.dtype)
+    d = np.empty((n, 3), dtype=g.dtype)
+    inv = np.empty((n, 3))
+    tmin = np.empty(n, dtype=g.dtype)
+    best_t = np.empty(n, dtype=g.dtype)
+    best_p = np.full(n, -1, dtype=np.int64)
+    bb = np.zeros((n, 2))
+    for i in range(n):
+        for a in range(3):
+            # round_ray, then hit's like(): rounding twice to R's precision is rounding once
+            o[i, a] = like(g, float(like(g, rays[i, a])))
+            d[i, a] = like(g, float(like(g, rays[i, 3 + a])))
+            inv[i, a] = 1.0 / float(d[i, a])
+        tmin[i] = like(g, rays[i, 6])
+        best_t[i] = like(g, rays[i, 7])
+    packet_closest(R, o, inv, d, tmin, best_t, best_p, bb, counts)
+    for i in range(n):
+        hit_t[i] = float(best_t[i])
+        hit_p[i] = best_p[i]
+        hit_b[i, 0] = bb[i, 0]
+        hit_b[i, 1] = bb[i, 1]
+
+
+@njit(inline="always", cache=True)
+def tile_count(W, H):
+    """Number of TILE×TILE tiles covering a W×H image (row-major, cut at the border)."""
+    return ((W + TILE - 1) // TILE) * ((H + TILE - 1) // TILE)
+
+
+@njit(inline="always", cache=True)
+def tile_rect(k, W, H):
+    """Tile ``k``'s first pixel and size: ``(x0, y0, nx, ny)``; its pixel ``i`` (0 ≤ i <
+    nx·ny) is ``(x0 + i % nx, y0 + i // nx)``."""
+    tx = (W + TILE - 1) // TILE
+    x0 = (k % tx) * TILE
+    y0 = (k // tx) * TILE
+    return x0, y0, min(TILE, W - x0), min(TILE, H - y0)
 
 
 @njit(cache=True, error_model="numpy")
