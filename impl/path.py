@@ -121,14 +121,14 @@ from gibench.scene import Scene
 from .bsdf import bsdf_arrays, bsdf_eval, bsdf_pdf, bsdf_sample, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
 from .materials import MaterialArrays
-from .accel.packets import NOT_TRACED, packet_hits, tile_count, tile_rect
+from .accel.packets import NOT_TRACED, tile_count, tile_eye_packet, tile_rect
 from .camera import camera_params, eye_ray
 from .light_sampling import LightArrays, emitter_pdf, flatten_with_lights, sample_light
 from .lighting import diffuse_albedo, environment_radiance, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
 from .rng import uniform
-from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
+from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add, welford_row
 from .scene_arrays import SceneArrays
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
@@ -378,14 +378,8 @@ def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, 
     hit_p = np.empty(P, dtype=np.int64)
     hit_b = np.empty((P, 2))
     for s in range(spp):
-        for i in range(P):
-            x, y = x0 + i % nx, y0 + i // nx
-            fx, fy = pixel_sample(spp, k, s, seed, y * W + x)
-            ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-            rays[i, 0], rays[i, 1], rays[i, 2] = ox, oy, oz
-            rays[i, 3], rays[i, 4], rays[i, 5] = dx, dy, dz
-            rays[i, 6], rays[i, 7] = tmin, tmax
-        packet_hits(R, rays, P, hit_t, hit_p, hit_b, packet_counts)
+        tile_eye_packet(R, cam, x0, nx, y0, P, spp, k, s, seed, rays, hit_t, hit_p, hit_b,
+                        packet_counts)
         for i in range(P):
             pixel = (y0 + i // nx) * W + x0 + i % nx
             w0 = w1 = w2 = 0.0
@@ -397,9 +391,7 @@ def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, 
                             hit_b[i, 0], hit_b[i, 1])
             if spectral:
                 r, g, b = to_linear_srgb(S, r, g, b, w0, w1, w2)
-            (acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3], acc[i, 4],
-             acc[i, 5]) = welford_add(s, r, g, b, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
-                                      acc[i, 4], acc[i, 5])
+            welford_row(acc, i, s, r, g, b)
     for i in range(P):
         _store_pixel(x0 + i % nx, y0 + i // nx, W, spp, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
                      acc[i, 4], acc[i, 5], cnt[i], mean, var, counts)

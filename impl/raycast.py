@@ -69,14 +69,14 @@ from numba import njit, prange
 from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
-from .accel.packets import NOT_TRACED, packet_hits, tile_count, tile_rect
+from .accel.packets import NOT_TRACED, tile_count, tile_eye_packet, tile_rect
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
 from .lighting import environment_radiance, local_shading, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
-from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
+from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add, welford_row
 from .scene_arrays import SceneArrays, flatten
 
 __all__ = ["render", "cast_primary", "ALGORITHM"]
@@ -151,14 +151,8 @@ def _tile(cam, A: SceneArrays, R: RayConfig, tile, spp, ka, ambient, ks, shinine
     acc = np.zeros((P, 6))                  # Welford m0, m1, m2, q0, q1, q2 per pixel
     nsh = np.zeros(P, dtype=np.int64)
     for s in range(spp):
-        for i in range(P):
-            x, y = x0 + i % nx, y0 + i // nx
-            fx, fy = pixel_sample(spp, k, s, seed, y * W + x)
-            ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-            rays[i, 0], rays[i, 1], rays[i, 2] = ox, oy, oz
-            rays[i, 3], rays[i, 4], rays[i, 5] = dx, dy, dz
-            rays[i, 6], rays[i, 7] = tmin, tmax
-        packet_hits(R, rays, P, hit_t, hit_p, hit_b, packet_counts)
+        tile_eye_packet(R, cam, x0, nx, y0, P, spp, k, s, seed, rays, hit_t, hit_p, hit_b,
+                        packet_counts)
         for i in range(P):
             x, y = x0 + i % nx, y0 + i // nx
             r, g, b, n = _radiance(rays[i, 0], rays[i, 1], rays[i, 2], rays[i, 3], rays[i, 4],
@@ -166,9 +160,7 @@ def _tile(cam, A: SceneArrays, R: RayConfig, tile, spp, ka, ambient, ks, shinine
                                    shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
                                    y * W + x, s, hit_t[i], hit_p[i], hit_b[i, 0], hit_b[i, 1])
             nsh[i] += n
-            (acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3], acc[i, 4],
-             acc[i, 5]) = welford_add(s, r, g, b, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
-                                      acc[i, 4], acc[i, 5])
+            welford_row(acc, i, s, r, g, b)
     for i in range(P):
         x, y = x0 + i % nx, y0 + i // nx
         for c in range(3):

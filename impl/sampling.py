@@ -52,6 +52,14 @@ def welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2):
 
 
 @njit(inline="always", cache=True)
+def welford_row(acc, i, s, r, g, b):
+    """:func:`welford_add` on row ``i`` of a (P, 6) array of running (m0, m1, m2, q0, q1, q2)."""
+    (acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3], acc[i, 4],
+     acc[i, 5]) = welford_add(s, r, g, b, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3], acc[i, 4],
+                              acc[i, 5])
+
+
+@njit(inline="always", cache=True)
 def variance_of_mean(q, spp):
     """Sample variance / spp from a squared-deviation sum; 0 for a single sample."""
     return q / (spp * (spp - 1.0)) if spp > 1 else 0.0

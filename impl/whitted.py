@@ -177,7 +177,7 @@ from numba import njit, prange
 from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
-from .accel.packets import NOT_TRACED, packet_hits, tile_count, tile_rect
+from .accel.packets import NOT_TRACED, tile_count, tile_eye_packet, tile_rect
 from .camera import camera_params, eye_ray
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, surface
@@ -185,7 +185,7 @@ from .materials import SpecularArrays, material_arrays
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
-from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
+from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add, welford_row
 from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten
 
 __all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "ALGORITHM"]
@@ -465,14 +465,8 @@ def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, tile, spp, max_d
     hit_p = np.empty(P, dtype=np.int64)
     hit_b = np.empty((P, 2))
     for s in range(spp):
-        for i in range(P):
-            x, y = x0 + i % nx, y0 + i // nx
-            fx, fy = pixel_sample(spp, k, s, seed, y * W + x)
-            ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-            rays[i, 0], rays[i, 1], rays[i, 2] = ox, oy, oz
-            rays[i, 3], rays[i, 4], rays[i, 5] = dx, dy, dz
-            rays[i, 6], rays[i, 7] = tmin, tmax
-        packet_hits(R, rays, P, hit_t, hit_p, hit_b, packet_counts)
+        tile_eye_packet(R, cam, x0, nx, y0, P, spp, k, s, seed, rays, hit_t, hit_p, hit_b,
+                        packet_counts)
         for i in range(P):
             x, y = x0 + i % nx, y0 + i // nx
             r, g, b = _tree(rays[i, 0], rays[i, 1], rays[i, 2], rays[i, 3], rays[i, 4], rays[i, 5],
@@ -480,9 +474,7 @@ def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, tile, spp, max_d
                             ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
                             y * W + x, s, spp, stack_f, stack_i, cnt[i], hst[i], cut_w[i],
                             hit_t[i], hit_p[i], hit_b[i, 0], hit_b[i, 1])
-            (acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3], acc[i, 4],
-             acc[i, 5]) = welford_add(s, r, g, b, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
-                                      acc[i, 4], acc[i, 5])
+            welford_row(acc, i, s, r, g, b)
     for i in range(P):
         _store_pixel(x0 + i % nx, y0 + i // nx, W, spp, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
                      acc[i, 4], acc[i, 5], cnt[i], hst[i], cut_w[i], mean, var, counts, hist, cut)

@@ -41,11 +41,12 @@ from numba import njit, prange
 
 from ..camera import eye_ray
 from ..intersect import like
+from ..sampling import pixel_sample
 from .primitives import box_enter, closer, prim_test, ulp_above
 from .tree import STACK, tree_closest
 
-__all__ = ["packet_closest", "packet_hits", "primary_hits", "tile_rect", "tile_count", "TILE",
-           "NOT_TRACED"]
+__all__ = ["packet_closest", "packet_hits", "tile_eye_packet", "primary_hits", "tile_rect",
+           "tile_count", "TILE", "NOT_TRACED"]
 
 TILE = 8
 #: ``pre_prim`` of a tracer's radiance function when no first hit is given.  Callers
@@ -161,6 +162,24 @@ def packet_hits(R, rays, n, hit_t, hit_p, hit_b, counts):
         hit_p[i] = best_p[i]
         hit_b[i, 0] = bb[i, 0]
         hit_b[i, 1] = bb[i, 1]
+
+
+@njit(cache=True, error_model="numpy")
+def tile_eye_packet(R, cam, x0, nx, y0, P, spp, k, s, seed, rays, hit_t, hit_p, hit_b, counts):
+    """Sample ``s`` of a tile's ``P`` pixels (pixel ``i`` at ``(x0 + i % nx, y0 + i // nx)``):
+    the eye rays the per-pixel kernels of ``raycast``, ``whitted`` and ``path`` trace
+    (``pixel_sample(spp, k, s, seed, pixel)`` through :func:`impl.camera.eye_ray`) into
+    ``rays[:P]``, and their closest hits, traced as one packet (:func:`packet_hits`),
+    into ``hit_t`` / ``hit_p`` / ``hit_b``."""
+    W = int(cam[14])
+    for i in range(P):
+        x, y = x0 + i % nx, y0 + i // nx
+        fx, fy = pixel_sample(spp, k, s, seed, y * W + x)
+        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
+        rays[i, 0], rays[i, 1], rays[i, 2] = ox, oy, oz
+        rays[i, 3], rays[i, 4], rays[i, 5] = dx, dy, dz
+        rays[i, 6], rays[i, 7] = tmin, tmax
+    packet_hits(R, rays, P, hit_t, hit_p, hit_b, counts)
 
 
 @njit(inline="always", cache=True)
