@@ -891,6 +891,11 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     ReferenceMissing
         No usable entry and ``render_missing=False``.
     """
+    if has_motion(_scene_file(scene_path)):
+        _check_args(transport, spp, passes, seed, rfilter)
+        return _motion(_scene_file(scene_path), transport=transport, spp=spp, seed=seed,
+                       rfilter=rfilter, store=store, render_missing=render_missing,
+                       defines=defines, max_depth=max_depth, force=force, spectral=spectral)
     if spectral:
         with spectral_variant():
             return get_reference(scene_path, transport=transport, spp=spp, passes=passes, seed=seed,
@@ -899,10 +904,6 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     _check_args(transport, spp, passes, seed, rfilter)
     _check_max_depth(max_depth, transport)
     scene = _scene_file(scene_path)
-    if has_motion(scene):
-        return _motion(scene, transport=transport, spp=spp, seed=seed, rfilter=rfilter,
-                       store=store, render_missing=render_missing, defines=defines,
-                       max_depth=max_depth)
     mi = load_mitsuba()
     family = _variant_family(mi.variant())
     defines = _check_defines(defines)
@@ -936,7 +937,7 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
 
 
 def _motion(scene: Path, *, transport, spp, seed, rfilter, store, render_missing, defines,
-            max_depth):
+            max_depth, force, spectral):
     """The reference of a scene with moving spheres (``gibench_velocity``): Mitsuba 3
     cannot move shapes, so it is :func:`references.motion_blur.motion_reference`, the
     mean of :data:`~references.motion_blur.TIMES` renders at jittered stratified shutter
@@ -944,8 +945,8 @@ def _motion(scene: Path, *, transport, spp, seed, rfilter, store, render_missing
     reference: the time strata add variance; 1024 → 64 per time)."""
     from .motion_blur import TIMES, motion_reference
 
-    unsupported = [name for name, given in (("defines", defines), ("max_depth", max_depth))
-                   if given]
+    unsupported = [name for name, given in (("defines", defines), ("max_depth", max_depth),
+                                            ("force", force), ("spectral", spectral)) if given]
     if rfilter != "box":
         unsupported.append(f"rfilter={rfilter!r}")
     if unsupported:

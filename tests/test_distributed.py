@@ -226,6 +226,9 @@ expect = "report"
     json.dumps(rec)
     with pytest.raises(ValueError, match="motion-blur reference does not support defines"):
         get_reference(scene, transport="direct", defines={"spp": "4"}, render_missing=False)
+    # Its store key has no variant: a spectral motion reference would collide with the RGB one.
+    with pytest.raises(ValueError, match="does not support spectral"):
+        get_reference(scene, transport="direct", spectral=True, render_missing=False)
 
 
 def test_motion_syntax_is_stripped_for_mitsuba_and_checked_by_the_loader(tmp_path):
