@@ -134,7 +134,7 @@ from numba import njit, prange
 from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
-from .accel.packets import NOT_TRACED, packet_hits, tile_count, tile_rect
+from .accel.packets import NOT_TRACED, packet_buffers, packet_hits, tile_count, tile_rect
 from .camera import camera_params, eye_ray_lens
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
@@ -689,11 +689,8 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, spp, jitter_gauss, gamma, sigma, g
         pixel = (y0 + i // nx) * W + x0 + i % nx
         npt[i] = _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts[i])
         n_max = max(n_max, npt[i])
-    rays = np.empty((P, 8))
+    rays, hit_t, hit_p, hit_b = packet_buffers(P)
     who = np.empty(P, dtype=np.int64)      # packet ray j is pixel who[j] of the tile
-    hit_t = np.empty(P)
-    hit_p = np.empty(P, dtype=np.int64)
-    hit_b = np.empty((P, 2))
     for s in range(n_max):
         m = 0
         for i in range(P):

@@ -121,7 +121,7 @@ from gibench.scene import Scene
 from .bsdf import bsdf_arrays, bsdf_eval, bsdf_pdf, bsdf_sample, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
 from .materials import MaterialArrays
-from .accel.packets import NOT_TRACED, tile_count, tile_eye_packet, tile_rect
+from .accel.packets import NOT_TRACED, packet_buffers, tile_count, tile_eye_packet, tile_rect
 from .camera import camera_params, eye_ray
 from .light_sampling import LightArrays, emitter_pdf, flatten_with_lights, sample_light
 from .lighting import diffuse_albedo, environment_radiance, surface
@@ -373,10 +373,7 @@ def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, 
     k = strata(spp)
     cnt = np.zeros((P, len(COUNTERS)), dtype=np.int64)
     acc = np.zeros((P, 6))                  # Welford m0, m1, m2, q0, q1, q2 per pixel
-    rays = np.empty((P, 8))
-    hit_t = np.empty(P)
-    hit_p = np.empty(P, dtype=np.int64)
-    hit_b = np.empty((P, 2))
+    rays, hit_t, hit_p, hit_b = packet_buffers(P)
     for s in range(spp):
         tile_eye_packet(R, cam, x0, nx, y0, P, spp, k, s, seed, rays, hit_t, hit_p, hit_b,
                         packet_counts)

@@ -69,7 +69,7 @@ from numba import njit, prange
 from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
-from .accel.packets import NOT_TRACED, tile_count, tile_eye_packet, tile_rect
+from .accel.packets import NOT_TRACED, packet_buffers, tile_count, tile_eye_packet, tile_rect
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
 from .lighting import environment_radiance, local_shading, surface
@@ -144,10 +144,7 @@ def _tile(cam, A: SceneArrays, R: RayConfig, tile, spp, ka, ambient, ks, shinine
     x0, y0, nx, ny = tile_rect(tile, W, H)
     P = nx * ny
     k = strata(spp)
-    rays = np.empty((P, 8))
-    hit_t = np.empty(P)
-    hit_p = np.empty(P, dtype=np.int64)
-    hit_b = np.empty((P, 2))
+    rays, hit_t, hit_p, hit_b = packet_buffers(P)
     acc = np.zeros((P, 6))                  # Welford m0, m1, m2, q0, q1, q2 per pixel
     nsh = np.zeros(P, dtype=np.int64)
     for s in range(spp):

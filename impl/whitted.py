@@ -177,7 +177,7 @@ from numba import njit, prange
 from gibench.registry import Algorithm, Param, RenderResult, register
 from gibench.scene import Scene
 
-from .accel.packets import NOT_TRACED, tile_count, tile_eye_packet, tile_rect
+from .accel.packets import NOT_TRACED, packet_buffers, tile_count, tile_eye_packet, tile_rect
 from .camera import camera_params, eye_ray
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, surface
@@ -460,10 +460,7 @@ def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, tile, spp, max_d
     hst = np.zeros((P, max_depth + 1), dtype=np.int64)
     cut_w = np.zeros((P, 2))
     acc = np.zeros((P, 6))                  # Welford m0, m1, m2, q0, q1, q2 per pixel
-    rays = np.empty((P, 8))
-    hit_t = np.empty(P)
-    hit_p = np.empty(P, dtype=np.int64)
-    hit_b = np.empty((P, 2))
+    rays, hit_t, hit_p, hit_b = packet_buffers(P)
     for s in range(spp):
         tile_eye_packet(R, cam, x0, nx, y0, P, spp, k, s, seed, rays, hit_t, hit_p, hit_b,
                         packet_counts)

@@ -45,7 +45,7 @@ from ..sampling import pixel_sample
 from .primitives import box_enter, closer, prim_test, ulp_above
 from .tree import STACK, tree_closest
 
-__all__ = ["packet_closest", "packet_hits", "tile_eye_packet", "primary_hits", "tile_rect",
+__all__ = ["packet_closest", "packet_hits", "packet_buffers", "tile_eye_packet", "primary_hits", "tile_rect",
            "tile_count", "TILE", "NOT_TRACED"]
 
 TILE = 8
@@ -164,6 +164,13 @@ def packet_hits(R, rays, n, hit_t, hit_p, hit_b, counts):
         hit_b[i, 1] = bb[i, 1]
 
 
+@njit(inline="always", cache=True)
+def packet_buffers(P):
+    """The arrays of a packet of up to ``P`` rays for :func:`packet_hits`:
+    ``(rays (P, 8), hit_t (P,), hit_p (P,) int64, hit_b (P, 2))``."""
+    return np.empty((P, 8)), np.empty(P), np.empty(P, dtype=np.int64), np.empty((P, 2))
+
+
 @njit(cache=True, error_model="numpy")
 def tile_eye_packet(R, cam, x0, nx, y0, P, spp, k, s, seed, rays, hit_t, hit_p, hit_b, counts):
     """Sample ``s`` of a tile's ``P`` pixels (pixel ``i`` at ``(x0 + i % nx, y0 + i // nx)``):
@@ -199,51 +206,38 @@ def tile_rect(k, W, H):
 
 
 @njit(cache=True, error_model="numpy")
-def _tile(R, cam, x0, y0, W, H, packets, depth, prim, counts_out):
-    g = R.sph_radius
-    P = TILE * TILE
-    o = np.empty((P, 3), dtype=g.dtype)
-    d = np.empty((P, 3), dtype=g.dtype)
-    inv = np.empty((P, 3))
-    tmin = np.empty(P, dtype=g.dtype)
-    best_t = np.empty(P, dtype=g.dtype)
-    best_p = np.full(P, -1, dtype=np.int64)
-    bb = np.zeros((P, 2))
-    px = np.full(P, -1, dtype=np.int64)
-    n = 0
-    for yy in range(y0, min(y0 + TILE, H)):
-        for xx in range(x0, min(x0 + TILE, W)):
-            ox, oy, oz, dx, dy, dz, t0, t1, _ = eye_ray(cam, xx + 0.5, yy + 0.5)
-            o[n, 0], o[n, 1], o[n, 2] = like(g, ox), like(g, oy), like(g, oz)
-            d[n, 0], d[n, 1], d[n, 2] = like(g, dx), like(g, dy), like(g, dz)
-            for a in range(3):
-                inv[n, a] = 1.0 / float(d[n, a])
-            tmin[n], best_t[n] = like(g, t0), like(g, t1)
-            px[n] = yy * W + xx
-            n += 1
-    counts = np.zeros(2, dtype=np.int64)
+def _tile(R, cam, tile, W, H, packets, depth, prim, counts):
+    """Tile ``tile``'s pixel-centre eye rays: by :func:`packet_hits`, or one by one through
+    :func:`tree_closest` rounded as ``packet_hits`` rounds them."""
+    x0, y0, nx, ny = tile_rect(tile, W, H)
+    P = nx * ny
+    rays, hit_t, hit_p, hit_b = packet_buffers(P)
+    for i in range(P):
+        ox, oy, oz, dx, dy, dz, t0, t1, _ = eye_ray(cam, x0 + i % nx + 0.5, y0 + i // nx + 0.5)
+        rays[i, 0], rays[i, 1], rays[i, 2] = ox, oy, oz
+        rays[i, 3], rays[i, 4], rays[i, 5] = dx, dy, dz
+        rays[i, 6], rays[i, 7] = t0, t1
     if packets:
-        packet_closest(R, o[:n], inv[:n], d[:n], tmin[:n], best_t[:n], best_p[:n], bb[:n], counts)
+        packet_hits(R, rays, P, hit_t, hit_p, hit_b, counts)
     else:
-        for i in range(n):
-            t, p, b1, b2, nodes, tests = tree_closest(R, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1],
-                                                      d[i, 2], tmin[i], best_t[i])
-            best_t[i], best_p[i] = t, p
+        g = R.sph_radius
+        for i in range(P):
+            t, p, b1, b2, nodes, tests = tree_closest(
+                R, like(g, rays[i, 0]), like(g, rays[i, 1]), like(g, rays[i, 2]), like(g, rays[i, 3]),
+                like(g, rays[i, 4]), like(g, rays[i, 5]), like(g, rays[i, 6]), like(g, rays[i, 7]))
+            hit_t[i], hit_p[i] = float(t), p
             counts[0] += nodes
             counts[1] += tests
-    for i in range(n):
-        prim[px[i]] = best_p[i]
-        depth[px[i]] = float(best_t[i]) if best_p[i] >= 0 else math.inf
-    counts_out[0] += counts[0]
-    counts_out[1] += counts[1]
+    for i in range(P):
+        px = (y0 + i // nx) * W + x0 + i % nx
+        prim[px] = hit_p[i]
+        depth[px] = hit_t[i] if hit_p[i] >= 0 else math.inf
 
 
 @njit(parallel=True, cache=True)
 def _primary_kernel(R, cam, W, H, packets, depth, prim, counts):
-    tx = (W + TILE - 1) // TILE
-    ty = (H + TILE - 1) // TILE
-    for k in prange(tx * ty):
-        _tile(R, cam, (k % tx) * TILE, (k // tx) * TILE, W, H, packets, depth, prim, counts[k])
+    for tile in prange(tile_count(W, H)):
+        _tile(R, cam, tile, W, H, packets, depth, prim, counts[tile])
 
 
 def primary_hits(R, camera, *, packets: bool):
@@ -260,7 +254,6 @@ def primary_hits(R, camera, *, packets: bool):
     W, H = camera.film.width, camera.film.height
     depth = np.empty(W * H)
     prim = np.empty(W * H, dtype=np.int64)
-    n_tiles = ((W + TILE - 1) // TILE) * ((H + TILE - 1) // TILE)
-    counts = np.zeros((n_tiles, 2), dtype=np.int64)
+    counts = np.zeros((tile_count(W, H), 2), dtype=np.int64)
     _primary_kernel(R, camera_params(camera), W, H, bool(packets), depth, prim, counts)
     return depth.reshape(H, W), prim.reshape(H, W), counts.sum(axis=0)
