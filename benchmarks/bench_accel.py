@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.studies_accel import bounce_rays, camera_rays, mesh_field, sphere_field
+from gibench.studies.accel import bounce_rays, camera_rays, mesh_field, sphere_field
 from impl import accel
 from impl.accel.packets import primary_hits
 from impl.rays import ray_config

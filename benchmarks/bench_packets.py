@@ -30,7 +30,7 @@ from dataclasses import replace
 import pytest
 
 from gibench import registry
-from gibench.studies_accel import mesh_field, sphere_field
+from gibench.studies.accel import mesh_field, sphere_field
 from impl.accel.packets import primary_hits
 from impl.rays import ray_config
 from impl.scene_arrays import flatten

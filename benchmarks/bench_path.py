@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import load_scene
+from core.loader import load_scene
 from _timing import median_s
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"

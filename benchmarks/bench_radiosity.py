@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gibench.loader import load_scene
+from core.loader import load_scene
 from impl.form_factors import form_factors
 from impl.patches import mesh_scene
 from impl.radiosity_solvers import SOLVERS, solve

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import load_scene
+from core.loader import load_scene
 from _timing import median_s
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"
@@ -33,7 +33,7 @@ SAMPLERS = [("uniform", {}), ("random", {}), ("jitter", {}), ("jitter-gaussian",
 
 @lru_cache(maxsize=None)
 def _reference(scene):
-    from gibench.studies_sampling import reference_image
+    from gibench.studies.sampling import reference_image
 
     return reference_image(load_scene(SUITES / scene), spp=1024, seeds=2,
                            base={"light_samples": 1})[0]

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gibench.loader import load_scene
+from core.loader import load_scene
 from impl import depth_sort, raycast, zbuffer
 from impl.tessellate import sphere_triangle_count, tessellated_scene
 from _timing import median_s

@@ -46,8 +46,9 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from .provenance import REPO_ROOT, git_commit, machine, utc_now, versions
-from .imageio import write_text
+from core.provenance import REPO_ROOT, git_commit, machine, utc_now, versions
+from core.imageio import write_text
+from core.errors import StoreError
 
 __all__ = ["BASELINE_FORMAT", "GATED_HIGHER", "GATED_LOWER", "REL_FLOOR", "SPREAD_FACTOR",
            "ABS_FLOOR", "SPEED_FACTOR", "BaselineError", "Finding", "case_key", "make_baseline",
@@ -70,8 +71,10 @@ ABS_FLOOR = {"relmse": 1e-6, "rmse": 1e-5, "mae": 1e-5, "flip": 1e-4, "delta_e20
 SPEED_FACTOR = 4.0
 
 
-class BaselineError(ValueError):
+
+class BaselineError(StoreError, ValueError):
     """A missing or malformed baseline file."""
+
 
 
 def case_key(record: dict) -> str:
@@ -247,7 +250,7 @@ def write_evidence(record: dict, directory, *, root=REPO_ROOT) -> Path | None:
 
     from reports.metrics import z_test
 
-    from .imageio import read_exr, write_exr
+    from core.imageio import read_exr, write_exr
 
     def load(rel):
         if not rel:

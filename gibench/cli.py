@@ -34,16 +34,18 @@ import json
 import sys
 from pathlib import Path
 
+from core.errors import GibenchError, UsageError
+
+from core.provenance import REPO_ROOT, git_commit, machine, utc_now, versions
+
 from . import registry
-from .provenance import REPO_ROOT, git_commit, machine, utc_now, versions
 
 OUT_ROOT = REPO_ROOT / "reports" / "out"
 RESULTS = OUT_ROOT / "results.jsonl"
 SUITES = REPO_ROOT / "suites"
 
 
-class CLIError(Exception):
-    pass
+CLIError = UsageError
 
 
 def _parse_sets(items) -> dict:
@@ -80,8 +82,8 @@ def cmd_algorithms(args) -> int:
 
 
 def cmd_render(args) -> int:
-    from .imageio import check_finite, write_exr
-    from .loader import load_scene
+    from core.imageio import check_finite, write_exr
+    from core.loader import load_scene
     from .runner import render_timed
 
     algo = registry.get(args.algorithm)
@@ -139,7 +141,7 @@ def _find_variance(image: Path) -> Path | None:
 def cmd_compare(args) -> int:
     from reports.metrics import compare
 
-    from .imageio import read_exr
+    from core.imageio import read_exr
 
     test_path, ref_path = Path(args.image), Path(args.reference)
     if ref_path.is_dir():
@@ -306,7 +308,7 @@ def cmd_check(args) -> int:
     failed = [f for f in findings if f.failed]
     import dataclasses
 
-    from .imageio import write_text
+    from core.imageio import write_text
 
     write_text(out.parent / "check.json", json.dumps(
         {"run_id": run_id, "baseline": str(args.baseline), "passed": not failed,
@@ -370,7 +372,7 @@ def cmd_history(args) -> int:
 def cmd_dashboard(args) -> int:
     from reports.dashboard import write_dashboard
 
-    from .history import ingest_benchmarks
+    from .history import benchmark_rows, ingest_benchmarks, query
 
     con = _history(args)
     if con is None:
@@ -378,7 +380,7 @@ def cmd_dashboard(args) -> int:
     for bench in args.benchmarks or [str(REPO_ROOT / ".benchmarks"), str(OUT_ROOT / "bench*.json")]:
         n = ingest_benchmarks(con, bench)
         print(f"benchmarks: {n} new rows from {bench}")
-    out = write_dashboard(con, args.out, metrics=args.metric or None)
+    out = write_dashboard(query(con), benchmark_rows(con), args.out, metrics=args.metric or None)
     print(f"dashboard: {out}")
     return 0
 
@@ -525,23 +527,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from references.reference import ReferenceMissing
-    from references.reference import SceneError as MitsubaSceneError
-
-    from .imageio import ImageError
-    from .loader import SceneError
-    from .meshes import MeshError
-    from .check import BaselineError
-    from .executor import ExecutorError
-    from .history import HistoryError
-    from .suite import SuiteError
-
+    """Run the command line.  Bad input (:class:`core.errors.GibenchError`) prints one
+    line ``gibench: error: <cause>`` and exits 2; any other exception is a bug and
+    keeps its traceback."""
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (CLIError, SceneError, MitsubaSceneError, ImageError, MeshError, SuiteError,
-            registry.ParamError, ReferenceMissing, NotImplementedError, ValueError,
-            FileNotFoundError, BaselineError, ExecutorError, HistoryError) as exc:
+    except GibenchError as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         print(f"gibench: error: {msg}", file=sys.stderr)
         return 2

@@ -25,12 +25,15 @@ from __future__ import annotations
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Callable, Iterable, Iterator
+from core.errors import GibenchError
 
 __all__ = ["ExecutorError", "parse_executor", "map_unordered"]
 
 
-class ExecutorError(ValueError):
+
+class ExecutorError(GibenchError, ValueError):
     """A malformed ``--executor`` or ``--jobs`` value, or an unreachable cluster."""
+
 
 
 def parse_executor(spec: str | None, jobs: int = 1) -> tuple[str, object]:

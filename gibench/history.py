@@ -31,7 +31,8 @@ import os
 import sqlite3
 from pathlib import Path
 
-from .provenance import REPO_ROOT
+from core.provenance import REPO_ROOT
+from core.errors import StoreError
 
 __all__ = ["SCHEMA_VERSION", "DEFAULT_DB", "HistoryError", "default_db", "connect",
            "add_record", "add_records", "ingest_benchmarks", "query", "benchmark_rows",
@@ -79,8 +80,10 @@ CREATE TABLE IF NOT EXISTS benchmarks (
 """
 
 
-class HistoryError(RuntimeError):
+
+class HistoryError(StoreError):
     """A history database that cannot be used (newer schema, not a database)."""
+
 
 
 def default_db() -> Path:

@@ -8,8 +8,9 @@ from __future__ import annotations
 import statistics
 import time
 
+from core.scene import Scene
+
 from .registry import Algorithm, RenderResult
-from .scene import Scene
 
 __all__ = ["render_timed"]
 

@@ -40,8 +40,10 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from core.errors import UsageError
+from core.provenance import REPO_ROOT
+
 from . import registry
-from .provenance import REPO_ROOT
 from .suite import EXPECTATIONS, Case, Suite, run_case
 
 __all__ = ["add_arguments", "refuse_without_scenes", "directory_suite", "preflight", "run_directory",
@@ -73,7 +75,7 @@ def refuse_without_scenes(args) -> None:
     given = [k for k in DEFAULTS if getattr(args, k, None) is not None]
     if given:
         opts = ", ".join("--" + k.replace("_", "-") for k in given)
-        raise ValueError(f"{opts} only apply with --scenes DIR (a suite takes them from its manifest)")
+        raise UsageError(f"{opts} only apply with --scenes DIR (a suite takes them from its manifest)")
 
 
 def _scene_id(path: Path) -> str:
@@ -86,15 +88,15 @@ def directory_suite(directory, algorithm: str, params: dict | None = None, *,
     """An in-memory suite with one case per ``*.xml`` file directly in ``directory``."""
     directory = Path(directory)
     if not directory.is_dir():
-        raise ValueError(f"--scenes: not a directory: {directory}")
+        raise UsageError(f"--scenes: not a directory: {directory}")
     algo = registry.get(algorithm)
     params = dict(params or {})
     algo.parse_params(params)                       # bad names/values stop here, before any render
     if expect not in EXPECTATIONS:
-        raise ValueError(f"expect must be one of {EXPECTATIONS}, got {expect!r}")
+        raise UsageError(f"expect must be one of {EXPECTATIONS}, got {expect!r}")
     files = sorted(p for p in directory.glob("*.xml") if p.is_file())
     if not files:
-        raise ValueError(f"--scenes: no *.xml scene files in {directory}")
+        raise UsageError(f"--scenes: no *.xml scene files in {directory}")
     cases = tuple(Case(scene=p.resolve(), scene_id=f"{directory.name}/{_scene_id(p)}",
                        algorithm=algo.name, params=params, transport=algo.transport,
                        label=f"{algo.name} {params}" if params else algo.name, expect=expect)
@@ -112,7 +114,7 @@ def preflight(case: Case, defines: dict | None = None) -> str | None:
     (radiosity meshes and solves the scene once more)."""
     import dataclasses
 
-    from .loader import load_scene
+    from core.loader import load_scene
 
     try:
         algo = registry.get(case.algorithm)
@@ -189,7 +191,7 @@ def cmd_run_scenes(args, *, results: Path, defines: dict) -> int:
     params = {}
     for item in args.set or []:
         if "=" not in item:
-            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
+            raise UsageError(f"--set expects KEY=VALUE, got {item!r}")
         k, v = item.split("=", 1)
         params[k.strip()] = v.strip()
     suite = directory_suite(args.scenes, args.algorithm, params, expect=args.expect,

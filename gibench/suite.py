@@ -39,10 +39,13 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from core.errors import GibenchError, SuiteError, UnsupportedError
+from core.imageio import write_exr
+from core.loader import load_scene
+from core.provenance import REPO_ROOT, git_commit, machine, utc_now, versions
+
 from . import registry
-from .imageio import ImageError, write_exr
-from .loader import SceneError, load_scene
-from .provenance import REPO_ROOT, git_commit, machine, utc_now, versions
+from .studies import STUDY_SETS, load_study_set
 from .runner import render_timed
 
 __all__ = ["Case", "Suite", "load_suite", "run_suite", "SuiteError", "EXPECTATIONS"]
@@ -51,8 +54,6 @@ EXPECTATIONS = ("ztest", "report", "model-error")
 TRANSPORTS = ("direct", "full", "whitted")
 
 
-class SuiteError(ValueError):
-    """A malformed suite manifest."""
 
 
 @dataclass(frozen=True)
@@ -82,7 +83,7 @@ class Suite:
     repeats: int = 3
     description: str = ""
     studies: Path | None = None      # studies configuration (TOML)
-    studies_module: str = "gibench.studies"      # the module whose run_studies/TABLES run it
+    study_set: str | None = None     # the study set that runs them (gibench.studies.STUDY_SETS)
     pivots: dict = field(default_factory=dict)   # report layout of each study's table
     ladder: tuple = ()           # Mitsuba spp ladder for the speed-vs-error plots (empty: none)
 
@@ -139,10 +140,17 @@ def load_suite(path) -> Suite:
         raise SuiteError(f"{path}: [suite] ladder must be a list of positive integers (spp), "
                          f"got {ladder!r}")
     studies = None
+    study_set = head.get("study_set")
+    if "studies_module" in head:
+        raise SuiteError(f"{path}: [suite] studies_module is no longer read; name the study set "
+                         f"with study_set = one of {', '.join(STUDY_SETS)}")
     if "studies" in head:
         studies = (suites_root / head["studies"]).resolve()
         if not studies.is_file():
             raise SuiteError(f"{path}: studies configuration not found: {studies}")
+        if study_set not in STUDY_SETS:
+            raise SuiteError(f"{path}: [suite] study_set must be one of {', '.join(STUDY_SETS)}, "
+                             f"got {study_set!r}")
     if not cases and studies is None:
         raise SuiteError(f"{path}: the suite has no cases ([[group]] with scenes and an algorithm) "
                          "and no studies")
@@ -150,7 +158,7 @@ def load_suite(path) -> Suite:
                  reference_spp=int(head.get("reference_spp", 1024)),
                  reference_passes=int(head.get("reference_passes", 8)),
                  repeats=int(head.get("repeats", 3)), description=head.get("description", ""),
-                 studies=studies, studies_module=head.get("studies_module", "gibench.studies"),
+                 studies=studies, study_set=study_set,
                  pivots=dict(data.get("pivot", {})), ladder=tuple(ladder))
 
 
@@ -245,8 +253,7 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
                                  "detail": f"{m['nan_count']} NaN, {m['inf_count']} Inf"}]
         else:
             record["checks"] = [] if case.expect == "model-error" else _checks(case, m)
-    except (SceneError, ImageError, registry.ParamError, NotImplementedError, ValueError,
-            RuntimeError, OSError) as exc:
+    except (GibenchError, OSError) as exc:
         record["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
         if log:
             log(f"  error: {record['error']}")
@@ -258,19 +265,17 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
 def run_studies(suite: Suite, *, run_id: str, log=print) -> list[dict]:
     """The suite's studies, one record (``kind = "study"``) per table.
 
-    ``suite.studies_module`` names the module that runs them: its
+    ``suite.study_set`` names the set (:data:`gibench.studies.STUDY_SETS`) whose
     ``run_studies(config_path) -> {name: rows}`` and ``TABLES = {name: (title,
-    description)}``.
+    description)}`` run them.
     """
-    import importlib
-
-    st = importlib.import_module(suite.studies_module)
+    st = load_study_set(suite.study_set)
 
     base = {"run_id": run_id, "suite": suite.name, "kind": "study", "algorithm": "study",
             "versions": versions(), "commit": git_commit(), "machine": machine(), "created": utc_now()}
     try:
         tables = st.run_studies(suite.studies)
-    except (ValueError, RuntimeError, OSError) as exc:
+    except (GibenchError, OSError) as exc:
         log(f"  studies failed: {exc}")
         return [dict(base, study="studies", scene="studies", error=f"{type(exc).__name__}: {exc}")]
     records = []
@@ -312,7 +317,7 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
     """Mitsuba's spp ladder (``suite.ladder``) for every (scene, transport) of ``cases``:
     one record (``kind = "ladder"``) per spp with Mitsuba's time and error, measured
     in this run for the speed-vs-error plots."""
-    from references.ladder import ladder_points
+    from .ladder import ladder_points
     from references.motion_blur import has_motion
     from references.reference import DEFAULT_STORE, get_reference
 
@@ -325,14 +330,14 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
                 "machine": machine(), "created": utc_now(), "error": None}
         try:
             if has_motion(scene):
-                raise ValueError("moving spheres: Mitsuba 3 cannot move shapes, so it has no "
-                                 "spp ladder for this scene")
+                raise UnsupportedError("moving spheres: Mitsuba 3 cannot move shapes, so it has no "
+                                       "spp ladder for this scene")
             ref = get_reference(scene, transport=transport, spp=suite.reference_spp,
                                 passes=suite.reference_passes,
                                 store=reference_store or DEFAULT_STORE, defines=defines)
             points = ladder_points(scene, transport=transport, spps=suite.ladder, reference=ref,
                                    repeats=suite.repeats, defines=defines)
-        except (SceneError, ValueError, RuntimeError, OSError) as exc:
+        except (GibenchError, OSError) as exc:
             msg = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
             if log:
                 log(f"  ladder {scene_id} ({transport}): error: {msg}")

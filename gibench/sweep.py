@@ -47,7 +47,7 @@ def sweep_suite(scene, algo: Algorithm, grid: dict[str, list], *, transport: str
                 reference_spp: int = 1024, reference_passes: int = 8, repeats: int = 3,
                 ladder="1,4,16,64,256", base_params: dict | None = None) -> Suite:
     """The suite of a sweep: every grid point of ``algo`` on ``scene``."""
-    from .provenance import REPO_ROOT
+    from core.provenance import REPO_ROOT
 
     scene = Path(scene)
     if not scene.is_file():

@@ -1,8 +1,10 @@
 """Own implementations of the thesis's algorithms, one module per concept.
 
-Importing this package registers every algorithm with :mod:`gibench.registry`.
-No module here knows about Mitsuba: they read the scene model and return
-images and counters.
+Each algorithm module declares ``ALGORITHM`` (:class:`core.algorithm.Algorithm`);
+the application's registry collects them.  Modules here import only the
+bottom package :mod:`core` and third-party libraries: no module knows about
+Mitsuba, the references, the metrics or the application.  They read the scene
+model and return images and counters.
 
 The numba kernels are compiled once and cached (``cache=True``).  Numba keys a
 cached kernel on its own source file only, so a change in a kernel it calls
@@ -39,11 +41,3 @@ def _source_keyed_cache_dir() -> None:
 
 
 _source_keyed_cache_dir()
-
-from . import raycast  # noqa: E402,F401  (registers 'raycast')
-from . import whitted  # noqa: E402,F401  (registers 'whitted')
-from . import distributed  # noqa: E402,F401  (registers 'distributed')
-from . import radiosity  # noqa: E402,F401  (registers 'radiosity')
-from . import zbuffer  # noqa: E402,F401  (registers 'zbuffer')
-from . import depth_sort  # noqa: E402,F401  (registers 'depthsort')
-from . import path  # noqa: E402,F401  (registers 'path')

@@ -46,7 +46,7 @@ import math
 
 from numba import njit
 
-from gibench.scene import Scene
+from core.scene import Scene
 
 from . import microfacet as mf
 from .fresnel import fresnel_conductor, fresnel_dielectric

@@ -28,7 +28,8 @@ import math
 import numpy as np
 from numba import njit
 
-from gibench.scene import Camera
+from core.scene import Camera
+from core.errors import UnsupportedError
 
 __all__ = ["camera_params", "eye_ray", "eye_ray_lens", "concentric_disk", "SENSOR_CODES",
            "SENSOR_PERSPECTIVE", "SENSOR_THINLENS", "SENSOR_ORTHOGRAPHIC"]
@@ -52,10 +53,10 @@ def camera_params(camera: Camera, *, lens: bool = False) -> np.ndarray:
         (``lens=False``: it calls :func:`eye_ray`, which has no lens samples).
     """
     if camera.kind not in SENSOR_CODES:
-        raise NotImplementedError(f"camera_params: unknown sensor '{camera.kind}' "
+        raise UnsupportedError(f"camera_params: unknown sensor '{camera.kind}' "
                                   f"(known: {', '.join(SENSOR_CODES)})")
     if camera.kind == "thinlens" and not lens:
-        raise NotImplementedError(
+        raise UnsupportedError(
             "camera_params: a 'thinlens' sensor (depth of field) is modelled only by the "
             "'distributed' ray tracer; use a 'perspective' sensor with this algorithm")
     m = camera.to_world

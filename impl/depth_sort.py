@@ -50,8 +50,8 @@ import math
 import numpy as np
 from numba import njit
 
-from gibench.registry import Algorithm, RenderResult, register
-from gibench.scene import Scene
+from core.algorithm import Algorithm, RenderResult
+from core.scene import Scene
 
 from .pipeline import ScreenTriangles, clip_polygon, project
 from .raster import DEPTH_NONE, rasterize
@@ -387,11 +387,11 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     return render_polygons(scene, params, seed=seed, algorithm="depthsort", visibility=depthsort_visibility)
 
 
-ALGORITHM = register(Algorithm(
+ALGORITHM = Algorithm(
     name="depthsort",
     summary="Depth sort (Newell-Newell-Sancha) with flat/Gouraud/Phong shading (local illumination, no shadows)",
     section="thesis 1.1, 1.2.2, 1.2.3, 1.3.2, 1.5",
     transport="direct",
     params=PARAMS,
     render=render,
-))
+)

@@ -131,8 +131,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from gibench.registry import Algorithm, Param, RenderResult, register
-from gibench.scene import Scene
+from core.algorithm import Algorithm, Param, RenderResult
+from core.scene import Scene
 
 from .accel.packets import NOT_TRACED, packet_buffers, packet_hits, tile_count, tile_rect
 from .camera import camera_params, eye_ray_lens
@@ -150,6 +150,7 @@ from .samplers import (adaptive_children, adaptive_disagree, gaussian_jitter_pat
                        poisson_disk_pattern, random_pattern, statistical_done, uniform_pattern)
 from .scene_arrays import LIGHT_DIRECTIONAL, SceneArrays, flatten
 from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit, _push
+from core.errors import ParamError, UnsupportedError
 
 __all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS", "Motion", "motion_arrays"]
 
@@ -747,35 +748,35 @@ def _check(p: dict) -> None:
     name = "distributed"
     spp, sampler = p["spp"], p["sampler"]
     if spp < 1:
-        raise ValueError(f"{name}: spp must be >= 1, got {spp}")
+        raise ParamError(f"{name}: spp must be >= 1, got {spp}")
     if sampler in ("uniform", "jitter"):
         k = int(round(math.sqrt(spp)))
         if k * k != spp:
-            raise ValueError(f"{name}: sampler={sampler} needs a square spp (k×k grid), got {spp}")
+            raise ParamError(f"{name}: sampler={sampler} needs a square spp (k×k grid), got {spp}")
     if sampler == "adaptive" and spp < 5:
-        raise ValueError(f"{name}: sampler=adaptive needs spp >= 5 (corners + centre), got {spp}")
+        raise ParamError(f"{name}: sampler=adaptive needs spp >= 5 (corners + centre), got {spp}")
     if sampler == "statistical" and spp < 4:
-        raise ValueError(f"{name}: sampler=statistical needs spp >= 4, got {spp}")
+        raise ParamError(f"{name}: sampler=statistical needs spp >= 4, got {spp}")
     if not 0.0 <= p["gamma"] <= 0.5:
-        raise ValueError(f"{name}: gamma must be in [0, 0.5] (ζ within ±γT), got {p['gamma']}")
+        raise ParamError(f"{name}: gamma must be in [0, 0.5] (ζ within ±γT), got {p['gamma']}")
     if not p["sigma"] >= 0.0:
-        raise ValueError(f"{name}: sigma must be >= 0, got {p['sigma']}")
+        raise ParamError(f"{name}: sigma must be >= 0, got {p['sigma']}")
     if not p["threshold"] >= 0.0:
-        raise ValueError(f"{name}: threshold must be >= 0, got {p['threshold']}")
+        raise ParamError(f"{name}: threshold must be >= 0, got {p['threshold']}")
     if not 0 <= p["adaptive_depth"] <= 8:
-        raise ValueError(f"{name}: adaptive_depth must be in 0..8, got {p['adaptive_depth']}")
+        raise ParamError(f"{name}: adaptive_depth must be in 0..8, got {p['adaptive_depth']}")
     if not p["tolerance"] > 0.0:
-        raise ValueError(f"{name}: tolerance must be > 0, got {p['tolerance']}")
+        raise ParamError(f"{name}: tolerance must be > 0, got {p['tolerance']}")
     if not 0.0 < p["confidence"] < 1.0:
-        raise ValueError(f"{name}: confidence must be in (0, 1), got {p['confidence']}")
+        raise ParamError(f"{name}: confidence must be in (0, 1), got {p['confidence']}")
     if p["max_depth"] < 1:
-        raise ValueError(f"{name}: max_depth must be >= 1 (1 = eye rays only), got {p['max_depth']}")
+        raise ParamError(f"{name}: max_depth must be >= 1 (1 = eye rays only), got {p['max_depth']}")
     if not p["hall_threshold"] >= 0.0:
-        raise ValueError(f"{name}: hall_threshold must be >= 0, got {p['hall_threshold']}")
+        raise ParamError(f"{name}: hall_threshold must be >= 0, got {p['hall_threshold']}")
     if p["light_samples"] < 0:
-        raise ValueError(f"{name}: light_samples must be >= 0")
+        raise ParamError(f"{name}: light_samples must be >= 0")
     if not 0.0 < p["hall_t"] <= 1.0 or p["hall_ks"] < 0.0 or p["hall_n"] < 0.0:
-        raise ValueError(f"{name}: Hall needs 0 < hall_t <= 1, hall_ks >= 0, hall_n >= 0")
+        raise ParamError(f"{name}: Hall needs 0 < hall_t <= 1, hall_ks >= 0, hall_n >= 0")
 
 
 def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
@@ -798,18 +799,18 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     M = motion_arrays(scene, A)
     packets = bool(params.get("packets", False))
     if packets and params["sampler"] in ("adaptive", "statistical"):
-        raise ValueError(f"distributed: packets=true needs a fixed-count sampler (uniform, random, "
+        raise ParamError(f"distributed: packets=true needs a fixed-count sampler (uniform, random, "
                          f"jitter, poisson); sampler={params['sampler']} chooses each pixel's next "
                          "sample from its previous ones, so a tile has no common sample to batch")
     if packets and M.index.shape[0] > 0:
-        raise ValueError("distributed: packets=true needs a tree, but this scene has moving spheres "
+        raise ParamError("distributed: packets=true needs a tree, but this scene has moving spheres "
                          "(gibench_velocity), which are traced by brute force (accel=none); "
                          "render it with packets=false")
     if M.index.shape[0] > 0:
         # A structure built over the spheres at one time would miss them at
         # another: scenes with moving spheres are traced by brute force.
         if params["accel"] not in ("auto", "none"):
-            raise NotImplementedError(
+            raise UnsupportedError(
                 f"distributed: accel={params['accel']} is built over static primitives; a scene "
                 "with moving spheres (gibench_velocity) is traced with accel=none (or auto)")
         params = {**params, "accel": "none"}
@@ -840,7 +841,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
                         counters=counters, aovs={"spp": spp_img})
 
 
-ALGORITHM = register(Algorithm(
+ALGORITHM = Algorithm(
     name="distributed",
     summary="Distributed ray tracing: Whitted's ray tree with anti-aliasing samplers, box/Gaussian "
             "reconstruction, area-light penumbrae, glossy and translucent microfacet BSDFs, thin-lens "
@@ -875,4 +876,4 @@ ALGORITHM = register(Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-))
+)

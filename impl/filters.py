@@ -38,7 +38,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from gibench.scene import Film
+from core.scene import Film
 
 __all__ = ["FILTER_BOX", "FILTER_GAUSSIAN", "film_filter", "filter_radius", "filter_weight",
            "gaussian_1d", "reconstruct", "S_X", "S_Y", "S_W", "S_R", "S_G", "S_B"]

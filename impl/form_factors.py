@@ -65,6 +65,7 @@ from numba import njit, prange
 
 from .patches import PatchMesh, closest_face, locate, occluded
 from .rng import uniform
+from core.errors import ParamError
 
 __all__ = ["METHODS", "FormFactors", "form_factors", "contour_point_polygon", "point_form_factor",
            "hemicube_table", "quadrature_1d", "patch_quadrature", "Z99"]
@@ -253,7 +254,7 @@ def hemicube_table(res: int):
     ΔF = z ΔA / (π (x² + z² + 1)²).
     """
     if res < 2 or res % 2:
-        raise ValueError(f"hemicube_res must be an even number >= 2, got {res}")
+        raise ParamError(f"hemicube_res must be an even number >= 2, got {res}")
     h = 2.0 / res
     dA = h * h
     c = -1.0 + h * (np.arange(res) + 0.5)            # cell centres along a full edge
@@ -382,7 +383,7 @@ def form_factors(M: PatchMesh, method: str = "contour", *, hemicube_res: int = 6
     mc_samples : rays per patch (montecarlo)
     """
     if method not in METHODS:
-        raise ValueError(f"radiosity: unknown form-factor method {method!r} (valid: {', '.join(METHODS)})")
+        raise ParamError(f"radiosity: unknown form-factor method {method!r} (valid: {', '.join(METHODS)})")
     N = M.n_patches
     F = np.zeros((N, N))
     rays = np.zeros(N, dtype=np.int64)
@@ -392,7 +393,7 @@ def form_factors(M: PatchMesh, method: str = "contour", *, hemicube_res: int = 6
     if method == "contour":
         k = int(round(math.sqrt(vis_rays)))
         if vis_rays < 0 or k * k != vis_rays:
-            raise ValueError(f"radiosity: vis_rays must be 0 or a square k², got {vis_rays}")
+            raise ParamError(f"radiosity: vis_rays must be 0 or a square k², got {vis_rays}")
         pts, wts = patch_quadrature(M, points, graded)
         _contour_kernel(M, pts, wts, k, eps, F, rays)
     elif method == "hemicube":
@@ -401,7 +402,7 @@ def form_factors(M: PatchMesh, method: str = "contour", *, hemicube_res: int = 6
         _hemicube_kernel(M, pts, wts, dirs, dF, eps, F, rays)
     else:
         if mc_samples < 1:
-            raise ValueError(f"radiosity: mc_samples must be >= 1, got {mc_samples}")
+            raise ParamError(f"radiosity: mc_samples must be >= 1, got {mc_samples}")
         _mc_kernel(M, mc_samples, seed, eps, F, rays)
         half = Z99 * np.sqrt(F * (1.0 - F) / mc_samples)
     return FormFactors(F=F, halfwidth=half, rays=int(rays.sum()), seconds=time.perf_counter() - t0,

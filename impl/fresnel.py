@@ -51,6 +51,7 @@ import cmath
 import math
 
 from numba import njit
+from core.errors import SceneError
 
 __all__ = ["reflect", "fresnel_dielectric", "fresnel_dielectric_sp", "fresnel_dielectric_t_sp",
            "refract", "snell_refract", "fresnel_conductor", "IOR_TABLE", "lookup_ior"]
@@ -95,12 +96,12 @@ def lookup_ior(value, *, what: str = "ior") -> float:
     if isinstance(value, str):
         key = value.strip().lower()
         if key not in IOR_TABLE:
-            raise ValueError(f"{what}: unknown index of refraction name '{value}' "
+            raise SceneError(f"{what}: unknown index of refraction name '{value}' "
                              f"(known: {', '.join(IOR_TABLE)}; or give a number)")
         return IOR_TABLE[key]
     v = float(value)
     if not v >= 0.0:
-        raise ValueError(f"{what}: index of refraction must be positive, got {value!r}")
+        raise SceneError(f"{what}: index of refraction must be positive, got {value!r}")
     return v
 
 

@@ -28,7 +28,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from gibench.scene import Scene
+from core.scene import Scene
 
 from .lighting import sample_emitter
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten

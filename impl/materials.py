@@ -27,10 +27,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gibench.scene import Scene
+from core.scene import Scene
 
 from .fresnel import lookup_ior
 from .scene_arrays import MATERIAL_CODES
+from core.errors import SceneError, UnsupportedError
 
 __all__ = ["MaterialArrays", "SpecularArrays", "material_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "KIND_CODES",
@@ -74,7 +75,7 @@ def _rgb_param(params: dict, name: str, default: float, where: str) -> np.ndarra
     if a.shape == (1,):
         a = np.repeat(a, 3)
     if a.shape != (3,):
-        raise ValueError(f"{where}: '{name}' must be a float or rgb value, got {v!r}")
+        raise SceneError(f"{where}: '{name}' must be a float or rgb value, got {v!r}")
     return a
 
 
@@ -87,27 +88,27 @@ def _roughness(p: dict, where: str) -> tuple[float, int]:
     """(alpha, sample_visible) of a rough BSDF, Mitsuba's defaults and checks."""
     dist = str(p.get("distribution", "beckmann")).lower()
     if dist == "ggx":
-        raise NotImplementedError(f"{where}: distribution 'ggx' is not modelled; only 'beckmann' "
+        raise UnsupportedError(f"{where}: distribution 'ggx' is not modelled; only 'beckmann' "
                                   "(the thesis's Cook-Torrance D) is")
     if dist != "beckmann":
-        raise ValueError(f"{where}: invalid distribution '{dist}' (Mitsuba accepts 'beckmann' or 'ggx')")
+        raise SceneError(f"{where}: invalid distribution '{dist}' (Mitsuba accepts 'beckmann' or 'ggx')")
     has_uv = "alpha_u" in p or "alpha_v" in p
     if "alpha" in p and has_uv:
-        raise ValueError(f"{where}: give either 'alpha' or 'alpha_u'/'alpha_v' (as Mitsuba requires)")
+        raise SceneError(f"{where}: give either 'alpha' or 'alpha_u'/'alpha_v' (as Mitsuba requires)")
     if has_uv:
         if "alpha_u" not in p or "alpha_v" not in p:
-            raise ValueError(f"{where}: both 'alpha_u' and 'alpha_v' must be given")
+            raise SceneError(f"{where}: both 'alpha_u' and 'alpha_v' must be given")
         if float(p["alpha_u"]) != float(p["alpha_v"]):
-            raise NotImplementedError(f"{where}: anisotropic roughness (alpha_u={p['alpha_u']}, "
+            raise UnsupportedError(f"{where}: anisotropic roughness (alpha_u={p['alpha_u']}, "
                                       f"alpha_v={p['alpha_v']}) is not modelled; give one 'alpha'")
         alpha = float(p["alpha_u"])
     else:
         alpha = p.get("alpha", DEFAULT_ALPHA)
         if not isinstance(alpha, int | float):
-            raise ValueError(f"{where}: 'alpha' must be a float, got {alpha!r}")
+            raise SceneError(f"{where}: 'alpha' must be a float, got {alpha!r}")
         alpha = float(alpha)
     if not alpha >= 0.0:
-        raise ValueError(f"{where}: 'alpha' must be >= 0, got {alpha}")
+        raise SceneError(f"{where}: 'alpha' must be >= 0, got {alpha}")
     return alpha, int(bool(p.get("sample_visible", True)))
 
 
@@ -161,17 +162,17 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             continue
         where = f"{algorithm}: shape '{users[i]}'"
         if m.kind not in kinds:
-            raise NotImplementedError(
+            raise UnsupportedError(
                 f"{where} has a '{m.kind}' BSDF, which {model} does not model "
                 f"({_and_list(kinds)} are modelled)")
         p = m.params
         if m.kind in ("conductor", "roughconductor"):
             material = p.get("material", "none")
             if "eta" in p and material != "none":
-                raise ValueError(f"{where}: conductor gives both 'material' ('{material}') and "
+                raise SceneError(f"{where}: conductor gives both 'material' ('{material}') and "
                                  "'eta'; give one of them (as Mitsuba requires)")
             if material != "none" and "eta" not in p:
-                raise NotImplementedError(
+                raise UnsupportedError(
                     f"{where}: conductor material '{material}' is not tabulated (its spectral "
                     "IOR is not modelled); give 'eta' and 'k' as rgb values, or material='none'")
             cond_eta[i] = _rgb_param(p, "eta", 0.0, where)
@@ -179,15 +180,15 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
         elif m.kind in ("dielectric", "roughdielectric"):
             if m.twosided:
-                raise NotImplementedError(f"{where}: a two-sided dielectric is not modelled")
+                raise UnsupportedError(f"{where}: a two-sided dielectric is not modelled")
             # Mitsuba's defaults: BK7 glass inside, air outside.
             n_int = lookup_ior(p.get("int_ior", "bk7"), what=f"{where}: int_ior")
             n_ext = lookup_ior(p.get("ext_ior", "air"), what=f"{where}: ext_ior")
             if n_int <= 0.0 or n_ext <= 0.0:
-                raise ValueError(f"{where}: indices of refraction must be positive "
+                raise SceneError(f"{where}: indices of refraction must be positive "
                                  f"(int_ior={n_int}, ext_ior={n_ext})")
             if m.kind == "roughdielectric" and n_int == n_ext:
-                raise ValueError(f"{where}: roughdielectric needs int_ior != ext_ior "
+                raise SceneError(f"{where}: roughdielectric needs int_ior != ext_ior "
                                  f"(both {n_int}), as Mitsuba requires")
             diel_int[i], diel_ext[i], diel_eta[i] = n_int, n_ext, n_int / n_ext
             spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)

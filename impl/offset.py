@@ -27,7 +27,7 @@ and shadow rays step over nearby occluders (light leaking at contacts).  The
 robust offset scales with each coordinate's own magnitude instead — which has
 the same limit far from the origin: 256 ulps of a float32 coordinate of 6·10⁴
 is 1 unit, so there it steps over occluders closer than that (measured by the
-``self_intersection`` study of :mod:`gibench.studies`).
+``self_intersection`` study of :mod:`gibench.studies.intersection`).
 
 Precision follows the argument types (float32 or float64), as in
 :mod:`impl.intersect`.

@@ -46,7 +46,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from gibench.scene import Scene
+from core.scene import Scene
+from core.errors import ParamError, UnsupportedError
 
 __all__ = ["PatchMesh", "polygons_from_scene", "mesh_polygons", "mesh_scene", "size_for_count",
            "locate", "vertex_radiosity", "FACE_PARALLELOGRAM", "FACE_TRIANGLE"]
@@ -146,16 +147,16 @@ def polygons_from_scene(scene: Scene) -> list[Polygon]:
     for si, shape in enumerate(scene.shapes):
         label = shape.name or shape.source
         if shape.kind == "sphere":
-            raise NotImplementedError(
+            raise UnsupportedError(
                 f"radiosity: shape '{label}' is a sphere; radiosity models planar diffuse polygons "
                 "(tessellate it into an obj/ply mesh to use it)")
         mat = scene.materials[shape.material]
         if mat.kind != "diffuse":
-            raise NotImplementedError(
+            raise UnsupportedError(
                 f"radiosity: shape '{label}' has a '{mat.kind}' BSDF; radiosity models diffuse "
                 "(Lambertian) surfaces only")
         if mat.twosided:
-            raise NotImplementedError(
+            raise UnsupportedError(
                 f"radiosity: shape '{label}' has a two-sided BSDF; patches here are one-sided "
                 "(make the back side a separate shape)")
         radiance = tuple(shape.emitter_radiance) if shape.is_emitter else (0.0, 0.0, 0.0)
@@ -230,9 +231,9 @@ def mesh_polygons(polys: list[Polygon], *, patch_size: float = 0.0, patches: int
     patches : target total patch count (used when ``patch_size`` is 0); 0 = one patch per face
     """
     if not polys:
-        raise ValueError("radiosity: the scene has no planar shapes to mesh")
+        raise ParamError("radiosity: the scene has no planar shapes to mesh")
     if patch_size < 0 or patches < 0:
-        raise ValueError(f"radiosity: patch_size and patches must be >= 0, got {patch_size}, {patches}")
+        raise ParamError(f"radiosity: patch_size and patches must be >= 0, got {patch_size}, {patches}")
     h = patch_size if patch_size > 0 else (size_for_count(polys, patches) if patches > 0 else float("inf"))
 
     tri_v, tri_face = [], []

@@ -102,7 +102,7 @@ counters bit for bit, plus ``packet_nodes`` / ``packet_tests``; needs a tree
 Example::
 
     from gibench import registry
-    from gibench.loader import load_scene
+    from core.loader import load_scene
     algo = registry.get("path")
     res = algo.render(load_scene("suites/cornell/cornell_box.xml"),
                       algo.parse_params({"spp": 64, "max_depth": 8}), seed=0)
@@ -115,8 +115,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from gibench.registry import Algorithm, Param, RenderResult, register
-from gibench.scene import Scene
+from core.algorithm import Algorithm, Param, RenderResult
+from core.scene import Scene
 
 from .bsdf import bsdf_arrays, bsdf_eval, bsdf_pdf, bsdf_sample, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
@@ -132,6 +132,7 @@ from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford
 from .scene_arrays import SceneArrays
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
+from core.errors import ParamError, UnsupportedError
 
 __all__ = ["render", "COUNTERS", "DEBUG_BIAS", "ALGORITHM"]
 
@@ -419,10 +420,10 @@ def _render_kernel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: Ra
 def _check(params: dict) -> None:
     check_spp(params["spp"], "path")
     if params["max_depth"] < -1 or params["max_depth"] == 0:
-        raise ValueError(f"path: max_depth must be -1 (unbounded) or >= 1 (1 = emitters seen "
+        raise ParamError(f"path: max_depth must be -1 (unbounded) or >= 1 (1 = emitters seen "
                          f"directly), got {params['max_depth']}")
     if params["rr_depth"] < 1:
-        raise ValueError(f"path: rr_depth must be >= 1, got {params['rr_depth']}")
+        raise ParamError(f"path: rr_depth must be >= 1, got {params['rr_depth']}")
 
 
 def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
@@ -439,7 +440,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     R = ray_config(A, params, algorithm="path")
     spectral = bool(params["spectral"])
     if spectral and scene.environment is not None:
-        raise NotImplementedError("path: spectral=true does not model the constant environment "
+        raise UnsupportedError("path: spectral=true does not model the constant environment "
                                   "emitter (its radiance is RGB); render it with spectral=false")
     if spectral:
         S = spectral_arrays(scene, A, L)
@@ -466,7 +467,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
                         counters=counters)
 
 
-ALGORITHM = register(Algorithm(
+ALGORITHM = Algorithm(
     name="path",
     summary="Unbiased path tracing: BSDF sampling, next-event estimation with MIS (power "
             "heuristic), Russian roulette; Mitsuba's max_depth",
@@ -486,4 +487,4 @@ ALGORITHM = register(Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-))
+)

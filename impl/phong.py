@@ -25,7 +25,7 @@ import math
 
 from numba import njit
 
-from gibench.registry import Param
+from core.algorithm import Param
 
 __all__ = ["attenuation", "phong_brdf_cos", "PHONG_PARAMS"]
 

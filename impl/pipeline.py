@@ -45,9 +45,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from gibench.scene import Camera
+from core.scene import Camera
 
 from .tessellate import TriangleSoup
+from core.errors import UnsupportedError
 
 __all__ = ["GUARD", "ScreenTriangles", "camera_frame", "to_camera", "frustum_planes", "clip_planes",
            "geometry_stage", "project", "bounding_volume_visible"]
@@ -77,13 +78,13 @@ def camera_frame(camera: Camera) -> tuple[np.ndarray, np.ndarray]:
     (distances along eye rays would not be camera-space lengths).
     """
     if camera.kind != "perspective":
-        raise NotImplementedError(
+        raise UnsupportedError(
             f"pipeline: the rasterisers (zbuffer, depthsort) project through a pinhole; the scene's "
             f"'{camera.kind}' sensor is not modelled (render it with raycast, whitted or distributed)")
     m = np.asarray(camera.to_world, dtype=np.float64)
     R = m[:3, :3]
     if not np.allclose(R.T @ R, np.eye(3), atol=1e-9):
-        raise NotImplementedError("pipeline.camera_frame: the sensor's to_world has scale or shear; "
+        raise UnsupportedError("pipeline.camera_frame: the sensor's to_world has scale or shear; "
                                   "the rasteriser needs a rigid camera transform")
     return np.ascontiguousarray(R), m[:3, 3].copy()
 

@@ -49,7 +49,7 @@ Leaves out: spheres, non-diffuse and two-sided materials (refused with
 delta lights (point/spot/directional, refused), adaptive subdivision and
 discontinuity meshing, so shadows are as sharp as the patches are small and
 coarse patches straddling a wall leak light (a study in
-:mod:`gibench.studies_radiosity`).
+:mod:`gibench.studies.radiosity`).
 
 Parameters
 ----------
@@ -84,8 +84,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from gibench.registry import Algorithm, Param, RenderResult, register
-from gibench.scene import Scene
+from core.algorithm import Algorithm, Param, RenderResult
+from core.scene import Scene
 
 from .camera import camera_params, eye_ray
 from .form_factors import METHODS, FormFactors, _eps, form_factors
@@ -94,6 +94,7 @@ from .rng import uniform
 from .patches import PatchMesh, closest_face, locate, mesh_scene, vertex_radiosity
 from .radiosity_solvers import SOLVERS, SolveResult, neumann, residual, solve
 from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
+from core.errors import ParamError, UnsupportedError
 
 __all__ = ["render", "solve_scene", "display", "Solution", "clear_cache", "ALGORITHM",
            "DISPLAYS", "environment_fraction"]
@@ -139,7 +140,7 @@ def _remember(cache: OrderedDict, key, value):
 def _check_lights(scene: Scene) -> None:
     if scene.lights:
         kinds = ", ".join(sorted({l.kind for l in scene.lights}))
-        raise NotImplementedError(f"radiosity: the scene has delta lights ({kinds}); radiosity models "
+        raise UnsupportedError(f"radiosity: the scene has delta lights ({kinds}); radiosity models "
                                   "area emitters on diffuse polygons only")
 
 
@@ -184,7 +185,7 @@ def environment_fraction(M: PatchMesh, rays: int = 256, seed: int = 0) -> np.nda
     """V_i: the cosine-weighted fraction of each patch's hemisphere that sees no
     surface (N,), i.e. its form factor to an enclosing environment."""
     if rays < 1:
-        raise ValueError(f"radiosity: env_rays must be >= 1, got {rays}")
+        raise ParamError(f"radiosity: env_rays must be >= 1, got {rays}")
     out = np.zeros(M.n_patches)
     _escape_kernel(M, rays, seed, _eps(M), out)
     return out
@@ -202,9 +203,9 @@ def _with_environment(scene: Scene, M: PatchMesh, rays: int, seed: int) -> Patch
 def _check(params: dict) -> None:
     check_spp(params["spp"], "radiosity")
     if params["ff_points"] < 1:
-        raise ValueError(f"radiosity: ff_points must be >= 1, got {params['ff_points']}")
+        raise ParamError(f"radiosity: ff_points must be >= 1, got {params['ff_points']}")
     if params["patches"] < 0 or params["patch_size"] < 0:
-        raise ValueError("radiosity: patches and patch_size must be >= 0")
+        raise ParamError("radiosity: patches and patch_size must be >= 0")
 
 
 def solve_scene(scene: Scene, params: dict, *, seed: int = 0, mesh: PatchMesh | None = None) -> Solution:
@@ -299,7 +300,7 @@ def _display_kernel(cam, M: PatchMesh, B, V, gouraud, env, spp, seed, mean, var)
 def display(scene: Scene, sol: Solution, *, mode: str = "gouraud", spp: int = 1, seed: int = 0):
     """Image (H, W, 3), variance of the pixel mean (or None) and the view time."""
     if mode not in DISPLAYS:
-        raise ValueError(f"radiosity: display must be one of {', '.join(DISPLAYS)}, got {mode!r}")
+        raise ParamError(f"radiosity: display must be one of {', '.join(DISPLAYS)}, got {mode!r}")
     t0 = time.perf_counter()
     M = sol.mesh
     B = np.ascontiguousarray(sol.B_display)
@@ -345,7 +346,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
                         counters=counters)
 
 
-ALGORITHM = register(Algorithm(
+ALGORITHM = Algorithm(
     name="radiosity",
     summary="Radiosity: patches, form factors (contour / hemicube / Monte Carlo), iterative solvers, "
             "flat or Gouraud display (full diffuse interreflection)",
@@ -372,4 +373,4 @@ ALGORITHM = register(Algorithm(
                                     "re-render); off, every render is timed from meshing to pixels"),
     ),
     render=render,
-))
+)

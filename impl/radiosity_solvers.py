@@ -44,6 +44,7 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+from core.errors import ParamError
 
 __all__ = ["SOLVERS", "SolveResult", "solve", "residual", "neumann"]
 
@@ -141,9 +142,9 @@ def solve(F, rho, E, area, solver: str = "gauss-seidel", *, tol: float = 1e-8,
     area : (N,) patch areas (progressive refinement's shooting order, ambient)
     """
     if solver not in SOLVERS:
-        raise ValueError(f"radiosity: unknown solver {solver!r} (valid: {', '.join(SOLVERS)})")
+        raise ParamError(f"radiosity: unknown solver {solver!r} (valid: {', '.join(SOLVERS)})")
     if tol <= 0 or max_iter < 1:
-        raise ValueError(f"radiosity: tol must be > 0 and max_iter >= 1, got {tol}, {max_iter}")
+        raise ParamError(f"radiosity: tol must be > 0 and max_iter >= 1, got {tol}, {max_iter}")
     F = np.ascontiguousarray(F, dtype=np.float64)
     rho = np.ascontiguousarray(rho, dtype=np.float64)
     E = np.ascontiguousarray(E, dtype=np.float64)

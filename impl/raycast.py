@@ -66,8 +66,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from gibench.registry import Algorithm, Param, RenderResult, register
-from gibench.scene import Scene
+from core.algorithm import Algorithm, Param, RenderResult
+from core.scene import Scene
 
 from .accel.packets import NOT_TRACED, packet_buffers, tile_count, tile_eye_packet, tile_rect
 from .camera import camera_params, eye_ray
@@ -78,6 +78,7 @@ from .rays import RayConfig, hit, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
 from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add, welford_row
 from .scene_arrays import SceneArrays, flatten
+from core.errors import ParamError, UnsupportedError
 
 __all__ = ["render", "cast_primary", "ALGORITHM"]
 
@@ -209,7 +210,7 @@ def _check_materials(scene: Scene) -> None:
     for shape in scene.shapes:
         m = scene.materials[shape.material]
         if m.kind != "diffuse":
-            raise NotImplementedError(
+            raise UnsupportedError(
                 f"raycast: shape '{shape.name or shape.source}' has a '{m.kind}' BSDF; local Phong "
                 "illumination models diffuse surfaces only (specular transport is the whitted algorithm)")
 
@@ -229,7 +230,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     spp = params["spp"]
     check_spp(spp, "raycast")
     if params["light_samples"] < 0:
-        raise ValueError("raycast: light_samples must be >= 0")
+        raise ParamError("raycast: light_samples must be >= 0")
     _check_materials(scene)
     A = flatten(scene)
     cam = camera_params(scene.camera)
@@ -254,7 +255,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
                         counters=counters)
 
 
-ALGORITHM = register(Algorithm(
+ALGORITHM = Algorithm(
     name="raycast",
     summary="Ray casting with Phong local illumination and shadow rays (direct light only)",
     section="thesis 1.3.3, 1.4",
@@ -267,4 +268,4 @@ ALGORITHM = register(Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-))
+)

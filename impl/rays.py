@@ -118,11 +118,12 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from gibench.registry import Param
+from core.algorithm import Param
 
 from . import accel as _accel
 from .intersect import SPHERE_FORMS, any_hit_form, closest_hit_form, like
 from .offset import STRATEGIES, spawn
+from core.errors import ParamError
 
 __all__ = ["RayConfig", "ray_config", "legacy_config", "PARAMS", "INTERSECT", "PRECISIONS",
            "OFFSETS", "PACKET_ACCELS", "hit", "refine", "occluded", "leave", "round_ray"]
@@ -201,7 +202,7 @@ def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
     and ``epsilon`` for the flattened scene ``A``."""
     eps = float(params["epsilon"])
     if not (eps >= 0.0 and np.isfinite(eps)):
-        raise ValueError(f"{algorithm}: epsilon must be finite and >= 0, got {eps}")
+        raise ParamError(f"{algorithm}: epsilon must be finite and >= 0, got {eps}")
     single = params["precision"] == "float32"
     F = np.float32 if single else np.float64
     sph_center = np.ascontiguousarray(A.sph_center, dtype=F)
@@ -213,9 +214,9 @@ def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
         big = len(sph_radius) + len(tri_v) >= AUTO_MIN_PRIMS
         name = AUTO_ACCEL if packets or (params["intersect"] == "stable" and big) else "none"
     if name not in _accel.ACCELS:
-        raise ValueError(f"{algorithm}: unknown accel {name!r} (valid: auto, {', '.join(_accel.ACCELS)})")
+        raise ParamError(f"{algorithm}: unknown accel {name!r} (valid: auto, {', '.join(_accel.ACCELS)})")
     if packets and name not in PACKET_ACCELS:
-        raise ValueError(f"{algorithm}: packets=true needs a tree to traverse the packets through, "
+        raise ParamError(f"{algorithm}: packets=true needs a tree to traverse the packets through, "
                          f"but accel={name}; valid with packets: auto, {', '.join(PACKET_ACCELS)} "
                          "(or packets=false)")
     acc = _accel.build(name, sph_center, sph_radius, tri_v, A.prim_shape,

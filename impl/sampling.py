@@ -13,6 +13,7 @@ import math
 from numba import njit
 
 from .rng import uniform
+from core.errors import ParamError
 
 __all__ = ["check_spp", "strata", "pixel_sample", "welford_add", "variance_of_mean"]
 
@@ -21,7 +22,7 @@ def check_spp(spp: int, algorithm: str) -> int:
     """The side k of a k×k grid for ``spp`` = k², or a ValueError naming the algorithm."""
     k = int(round(math.sqrt(spp))) if spp >= 1 else 0
     if spp < 1 or k * k != spp:
-        raise ValueError(f"{algorithm}: spp must be 1 (pixel centre) or a square k² (k×k strata), got {spp}")
+        raise ParamError(f"{algorithm}: spp must be 1 (pixel centre) or a square k² (k×k strata), got {spp}")
     return k
 
 

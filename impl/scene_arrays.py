@@ -19,9 +19,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gibench.scene import Scene
+from core.scene import Scene
 
 from .textures import FILTER_BILINEAR, FILTER_NEAREST, WRAP_CLAMP, WRAP_MIRROR, WRAP_REPEAT
+from core.errors import UnsupportedError
 
 WRAP_CODES = {"repeat": WRAP_REPEAT, "clamp": WRAP_CLAMP, "mirror": WRAP_MIRROR}
 FILTER_CODES = {"bilinear": FILTER_BILINEAR, "nearest": FILTER_NEAREST}
@@ -114,7 +115,7 @@ def flatten(scene: Scene) -> SceneArrays:
     em_offset, em_tri, em_cdf, em_area, em_shape = [0], [], [], [], []
     for s in scene.emitters:
         if s.kind != "mesh":
-            raise NotImplementedError(
+            raise UnsupportedError(
                 f"scene_arrays.flatten: area emitter on a {s.source} ('{s.name}') cannot be "
                 "sampled yet; only triangle-mesh emitters (rectangle, cube, obj, ply) are")
         p = s.vertices[s.faces]

@@ -14,7 +14,7 @@ wavelengths instead of three RGB channels:
   wavelength, three wavelengths; normalised so that a constant emission 1
   has Y = 1, as Mitsuba's spectral film does), then linear sRGB = M · XYZ.
   The colour matching functions, D65 and M come from colour-science
-  (:func:`gibench.scene.cie_tables`).
+  (:func:`core.scene.cie_tables`).
 * **Spectra of the scene**: ``<spectrum>`` reflectances and emissions are
   tabulated at 1 nm on 360-830 nm and interpolated linearly.  Values the file
   gives as RGB must be grey (r = g = b): a grey reflectance is a constant
@@ -45,7 +45,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from gibench.scene import Scene, Spectrum, cie_tables
+from core.scene import Scene, Spectrum, cie_tables
+from core.errors import SceneError, UnsupportedError
 
 __all__ = ["SpectralArrays", "spectral_arrays", "rgb_arrays_placeholder", "cauchy_arrays",
            "cauchy_ior", "eta_scale_at", "LAMBDA_D_UM", "LAMBDA_MIN",
@@ -77,7 +78,7 @@ def _grey(value, where: str, what: str) -> float:
     v = np.asarray(value, dtype=np.float64).reshape(-1)
     if v.size == 1 or np.all(v == v[0]):
         return float(v[0])
-    raise NotImplementedError(
+    raise UnsupportedError(
         f"path (spectral=true): {where}: {what} is the RGB value {v.tolist()}; spectral "
         "rendering needs a <spectrum> or a grey value (RGB-to-spectrum upsampling is not "
         "implemented)")
@@ -106,12 +107,12 @@ def spectral_arrays(scene: Scene, A, L) -> SpectralArrays:
             continue
         where = f"material '{m.name or i}' ({m.kind})"
         if m.texture is not None:
-            raise NotImplementedError(f"path (spectral=true): {where}: textures are not "
+            raise UnsupportedError(f"path (spectral=true): {where}: textures are not "
                                       "supported in spectral mode")
         for name in ("specular_reflectance", "specular_transmittance", "eta", "k"):
             if name in m.params:
                 if isinstance(m.params[name], Spectrum):
-                    raise NotImplementedError(f"path (spectral=true): {where}: a spectral "
+                    raise UnsupportedError(f"path (spectral=true): {where}: a spectral "
                                               f"'{name}' is not modelled")
                 _grey(m.params[name], where, f"'{name}'")
         refl = m.params.get("reflectance")
@@ -150,7 +151,7 @@ def cauchy_arrays(scene: Scene):
         where = f"material '{m.name or i}' ({m.kind})"
         v = m.params["cauchy_b"]
         if m.kind != "dielectric" or not isinstance(v, int | float) or not (0.0 <= v < 1.0):
-            raise ValueError(f"path: {where}: 'cauchy_b' must be a float in [0, 1) µm² on a "
+            raise SceneError(f"path: {where}: 'cauchy_b' must be a float in [0, 1) µm² on a "
                              f"dielectric, got {v!r}")
         n_d[i] = lookup_ior(m.params.get("int_ior", "bk7"), what=f"{where}: int_ior")
         b[i] = float(v)

@@ -28,7 +28,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from gibench.scene import Scene, Shape
+from core.scene import Scene, Shape
+from core.errors import ParamError
 
 __all__ = ["TriangleSoup", "uv_sphere", "face_normals", "vertex_normals", "scene_triangles",
            "tessellated_scene", "sphere_triangle_count"]
@@ -62,7 +63,7 @@ def uv_sphere(center, radius: float, n: int) -> tuple[np.ndarray, np.ndarray]:
     out); the poles are single vertices.
     """
     if n < 3:
-        raise ValueError(f"tessellation must be >= 3 segments around, got {n}")
+        raise ParamError(f"tessellation must be >= 3 segments around, got {n}")
     rings = max(2, n // 2)
     theta = np.pi * np.arange(1, rings) / rings            # polar angle of the inner rings
     phi = 2.0 * np.pi * np.arange(n) / n

@@ -18,7 +18,7 @@ texture's 2D affine ``to_uv`` map (u', v') = to_uv · (u, v, 1):
 
 The images arrive decoded (8-bit sRGB → linear with the exact sRGB curve, as
 Mitsuba's ``raw = false`` does; float EXR as stored) by
-:mod:`gibench.loader`, concatenated into one texel array
+:mod:`core.loader`, concatenated into one texel array
 (:mod:`impl.scene_arrays`).
 
 Leaves out: MIP-mapping and ray differentials (Mitsuba's bitmap does not

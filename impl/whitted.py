@@ -163,7 +163,7 @@ image and counters as ``packets=false`` bit for bit, plus ``packet_nodes`` and
 Example::
 
     from gibench import registry
-    from gibench.loader import load_scene
+    from core.loader import load_scene
     algo = registry.get("whitted")
     res = algo.render(load_scene("suites/spheres/whitted_classic.xml"),
                       algo.parse_params({"spp": 16}), seed=0)
@@ -174,8 +174,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from gibench.registry import Algorithm, Param, RenderResult, register
-from gibench.scene import Scene
+from core.algorithm import Algorithm, Param, RenderResult
+from core.scene import Scene
 
 from .accel.packets import NOT_TRACED, packet_buffers, tile_count, tile_eye_packet, tile_rect
 from .camera import camera_params, eye_ray
@@ -187,6 +187,7 @@ from .rays import RayConfig, hit, leave, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
 from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add, welford_row
 from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten
+from core.errors import ParamError
 
 __all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "ALGORITHM"]
 
@@ -515,11 +516,11 @@ def _trace_one(ox, oy, oz, dx, dy, dz, A: SceneArrays, S: SpecularArrays, R: Ray
 def _check(params: dict) -> None:
     check_spp(params["spp"], "whitted")
     if params["max_depth"] < 1:
-        raise ValueError(f"whitted: max_depth must be >= 1 (1 = eye rays only), got {params['max_depth']}")
+        raise ParamError(f"whitted: max_depth must be >= 1 (1 = eye rays only), got {params['max_depth']}")
     if not params["hall_threshold"] >= 0.0:
-        raise ValueError(f"whitted: hall_threshold must be >= 0, got {params['hall_threshold']}")
+        raise ParamError(f"whitted: hall_threshold must be >= 0, got {params['hall_threshold']}")
     if params["light_samples"] < 0:
-        raise ValueError("whitted: light_samples must be >= 0")
+        raise ParamError("whitted: light_samples must be >= 0")
 
 
 def _local_args(p: dict) -> tuple:
@@ -587,7 +588,7 @@ def trace(scene: Scene, origin, direction, params: dict | None = None, *, seed: 
     return np.array(rgb), counters
 
 
-ALGORITHM = register(Algorithm(
+ALGORITHM = Algorithm(
     name="whitted",
     summary="Whitted ray tracing: eye, shadow, reflection and Fresnel-split transmission rays, "
             "ray tree with Hall's adaptive depth",
@@ -603,4 +604,4 @@ ALGORITHM = register(Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-))
+)

@@ -15,7 +15,7 @@ Depth buffer: window depth z_w = f/(f − n)(1 − n/z) as float32 or as 24- or
 16-bit fixed point (``depth``); the strict test keeps the first of two
 fragments with equal stored depth, so nearly coplanar surfaces "z-fight" when
 their depth difference is below the buffer's resolution at that distance,
-Δz ≈ z² / (n · 2^bits) (see :func:`gibench.studies_shading.zfighting`).
+Δz ≈ z² / (n · 2^bits) (see :func:`gibench.studies.shading.zfighting`).
 
 Pixel sampling: ``spp = 1`` samples pixel centres (the eye rays of
 :func:`impl.camera.eye_ray`); ``spp = k²`` renders a k×k regular grid of
@@ -56,8 +56,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gibench.registry import Algorithm, Param, RenderResult, register
-from gibench.scene import Scene
+from core.algorithm import Algorithm, Param, RenderResult
+from core.scene import Scene
 
 from .pipeline import ScreenTriangles, camera_frame, geometry_stage
 from .raster import DEPTH_MODES, VisibilityBuffer, rasterize
@@ -66,6 +66,7 @@ from .sampling import check_spp
 from .scene_arrays import flatten
 from .shading import SHADING_MODES, PhongParams, resolve
 from .tessellate import TriangleSoup, scene_triangles
+from core.errors import ParamError, UnsupportedError
 
 __all__ = ["render", "render_polygons", "pixel_centre_aovs", "zbuffer_visibility", "PARAMS", "ALGORITHM"]
 
@@ -73,11 +74,11 @@ __all__ = ["render", "render_polygons", "pixel_centre_aovs", "zbuffer_visibility
 def _check(scene: Scene, params: dict, algorithm: str) -> int:
     k = check_spp(params["spp"], algorithm)
     if params["tessellation"] < 3:
-        raise ValueError(f"{algorithm}: tessellation must be >= 3 segments, got {params['tessellation']}")
+        raise ParamError(f"{algorithm}: tessellation must be >= 3 segments, got {params['tessellation']}")
     for shape in scene.shapes:
         m = scene.materials[shape.material]
         if m.kind != "diffuse":
-            raise NotImplementedError(
+            raise UnsupportedError(
                 f"{algorithm}: shape '{shape.name or shape.source}' has a '{m.kind}' BSDF; local Phong "
                 "illumination models diffuse surfaces only")
     return k
@@ -151,7 +152,7 @@ PARAMS = (
     *PHONG_PARAMS,
 )
 
-ALGORITHM = register(Algorithm(
+ALGORITHM = Algorithm(
     name="zbuffer",
     summary="Z-buffer rasterisation with flat/Gouraud/Phong shading (local illumination, no shadows)",
     section="thesis 1.1, 1.2.2, 1.2.3, 1.3.1, 1.5",
@@ -159,4 +160,4 @@ ALGORITHM = register(Algorithm(
     params=PARAMS[:4] + (Param("depth", str, "float32", "depth buffer format", choices=tuple(DEPTH_MODES)),)
     + PARAMS[4:],
     render=render,
-))
+)

@@ -32,6 +32,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from core.errors import ReferenceError_
+
 __all__ = [
     "MIN_LLVM_MAJOR",
     "libllvm_candidates",
@@ -240,7 +242,7 @@ def load_mitsuba(variant: str | None = None):
     ``DRJIT_LIBLLVM_PATH`` is set before Dr.Jit is imported.  Idempotent:
     later calls return the same module without probing again; a later call
     asking for a *different* variant switches Mitsuba's global variant.
-    Raises RuntimeError if an explicitly requested LLVM variant has no usable
+    Raises :class:`core.errors.ReferenceError_` if an explicitly requested LLVM variant has no usable
     libLLVM, or if the variant is not compiled into this Mitsuba.
     """
     requested = variant or os.environ.get("GIBENCH_MITSUBA_VARIANT") or None
@@ -262,7 +264,7 @@ def load_mitsuba(variant: str | None = None):
     else:
         chosen = requested
         if needs_llvm and not libllvm:
-            raise RuntimeError(
+            raise ReferenceError_(
                 f"Mitsuba variant {chosen!r} requested but no usable libLLVM >= "
                 f"{MIN_LLVM_MAJOR} was found (install Debian's libllvm19 or set "
                 f"DRJIT_LIBLLVM_PATH)")
@@ -273,7 +275,7 @@ def load_mitsuba(variant: str | None = None):
     import mitsuba as mi
 
     if chosen not in mi.variants():
-        raise RuntimeError(
+        raise ReferenceError_(
             f"Mitsuba variant {chosen!r} is not available (this build has: "
             f"{', '.join(mi.variants())})")
     mi.set_variant(chosen)

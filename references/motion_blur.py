@@ -2,7 +2,7 @@
 scene with moving spheres is the average of many Mitsuba renders at stratified
 shutter times.
 
-Scene syntax (gibench's own, read by :mod:`gibench.loader`): a sphere with
+Scene syntax (gibench's own, read by :mod:`core.loader`): a sphere with
 ``<vector name="gibench_velocity" value="vx, vy, vz"/>`` moves linearly,
 centre(τ) = ``center`` + velocity·τ, for τ over the sensor's
 [``shutter_open``, ``shutter_close``].  Mitsuba would refuse the unknown
@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 from lxml import etree
+from core.errors import SceneError
 
 __all__ = ["scene_at_time", "motion_reference", "has_motion", "VELOCITY", "STORE", "TIMES"]
 
@@ -88,7 +89,7 @@ def scene_at_time(scene_path, tau: float) -> str:
         v = _floats(vel[0].get("value"))
         centre = [c for c in shape if c.tag == "point" and c.get("name") == "center"]
         if not centre or centre[0].get("value") is None:
-            raise ValueError(f"{path}:{shape.sourceline}: a moving sphere needs "
+            raise SceneError(f"{path}:{shape.sourceline}: a moving sphere needs "
                              "<point name=\"center\" value=\"x, y, z\"/>")
         c = _floats(centre[0].get("value")) + v * tau
         centre[0].set("value", ", ".join(repr(float(x)) for x in c))
@@ -105,7 +106,7 @@ def _key(scene_path: Path, transport, times, spp, seed) -> str:
 
 
 def _shutter(scene_path: Path) -> tuple[float, float]:
-    from gibench.loader import load_scene
+    from core.loader import load_scene
 
     cam = load_scene(scene_path).camera
     return cam.shutter_open, cam.shutter_close
@@ -118,7 +119,7 @@ def motion_reference(scene_path, *, transport: str = "direct", times: int = 64, 
     ``times`` (even) shutter strata, ``spp`` samples each.  With ``render=False`` a
     missing entry raises ``FileNotFoundError`` naming the key.
     """
-    from gibench.imageio import read_exr, write_exr
+    from core.imageio import read_exr, write_exr
 
     if times < 2 or times % 2:
         raise ValueError(f"motion_reference: times must be even and >= 2, got {times}")

@@ -62,7 +62,8 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-from gibench.imageio import ImageError, as_rgb, check_finite, read_exr, write_exr
+from core.errors import ReferenceError_, SceneError, UnsupportedError
+from core.imageio import ImageError, as_rgb, check_finite, read_exr, write_exr
 
 from .mitsuba_env import load_mitsuba, mitsuba_versions, spectral_variant
 from .motion_blur import has_motion
@@ -114,11 +115,7 @@ VARIANCE_FILE = "variance.exr"
 MANIFEST_FILE = "manifest.json"
 
 
-class SceneError(RuntimeError):
-    """A scene file that does not exist, is not valid XML or Mitsuba cannot load."""
-
-
-class ReferenceMissing(RuntimeError):
+class ReferenceMissing(ReferenceError_):
     """No usable stored reference and rendering was not allowed."""
 
 
@@ -705,7 +702,7 @@ def _render_reference(scene: Path, key: str, directory: Path, *, transport: str,
         check_finite(image, name=f"{scene}: Mitsuba reference image")
         check_finite(variance, name=f"{scene}: Mitsuba reference variance")
     except ImageError as exc:
-        raise RuntimeError(str(exc)) from None
+        raise ReferenceError_(str(exc)) from None
     total_s = time.perf_counter() - t_start
 
     versions = mitsuba_versions()
@@ -759,7 +756,7 @@ def _render_reference(scene: Path, key: str, directory: Path, *, transport: str,
             try:
                 return _load_entry(directory, key)
             except _Invalid:
-                raise RuntimeError(f"{scene}: could not install reference entry "
+                raise ReferenceError_(f"{scene}: could not install reference entry "
                                    f"{_display_path(directory)}") from None
     finally:
         if tmp.exists():
@@ -950,7 +947,7 @@ def _motion(scene: Path, *, transport, spp, seed, rfilter, store, render_missing
     if rfilter != "box":
         unsupported.append(f"rfilter={rfilter!r}")
     if unsupported:
-        raise ValueError(f"{_display_path(scene)}: moving spheres (gibench_velocity): the "
+        raise UnsupportedError(f"{_display_path(scene)}: moving spheres (gibench_velocity): the "
                          f"motion-blur reference does not support {', '.join(unsupported)}")
     try:
         return motion_reference(scene, transport=transport, times=TIMES, spp=max(1, spp // 16),

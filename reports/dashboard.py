@@ -17,7 +17,7 @@ import io
 import math
 from pathlib import Path
 
-from gibench.imageio import write_text
+from core.imageio import write_text
 
 __all__ = ["render_dashboard", "write_dashboard", "DEFAULT_METRICS"]
 
@@ -156,9 +156,8 @@ def render_dashboard(rows: list[dict], bench: list[dict], *, metrics=DEFAULT_MET
     return "".join(parts)
 
 
-def write_dashboard(con, out_path, *, metrics=None) -> Path:
-    """Write the dashboard of the history database ``con`` to ``out_path`` (atomically)."""
-    from gibench.history import benchmark_rows, query
-
-    text = render_dashboard(query(con), benchmark_rows(con), metrics=metrics or DEFAULT_METRICS)
+def write_dashboard(rows, bench, out_path, *, metrics=None) -> Path:
+    """Write the dashboard of history ``rows`` and benchmark rows ``bench`` (as the
+    history database returns them) to ``out_path`` (atomically)."""
+    text = render_dashboard(rows, bench, metrics=metrics or DEFAULT_METRICS)
     return write_text(out_path, text)

@@ -26,7 +26,7 @@ from pathlib import Path
 import matplotlib.image as mpimg
 import numpy as np
 
-from gibench.imageio import ImageError, read_exr, write_text
+from core.imageio import ImageError, read_exr, write_text
 from reports.tonemap import tonemap_srgb
 
 __all__ = ["write_report", "fmt"]

@@ -30,7 +30,8 @@ import numpy as np
 from scipy.stats import norm
 from skimage.metrics import peak_signal_noise_ratio, structural_similarity
 
-from gibench.imageio import check_finite
+from core.errors import ImageError
+from core.imageio import check_finite
 from reports.tonemap import tonemap_srgb
 
 __all__ = [
@@ -63,9 +64,9 @@ def _pair(reference, test):
     ref = np.asarray(reference, dtype=np.float64)
     tst = np.asarray(test, dtype=np.float64)
     if ref.shape != tst.shape:
-        raise ValueError(f"reference shape {ref.shape} and test shape {tst.shape} differ")
+        raise ImageError(f"reference shape {ref.shape} and test shape {tst.shape} differ")
     if ref.ndim != 3 or ref.shape[2] != 3:
-        raise ValueError(f"reference and test must have shape (H, W, 3), got {ref.shape}")
+        raise ImageError(f"reference and test must have shape (H, W, 3), got {ref.shape}")
     return ref, tst
 
 
@@ -75,9 +76,9 @@ def _variance(variance, shape, name):
     try:
         v = np.broadcast_to(v, shape)
     except ValueError:
-        raise ValueError(f"{name} shape {v.shape} does not match image shape {shape}") from None
+        raise ImageError(f"{name} shape {v.shape} does not match image shape {shape}") from None
     if np.any(v < 0):
-        raise ValueError(f"{name} has negative values")
+        raise ImageError(f"{name} has negative values")
     return v
 
 
@@ -624,7 +625,7 @@ def compare(
 
     Raises
     ------
-    gibench.imageio.ImageError
+    core.imageio.ImageError
         If the reference holds NaN/Inf, or the test image does and
         ``allow_nonfinite`` is False; the one-line message gives the counts.
     ValueError

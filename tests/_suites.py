@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from gibench.provenance import REPO_ROOT
+from core.provenance import REPO_ROOT
 
 
 def raycast_suite(path: Path, name: str, scenes, *, spp: int, light_samples: int,

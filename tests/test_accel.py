@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import load_scene
+from core.loader import load_scene
 from impl import accel
 from impl.accel.bvh import build_bvh
 from impl.accel.goldsmith_salmon import build_goldsmith_salmon
@@ -266,7 +266,7 @@ def test_packets_return_the_single_ray_hits_of_the_same_tree():
     """8×8 eye-ray packets through the BVH: the same depth and primitive buffers as
     single-ray traversal of that BVH, and as brute force."""
     from impl.accel.packets import primary_hits
-    from gibench.studies_accel import camera_rays, sphere_field
+    from gibench.studies.accel import camera_rays, sphere_field
 
     scene = sphere_field(400, width=52, height=36)          # tiles cut by the image border
     A = flatten(scene)
@@ -308,10 +308,10 @@ def test_auto_uses_the_bvh_with_the_stable_form_only():
 
 
 def test_scaling_fit_recovers_known_exponents_and_logarithmic_work():
-    """gibench.studies_accel.fit_exponents on synthetic rows: trace time ∝ N fits exponent 1,
+    """gibench.studies.accel.fit_exponents on synthetic rows: trace time ∝ N fits exponent 1,
     nodes per ray = 3 + 5·ln N fits slope 5 with R² = 1, and a power law in the node count
     does not fit a line in ln N as well."""
-    from gibench.studies_accel import fit_exponents
+    from gibench.studies.accel import fit_exponents
 
     rows = []
     for N in (1000, 10000, 100000, 1000000):
@@ -333,7 +333,7 @@ def test_scaling_fit_separates_work_from_cost_per_node():
     log–log slope above log N's (and N0 is recovered); a query time of exactly 30 ns
     per node gives a per-node slope of 30 and a per-node-time exponent of 0; a cost
     per node growing as N^0.1 gives 0.1."""
-    from gibench.studies_accel import fit_exponents
+    from gibench.studies.accel import fit_exponents
 
     rows = []
     for N in (1000, 3000, 10000, 30000, 100000):
@@ -357,10 +357,10 @@ def test_scaling_fit_separates_work_from_cost_per_node():
 
 
 def test_shuffled_tree_is_the_same_tree_elsewhere_in_memory():
-    """gibench.studies_accel.shuffle_node_groups (the layout control of the node_cost
+    """gibench.studies.accel.shuffle_node_groups (the layout control of the node_cost
     study): same hits and node counts as the builder's layout, the nodes permuted with
     siblings kept consecutive, and node_cost reports its three cases."""
-    from gibench.studies_accel import camera_rays, node_cost, shuffle_node_groups, sphere_field
+    from gibench.studies.accel import camera_rays, node_cost, shuffle_node_groups, sphere_field
 
     scene = sphere_field(300, width=32, height=24)
     R = ray_config(flatten(scene), registry.get("whitted").parse_params({"accel": "bvh-sah"}),

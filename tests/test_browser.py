@@ -11,8 +11,8 @@ import matplotlib.image as mpimg
 import numpy as np
 import pytest
 
-from gibench.history import add_record, connect
-from gibench.imageio import write_exr
+from gibench.history import add_record, benchmark_rows, connect, query
+from core.imageio import write_exr
 from reports.dashboard import write_dashboard
 from reports.html import write_report
 
@@ -82,7 +82,7 @@ def test_dashboard_renders_plots(tmp_path):
                          "transport": "direct", "params": {},
                          "metrics": {"relmse": 1e-3 * (i + 1), "flip": 0.1},
                          "time": {"own_median_s": 0.1, "ratio": 3.0}, "error": None})
-    page = write_dashboard(con, tmp_path / "dashboard.html")
+    page = write_dashboard(query(con), benchmark_rows(con), tmp_path / "dashboard.html")
     img = _screenshot(page, tmp_path / "dashboard.png", 1400)
     assert img.std() > 20, "blank screenshot"
     assert _count_near(img, C0_BLUE) > 200, "no history lines drawn"

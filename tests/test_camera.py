@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import SceneError, load_scene
+from core.loader import SceneError, load_scene
 from impl.camera import SENSOR_ORTHOGRAPHIC, SENSOR_THINLENS, camera_params, eye_ray, eye_ray_lens
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -131,7 +131,7 @@ def test_check_cli_unchanged_passes_broken_parameter_fails(tmp_path, capsys, mit
     for name in ("own.exr", "reference.exr", "reference_variance.exr", "error.exr",
                  "pvalue.exr", "own_variance.exr"):
         assert (ev / name).is_file(), name
-    from gibench.imageio import read_exr
+    from core.imageio import read_exr
     p = read_exr(ev / "pvalue.exr")
     assert p.min() >= 0 and p.max() <= 1 and (p < 1e-6).any()
 

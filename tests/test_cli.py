@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gibench.cli import main
-from gibench.imageio import read_exr, write_exr
+from core.imageio import read_exr, write_exr
 from reports.results import ResultStore
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gibench.loader import load_scene
-from gibench.studies_shading import boundary_mask
+from core.loader import load_scene
+from gibench.studies.shading import boundary_mask
 from impl import depth_sort, zbuffer  # noqa: F401  (register 'depthsort', 'zbuffer')
 from impl.pipeline import geometry_stage
 from impl.raster import DEPTH_NONE, rasterize

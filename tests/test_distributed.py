@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import load_scene
+from core.loader import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 SUITES = ROOT / "suites"
@@ -232,7 +232,7 @@ expect = "report"
 
 
 def test_motion_syntax_is_stripped_for_mitsuba_and_checked_by_the_loader(tmp_path):
-    from gibench.loader import SceneError
+    from core.loader import SceneError
     from references.motion_blur import scene_at_time
 
     path = SUITES / "distributed/motion/moving_sphere.xml"

@@ -8,7 +8,7 @@ import pytest
 
 from gibench import cli
 from gibench.executor import ExecutorError, parse_executor
-from gibench.provenance import REPO_ROOT
+from core.provenance import REPO_ROOT
 from reports.results import ResultStore
 
 from _suites import raycast_suite

@@ -1,12 +1,12 @@
-"""Hard-case stability studies (gibench.studies): the thresholds the studies
+"""Hard-case stability studies (gibench.studies.intersection): the thresholds the studies
 must meet, at the sizes of suites/hard/studies.toml (a few seconds each)."""
 
 import math
 
 import pytest
 
-from gibench import studies
-from gibench.studies import load_config
+from gibench.studies import intersection as studies
+from gibench.studies.intersection import load_config
 
 CONFIG = load_config()
 
@@ -199,7 +199,7 @@ def test_mitsuba_distant_sphere_empty_image_comes_from_the_far_clip():
     the sphere both variants render the silhouette with no wrong pixel at 3e4,
     and still at 1e6 on the axis.  (Off the axis, float32 rounding of the
     camera gives wrong pixels inside the one-ulp-of-d band only, up to 1e6.)"""
-    from references.studies import mitsuba_distant_sphere
+    from gibench.studies.intersection import mitsuba_distant_sphere
 
     cfg = CONFIG["distant_sphere_mitsuba"]
     rows = mitsuba_distant_sphere(studies.DEFAULT_CONFIG.parent / cfg.get("scene", "distant_sphere.xml"),

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import load_scene
+from core.loader import load_scene
 from gibench.suite import load_suite
 from impl.whitted import trace
 from _analytic import fresnel_inside

@@ -92,7 +92,7 @@ def test_benchmark_ingestion_and_dashboard(tmp_path):
     assert "spheres/lit_sphere" in page and "alt='benchmarks intersect'" in page
     empty = render_dashboard([], [])
     assert "No results" in empty and "No benchmark JSON" in empty
-    out = write_dashboard(con, tmp_path / "d" / "dashboard.html")
+    out = write_dashboard(query(con), benchmark_rows(con), tmp_path / "d" / "dashboard.html")
     assert out.read_text().startswith("<!DOCTYPE html>")
 
 

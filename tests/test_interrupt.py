@@ -16,7 +16,7 @@ import warnings
 
 import pytest
 
-from gibench.provenance import REPO_ROOT
+from core.provenance import REPO_ROOT
 from reports.results import ResultStore
 
 from _suites import raycast_suite

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gibench import transforms as tf
-from gibench.loader import SceneError, load_scene
+from core import transforms as tf
+from core.loader import SceneError, load_scene
 from impl.raycast import cast_primary
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"
@@ -94,7 +94,7 @@ def test_depth_matches_mitsuba_aov(path, mitsuba):
     assert np.mean(hit_ours == hit_mi) > 0.999, f"hit masks differ on {np.sum(hit_ours != hit_mi)} pixels"
     both = hit_ours & hit_mi
     rel = np.abs(ours_mi - theirs) / np.where(theirs > 0, theirs, 1.0)
-    # disk and cylinder are 128-gons here, Mitsuba's are exact (gibench.meshes):
+    # disk and cylinder are 128-gons here, Mitsuba's are exact (core.meshes):
     # their surface lies up to 3e-4 r inside the circle, more along grazing rays
     # (measured max 6.7e-4 relative on vocabulary/shapes).
     tess = np.isin(shape_id, [i for i, s in enumerate(scene.shapes) if s.source in ("disk", "cylinder")])

@@ -11,7 +11,7 @@ import pytest
 from scipy import stats
 from skimage.metrics import structural_similarity
 
-from gibench.imageio import ImageError
+from core.imageio import ImageError
 from reports import metrics as m
 from reports.tonemap import tonemap_srgb
 

@@ -296,7 +296,7 @@ def test_white_furnace_rough_conductor_with_unit_fresnel(alpha):
 # ----------------------------------------------------------------- materials ---
 
 def test_material_arrays_decode_rough_bsdfs_and_refuse_ggx(tmp_path):
-    from gibench.loader import load_scene
+    from core.loader import load_scene
     from impl.materials import MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, material_arrays
 
     def scene(bsdf: str):

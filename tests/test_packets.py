@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import load_scene
+from core.loader import load_scene
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"
 PACKET_COUNTERS = ("packet_nodes", "packet_tests")

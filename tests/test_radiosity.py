@@ -10,7 +10,7 @@ import pytest
 
 import impl.radiosity as radiosity  # noqa: F401  (registers 'radiosity')
 from gibench import registry
-from gibench.loader import load_scene
+from core.loader import load_scene
 from impl.form_factors import form_factors
 from impl.radiosity_solvers import SOLVERS, residual, solve
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import load_scene
+from core.loader import load_scene
 from impl.raycast import cast_primary
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"

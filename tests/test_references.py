@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gibench.imageio import read_exr, write_exr
+from core.imageio import read_exr, write_exr
 from references import mitsuba_env, reference
 from references.mitsuba_env import (
     libllvm_candidates,

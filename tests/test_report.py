@@ -9,7 +9,7 @@ import re
 import numpy as np
 import pytest
 
-from gibench.imageio import write_exr
+from core.imageio import write_exr
 from reports.html import fmt, write_report
 from reports.results import ResultStore, ResultStoreWarning, new_run_id
 

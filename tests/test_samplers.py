@@ -150,7 +150,7 @@ def test_reconstruct_normalises_and_gives_the_variance_of_the_mean():
 
 
 def test_film_filter_reads_the_scene_and_refuses_unknown_ones():
-    from gibench.scene import Film
+    from core.scene import Film
 
     assert flt.film_filter(Film(rfilter="gaussian", rfilter_params={"stddev": 0.3})) == (flt.FILTER_GAUSSIAN, 0.3)
     assert flt.film_filter(Film(rfilter="gaussian"), "box") == (flt.FILTER_BOX, 0.0)
@@ -164,7 +164,7 @@ def test_film_filter_reads_the_scene_and_refuses_unknown_ones():
 
 @pytest.mark.slow
 def test_random_and_jittered_mse_slopes_on_edge_pixels():
-    from gibench.studies_sampling import convergence, fit_slopes
+    from gibench.studies.sampling import convergence, fit_slopes
 
     rows = convergence(scenes=["distributed/silhouettes.xml"], samplers=("random", "jitter"),
                        spps=(4, 16, 64, 256), seeds=3, adaptive_thresholds=(),

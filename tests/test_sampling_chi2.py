@@ -142,7 +142,7 @@ def test_sphere_light_cone_sampling():
 
 
 def _rectangle_scene():
-    from gibench.scene import Camera, Material, Scene, Shape
+    from core.scene import Camera, Material, Scene, Shape
 
     v = np.array([[-1.0, -0.5, 0], [1.0, -0.5, 0], [1.0, 0.5, 0], [-1.0, 0.5, 0]])
     v = v @ np.array([[1, 0, 0], [0, 0.8, 0.6], [0, -0.6, 0.8]]).T + [0.2, 0.1, 0.5]

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gibench.loader import load_scene
-from gibench.studies_shading import boundary_mask, shading_convergence
+from core.loader import load_scene
+from gibench.studies.shading import boundary_mask, shading_convergence
 from impl import raycast, zbuffer  # noqa: F401  (register 'raycast', 'zbuffer')
 from impl.raycast import cast_primary
 from impl.tessellate import tessellated_scene, uv_sphere, vertex_normals

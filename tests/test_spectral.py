@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import SceneError, load_scene
-from gibench.scene import Spectrum
+from core.loader import SceneError, load_scene
+from core.scene import Spectrum
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"
 CORNELL_SPECTRAL = SUITES / "cornell" / "cornell_spectral.xml"

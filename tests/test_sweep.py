@@ -4,7 +4,7 @@ in the same run, the speed-vs-error table and report section."""
 import pytest
 
 from gibench import cli, registry
-from gibench.provenance import REPO_ROOT
+from core.provenance import REPO_ROOT
 from gibench.registry import ParamError
 from gibench.sweep import parse_grid, sweep_suite
 from reports.results import ResultStore

@@ -11,8 +11,8 @@ import pytest
 
 from gibench import registry
 from gibench.cli import main
-from gibench.imageio import read_exr
-from gibench.loader import SceneError, load_scene
+from core.imageio import read_exr
+from core.loader import SceneError, load_scene
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"
 DEFINES = SUITES / "vocabulary" / "defines.xml"
@@ -59,7 +59,7 @@ def test_a_define_can_supply_an_undeclared_name(tmp_path):
                                           ("fov", "fov"), ("to_world", "to_world"),
                                           ("aBcD", "a_bcD")])   # Mitsuba's loop skips one char
 def test_snake_case_is_mitsubas_rule(camel, snake):
-    from gibench.loader import _snake_case
+    from core.loader import _snake_case
 
     assert _snake_case(camel) == snake
 
@@ -250,13 +250,13 @@ def _tri_area(v, f):
 
 
 def test_disk_and_cylinder_follow_mitsubas_parameterisation():
-    from gibench.meshes import SEGMENTS
+    from core.meshes import SEGMENTS
 
     scene = load_scene(SHAPES)
     light, ground, tube, log = scene.shapes
     poly = SEGMENTS / 2 * np.sin(2 * np.pi / SEGMENTS)          # area of the unit 128-gon
     assert _tri_area(ground.vertices, ground.faces) == pytest.approx(3.5 ** 2 * poly, rel=1e-12)
-    assert poly / np.pi == pytest.approx(1 - 4.0e-4, abs=1e-5)   # the figure in gibench.meshes
+    assert poly / np.pi == pytest.approx(1 - 4.0e-4, abs=1e-5)   # the figure in core.meshes
     # The ground disk faces +y, the light disk -y (rotated +z normals).
     for shape, up in ((ground, 1.0), (light, -1.0)):
         p = shape.vertices[shape.faces]
@@ -324,7 +324,7 @@ def test_flip_normals_on_a_cylinder_turns_the_outside_black():
 # ------------------------------------------------------------------ bitmap ---
 
 def test_srgb_decoding_is_the_exact_curve():
-    from gibench.loader import _srgb_to_linear
+    from core.loader import _srgb_to_linear
 
     c = np.array([0.0, 0.04045, 60 / 255, 0.5, 1.0])
     np.testing.assert_allclose(_srgb_to_linear(c), [0.0, 0.04045 / 12.92, 0.045186, 0.214041, 1.0],
@@ -383,7 +383,7 @@ def test_bitmap_on_a_mesh_without_uvs_is_refused(tmp_path):
 def test_bitmap_lookup_matches_mitsubas_texture(mitsuba, image, filter_type, wrap_mode):
     """impl.textures.bitmap against Mitsuba's own ``bitmap`` eval at random uv
     (outside [0, 1] too, for the wrap modes)."""
-    from gibench.loader import _bitmap, _Ctx
+    from core.loader import _bitmap, _Ctx
 
     from impl.textures import FILTER_BILINEAR, FILTER_NEAREST, WRAP_CLAMP, WRAP_MIRROR, WRAP_REPEAT
     from impl.textures import bitmap as lookup

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import load_scene
+from core.loader import load_scene
 from impl.raycast import cast_primary
 from impl.whitted import trace
 from _analytic import fresnel_inside

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import load_scene
-from gibench.studies_shading import boundary_mask, zfighting
+from core.loader import load_scene
+from gibench.studies.shading import boundary_mask, zfighting
 from impl import zbuffer  # noqa: F401  (registers 'zbuffer')
 from impl.raster import coverage
 from impl.raycast import cast_primary
@@ -225,8 +225,6 @@ def test_visibility_matches_mitsuba_shape_index(name, mitsuba):
 @pytest.mark.parametrize("scene", ["distributed/dof.xml", "distributed/orthographic.xml"])
 def test_rasterisers_refuse_sensors_they_do_not_model(scene):
     """A thin-lens or orthographic sensor is refused with its name, not rendered as a pinhole."""
-    import impl  # noqa: F401  (registers 'depthsort' too)
-
     s = load_scene(Path(__file__).resolve().parents[1] / "suites" / scene)
     for name in ("zbuffer", "depthsort"):
         algo = registry.get(name)

@@ -44,6 +44,7 @@ from .octree import build_octree
 from .primitives import prim_bounds
 from .slabs import SLAB_COUNTS, build_slabs, slabs_any, slabs_closest
 from .tree import STACK, tree_any, tree_closest, tree_depth
+from core.errors import ParamError
 
 __all__ = ["ACCELS", "KIND", "Accel", "build", "empty", "closest", "any_hit", "trace_batch",
            "occluded_batch", "SLAB_COUNTS", "memory_bytes"]
@@ -86,7 +87,7 @@ def build(name: str, sph_center, sph_radius, tri_v, prim_shape=None, *, slab_nor
     configuration holds them (its precision); ``prim_shape`` (P,) groups them into
     objects for ``bv``, ``bv-sphere`` and ``slabs`` (default: one object each)."""
     if name not in ACCELS:
-        raise ValueError(f"accel: unknown structure {name!r} (valid: {', '.join(ACCELS)})")
+        raise ParamError(f"accel: unknown structure {name!r} (valid: {', '.join(ACCELS)})")
     n = len(sph_radius) + len(tri_v)
     if name == "none" or n == 0:
         return empty()

@@ -44,6 +44,7 @@ from ..intersect import like
 from ..sampling import pixel_sample
 from .primitives import box_enter, closer, prim_test, ulp_above
 from .tree import STACK, tree_closest
+from core.errors import ParamError
 
 __all__ = ["packet_closest", "packet_hits", "packet_buffers", "tile_eye_packet", "primary_hits", "tile_rect",
            "tile_count", "TILE", "NOT_TRACED"]
@@ -249,7 +250,7 @@ def primary_hits(R, camera, *, packets: bool):
     from . import TREE
 
     if R.accel != TREE:
-        raise ValueError("primary_hits: packets need a tree structure (accel=bvh-median, bvh-sah, "
+        raise ParamError("primary_hits: packets need a tree structure (accel=bvh-median, bvh-sah, "
                          f"bvh-gs or octree); this configuration has traversal code {R.accel}")
     W, H = camera.film.width, camera.film.height
     depth = np.empty(W * H)

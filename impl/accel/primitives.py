@@ -34,6 +34,7 @@ import numpy as np
 from numba import njit
 
 from ..intersect import like, ray_sphere_form, ray_triangle
+from core.errors import ParamError
 
 __all__ = ["prim_bounds", "pad_of", "prim_test", "closer", "box_enter", "ulp_above"]
 
@@ -47,7 +48,7 @@ PAD_REL = {np.dtype(np.float32): 2e-5, np.dtype(np.float64): 1e-10}
 def pad_of(lo, hi, dtype) -> float:
     """The absolute padding of the bounds of a scene with box [lo, hi]."""
     if not np.all(np.isfinite(lo)) or not np.all(np.isfinite(hi)):
-        raise ValueError("accel: the scene has non-finite primitive coordinates")
+        raise ParamError("accel: the scene has non-finite primitive coordinates")
     scale = float(max(np.max(np.abs(lo)), np.max(np.abs(hi)), np.max(hi - lo), 1e-30))
     return PAD_REL[np.dtype(dtype)] * scale
 

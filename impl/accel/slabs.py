@@ -35,6 +35,7 @@ from numba import njit
 from ..intersect import like
 from .bounding_volumes import group_objects
 from .primitives import _slab64, closer, pad_of, prim_test, ulp_above
+from core.errors import ParamError
 
 __all__ = ["slab_normals", "build_slabs", "slabs_closest", "slabs_any", "SLAB_COUNTS"]
 
@@ -44,7 +45,7 @@ SLAB_COUNTS = (3, 7, 13)
 def slab_normals(k: int) -> np.ndarray:
     """The k unit plane normals (k = 3 axes, 7 = + cube diagonals, 13 = + face diagonals)."""
     if k not in SLAB_COUNTS:
-        raise ValueError(f"slabs: slab_normals must be one of {SLAB_COUNTS}, got {k}")
+        raise ParamError(f"slabs: slab_normals must be one of {SLAB_COUNTS}, got {k}")
     axes = np.eye(3)
     cube = np.array([[1, 1, 1], [1, 1, -1], [1, -1, 1], [-1, 1, 1]]) / math.sqrt(3.0)
     face = np.array([[1, 1, 0], [1, -1, 0], [1, 0, 1], [1, 0, -1], [0, 1, 1], [0, 1, -1]]) / math.sqrt(2.0)

@@ -43,7 +43,7 @@ every N or in every round (another engineer's jobs shared the 2 cores).  The num
 bounds the traversal (a likely reason, not measured: the four arrays'
 loads do not depend on each other and overlap); the time per node visited
 stays 30–43 ns from 1e3 to 1e5 spheres (log–log slope 0.017 against N;
-studies ``node_cost`` and ``scaling`` of :mod:`gibench.studies_accel`),
+studies ``node_cost`` and ``scaling`` of :mod:`gibench.studies.accel`),
 and the growth of trace time beyond log N is in the number of nodes
 visited, b·ln(N/N₀) with N₀ ≈ 44, whose own log–log slope (0.19 over
 1e3 … 1e5) exceeds that of ln N (0.11).  So the packed copy was not kept

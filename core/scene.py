@@ -1,6 +1,6 @@
 """The scene model: the one representation every own algorithm reads.
 
-A scene file (Mitsuba 3 XML subset, see :mod:`gibench.loader`) becomes a
+A scene file (Mitsuba 3 XML subset, see :mod:`core.loader`) becomes a
 :class:`Scene`: a camera with its film, shapes with materials (and area
 emitters), and the delta lights.  Everything is in world space, float64, linear
 sRGB.  The model holds what the scene file says and nothing an algorithm adds:
@@ -9,7 +9,7 @@ Phong coefficients, sample counts and the like are algorithm parameters.
 Shapes are either analytic spheres or triangle meshes; ``rectangle`` and
 ``cube`` arrive as the triangle meshes Mitsuba itself builds for them,
 ``disk`` and ``cylinder`` as 128-sided tessellations of Mitsuba's analytic
-shapes (:mod:`gibench.meshes`).  A ``constant`` environment emitter is
+shapes (:mod:`core.meshes`).  A ``constant`` environment emitter is
 :attr:`Scene.environment`.
 """
 

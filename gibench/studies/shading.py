@@ -1,7 +1,7 @@
 """Studies of the polygon pipeline: shading error vs tessellation, z-fighting, visibility.
 
 Each study returns its table as a list of flat dicts of scalars (every
-parameter and every measured number in each row), like :mod:`gibench.studies`.
+parameter and every measured number in each row), like :mod:`gibench.studies.intersection`.
 
 ========================  ====================================================
 study                     what it measures
@@ -40,8 +40,9 @@ from impl.raycast import cast_primary
 from impl.tessellate import sphere_triangle_count, tessellated_scene
 from reports.metrics import relmse
 
-from .loader import load_scene
-from .provenance import REPO_ROOT
+from core.loader import load_scene
+from core.provenance import REPO_ROOT
+from core.errors import SuiteError
 
 __all__ = ["STUDIES", "TABLES", "boundary_mask", "shading_convergence", "zfighting", "visibility", "run_studies"]
 
@@ -87,7 +88,7 @@ def shading_convergence(*, scene="spheres/lit_sphere.xml", tessellations=(8, 16,
     _, ref_id = cast_primary(sc)
     spheres = [i for i, s in enumerate(sc.shapes) if s.kind == "sphere"]
     if not spheres:
-        raise ValueError(f"shading_convergence: {scene} has no sphere")
+        raise SuiteError(f"shading_convergence: {scene} has no sphere")
     interior = np.isin(ref_id, spheres) & ~boundary_mask(ref_id)
     algo = ALGORITHMS[algorithm]
     rows = []
@@ -196,7 +197,7 @@ def run_studies(config: dict | str | Path | None = None, *, only=None) -> dict[s
     out = {}
     for name, kwargs in config.items():
         if name not in STUDIES:
-            raise ValueError(f"unknown study '{name}' (valid: {', '.join(STUDIES)})")
+            raise SuiteError(f"unknown study '{name}' (valid: {', '.join(STUDIES)})")
         kwargs = dict(kwargs)
         if not kwargs.pop("enabled", True) or (only is not None and name not in only):
             continue

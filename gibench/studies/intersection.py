@@ -20,7 +20,7 @@ study                  what it measures
                        a polygon and a triangle
 =====================  ======================================================
 
-The Mitsuba 3 side of the distant sphere is :func:`references.studies.mitsuba_distant_sphere`;
+The Mitsuba 3 side of the distant sphere is :func:`mitsuba_distant_sphere`;
 :func:`run_studies` calls it (lazily, only when asked) so that this module
 knows nothing about Mitsuba.  Parameters come from ``suites/hard/studies.toml``.
 
@@ -33,12 +33,9 @@ inputs; each study states the band of ambiguous cases it leaves out and why.
 
 from __future__ import annotations
 
-import inspect
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 from numba import njit
@@ -47,8 +44,11 @@ from impl.intersect import (SPHERE_FORMS, like, polygon_plane, ray_plane, ray_po
                             ray_sphere_batch, ray_sphere_stable, ray_triangle)
 from impl.offset import STRATEGIES, spawn
 
-from .provenance import REPO_ROOT
-from .transforms import look_at, rotate
+from core.errors import SuiteError
+from core.provenance import REPO_ROOT
+from core.transforms import look_at, rotate
+
+from . import StudyInfo, read_config, run_registered
 
 __all__ = ["StudyInfo", "STUDIES", "TABLES", "PRECISIONS", "DEFAULT_CONFIG", "load_config", "run_studies",
            "unit_roundoff", "distant_sphere", "self_intersection", "grazing_sphere", "grazing_plane"]
@@ -69,7 +69,7 @@ def unit_roundoff(precision) -> float:
 
 def _dtype(precision):
     if precision not in PRECISIONS:
-        raise ValueError(f"unknown precision {precision!r} (valid: {', '.join(PRECISIONS)})")
+        raise SuiteError(f"unknown precision {precision!r} (valid: {', '.join(PRECISIONS)})")
     return np.dtype(precision).type
 
 
@@ -441,7 +441,7 @@ def self_intersection(*, scene: dict, offsets, direction=(1.0, 1.0, 1.0), rotati
             for spec in strategies:
                 name = spec["strategy"]
                 if name not in STRATEGIES:
-                    raise ValueError(f"self_intersection: unknown strategy {name!r} "
+                    raise SuiteError(f"self_intersection: unknown strategy {name!r} "
                                      f"(valid: {', '.join(STRATEGIES)})")
                 for eps in spec.get("eps", [0.0]):
                     n = dirs.shape[0]
@@ -650,18 +650,68 @@ def grazing_plane(*, thetas=None, height=1.0, planes=("aligned", "tilted"), prec
     return rows
 
 
+# ============================================== Mitsuba's own silhouette ===
+
+def mitsuba_distant_sphere(scene_path, *, distances, variants=("scalar_rgb", "llvm_ad_rgb"),
+                           aims=("axis", "oblique"), far_clips=("default", "2d"), size=64,
+                           fill=0.75, radius=1.0, band=2.0) -> list[dict]:
+    """Wrong pixels of Mitsuba's render of the distant-sphere silhouette.
+
+    Parameters
+    ----------
+    scene_path : path of ``distant_sphere.xml``
+    distances : distances d of the sphere's centre from the camera
+    variants : Mitsuba variants to render with (switched in turn)
+    aims : keys of :data:`AIMS`
+    far_clips : 'default' (the sensor's own 1e4, as a scene that does not set
+        it gets) and/or '2d' (twice the distance: nothing is clipped)
+    band : as in :func:`distant_sphere`: pixels within
+        ``band``·u₃₂·d/r of the edge are ambiguous in float32
+    """
+    from references.probe import MITSUBA_DEFAULT_FAR_CLIP, render_in_variant
+
+    scene_path = Path(scene_path)
+    rows = []
+    for variant in variants:
+        for aim in aims:
+            for d in distances:
+                d = float(d)
+                _, center, rel_edge, _ = _silhouette_rays(d, radius, size, fill, aim)
+                inside = rel_edge < 0.0
+                tan_alpha = radius / math.sqrt((d - radius) * (d + radius))
+                fov = 2.0 * math.degrees(math.atan(tan_alpha / fill))
+                beta = band * unit_roundoff("float32") * d / radius
+                for policy in far_clips:
+                    if policy == "default":
+                        far = MITSUBA_DEFAULT_FAR_CLIP
+                    elif policy == "2d":
+                        far = 2.0 * d
+                    else:
+                        raise SuiteError(f"mitsuba_distant_sphere: far_clips entries are 'default' "
+                                         f"or '2d', got {policy!r}")
+                    img, info = render_in_variant(
+                        scene_path, variant=variant,
+                        defines={"cx": repr(float(center[0])), "cy": repr(float(center[1])),
+                                 "cz": repr(float(center[2])), "radius": repr(float(radius)),
+                                 "fov": repr(fov), "far_clip": repr(far), "size": str(size)})
+                    depth = img[..., 0]
+                    hit = (depth > 0.0).ravel()
+                    wrong = hit != inside
+                    rows.append({
+                        "variant": variant, "aim": aim, "distance": d, "far_clip_policy": policy,
+                        "far_clip": info["far_clip"],
+                        "pixels": int(hit.size), "expected_hits": int(inside.sum()),
+                        "hits": int(hit.sum()), "wrong": int(wrong.sum()),
+                        "wrong_frac": float(wrong.mean()), "empty": bool(not hit.any()),
+                        "band": float(beta),
+                        "wrong_outside_band": int((wrong & (np.abs(rel_edge) > beta)).sum()),
+                        "max_rel_edge_of_wrong": float(np.abs(rel_edge[wrong]).max()) if wrong.any() else 0.0,
+                        "mitsuba": info["mitsuba"], "drjit": info["drjit"],
+                    })
+    return rows
+
+
 # ================================================================ registry ===
-
-@dataclass(frozen=True)
-class StudyInfo:
-    name: str
-    title: str
-    description: str
-    run: Callable[..., list[dict]]
-
-    def __repr__(self) -> str:
-        return f"StudyInfo({self.name!r}, {self.title!r})"
-
 
 STUDIES = {s.name: s for s in (
     StudyInfo("distant_sphere", "Distant sphere silhouette",
@@ -703,44 +753,9 @@ TABLES["distant_sphere_mitsuba"] = (
     "far_clip = 2d.  With the default, everything beyond the far clip plane is empty.")
 
 
-def read_config(path, default) -> dict:
-    """A studies configuration from a TOML file (``default`` when ``path`` is None),
-    with its own path under ``"_path"`` for error messages."""
-    path = Path(path) if path is not None else default
-    try:
-        cfg = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: studies configuration not found") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"{path}: {exc}") from None
-    cfg["_path"] = str(path)
-    return cfg
-
-
 def load_config(path=None) -> dict:
     """The studies' parameters from a TOML file (default ``suites/hard/studies.toml``)."""
     return read_config(path, DEFAULT_CONFIG)
-
-
-def run_registered(studies: dict, config: dict, *, only=None) -> dict[str, list[dict]]:
-    """Run every study of ``studies`` (name → :class:`StudyInfo`) that ``config`` has a
-    table for, without ``enabled = false``, restricted to ``only``; the table's keys
-    are the study function's keyword arguments (an unknown key is an error naming it)."""
-    where = config.get("_path", "the studies configuration")
-    out: dict[str, list[dict]] = {}
-    for name, info in studies.items():
-        if name not in config or (only is not None and name not in only):
-            continue
-        params = dict(config[name])
-        if not params.pop("enabled", True):
-            continue
-        valid = list(inspect.signature(info.run).parameters)
-        unknown = sorted(set(params) - set(valid))
-        if unknown:
-            raise ValueError(f"{where}: [{name}] has unknown key(s) {', '.join(unknown)} "
-                             f"(valid: {', '.join(valid)}, enabled)")
-        out[name] = info.run(**params)
-    return out
 
 
 def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[str, list[dict]]:
@@ -751,7 +766,7 @@ def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[
     keyword arguments of the study's function) without ``enabled = false``;
     ``only`` restricts to some names.  ``mitsuba`` (default: the config's
     ``[distant_sphere_mitsuba] enabled``) adds the ``distant_sphere_mitsuba``
-    table from :func:`references.studies.mitsuba_distant_sphere`.  Titles and
+    table from :func:`mitsuba_distant_sphere`.  Titles and
     descriptions of the tables are in :data:`TABLES`.
     """
     if config is None or isinstance(config, (str, Path)):
@@ -762,8 +777,6 @@ def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[
     if mitsuba is not None:
         enabled = mitsuba
     if enabled and (only is None or "distant_sphere_mitsuba" in only):
-        from references.studies import mitsuba_distant_sphere
-
         scene = mi_cfg.pop("scene", "distant_sphere.xml")
         base = Path(config.get("_path", DEFAULT_CONFIG)).parent
         out["distant_sphere_mitsuba"] = mitsuba_distant_sphere(base / scene, **mi_cfg)

@@ -38,8 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .provenance import REPO_ROOT
-from .studies import StudyInfo, read_config, run_registered
+from core.errors import SuiteError
+from core.provenance import REPO_ROOT
+
+from . import StudyInfo, read_config, run_registered
 
 __all__ = ["STUDIES", "TABLES", "DEFAULT_CONFIG", "load_config", "run_studies", "convergence",
            "fit_slopes", "reference_image"]
@@ -49,14 +51,13 @@ SUITES = REPO_ROOT / "suites"
 
 
 def _algo():
-    import impl.distributed  # noqa: F401  (registers 'distributed')
-    from . import registry
+    from .. import registry
 
     return registry.get("distributed")
 
 
 def _scene(path, size):
-    from .loader import load_scene
+    from core.loader import load_scene
 
     scene = load_scene(path)
     if size is not None:
@@ -103,7 +104,7 @@ def convergence(*, scenes, samplers=("uniform", "random", "jitter", "jitter-gaus
         edge = svar.max(axis=2) > edge_variance
         n_edge = int(edge.sum())
         if n_edge == 0:
-            raise ValueError(f"convergence: {rel} has no edge pixels (sample variance > {edge_variance})")
+            raise SuiteError(f"convergence: {rel} has no edge pixels (sample variance > {edge_variance})")
         # Warm-up (compilation) for every sampler code path, untimed.
         for smp in ("uniform", "adaptive", "statistical"):
             algo.render(scene, algo.parse_params({**base, "spp": 16, "sampler": smp}), seed=0)

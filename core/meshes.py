@@ -21,13 +21,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from .errors import MeshError
 
 __all__ = ["rectangle", "cube", "disk", "cylinder", "SEGMENTS", "load_mesh_file", "load_mesh_uvs",
            "angle_weighted_normals", "MeshError"]
 
 
-class MeshError(ValueError):
-    """A mesh file that is missing or cannot be read."""
 
 
 def rectangle() -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

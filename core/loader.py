@@ -1,4 +1,4 @@
-"""Mitsuba 3 XML scene loader (a documented subset) → :class:`gibench.scene.Scene`.
+"""Mitsuba 3 XML scene loader (a documented subset) → :class:`core.scene.Scene`.
 
 The reference renders the very same file with ``mi.load_file``; this loader
 builds the one scene model the own algorithms read.  It understands:
@@ -38,7 +38,7 @@ path             ``value``: a search directory for relative file names (meshes,
 transform        lookat, translate, rotate, scale, matrix — composed in order
 values           rgb, float, integer, boolean, string, point, vector, ref / id;
                  ``spectrum`` (a constant, or ``"λ:v, λ:v, ..."`` pairs in nm,
-                 increasing): a :class:`gibench.scene.Spectrum`, converted to
+                 increasing): a :class:`core.scene.Spectrum`, converted to
                  RGB where an RGB value is read (as Mitsuba's RGB variants do)
                  and kept as a spectrum for spectral rendering (material
                  ``params``, ``Shape.emitter_spectrum``)
@@ -47,7 +47,7 @@ shape            sphere (center/radius or to_world; gibench's own
                  centre(τ) = center + velocity·τ over the sensor's shutter — see
                  references/motion_blur.py), rectangle, cube, obj, ply,
                  disk, cylinder (p0, p1, radius; both tessellated, see
-                 :mod:`gibench.meshes`), flip_normals, face_normals
+                 :mod:`core.meshes`), flip_normals, face_normals
 bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric, twosided
 texture          nested in a diffuse bsdf as its ``reflectance``:
                  ``checkerboard`` (color0, color1, to_uv) and ``bitmap``
@@ -78,6 +78,7 @@ from lxml import etree
 from . import transforms as tf
 from .meshes import MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_uvs, rectangle
 from .scene import Camera, Film, Light, Material, Scene, Shape, Spectrum
+from .errors import SceneError
 
 __all__ = ["SceneError", "load_scene", "SUPPORTED"]
 
@@ -141,11 +142,6 @@ _PROPS = {
 }
 
 
-class SceneError(ValueError):
-    """A scene file that is malformed or outside the supported subset.
-
-    The message is one line: ``file:line: <element type="...">: cause``.
-    """
 
 
 class _Ctx:
@@ -583,7 +579,7 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
 
 
 def _analytic_mesh(ctx, p, m):
-    """Mitsuba's ``disk`` / ``cylinder`` as a tessellated mesh (see :mod:`gibench.meshes`):
+    """Mitsuba's ``disk`` / ``cylinder`` as a tessellated mesh (see :mod:`core.meshes`):
     (vertices, faces, normals, object-to-world).  The cylinder's object-to-world is
     Mitsuba's: to_world · translate(p0) · frame(p1 − p0) · scale(radius, radius, |p1 − p0|);
     Mitsuba refuses a non-uniform scale across the axis, and so does the loader."""
@@ -855,7 +851,7 @@ def _expand_includes(ctx, root, file: Path, chain: str, depth: int) -> None:
 # ------------------------------------------------------------------ entry ---
 
 def load_scene(path, defines: dict | None = None) -> Scene:
-    """Parse a Mitsuba 3 XML scene file into a :class:`~gibench.scene.Scene`.
+    """Parse a Mitsuba 3 XML scene file into a :class:`~core.scene.Scene`.
 
     ``defines`` maps ``<default>`` names to values that replace the file's
     defaults (Mitsuba's ``-D name=value``); a name the file does not declare is

@@ -47,10 +47,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .provenance import REPO_ROOT
-from .scene import Camera, Film, Light, Material, Scene, Shape
-from .studies import StudyInfo, read_config, run_registered
-from .transforms import look_at
+from core.errors import SuiteError
+from core.provenance import REPO_ROOT
+from core.scene import Camera, Film, Light, Material, Scene, Shape
+from core.transforms import look_at
+
+from . import StudyInfo, read_config, run_registered
 
 __all__ = ["STUDIES", "TABLES", "DEFAULT_CONFIG", "load_config", "run_studies", "scaling",
            "fit_exponents", "node_cost", "shuffle_node_groups", "sphere_field", "mesh_field", "camera_rays", "bounce_rays"]
@@ -84,7 +86,7 @@ def _light():
 def sphere_field(n: int, *, seed: int = 0, width: int = 64, height: int = 48) -> Scene:
     """N random spheres in [-1, 1]³ (radius 0.3·N^(-1/3)), one in five a mirror."""
     if n < 1:
-        raise ValueError(f"sphere_field: n must be >= 1, got {n}")
+        raise SuiteError(f"sphere_field: n must be >= 1, got {n}")
     rng = np.random.default_rng(seed)
     centres = rng.uniform(-1.0, 1.0, (n, 3))
     r = 0.3 * n ** (-1.0 / 3.0)
@@ -99,7 +101,7 @@ def mesh_field(n_triangles: int, *, width: int = 64, height: int = 48) -> Scene:
     from impl.tessellate import uv_sphere
 
     if n_triangles < 40:
-        raise ValueError(f"mesh_field: n_triangles must be >= 40, got {n_triangles}")
+        raise SuiteError(f"mesh_field: n_triangles must be >= 40, got {n_triangles}")
     seg = max(3, int(round(math.sqrt(n_triangles / 5.0))))     # uv_sphere(n) has ~n² triangles
     spots = [(-0.6, -0.55, -0.6, 0.45), (0.6, -0.55, -0.6, 0.45), (0.0, -0.35, 0.0, 0.65),
              (-0.6, -0.55, 0.6, 0.45), (0.6, -0.55, 0.6, 0.45)]
@@ -184,20 +186,19 @@ def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=
     family (the row says so in ``note``)."""
     from unittest import mock
 
-    import impl  # noqa: F401  (registers the algorithms)
     import impl.whitted as whitted
     from impl import accel
     from impl.rays import ray_config
     from impl.scene_arrays import flatten
 
-    from . import registry
+    from .. import registry
 
     algo = registry.get("whitted")
     sizes = sizes or {"spheres": [10, 100, 1000, 10000, 100000], "mesh": [1000, 10000, 100000, 1000000]}
     structures = list(structures or accel.ACCELS)
     unknown = sorted(set(structures) - set(accel.ACCELS)) + sorted(set(families) - set(FAMILIES))
     if unknown:
-        raise ValueError(f"scaling: unknown structure or family {', '.join(unknown)} "
+        raise SuiteError(f"scaling: unknown structure or family {', '.join(unknown)} "
                          f"(structures: {', '.join(accel.ACCELS)}; families: {', '.join(FAMILIES)})")
     rows = []
     for fam in families:
@@ -308,18 +309,17 @@ def node_cost(*, sizes=(1000, 3000, 10000, 30000, 100000), structure="bvh-sah", 
     query time over the nodes visited (per-ray costs included)."""
     import numba
 
-    import impl  # noqa: F401
     from impl import accel
     from impl.rays import ray_config
     from impl.scene_arrays import flatten
 
-    from . import registry
+    from .. import registry
 
     if structure not in ("bvh-median", "bvh-sah", "bvh-gs", "octree"):
-        raise ValueError(f"node_cost: structure must be a tree (bvh-median, bvh-sah, bvh-gs, "
+        raise SuiteError(f"node_cost: structure must be a tree (bvh-median, bvh-sah, bvh-gs, "
                          f"octree), got {structure!r}")
     if not (1 <= tile <= min(width, height)):
-        raise ValueError(f"node_cost: tile must be in 1..{min(width, height)}, got {tile}")
+        raise SuiteError(f"node_cost: tile must be in 1..{min(width, height)}, got {tile}")
     algo = registry.get("whitted")
     params = algo.parse_params({"accel": structure})
     rng = np.random.default_rng(seed)

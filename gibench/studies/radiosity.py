@@ -10,7 +10,7 @@ study                     what it measures
                           error-vs-patches and error-vs-time curves)
 ``mitsuba_ladder``        Mitsuba's own path tracer at spp 4 … 256 against the
                           same reference, timed in the same run
-                          (:func:`references.ladder.mitsuba_ladder`)
+                          (:func:`gibench.ladder.mitsuba_ladder`)
 ``adjacent_patches``      two square patches sharing an edge: F from the centre
                           rule, k×k Gauss and graded rules, hemicube and Monte
                           Carlo against C-14 = 0.200044 (scale-free), and the
@@ -37,8 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .provenance import REPO_ROOT
-from .studies import StudyInfo, read_config, run_registered
+from core.provenance import REPO_ROOT
+
+from . import StudyInfo, read_config, run_registered
 
 __all__ = ["STUDIES", "TABLES", "DEFAULT_CONFIG", "load_config", "run_studies", "error_vs_patches",
            "adjacent_patches", "hemicube_aliasing", "thin_gap"]
@@ -48,8 +49,7 @@ SUITES = REPO_ROOT / "suites"
 
 
 def _algo():
-    import impl.radiosity  # noqa: F401  (registers 'radiosity')
-    from . import registry
+    from .. import registry
 
     return registry.get("radiosity")
 
@@ -72,7 +72,7 @@ def error_vs_patches(*, scenes, patch_counts, formfactors=("contour",), solvers=
     from reports.metrics import mae, relmse
 
     algo = _algo()
-    from .loader import load_scene
+    from core.loader import load_scene
 
     rows = []
     for scene_id in scenes:
@@ -225,7 +225,7 @@ def thin_gap(*, scene="cornell/thin_gap.xml", patch_counts=(64, 256, 1024, 4096)
     from impl import radiosity
     from reports.metrics import relmse
 
-    from .loader import load_scene
+    from core.loader import load_scene
 
     algo = _algo()
     path = SUITES / scene
@@ -292,14 +292,14 @@ def load_config(path=None) -> dict:
 
 def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[str, list[dict]]:
     """Run the studies named in ``config`` (as :func:`gibench.studies.run_studies`);
-    ``mitsuba_ladder`` comes from :func:`references.ladder.mitsuba_ladder`."""
+    ``mitsuba_ladder`` comes from :func:`gibench.ladder.mitsuba_ladder`."""
     if config is None or isinstance(config, (str, Path)):
         config = load_config(config)
     out = run_registered(STUDIES, config, only=only)
     lad = dict(config.get("mitsuba_ladder", {}))
     enabled = lad.pop("enabled", False) if mitsuba is None else mitsuba
     if enabled and (only is None or "mitsuba_ladder" in only):
-        from references.ladder import mitsuba_ladder
+        from ..ladder import mitsuba_ladder
 
         out["mitsuba_ladder"] = mitsuba_ladder(**lad)
     if "error_vs_patches" in out and "mitsuba_ladder" in out:

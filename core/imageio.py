@@ -15,12 +15,11 @@ from pathlib import Path
 
 import numpy as np
 import OpenEXR
+from .errors import ImageError
 
 __all__ = ["ImageError", "read_exr", "write_exr", "write_text", "check_finite", "as_rgb"]
 
 
-class ImageError(ValueError):
-    """An image that cannot be used: missing, unreadable, wrong shape, non-finite."""
 
 
 def as_rgb(image, *, name: str = "image") -> np.ndarray:
