@@ -46,9 +46,10 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from core.provenance import REPO_ROOT, git_commit, machine, utc_now, versions
-from core.imageio import write_text
 from core.errors import StoreError
+from core.imageio import write_text
+from core.provenance import REPO_ROOT, git_commit, machine, utc_now, versions
+from core.records import Record
 
 __all__ = ["BASELINE_FORMAT", "GATED_HIGHER", "GATED_LOWER", "REL_FLOOR", "SPREAD_FACTOR",
            "ABS_FLOOR", "SPEED_FACTOR", "BaselineError", "Finding", "case_key", "make_baseline",
@@ -77,40 +78,40 @@ class BaselineError(StoreError, ValueError):
 
 
 
-def case_key(record: dict) -> str:
+def case_key(record: Record) -> str:
     """The identity of a case across runs: scene, algorithm, label, transport
     (not the parameters: a broken parameter must show as a moved metric)."""
-    return " | ".join(str(record.get(k)) for k in ("scene", "algorithm", "label", "transport"))
+    return " | ".join(str(v) for v in (record.scene, record.algorithm, record.label, record.transport))
 
 
 def _num(x):
     return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else None
 
 
-def _ratio(rec: dict):
-    return _num((rec.get("time") or {}).get("ratio"))
+def _ratio(rec: Record):
+    return _num(rec.time.get("ratio"))
 
 
-def make_baseline(runs: list[list[dict]], *, suite: str, suite_file: str, seeds: list[int]) -> dict:
+def make_baseline(runs: list[list[Record]], *, suite: str, suite_file: str, seeds: list[int]) -> dict:
     """The baseline document from ``runs`` (one record list per seed; the first is seed 0)."""
     if not runs or len(runs) != len(seeds):
         raise ValueError(f"need one record list per seed, got {len(runs)} lists for seeds {seeds}")
-    per_seed = [{case_key(r): r for r in recs if r.get("kind", "case") == "case"} for recs in runs]
+    per_seed = [{case_key(r): r for r in recs if r.kind == "case"} for recs in runs]
     cases = {}
     for key, rec in per_seed[0].items():
-        if rec.get("error"):
-            raise BaselineError(f"case '{key}' failed in the baseline run: {rec['error']}")
-        m = rec["metrics"]
-        entry = {"scene": rec["scene"], "algorithm": rec["algorithm"], "label": rec["label"],
-                 "transport": rec["transport"], "params": rec["params"], "expect": rec.get("expect"),
+        if rec.error:
+            raise BaselineError(f"case '{key}' failed in the baseline run: {rec.error}")
+        m = rec.metrics
+        entry = {"scene": rec.scene, "algorithm": rec.algorithm, "label": rec.label,
+                 "transport": rec.transport, "params": rec.params, "expect": rec.expect,
                  "metrics": {}, "spread": {}, "tolerance": {},
                  "ztest_passed": bool((m.get("ztest") or {}).get("passed")) if m.get("ztest") else None,
-                 "time_ratio": _ratio(rec), "own_median_s": _num((rec.get("time") or {}).get("own_median_s"))}
+                 "time_ratio": _ratio(rec), "own_median_s": _num(rec.time.get("own_median_s"))}
         for name in GATED_HIGHER + GATED_LOWER:
             base = _num(m.get(name))
             if base is None or not math.isfinite(base):
                 continue
-            vals = [base] + [_num((s.get(key) or {}).get("metrics", {}).get(name)) for s in per_seed[1:]]
+            vals = [base] + [_num(s[key].metrics.get(name)) if key in s else None for s in per_seed[1:]]
             vals = [v for v in vals if v is not None and math.isfinite(v)]
             spread = max(vals) - min(vals)
             rel = max(REL_FLOOR, SPREAD_FACTOR * spread / abs(base)) if base else REL_FLOOR
@@ -168,11 +169,11 @@ class Finding:
                                and abs(a - b) <= 1e-9 * max(abs(a), abs(b))))
 
 
-def compare_with_baseline(records: list[dict], baseline: dict, *,
+def compare_with_baseline(records: list[Record], baseline: dict, *,
                           speed_factor: float | None = None) -> list[Finding]:
     """Every finding of ``records`` against ``baseline`` (failed or not)."""
     speed_factor = float(speed_factor or baseline.get("speed_factor") or SPEED_FACTOR)
-    now = {case_key(r): r for r in records if r.get("kind", "case") == "case"}
+    now = {case_key(r): r for r in records if r.kind == "case"}
     out: list[Finding] = []
     for key, base in baseline["cases"].items():
         rec = now.get(key)
@@ -180,10 +181,10 @@ def compare_with_baseline(records: list[dict], baseline: dict, *,
             out.append(Finding(key, "case", "present", "missing", "must run", True,
                                "the case is not in this run (suite changed? regenerate the baseline)"))
             continue
-        if rec.get("error"):
-            out.append(Finding(key, "case", "ok", "error", "no error", True, rec["error"]))
+        if rec.error:
+            out.append(Finding(key, "case", "ok", "error", "no error", True, rec.error))
             continue
-        m = rec.get("metrics") or {}
+        m = rec.metrics
         if m.get("nan_count") or m.get("inf_count"):
             out.append(Finding(key, "finite image", "0 NaN/Inf",
                                f"{m.get('nan_count')} NaN, {m.get('inf_count')} Inf", "0", True))
@@ -243,7 +244,7 @@ def _slug(key: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in key.replace(" | ", "__"))[:120]
 
 
-def write_evidence(record: dict, directory, *, root=REPO_ROOT) -> Path | None:
+def write_evidence(record: Record, directory, *, root=REPO_ROOT) -> Path | None:
     """Write own / reference / variances / error map / p-value map EXRs of a failing
     case into ``directory/<case>/``; returns the folder (None without images)."""
     import numpy as np
@@ -258,11 +259,11 @@ def write_evidence(record: dict, directory, *, root=REPO_ROOT) -> Path | None:
         p = Path(rel) if Path(rel).is_absolute() else Path(root) / rel
         return read_exr(p) if p.is_file() else None
 
-    ref_info = record.get("reference") or {}
-    own, ref = load(record.get("image")), load(ref_info.get("image"))
+    ref_info = record.reference or {}
+    own, ref = load(record.image), load(ref_info.get("image"))
     if own is None or ref is None:
         return None
-    ref_var, own_var = load(ref_info.get("variance")), load(record.get("variance"))
+    ref_var, own_var = load(ref_info.get("variance")), load(record.variance)
     out = Path(directory) / _slug(case_key(record))
     out.mkdir(parents=True, exist_ok=True)
     write_exr(out / "own.exr", own)
@@ -275,7 +276,7 @@ def write_evidence(record: dict, directory, *, root=REPO_ROOT) -> Path | None:
         write_exr(out / "reference_variance.exr", ref_var)
         z = z_test(ref, own_f, reference_variance=ref_var, test_variance=own_var)
         write_exr(out / "pvalue.exr", np.nan_to_num(z.p_values, nan=0.0).astype(np.float32))
-    (out / "case.json").write_text(json.dumps({k: record.get(k) for k in (
+    (out / "case.json").write_text(json.dumps({k: getattr(record, k) for k in (
         "scene", "algorithm", "label", "transport", "params", "run_id", "commit")}, indent=1,
         default=str) + "\n")
     return out

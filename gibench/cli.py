@@ -233,9 +233,9 @@ def cmd_run(args) -> int:
                         defines=defines, history=history, command="run", **_run_common(args))
     out = Path(args.report) if args.report else Path(args.results).parent / "report.html"
     write_report(records, out, root=REPO_ROOT, title=f"gibench — suite {suite.name}")
-    cases = [r for r in records if r.get("kind", "case") == "case"]
-    n_err = sum(1 for r in cases if r.get("error"))
-    failed = [(r["scene"], c["name"]) for r in cases for c in r.get("checks", []) if not c["passed"]]
+    cases = [r for r in records if r.kind == "case"]
+    n_err = sum(1 for r in cases if r.error)
+    failed = [(r.scene, c["name"]) for r in cases for c in r.failed_checks]
     print(f"results: {args.results} (run {run_id})")
     print(f"report:  {out}")
     if n_err or failed:
@@ -243,7 +243,7 @@ def cmd_run(args) -> int:
             print(f"FAILED: {scene}: {name}")
         print(f"{len(failed)} failed checks, {n_err} cases with errors")
         return 1
-    checks = sum(len(r.get("checks", [])) for r in cases)
+    checks = sum(len(r.checks) for r in cases)
     print(f"all {checks} checks passed")
     return 0
 
@@ -319,7 +319,7 @@ def cmd_check(args) -> int:
 
         bad = {f.case for f in failed}
         for r in records:
-            if case_key(r) in bad and not r.get("error"):
+            if case_key(r) in bad and r.ok:
                 ev = write_evidence(r, out.parent / "evidence")
                 if ev is not None:
                     print(f"evidence: {ev}")
@@ -351,7 +351,7 @@ def cmd_sweep(args) -> int:
     write_report(records, out, root=REPO_ROOT, title=f"gibench sweep — {suite.name}")
     print(sweep_table(records, metric=args.metric))
     print(f"report:  {out}")
-    return 1 if any(r.get("error") for r in records) else 0
+    return 1 if any(r.error for r in records) else 0
 
 
 def cmd_history(args) -> int:

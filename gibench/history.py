@@ -31,8 +31,9 @@ import os
 import sqlite3
 from pathlib import Path
 
-from core.provenance import REPO_ROOT
 from core.errors import StoreError
+from core.provenance import REPO_ROOT
+from core.records import Record
 
 __all__ = ["SCHEMA_VERSION", "DEFAULT_DB", "HistoryError", "default_db", "connect",
            "add_record", "add_records", "ingest_benchmarks", "query", "benchmark_rows",
@@ -141,25 +142,25 @@ def _dumps(x) -> str:
     return json.dumps(x, sort_keys=True, default=str)
 
 
-def add_record(con: sqlite3.Connection, record: dict, *, command: str = "run") -> None:
+def add_record(con: sqlite3.Connection, record: Record, *, command: str = "run") -> None:
     """Insert one result record in its own transaction (a duplicate is ignored)."""
     with con:
         con.execute(
             "INSERT OR IGNORE INTO results (run_id, command, suite, commit_id, created, machine, "
             "versions, scene, algorithm, label, transport, params, metrics, times, error, kind) "
             "VALUES (?,?,?,?,?,?,?,?,?,?,?,?,?,?,?,?)",
-            (str(record.get("run_id")), command, record.get("suite"), record.get("commit"),
-             record.get("created"), _dumps(record.get("machine")), _dumps(record.get("versions")),
-             record.get("scene"), record.get("algorithm"), record.get("label"),
-             record.get("transport"), _dumps(record.get("params")),
-             _dumps(_scalar_metrics(record.get("metrics"))), _dumps(_times(record.get("time"))),
-             record.get("error"), record.get("kind", "case")))
+            (record.run_id, command, record.suite, record.commit,
+             record.created, _dumps(record.machine), _dumps(record.versions),
+             record.scene, record.algorithm, record.label,
+             record.transport, _dumps(record.params),
+             _dumps(_scalar_metrics(record.metrics)), _dumps(_times(record.time)),
+             record.error, record.kind))
 
 
 def add_records(con, records, *, command: str = "run") -> int:
     n = 0
     for r in records:
-        if r.get("kind", "case") in ("case", "ladder"):
+        if r.kind in ("case", "ladder"):
             add_record(con, r, command=command)
             n += 1
     return n

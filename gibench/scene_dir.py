@@ -42,6 +42,7 @@ from pathlib import Path
 
 from core.errors import UsageError
 from core.provenance import REPO_ROOT
+from core.records import Record
 
 from . import registry
 from .suite import EXPECTATIONS, Case, Suite, run_case
@@ -129,6 +130,13 @@ def preflight(case: Case, defines: dict | None = None) -> str | None:
     return None
 
 
+def _error_record(case, suite: Suite, run_id: str, reason: str) -> Record:
+    """The record of a file that could not be rendered or compared."""
+    return Record(run_id=run_id, suite=suite.name, scene=case.scene_id, scene_file=str(case.scene),
+                  algorithm=case.algorithm, label=case.label, params=dict(case.params),
+                  transport=case.transport, expect=case.expect, error=reason)
+
+
 def run_directory(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timing: bool = False,
                   reference_store=None, log=print, defines: dict | None = None):
     """Run every case of a :func:`directory_suite`; returns (records, skipped) where
@@ -139,10 +147,7 @@ def run_directory(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_t
         log(f"[{i + 1}/{len(suite.cases)}] {case.scene.name}")
         reason = preflight(case, defines)
         if reason is not None:
-            rec = {"run_id": run_id, "suite": suite.name, "scene": case.scene_id,
-                   "scene_file": str(case.scene), "algorithm": case.algorithm, "label": case.label,
-                   "params": case.params, "transport": case.transport, "expect": case.expect,
-                   "error": reason}
+            rec = _error_record(case, suite, run_id, reason)
             try:
                 store.append(rec)
             except (ValueError, TypeError, OSError) as exc:
@@ -157,23 +162,20 @@ def run_directory(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_t
                            defines=defines)
         except Exception as exc:  # noqa: BLE001 - one bad file must not stop the run
             first = str(exc).splitlines()[0] if str(exc) else ""
-            rec = {"run_id": run_id, "suite": suite.name, "scene": case.scene_id,
-                   "scene_file": str(case.scene), "algorithm": case.algorithm, "label": case.label,
-                   "params": case.params, "transport": case.transport, "expect": case.expect,
-                   "error": f"{type(exc).__name__}: {first}"}
+            rec = _error_record(case, suite, run_id, f"{type(exc).__name__}: {first}")
         try:
             store.append(rec)
         except (ValueError, TypeError, OSError) as exc:      # the run goes on; say what was lost
             log(f"  record not stored: {type(exc).__name__}: {exc}")
         records.append(rec)
-        if rec.get("error"):
-            reason = rec["error"].split(": ", 1)[-1] if rec["error"].split(": ", 1)[0].endswith(
-                ("Error", "Exception")) else rec["error"]
+        if rec.error:
+            reason = rec.error.split(": ", 1)[-1] if rec.error.split(": ", 1)[0].endswith(
+                ("Error", "Exception", "Error_")) else rec.error
             skipped.append((case.scene.name, reason))
             log(f"  skipped: {reason}")
         else:
-            m = rec["metrics"]
-            verdict = "; ".join(f"{c['name']}: {'ok' if c['passed'] else 'FAILED'}" for c in rec["checks"])
+            m = rec.metrics
+            verdict = "; ".join(f"{c['name']}: {'ok' if c['passed'] else 'FAILED'}" for c in rec.checks)
             log(f"  relMSE {m['relmse']:.3g}, FLIP {m['flip']:.3g}" + (f" -- {verdict}" if verdict else
                                                                       " -- reported"))
     return records, skipped
@@ -205,8 +207,8 @@ def cmd_run_scenes(args, *, results: Path, defines: dict) -> int:
                                      reference_store=args.store, defines=defines)
     out = Path(args.report) if args.report else results.parent / "report.html"
     write_report(records, out, root=REPO_ROOT, title=f"gibench — scenes of {args.scenes}")
-    compared = [r for r in records if not r.get("error")]
-    failed = [(r["scene"], c["name"]) for r in compared for c in r.get("checks", []) if not c["passed"]]
+    compared = [r for r in records if r.ok]
+    failed = [(r.scene, c["name"]) for r in compared for c in r.failed_checks]
     print(f"results: {results} (run {run_id})")
     print(f"report:  {out}")
     print(f"{len(compared)} rendered and compared, {len(failed)} failed checks, {len(skipped)} skipped")

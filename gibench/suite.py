@@ -43,6 +43,7 @@ from core.errors import GibenchError, SuiteError, UnsupportedError
 from core.imageio import write_exr
 from core.loader import load_scene
 from core.provenance import REPO_ROOT, git_commit, machine, utc_now, versions
+from core.records import Record
 
 from . import registry
 from .studies import STUDY_SETS, load_study_set
@@ -187,7 +188,7 @@ def _checks(case: Case, metrics: dict) -> list[dict]:
 
 def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_timing: bool,
              timing_cache: dict, reference_store=None, log=print,
-             defines: dict | None = None, seed: int = 0) -> dict:
+             defines: dict | None = None, seed: int = 0) -> Record:
     """Run one case and return its result record (never raises for a bad case:
     the record's ``error`` names the cause).  ``defines`` overrides the scene's
     ``<default>`` values in both the own render and the reference (``-D``);
@@ -196,22 +197,21 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
     from references.reference import DEFAULT_STORE, get_reference, time_mitsuba
     from reports.metrics import compare
 
-    record = {"run_id": run_id, "suite": suite.name, "scene": case.scene_id,
-              "scene_file": _rel(case.scene), "algorithm": case.algorithm, "label": case.label,
-              "params": case.params, "defines": dict(defines or {}), "seed": seed,
-              "transport": case.transport, "expect": case.expect,
-              "model_error": case.expect == "model-error", "error": None,
-              "versions": versions(), "commit": git_commit(), "machine": machine(),
-              "created": utc_now()}
+    record = Record(run_id=run_id, suite=suite.name, scene=case.scene_id,
+                    scene_file=_rel(case.scene), algorithm=case.algorithm, label=case.label,
+                    params=dict(case.params), defines=dict(defines or {}), seed=seed,
+                    transport=case.transport, expect=case.expect,
+                    model_error=case.expect == "model-error", versions=versions(),
+                    commit=git_commit(), machine=machine(), created=utc_now())
     try:
         algo = registry.get(case.algorithm)
         params = algo.parse_params(case.params)
-        record["params"] = params
+        record.params = params
         scene = load_scene(case.scene, defines=defines)
         ref = get_reference(case.scene, transport=case.transport, spp=suite.reference_spp,
                             passes=suite.reference_passes, store=reference_store or DEFAULT_STORE,
                             defines=defines)
-        record["reference"] = {"key": ref.key, "dir": _rel(ref.directory),
+        record.reference = {"key": ref.key, "dir": _rel(ref.directory),
                                "image": _rel(ref.directory / "image.exr"),
                                "variance": _rel(ref.directory / "variance.exr"),
                                "spp": ref.manifest.get("spp"), "variant": ref.manifest.get("variant"),
@@ -220,19 +220,19 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
         suffix = f".seed{seed}" if seed else ""
         image_path = out_dir / f"{case.name}{suffix}.exr"
         write_exr(image_path, result.image)
-        record["image"] = _rel(image_path)
-        record["variance"] = None
+        record.image = _rel(image_path)
+        record.variance = None
         if result.variance is not None:
             var_path = out_dir / f"{case.name}{suffix}.var.exr"
             write_exr(var_path, result.variance)
-            record["variance"] = _rel(var_path)
-        record["counters"] = result.counters
-        record["metrics"] = compare(ref.image, result.image, reference_variance=ref.variance,
+            record.variance = _rel(var_path)
+        record.counters = result.counters
+        record.metrics = compare(ref.image, result.image, reference_variance=ref.variance,
                                     test_variance=result.variance, allow_nonfinite=True)
         if ref.variance is not None:
             from reports.pareto import noise_floor_relmse
 
-            record["metrics"]["noise_floor_relmse"] = noise_floor_relmse(ref.image, ref.variance)
+            record.metrics["noise_floor_relmse"] = noise_floor_relmse(ref.image, ref.variance)
         if mitsuba_timing and has_motion(case.scene):
             timing["mitsuba_skipped"] = ("moving spheres: Mitsuba 3 cannot move shapes, so it "
                                          "has no equal-work render to time")
@@ -246,23 +246,23 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
             timing.update(mitsuba_median_s=mt["median_s"], mitsuba_spp=mt["spp"],
                           mitsuba_variant=mt.get("variant"),
                           ratio=timing["own_median_s"] / mt["median_s"] if mt["median_s"] > 0 else None)
-        record["time"] = timing
-        m = record["metrics"]
+        record.time = timing
+        m = record.metrics
         if m["nan_count"] or m["inf_count"]:
-            record["checks"] = [{"name": "finite image", "expected": "pass", "passed": False,
+            record.checks = [{"name": "finite image", "expected": "pass", "passed": False,
                                  "detail": f"{m['nan_count']} NaN, {m['inf_count']} Inf"}]
         else:
-            record["checks"] = [] if case.expect == "model-error" else _checks(case, m)
+            record.checks = [] if case.expect == "model-error" else _checks(case, m)
     except (GibenchError, OSError) as exc:
-        record["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        record.error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
         if log:
-            log(f"  error: {record['error']}")
+            log(f"  error: {record.error}")
             if "GIBENCH_TRACEBACK" in __import__("os").environ:
                 traceback.print_exc(file=sys.stderr)
     return record
 
 
-def run_studies(suite: Suite, *, run_id: str, log=print) -> list[dict]:
+def run_studies(suite: Suite, *, run_id: str, log=print) -> list[Record]:
     """The suite's studies, one record (``kind = "study"``) per table.
 
     ``suite.study_set`` names the set (:data:`gibench.studies.STUDY_SETS`) whose
@@ -271,34 +271,34 @@ def run_studies(suite: Suite, *, run_id: str, log=print) -> list[dict]:
     """
     st = load_study_set(suite.study_set)
 
-    base = {"run_id": run_id, "suite": suite.name, "kind": "study", "algorithm": "study",
-            "versions": versions(), "commit": git_commit(), "machine": machine(), "created": utc_now()}
+    base = dict(run_id=run_id, suite=suite.name, kind="study", algorithm="study",
+                versions=versions(), commit=git_commit(), machine=machine(), created=utc_now())
     try:
         tables = st.run_studies(suite.studies)
     except (GibenchError, OSError) as exc:
         log(f"  studies failed: {exc}")
-        return [dict(base, study="studies", scene="studies", error=f"{type(exc).__name__}: {exc}")]
+        return [Record(**base, study="studies", scene="studies", error=f"{type(exc).__name__}: {exc}")]
     records = []
     for name, rows in tables.items():
         title, description = st.TABLES.get(name, (name, ""))
         log(f"[study] {name}: {len(rows)} rows")
-        records.append(dict(base, study=name, scene=f"study/{name}", label=title, title=title,
-                            description=description, rows=rows, pivot=suite.pivots.get(name, {}),
-                            error=None))
+        records.append(Record(**base, study=name, scene=f"study/{name}", label=title, title=title,
+                              description=description, rows=rows,
+                              pivot=suite.pivots.get(name, {})))
     return records
 
 
-def _case_task(job: tuple) -> dict:
+def _case_task(job: tuple) -> Record:
     """Run one case in a worker (module level so process and Dask workers can unpickle it)."""
     case, suite, kw = job
     return run_case(case, suite, timing_cache={}, log=None, **kw)
 
 
-def _summary_line(rec: dict) -> str:
-    if rec.get("error"):
-        return f"  error: {rec['error']}"
-    m, t = rec["metrics"], rec["time"]
-    verdict = "; ".join(f"{c['name']}: {'ok' if c['passed'] else 'FAILED'}" for c in rec["checks"])
+def _summary_line(rec: Record) -> str:
+    if rec.error:
+        return f"  error: {rec.error}"
+    m, t = rec.metrics, rec.time
+    verdict = "; ".join(f"{c['name']}: {'ok' if c['passed'] else 'FAILED'}" for c in rec.checks)
     ratio = f", {t['ratio']:.2f}x Mitsuba" if t.get("ratio") else ""
     return (f"  relMSE {m['relmse']:.3g}, FLIP {m['flip']:.3g}, own {t['own_median_s'] * 1e3:.1f} ms"
             f"{ratio}" + (f" -- {verdict}" if verdict else " -- reported"))
@@ -313,7 +313,7 @@ def _progress(total: int, desc: str, enabled):
 
 
 def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=print,
-                defines: dict | None = None) -> list[dict]:
+                defines: dict | None = None) -> list[Record]:
     """Mitsuba's spp ladder (``suite.ladder``) for every (scene, transport) of ``cases``:
     one record (``kind = "ladder"``) per spp with Mitsuba's time and error, measured
     in this run for the speed-vs-error plots."""
@@ -324,10 +324,10 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
     records = []
     pairs = list(dict.fromkeys((c.scene, c.scene_id, c.transport) for c in cases))
     for scene, scene_id, transport in pairs:
-        base = {"run_id": run_id, "suite": suite.name, "kind": "ladder", "scene": scene_id,
-                "scene_file": _rel(scene), "algorithm": "mitsuba", "transport": transport,
-                "defines": dict(defines or {}), "versions": versions(), "commit": git_commit(),
-                "machine": machine(), "created": utc_now(), "error": None}
+        base = dict(run_id=run_id, suite=suite.name, kind="ladder", scene=scene_id,
+                    scene_file=_rel(scene), algorithm="mitsuba", transport=transport,
+                    defines=dict(defines or {}), versions=versions(), commit=git_commit(),
+                    machine=machine(), created=utc_now())
         try:
             if has_motion(scene):
                 raise UnsupportedError("moving spheres: Mitsuba 3 cannot move shapes, so it has no "
@@ -341,20 +341,20 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
             msg = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
             if log:
                 log(f"  ladder {scene_id} ({transport}): error: {msg}")
-            records.append(dict(base, label=f"Mitsuba {transport}", params={}, error=msg))
+            records.append(Record(**base, label=f"Mitsuba {transport}", error=msg))
             continue
         from reports.pareto import noise_floor_relmse
 
         for pt in points:
             if ref.variance is not None:
                 pt["metrics"]["noise_floor_relmse"] = noise_floor_relmse(ref.image, ref.variance)
-            records.append(dict(base, label=f"Mitsuba {transport} {pt['spp']} spp",
-                                params={"spp": pt["spp"]}, metrics=pt["metrics"],
-                                time={"own_median_s": pt["median_s"], "own_times_s": pt["times_s"],
-                                      "repeats": suite.repeats, "variant": pt["variant"]},
-                                reference={"key": ref.key, "dir": _rel(ref.directory),
-                                           "spp": ref.manifest.get("spp")},
-                                ladder_spp=pt["spp"], mitsuba=pt["mitsuba"]))
+            records.append(Record(**base, label=f"Mitsuba {transport} {pt['spp']} spp",
+                                  params={"spp": pt["spp"]}, metrics=pt["metrics"],
+                                  time={"own_median_s": pt["median_s"], "own_times_s": pt["times_s"],
+                                        "repeats": suite.repeats, "variant": pt["variant"]},
+                                  reference={"key": ref.key, "dir": _rel(ref.directory),
+                                             "spp": ref.manifest.get("spp")},
+                                  ladder_spp=pt["spp"], mitsuba=pt["mitsuba"]))
             if log:
                 log(f"  ladder {scene_id} ({transport}) {pt['spp']} spp: relMSE "
                     f"{pt['metrics']['relmse']:.3g}, {pt['median_s'] * 1e3:.1f} ms")
@@ -364,7 +364,7 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
 def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timing: bool = True,
               reference_store=None, log=print, defines: dict | None = None, seed: int = 0,
               history=None, command: str = "run", jobs: int = 1, executor: str | None = None,
-              progress=None, ladder: bool | None = None) -> list[dict]:
+              progress=None, ladder: bool | None = None) -> list[Record]:
     """Run every case, appending each record to ``store`` as it completes.
 
     ``history``: an open :func:`gibench.history.connect` connection (or None)
@@ -403,7 +403,7 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
                                reference_store=reference_store, log=log, defines=defines, seed=seed)
                 keep(rec)
                 bar.update(1)
-                if not rec.get("error"):
+                if rec.ok:
                     say(_summary_line(rec))
         else:
             say(f"running {n} cases on {kind} ({detail})")

@@ -15,6 +15,8 @@ import math
 from pathlib import Path
 
 from .registry import Algorithm, ParamError
+from core.records import Record
+
 from .suite import TRANSPORTS, Case, Suite, SuiteError
 
 __all__ = ["parse_grid", "sweep_suite", "sweep_table"]
@@ -83,7 +85,7 @@ def sweep_suite(scene, algo: Algorithm, grid: dict[str, list], *, transport: str
                  description=f"grid {grid}")
 
 
-def sweep_table(records: list[dict], *, metric: str = "relmse") -> str:
+def sweep_table(records: list[Record], *, metric: str = "relmse") -> str:
     """A text table of a sweep: configuration, error, time, efficiency, and the
     equal-error / equal-time ratios against Mitsuba's ladder (:mod:`reports.pareto`)."""
     from reports.pareto import summarize_points, points_from_records

@@ -1,11 +1,10 @@
 """A self-contained HTML report page for a list of result records.
 
 Images are embedded as base64 PNG ``data:`` URIs and the CSS is inline, so the
-page is one file that can be mailed or archived.  Records follow the schema
-``gibench run`` appends to the results store (see :mod:`reports.results`);
-every key except ``scene`` and ``algorithm`` may be missing or None and shows
-as "—".  Missing or unreadable image files become a placeholder naming the
-file.
+page is one file that can be mailed or archived.  Records are
+:class:`core.records.Record` (read back from the results store,
+:mod:`reports.results`); a field left empty shows as "—".  Missing or
+unreadable image files become a placeholder naming the file.
 
 Display conventions: reference and own image of a record are tone-mapped with
 :func:`reports.tonemap.tonemap_srgb` at one common exposure chosen so the 99th
@@ -27,6 +26,7 @@ import matplotlib.image as mpimg
 import numpy as np
 
 from core.imageio import ImageError, read_exr, write_text
+from core.records import Record
 from reports.tonemap import tonemap_srgb
 
 __all__ = ["write_report", "fmt"]
@@ -109,17 +109,17 @@ def _kv_table(items, cls="meta") -> str:
     return f'<table class="{cls}">{rows}</table>' if rows else DASH
 
 
-def _label(r: dict) -> str:
-    return r.get("label") or r.get("algorithm") or DASH
+def _label(r: Record) -> str:
+    return r.label or r.algorithm or DASH
 
 
 def _checks(r: dict) -> list[dict]:
-    c = r.get("checks")
+    c = r.checks
     return [x for x in c if isinstance(x, dict)] if isinstance(c, list) else []
 
 
-def _scene(r: dict) -> str:
-    return str(r.get("scene") or DASH)
+def _scene(r: Record) -> str:
+    return str(r.scene or DASH)
 
 
 def _slug(s: str) -> str:
@@ -175,8 +175,8 @@ class _Images:
 
 
 def _image_row(r: dict, images: _Images, colorbar: str) -> str:
-    ref, ref_err = images.get(_d(r.get("reference")).get("image"), "reference")
-    own, own_err = images.get(r.get("image"), "own")
+    ref, ref_err = images.get(_d(r.reference).get("image"), "reference")
+    own, own_err = images.get(r.image, "own")
     base = ref if ref is not None else own
     exposure = 1.0
     if base is not None:
@@ -203,13 +203,13 @@ def _image_row(r: dict, images: _Images, colorbar: str) -> str:
 
 # --- tables -----------------------------------------------------------------------------------
 
-def _ztest_cell(r: dict) -> str:
-    z = _d(_d(r.get("metrics")).get("ztest"))
+def _ztest_cell(r: Record) -> str:
+    z = _d(_d(r.metrics).get("ztest"))
     if not z:
         return DASH
     frac = _num(z.get("fraction"))
     s = f"{100 * frac:.1f}%" if frac is not None else DASH
-    if r.get("model_error") or r.get("expect") == "report":
+    if r.model_error or r.expect == "report":
         # Only cases whose manifest expects the Z-test to pass are judged by it.
         return s + ' <span class="tag model">not judged</span>'
     passed = z.get("passed")
@@ -218,7 +218,7 @@ def _ztest_cell(r: dict) -> str:
     return s + (' <span class="pass">pass</span>' if passed else ' <span class="fail">fail</span>')
 
 
-def _checks_cell(r: dict) -> str:
+def _checks_cell(r: Record) -> str:
     checks = _checks(r)
     if not checks:
         return DASH
@@ -228,24 +228,24 @@ def _checks_cell(r: dict) -> str:
            (f' <span class="fail">{n_bad} ✗</span>' if n_bad else "")
 
 
-def _tags(r: dict) -> str:
+def _tags(r: Record) -> str:
     t = ""
-    if r.get("model_error"):
+    if r.model_error:
         t += '<span class="tag model">model error (reported, not judged)</span>'
-    if r.get("error"):
+    if r.error:
         t += '<span class="tag err">run failed</span>'
     return t
 
 
-def _summary(records: list[dict]) -> str:
+def _summary(records: list[Record]) -> str:
     head = ("<tr><th>Scene</th><th>Algorithm</th><th>Transport</th><th>Rel. MSE</th><th>FLIP</th>"
             "<th>Z-test</th><th>Checks</th><th>Own [s]</th><th>Mitsuba [s]</th><th>Ratio</th></tr>")
     rows = []
     for r in records:
-        m, t = _d(r.get("metrics")), _d(r.get("time"))
+        m, t = _d(r.metrics), _d(r.time)
         rows.append(
             f'<tr><td><a href="#{_slug(_scene(r))}">{_e(_scene(r))}</a></td>'
-            f"<td>{_e(_label(r))}{_tags(r)}</td><td>{_e(r.get('transport'))}</td>"
+            f"<td>{_e(_label(r))}{_tags(r)}</td><td>{_e(r.transport)}</td>"
             f'<td class="n">{fmt(m.get("relmse"))}</td><td class="n">{fmt(m.get("flip"))}</td>'
             f"<td>{_ztest_cell(r)}</td><td>{_checks_cell(r)}</td>"
             f'<td class="n">{fmt(t.get("own_median_s"))}</td><td class="n">{fmt(t.get("mitsuba_median_s"))}</td>'
@@ -253,8 +253,8 @@ def _summary(records: list[dict]) -> str:
     return f"<table>{head}{''.join(rows)}</table>"
 
 
-def _metrics_table(r: dict) -> str:
-    m = _d(r.get("metrics"))
+def _metrics_table(r: Record) -> str:
+    m = _d(r.metrics)
     keys = METRIC_ORDER + [k for k in m if k not in METRIC_ORDER and k not in ("ztest", "conventions")]
     items = [(METRIC_NAMES.get(k, k), fmt(m.get(k))) for k in keys]
     z = _d(m.get("ztest"))
@@ -271,8 +271,8 @@ def _metrics_table(r: dict) -> str:
     return _kv_table(items) + note
 
 
-def _time_table(r: dict) -> str:
-    t = _d(r.get("time"))
+def _time_table(r: Record) -> str:
+    t = _d(r.time)
     times = t.get("own_times_s")
     times_s = ", ".join(fmt(x) for x in times) if isinstance(times, list) and times else DASH
     return _kv_table([
@@ -281,7 +281,7 @@ def _time_table(r: dict) -> str:
         ("Mitsuba spp", fmt(t.get("mitsuba_spp"))), ("ratio own/Mitsuba", fmt(t.get("ratio")))])
 
 
-def _checks_table(r: dict) -> str:
+def _checks_table(r: Record) -> str:
     checks = _checks(r)
     if not checks:
         return ""
@@ -293,18 +293,18 @@ def _checks_table(r: dict) -> str:
 
 
 def _record(r: dict, images: _Images, colorbar: str) -> str:
-    ref = _d(r.get("reference"))
+    ref = _d(r.reference)
     ref_desc = (f"reference {_e(ref.get('key'))}: Mitsuba {_e(ref.get('integrator'))}, "
                 f"{fmt(ref.get('spp'))} spp, {_e(ref.get('variant'))}" if ref else "no reference recorded")
-    params = _d(r.get("params"))
+    params = _d(r.params)
     out = [f'<div class="record"><h3>{_e(_label(r))}{_tags(r)}</h3>',
-           f"<p class='small'>algorithm {_e(r.get('algorithm'))}; transport {_e(r.get('transport'))}; {ref_desc}"
+           f"<p class='small'>algorithm {_e(r.algorithm)}; transport {_e(r.transport)}; {ref_desc}"
            + (f"; params: {_e(', '.join(f'{k}={v}' for k, v in params.items()))}" if params else "") + "</p>"]
-    if r.get("error"):
-        out.append(f'<pre class="errtext">{_e(r.get("error"))}</pre>')
+    if r.error:
+        out.append(f'<pre class="errtext">{_e(r.error)}</pre>')
     else:
         out.append(_image_row(r, images, colorbar))
-    counters = _d(r.get("counters"))
+    counters = _d(r.counters)
     out.append('<div class="tables">'
                f"<div><h4>Metrics</h4>{_metrics_table(r)}</div>"
                f"<div><h4>Counters</h4>{_kv_table((k, fmt(v)) for k, v in counters.items())}</div>"
@@ -315,21 +315,21 @@ def _record(r: dict, images: _Images, colorbar: str) -> str:
 
 def _rays_per_s(r: dict):
     """Own rays of every type (counters named ``*_rays``) per second of the median render."""
-    rays = sum(v for k, v in _d(r.get("counters")).items() if k.endswith("_rays") and isinstance(v, int))
-    t = _num(_d(r.get("time")).get("own_median_s"))
+    rays = sum(v for k, v in _d(r.counters).items() if k.endswith("_rays") and isinstance(v, int))
+    t = _num(_d(r.time).get("own_median_s"))
     return rays / t if rays and t else None
 
 
-def _timing(records: list[dict]) -> str:
+def _timing(records: list[Record]) -> str:
     rows, repeats = [], Counter()
-    for r in sorted(records, key=lambda r: (_scene(r), str(r.get("transport")))):
-        t = _d(r.get("time"))
+    for r in sorted(records, key=lambda r: (_scene(r), str(r.transport))):
+        t = _d(r.time)
         if t.get("own_median_s") is None and t.get("mitsuba_median_s") is None:
             continue
         if isinstance(t.get("own_times_s"), list):
             repeats[len(t["own_times_s"])] += 1
         spp = f" ({fmt(t.get('mitsuba_spp'))} spp)" if t.get("mitsuba_spp") is not None else ""
-        rows.append(f"<tr><td>{_e(_scene(r))}</td><td>{_e(r.get('transport'))}</td><td>{_e(_label(r))}</td>"
+        rows.append(f"<tr><td>{_e(_scene(r))}</td><td>{_e(r.transport)}</td><td>{_e(_label(r))}</td>"
                     f'<td class="n">{fmt(t.get("own_median_s"), "s")}</td>'
                     f'<td class="n">{fmt(t.get("mitsuba_median_s"), "s")}{spp}</td>'
                     f'<td class="n">{fmt(t.get("ratio"))}</td>'
@@ -345,14 +345,14 @@ def _timing(records: list[dict]) -> str:
             "on the same scene and transport.</p>")
 
 
-def _header(records: list[dict], title: str) -> str:
-    first = records[0] if records else {}
-    runs = list(dict.fromkeys(str(r["run_id"]) for r in records if r.get("run_id")))
+def _header(records: list[Record], title: str) -> str:
+    first = records[0] if records else Record()
+    runs = list(dict.fromkeys(str(r.run_id) for r in records if r.run_id))
     fmt_dict = lambda d: ", ".join(f"{k} {v}" for k, v in _d(d).items()) or DASH  # noqa: E731
     return (f"<h1>{_e(title)}</h1>" + _kv_table([
-        ("run", _e(", ".join(runs))), ("commit", _e(first.get("commit"))), ("date", _e(first.get("created"))),
-        ("suite", _e(", ".join(dict.fromkeys(str(r["suite"]) for r in records if r.get("suite"))))),
-        ("machine", _e(fmt_dict(first.get("machine")))), ("versions", _e(fmt_dict(first.get("versions")))),
+        ("run", _e(", ".join(runs))), ("commit", _e(first.commit)), ("date", _e(first.created)),
+        ("suite", _e(", ".join(dict.fromkeys(str(r.suite) for r in records if r.suite)))),
+        ("machine", _e(fmt_dict(first.machine))), ("versions", _e(fmt_dict(first.versions))),
         ("records", str(len(records)))]))
 
 
@@ -417,15 +417,15 @@ def _plot(rows: list[dict], spec: dict) -> str:
     return f"<img alt='{_e(spec.get('title', y))}' src='{src}'>"
 
 
-def _study(r: dict) -> str:
-    if r.get("error"):
-        return f"<h3>{_e(r.get('title') or r.get('study'))}</h3><p class='fail'>{_e(r['error'])}</p>"
-    rows = [x for x in r.get("rows") or [] if isinstance(x, dict)]
-    plots = [p for p in (_d(r.get("pivot")).get("plots") or []) if isinstance(p, dict) and "x" in p and "y" in p]
-    return (f"<h3 id='{_slug('study-' + str(r.get('study')))}'>{_e(r.get('title') or r.get('study'))}</h3>"
-            f"<p>{_e(r.get('description', ''))}</p>" + "".join(_plot(rows, p) for p in plots)
-            + f"{_pivot(rows, _d(r.get('pivot')))}"
-            f"<p class='small'>{len(rows)} rows; study '{_e(r.get('study'))}'</p>")
+def _study(r: Record) -> str:
+    if r.error:
+        return f"<h3>{_e(r.title or r.study)}</h3><p class='fail'>{_e(r.error)}</p>"
+    rows = [x for x in r.rows or [] if isinstance(x, dict)]
+    plots = [p for p in (_d(r.pivot).get("plots") or []) if isinstance(p, dict) and "x" in p and "y" in p]
+    return (f"<h3 id='{_slug('study-' + str(r.study))}'>{_e(r.title or r.study)}</h3>"
+            f"<p>{_e(r.description)}</p>" + "".join(_plot(rows, p) for p in plots)
+            + f"{_pivot(rows, _d(r.pivot))}"
+            f"<p class='small'>{len(rows)} rows; study '{_e(r.study)}'</p>")
 
 
 def _fmt_ratio(x, extrapolated: bool = False) -> str:
@@ -475,7 +475,7 @@ def _pareto_plot(scene, transport, g: dict, metric: str) -> str:
     return f"<img class='pareto' alt='speed vs error {_e(scene)}' src='{src}'>"
 
 
-def _speed_vs_error(records: list[dict], metric: str = "relmse") -> str:
+def _speed_vs_error(records: list[Record], metric: str = "relmse") -> str:
     """The speed-vs-error section: per scene/transport with a Mitsuba ladder, the plot
     and the table of efficiency and equal-error / equal-time ratios."""
     from reports.pareto import points_from_records, summarize_points
@@ -515,22 +515,22 @@ def _speed_vs_error(records: list[dict], metric: str = "relmse") -> str:
     return "".join(out)
 
 
-def render_report(records: list[dict], *, root, title: str = "gibench report") -> str:
+def render_report(records: list[Record], *, root, title: str = "gibench report") -> str:
     """The report page for ``records`` as an HTML string (image paths relative to ``root``).
 
     Records of ``kind == "study"`` (hard-case tables) get their own section.
     """
-    records = [r for r in records if isinstance(r, dict)]
-    studies = [r for r in records if r.get("kind") == "study"]
+    records = [r for r in records if isinstance(r, Record)]
+    studies = [r for r in records if r.kind == "study"]
     pareto = _speed_vs_error(records)
-    records = [r for r in records if r.get("kind") not in ("study", "ladder")]
+    records = [r for r in records if r.kind not in ("study", "ladder")]
     images, colorbar = _Images(Path(root)), _colorbar()
-    scenes: dict[str, list[dict]] = {}
+    scenes: dict[str, list[Record]] = {}
     for r in records:
         scenes.setdefault(_scene(r), []).append(r)
     sections = []
     for scene, recs in scenes.items():
-        files = ", ".join(dict.fromkeys(str(r["scene_file"]) for r in recs if r.get("scene_file")))
+        files = ", ".join(dict.fromkeys(str(r.scene_file) for r in recs if r.scene_file))
         sections.append(f'<h2 id="{_slug(scene)}">{_e(scene)}</h2><p class="small">{_e(files)}</p>'
                         + "".join(_record(r, images, colorbar) for r in recs))
     return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
@@ -544,6 +544,6 @@ def render_report(records: list[dict], *, root, title: str = "gibench report") -
             + "</body></html>\n")
 
 
-def write_report(records: list[dict], out_path, *, root, title: str = "gibench report") -> Path:
+def write_report(records: list[Record], out_path, *, root, title: str = "gibench report") -> Path:
     """Write the self-contained report page for ``records`` to ``out_path`` atomically."""
     return write_text(out_path, render_report(records, root=root, title=title))

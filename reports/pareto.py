@@ -30,6 +30,8 @@ import math
 
 import numpy as np
 
+from core.records import Record
+
 __all__ = ["pareto_front", "loglog_interp", "time_at_error", "error_at_time",
            "equal_error_time_ratio", "equal_time_error_ratio", "efficiency", "noise_floor_relmse",
            "summarize_points", "points_from_records"]
@@ -208,7 +210,7 @@ def _num(x):
     return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else None
 
 
-def points_from_records(records: list[dict], *, metric: str = "relmse") -> dict:
+def points_from_records(records: list[Record], *, metric: str = "relmse") -> dict:
     """Group result records (kinds ``case`` and ``ladder``) into speed-vs-error point sets
     ``{(scene, transport): {"own": [...], "mitsuba": [...], "noise_floor": x}}``.
 
@@ -220,19 +222,19 @@ def points_from_records(records: list[dict], *, metric: str = "relmse") -> dict:
     """
     groups: dict = {}
     for r in records:
-        kind = r.get("kind", "case")
-        if kind not in ("case", "ladder") or r.get("error"):
+        kind = r.kind
+        if kind not in ("case", "ladder") or r.error:
             continue
-        m, t = r.get("metrics") or {}, r.get("time") or {}
+        m, t = r.metrics, r.time
         err, tm = _num(m.get(metric)), _num(t.get("own_median_s"))
         if err is None or tm is None or not (math.isfinite(err) and math.isfinite(tm)):
             continue
-        g = groups.setdefault((r.get("scene"), r.get("transport")),
+        g = groups.setdefault((r.scene, r.transport),
                               {"own": [], "mitsuba": [], "noise_floor": None})
-        pt = {"label": str(r.get("label")), "algorithm": r.get("algorithm"), "time": tm, "error": err,
-              "model_error": bool(r.get("model_error"))}
+        pt = {"label": str(r.label), "algorithm": r.algorithm, "time": tm, "error": err,
+              "model_error": bool(r.model_error)}
         if kind == "ladder":
-            pt["spp"] = r.get("ladder_spp")
+            pt["spp"] = r.ladder_spp
             g["mitsuba"].append(pt)
         else:
             g["own"].append(pt)

@@ -1,7 +1,7 @@
 """The results store: one JSON record per line, appended as runs progress.
 
-Each ``gibench run`` appends one record per (scene, algorithm) comparison to a
-JSON-lines file.  Appends are crash-safe: a record is written as one complete
+Each ``gibench run`` appends one record (:class:`core.records.Record`) per
+(scene, algorithm) comparison to a JSON-lines file.  Appends are crash-safe: a record is written as one complete
 line with a single ``write`` on a file opened for appending, then flushed and
 ``fsync``-ed, so an interrupted run loses at most the line being written and
 never earlier data.  :meth:`ResultStore.load` skips a malformed line (such as
@@ -30,6 +30,9 @@ from datetime import datetime, timezone
 from pathlib import Path, PurePath
 
 import numpy as np
+
+from core.errors import StoreError
+from core.records import Record
 
 __all__ = ["REPO_ROOT", "ResultStore", "ResultStoreWarning", "new_run_id"]
 
@@ -102,11 +105,11 @@ class ResultStore:
         except ValueError:
             return p.as_posix()
 
-    def append(self, record: dict) -> None:
+    def append(self, record: Record) -> None:
         """Append ``record`` as one line, flushed and fsync-ed before returning."""
-        if not isinstance(record, dict):
-            raise TypeError(f"a record must be a dict, got {type(record).__name__}")
-        data = (json.dumps(_encode(record), allow_nan=False) + "\n").encode("utf-8")
+        if not isinstance(record, Record):
+            raise TypeError(f"a record must be a core.records.Record, got {type(record).__name__}")
+        data = (json.dumps(_encode(record.to_json()), allow_nan=False) + "\n").encode("utf-8")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         fd = os.open(self.path, os.O_RDWR | os.O_APPEND | os.O_CREAT, 0o644)
         try:
@@ -121,8 +124,9 @@ class ResultStore:
         finally:
             os.close(fd)
 
-    def load(self, run_id: str | None = None) -> list[dict]:
-        """All records in file order (only ``run_id``'s if given); malformed lines are skipped."""
+    def load(self, run_id: str | None = None) -> list[Record]:
+        """All records in file order (only ``run_id``'s if given); malformed lines (bad
+        JSON, or a record that does not fit the schema) are skipped with a warning."""
         if not self.path.is_file():
             return []
         records = []
@@ -131,21 +135,20 @@ class ResultStore:
                 if not raw.strip():
                     continue
                 try:
-                    rec = json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
-                    if not isinstance(rec, dict):
-                        raise ValueError(f"expected a JSON object, got {type(rec).__name__}")
-                except ValueError as exc:  # JSONDecodeError and UnicodeDecodeError included
+                    data = json.loads(raw.decode("utf-8"), parse_constant=_reject_constant)
+                    rec = Record.from_json(_decode(data) if isinstance(data, dict) else data)
+                except (ValueError, StoreError) as exc:  # JSONDecodeError, UnicodeDecodeError included
                     msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                     warnings.warn(f"{self.path}:{lineno}: skipping malformed record ({msg})",
                                   ResultStoreWarning, stacklevel=2)
                     continue
-                if run_id is None or rec.get("run_id") == run_id:
-                    records.append(_decode(rec))
+                if run_id is None or rec.run_id == run_id:
+                    records.append(rec)
         return records
 
     def runs(self) -> list[str]:
         """Run ids in the order their first record appears in the file."""
-        return list(dict.fromkeys(r["run_id"] for r in self.load() if isinstance(r.get("run_id"), str)))
+        return list(dict.fromkeys(r.run_id for r in self.load() if r.run_id))
 
     def latest_run_id(self) -> str | None:
         """The run that started last (its first record is the latest), or None if there is none."""

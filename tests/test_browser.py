@@ -15,6 +15,7 @@ from gibench.history import add_record, benchmark_rows, connect, query
 from core.imageio import write_exr
 from reports.dashboard import write_dashboard
 from reports.html import write_report
+from core.records import Record
 
 BROWSER = next((shutil.which(b) for b in ("chromium", "chromium-browser", "google-chrome")
                 if shutil.which(b)), None)
@@ -50,12 +51,12 @@ def _records(tmp_path):
     base = {"run_id": "r1", "scene": "synthetic/magenta", "scene_file": "synthetic.xml",
             "transport": "full", "commit": "abc", "created": "2026-01-01T00:00:00",
             "machine": {"host": "h"}, "versions": {}, "error": None}
-    recs = [dict(base, kind="case", algorithm="algo", label=f"cfg {n}", params={"spp": n},
+    recs = [Record(**base, kind="case", algorithm="algo", label=f"cfg {n}", params={"spp": n},
                  image="own.exr", reference={"image": "ref.exr", "variance": "var.exr"},
                  metrics={"relmse": 0.05 / n, "flip": 0.1, "noise_floor_relmse": 1e-4},
                  time={"own_median_s": 0.02 * n, "repeats": 3}, checks=[])
             for n in (1, 4, 16)]
-    recs += [dict(base, kind="ladder", algorithm="mitsuba", label=f"Mitsuba {n} spp",
+    recs += [Record(**base, kind="ladder", algorithm="mitsuba", label=f"Mitsuba {n} spp",
                   ladder_spp=n, params={"spp": n}, metrics={"relmse": 0.1 / n},
                   time={"own_median_s": 0.01 * n}) for n in (1, 4, 16, 64)]
     return recs
@@ -77,11 +78,11 @@ def test_report_renders_image_grid_and_speed_vs_error_plot(tmp_path):
 def test_dashboard_renders_plots(tmp_path):
     con = connect(tmp_path / "h.sqlite")
     for i, commit in enumerate(["aaa", "bbb", "ccc"]):
-        add_record(con, {"run_id": f"r{i}", "commit": commit, "created": f"2026-01-0{i + 1}",
+        add_record(con, Record.from_json({"run_id": f"r{i}", "commit": commit, "created": f"2026-01-0{i + 1}",
                          "scene": "spheres/lit_sphere", "algorithm": "raycast", "label": "cfg",
                          "transport": "direct", "params": {},
                          "metrics": {"relmse": 1e-3 * (i + 1), "flip": 0.1},
-                         "time": {"own_median_s": 0.1, "ratio": 3.0}, "error": None})
+                         "time": {"own_median_s": 0.1, "ratio": 3.0}, "error": None}))
     page = write_dashboard(query(con), benchmark_rows(con), tmp_path / "dashboard.html")
     img = _screenshot(page, tmp_path / "dashboard.png", 1400)
     assert img.std() > 20, "blank screenshot"

@@ -7,6 +7,7 @@ with nothing moved, a broken algorithm parameter fails with a table naming the
 metrics and writes the evidence EXRs.
 """
 
+import dataclasses
 import json
 import sqlite3
 
@@ -19,15 +20,16 @@ from gibench.check import (BaselineError, compare_with_baseline, format_findings
 from reports.metrics import compare
 
 from _suites import raycast_suite
+from core.records import Record
 
 SEED = 1234
 
 
 def _record(ref, var, img, *, label="cfg", ratio=10.0, test_var=None):
-    return {"kind": "case", "scene": "synthetic", "algorithm": "algo", "label": label,
-            "transport": "direct", "params": {"spp": 16},
-            "metrics": compare(ref, img, reference_variance=var, test_variance=test_var),
-            "time": {"own_median_s": 0.1, "ratio": ratio}}
+    return Record(kind="case", scene="synthetic", algorithm="algo", label=label,
+                  transport="direct", params={"spp": 16},
+                  metrics=compare(ref, img, reference_variance=var, test_variance=test_var),
+                  time={"own_median_s": 0.1, "ratio": ratio})
 
 
 @pytest.fixture(scope="module")
@@ -74,7 +76,8 @@ def test_missing_case_error_and_speed(synthetic):
             _record(ref, var, renders[0], label="other", test_var=tvar, ratio=20.0)]
     f = compare_with_baseline(slow, base)
     assert [(x.case.split(" | ")[2], x.what) for x in f if x.failed] == [("cfg", "speed ratio")]
-    broken = [dict(now[0], error="RuntimeError: boom"), now[0] | {"label": "other"}]
+    broken = [dataclasses.replace(now[0], error="RuntimeError: boom"),
+              dataclasses.replace(now[0], label="other")]
     f = compare_with_baseline(broken, base)
     assert [(x.what, x.now) for x in f if x.failed] == [("case", "error")]
 

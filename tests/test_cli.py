@@ -135,11 +135,11 @@ algorithm = "raycast"
     records = ResultStore(results).load()
     assert len(records) == 3                    # ... but every case is recorded
     ok, centre, bad = records
-    assert ok["error"] is None and ok["checks"][0]["passed"], ok["checks"]
-    assert ok["metrics"]["ztest"]["passed"] and ok["time"]["mitsuba_median_s"] > 0
-    assert ok["time"]["ratio"] == pytest.approx(ok["time"]["own_median_s"] / ok["time"]["mitsuba_median_s"])
-    assert centre["checks"] and centre["checks"][0]["name"].startswith("relmse")
-    assert "unsupported shape type 'linearcurve'" in bad["error"]
+    assert ok.error is None and ok.checks[0]["passed"], ok.checks
+    assert ok.metrics["ztest"]["passed"] and ok.time["mitsuba_median_s"] > 0
+    assert ok.time["ratio"] == pytest.approx(ok.time["own_median_s"] / ok.time["mitsuba_median_s"])
+    assert centre.checks and centre.checks[0]["name"].startswith("relmse")
+    assert "unsupported shape type 'linearcurve'" in bad.error
     report = (tmp_path / "out" / "report.html").read_text()
     assert "small" in report and "unsupported shape type" in report
     # The references were stored and are reused by a second run (no new entries).
@@ -156,11 +156,11 @@ def test_run_hard_writes_study_tables(tmp_path, capsys):
     code, out, err = run_cli(capsys, "run", "hard", "--results", results)
     assert code == 0, out + err
     records = ResultStore(results).load()
-    names = {r["study"] for r in records if r.get("kind") == "study"}
+    names = {r.study for r in records if r.kind == "study"}
     assert {"distant_sphere", "self_intersection", "grazing_sphere", "grazing_plane",
             "distant_sphere_mitsuba"} <= names
-    ds = next(r for r in records if r.get("study") == "distant_sphere")
-    assert ds["pivot"]["columns"] == "distance" and len(ds["rows"]) > 50
+    ds = next(r for r in records if r.study == "distant_sphere")
+    assert ds.pivot["columns"] == "distance" and len(ds.rows) > 50
     report = (tmp_path / "report.html").read_text()
     assert "Distant sphere silhouette" in report and "distance = 1.000e+12" in report
     assert "cells: wrong_frac / wrong_outside_band" in report

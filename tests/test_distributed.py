@@ -219,11 +219,11 @@ expect = "report"
     results = tmp_path / "results.jsonl"
     assert cli.main(["run", str(manifest), "--results", str(results), "--history",
                      str(tmp_path / "h.sqlite"), "--no-progress"]) == 0
-    (rec,) = [r for r in ResultStore(results).load() if r.get("kind") != "ladder"]
-    assert rec["error"] is None, rec["error"]
-    assert "cannot move shapes" in rec["time"]["mitsuba_skipped"]
-    assert "mitsuba_median_s" not in rec["time"] and rec["metrics"]["relmse"] < 0.1
-    json.dumps(rec)
+    (rec,) = [r for r in ResultStore(results).load() if r.kind != "ladder"]
+    assert rec.error is None, rec.error
+    assert "cannot move shapes" in rec.time["mitsuba_skipped"]
+    assert "mitsuba_median_s" not in rec.time and rec.metrics["relmse"] < 0.1
+    json.dumps(rec.to_json())
     with pytest.raises(ValueError, match="motion-blur reference does not support defines"):
         get_reference(scene, transport="direct", defines={"spp": "4"}, render_missing=False)
     # Its store key has no variant: a spectral motion reference would collide with the RGB one.

@@ -47,20 +47,20 @@ def test_jobs_and_dask_give_the_serial_results(tmp_path, mitsuba):
 
     rc, serial, _ = _run(tmp_path, "serial")
     assert rc == 0
-    want = {r["scene"]: r["metrics"]["relmse"] for r in serial}
+    want = {r.scene: r.metrics["relmse"] for r in serial}
     assert len(want) == len(SCENES)
 
     rc, recs, rows = _run(tmp_path, "jobs", "--jobs", "2")
     assert rc == 0 and len(rows) == len(SCENES)
     # Deterministic renders: the same metrics whichever process rendered them.
-    assert {r["scene"]: r["metrics"]["relmse"] for r in recs} == want
+    assert {r.scene: r.metrics["relmse"] for r in recs} == want
 
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, protocol="tcp",
                       dashboard_address=None) as cluster:
         addr = cluster.scheduler_address.replace("tcp://", "dask://")
         rc, recs, rows = _run(tmp_path, "dask", "--executor", addr)
     assert rc == 0 and len(rows) == len(SCENES)
-    assert {r["scene"]: r["metrics"]["relmse"] for r in recs} == want
+    assert {r.scene: r.metrics["relmse"] for r in recs} == want
 
 
 def test_unreachable_scheduler_is_a_clear_error():

@@ -10,15 +10,16 @@ from gibench import cli
 from gibench.history import (SCHEMA_VERSION, HistoryError, add_record, benchmark_rows, connect,
                              ingest_benchmarks, query)
 from reports.dashboard import render_dashboard, write_dashboard
+from core.records import Record
 
 
 def _rec(run, commit, created, relmse, own, *, scene="spheres/lit_sphere", algo="raycast"):
-    return {"run_id": run, "suite": "t", "commit": commit, "created": created,
+    return Record.from_json({"run_id": run, "suite": "t", "commit": commit, "created": created,
             "machine": {"host": "h", "cpu": "c"}, "versions": {"numpy": "2"}, "scene": scene,
             "algorithm": algo, "label": "cfg", "transport": "direct", "params": {"spp": 16},
             "metrics": {"relmse": relmse, "psnr": math.inf, "ztest": {"passed": True, "fraction": 1.0},
                         "conventions": {"x": "y"}},
-            "time": {"own_median_s": own, "own_times_s": [own], "ratio": 2.0}, "error": None}
+            "time": {"own_median_s": own, "own_times_s": [own], "ratio": 2.0}, "error": None})
 
 
 def test_schema_wal_roundtrip_and_filters(tmp_path):

@@ -64,7 +64,7 @@ def _assert_consistent(tmp_path, *, complete=False):
     assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
     rows = set(con.execute("SELECT run_id, scene FROM results"))
     # The database receives each record after the results file: never more than it.
-    assert rows <= {(r["run_id"], r["scene"]) for r in recs}
+    assert rows <= {(r.run_id, r.scene) for r in recs}
     # Every reference entry present is complete and valid (partial renders stay in
     # hidden .tmp-* directories the store ignores).
     from references.reference import _load_entry
@@ -73,9 +73,9 @@ def _assert_consistent(tmp_path, *, complete=False):
         key = json.loads((d / "manifest.json").read_text())["key"]
         _load_entry(d, key)
     if complete:
-        last = recs[-1]["run_id"]
-        assert len([r for r in recs if r["run_id"] == last]) == len(SCENES)
-        assert not any(r.get("error") for r in recs if r["run_id"] == last)
+        last = recs[-1].run_id
+        assert len([r for r in recs if r.run_id == last]) == len(SCENES)
+        assert not any(r.error for r in recs if r.run_id == last)
     return recs
 
 

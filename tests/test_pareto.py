@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from core.records import Record
 from reports.pareto import (efficiency, equal_error_time_ratio, equal_time_error_ratio,
                             error_at_time, loglog_interp, noise_floor_relmse, pareto_front,
                             points_from_records, summarize_points, time_at_error)
@@ -88,7 +89,7 @@ def test_summarize_and_points_from_records():
               "algorithm": "a", "metrics": {"relmse": 0.05}, "time": {"own_median_s": 0.1}},
              {"kind": "case", "scene": "s", "transport": "full", "label": "broken",
               "algorithm": "a", "error": "boom"}]
-    groups = points_from_records(recs)
+    groups = points_from_records([Record.from_json(r) for r in recs])
     g = groups[("s", "full")]
     assert [p["label"] for p in g["own"]] == ["fast", "slow"]
     assert g["noise_floor"] == 1e-4

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from core.imageio import write_exr
+from core.records import Record
 from reports.html import fmt, write_report
 from reports.results import ResultStore, ResultStoreWarning, new_run_id
 
@@ -17,14 +18,14 @@ from reports.results import ResultStore, ResultStoreWarning, new_run_id
 # --- results store ----------------------------------------------------------------------------
 
 def _records(run_id):
-    return [
+    return [Record.from_json(r) for r in [
         {"run_id": run_id, "scene": "cornell/cornell_point", "algorithm": "raycast",
          "metrics": {"relmse": 1.5e-4, "psnr": math.inf, "nan_count": 0},
          "time": {"own_times_s": [0.1, 0.2, 0.3]}, "model_error": False, "error": None},
         {"run_id": run_id, "scene": "cornell/cornell_area", "algorithm": "pt", "metrics": {"bias": -math.inf},
          "label": "pt, 16 spp ✓"},
         {"run_id": run_id, "scene": "spheres/two", "algorithm": "pt", "image": "reports/out/a.exr"},
-    ]
+    ]]
 
 
 def test_store_round_trip_keeps_inf_and_writes_strict_json(tmp_path):
@@ -33,8 +34,8 @@ def test_store_round_trip_keeps_inf_and_writes_strict_json(tmp_path):
     for r in recs:
         store.append(r)
     assert store.load() == recs
-    assert store.load()[0]["metrics"]["psnr"] == math.inf
-    assert store.load()[1]["metrics"]["bias"] == -math.inf
+    assert store.load()[0].metrics["psnr"] == math.inf
+    assert store.load()[1].metrics["bias"] == -math.inf
     lines = (tmp_path / "results.jsonl").read_text().splitlines()
     assert len(lines) == 3
     for line in lines:  # strict JSON: no bare Infinity / NaN tokens
@@ -43,10 +44,32 @@ def test_store_round_trip_keeps_inf_and_writes_strict_json(tmp_path):
 
 def test_store_nan_and_numpy_values(tmp_path):
     store = ResultStore(tmp_path / "r.jsonl")
-    store.append({"run_id": "r", "scene": "s", "algorithm": "a",
-                  "x": float("nan"), "n": np.int64(3), "f": np.float32(0.5), "arr": np.array([1.0, np.inf])})
+    store.append(Record(run_id="r", scene="s", algorithm="a", metrics={
+        "x": float("nan"), "n": np.int64(3), "f": np.float32(0.5), "arr": np.array([1.0, np.inf])}))
     (rec,) = store.load()
-    assert math.isnan(rec["x"]) and rec["n"] == 3 and rec["f"] == 0.5 and rec["arr"] == [1.0, math.inf]
+    m = rec.metrics
+    assert math.isnan(m["x"]) and m["n"] == 3 and m["f"] == 0.5 and m["arr"] == [1.0, math.inf]
+
+
+def test_store_refuses_a_record_that_does_not_fit_the_schema(tmp_path):
+    """A line with an unknown field, a field of the wrong type or a newer version is
+    skipped with a warning naming file and line; the well-formed lines load."""
+    path = tmp_path / "r.jsonl"
+    store = ResultStore(path)
+    store.append(Record(run_id="r", scene="s", algorithm="a"))
+    with open(path, "a") as f:
+        f.write(json.dumps({"run_id": "r", "scene": "s", "algorithm": "a", "metrcs": {}}) + "\n")
+        f.write(json.dumps({"run_id": "r", "scene": "s", "algorithm": "a", "metrics": [1]}) + "\n")
+        f.write(json.dumps({"run_id": "r", "scene": "s", "algorithm": "a", "version": 99}) + "\n")
+    with pytest.warns(ResultStoreWarning) as caught:
+        recs = store.load()
+    assert [r.scene for r in recs] == ["s"]
+    msgs = [str(w.message) for w in caught]
+    assert any("r.jsonl:2" in m and "metrcs" in m for m in msgs)
+    assert any("r.jsonl:3" in m and "'metrics' must be dict" in m for m in msgs)
+    assert any("r.jsonl:4" in m and "version 99 is newer" in m for m in msgs)
+    with pytest.raises(TypeError):
+        store.append({"run_id": "r"})                        # a plain dict is not a record
 
 
 def test_truncated_last_line_is_skipped_with_warning(tmp_path):
@@ -75,7 +98,7 @@ def test_load_filters_by_run_and_lists_runs(tmp_path):
     assert a != b and re.fullmatch(r"\d{8}T\d{6}Z-[0-9a-f]{6}", a)
     for r in _records(a) + _records(b)[:1]:
         store.append(r)
-    assert [r["scene"] for r in store.load(b)] == ["cornell/cornell_point"]
+    assert [r.scene for r in store.load(b)] == ["cornell/cornell_point"]
     assert len(store.load(a)) == 3 and store.load("nope") == []
     assert store.runs() == [a, b] and store.latest_run_id() == b
 
@@ -112,7 +135,7 @@ def _full_record(run_id, scene, algorithm, ref, img, **kw):
         "machine": {"cpu": "2-core"}, "created": "2026-11-23T16:30:00Z",
     }
     rec.update(kw)
-    return rec
+    return Record.from_json(rec)
 
 
 @pytest.fixture
@@ -129,8 +152,8 @@ def report_records(tmp_path):
                      transport="full", model_error=True),
         _full_record("r1", "spheres/two_spheres", "raycast", refrel, "reports/out/runs/r1/gone.exr"),
         _full_record("r1", "spheres/broken", "whitted", refrel, None,
-                     error="RuntimeError: kernel launch failed <bad>", metrics=None, time=None),
-        {"scene": "spheres/minimal", "algorithm": "pt", "time": {"ratio": None}, "checks": None},
+                     error="RuntimeError: kernel launch failed <bad>", metrics={}, time={}),
+        Record(scene="spheres/minimal", algorithm="pt", time={"ratio": None}),
     ]
 
 
@@ -155,8 +178,8 @@ def test_report_is_self_contained_and_complete(tmp_path, report_records):
 
 
 def test_report_missing_reference_and_empty(tmp_path):
-    recs = [{"scene": "a/b", "algorithm": "x", "reference": {"image": "nope/ref.exr"}, "image": "nope/own.exr",
-             "metrics": {"relmse": "inf", "ztest": {"fraction": None}}, "counters": {}, "checks": [None]}]
+    recs = [Record(scene="a/b", algorithm="x", reference={"image": "nope/ref.exr"}, image="nope/own.exr",
+                   metrics={"relmse": "inf", "ztest": {"fraction": None}}, counters={}, checks=[None])]
     text = write_report(recs, tmp_path / "r.html", root=tmp_path).read_text()
     assert "missing reference image file: nope/ref.exr" in text and "a/b" in text
     assert "<h2>Summary</h2>" in write_report([], tmp_path / "e.html", root=tmp_path).read_text()
@@ -174,14 +197,14 @@ def test_study_records_become_tables_and_plots(tmp_path):
             for m, e in (("flat", 1.0), ("phong", 0.2)) for t in (10, 100, 1000)]
     pivot = {"index": ["mode"], "columns": "triangles", "values": ["error"],
              "plots": [{"x": "triangles", "y": ["error", "time"], "series": ["mode"], "logx": True}]}
-    study = {"kind": "study", "study": "shading", "title": "Shading error", "description": "d",
-             "rows": rows, "pivot": pivot, "run_id": "r1"}
+    study = Record(kind="study", study="shading", title="Shading error", description="d",
+                   rows=rows, pivot=pivot, run_id="r1")
     page = write_report([study], tmp_path / "r.html", root=tmp_path).read_text()
     assert "<h2>Studies</h2>" in page and "Shading error" in page
     assert "triangles = 1,000" in page                       # the pivot's columns
     assert page.count("data:image/png;base64,") == 1          # one figure, two panels
     assert "<h2>Summary</h2>" not in page                     # no render records
-    bare = dict(study, pivot={})                              # no layout: every row, every key
+    bare = Record(**{**study.to_json(), "pivot": {}})         # no layout: every row, every key
     page = write_report([bare], tmp_path / "b.html", root=tmp_path).read_text()
     table = page[page.index("<table class='data'>"):]
     assert table[:table.index("</table>")].count("<tr>") == len(rows) + 1

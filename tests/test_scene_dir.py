@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from core.records import Record
 from gibench.cli import main
 
 CAMERA = '''
@@ -96,7 +97,7 @@ def test_one_crashing_file_does_not_stop_the_run(tmp_path, monkeypatch):
         calls.append(case.scene.name)
         if case.scene.name == "a_good.xml":
             raise KeyError("boom")
-        return {"scene": case.scene_id, "error": "SceneError: bad file"}
+        return Record(scene=case.scene_id, error="SceneError: bad file")
 
     class Store(list):
         pass

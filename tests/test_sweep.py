@@ -46,14 +46,14 @@ def test_sweep_cli_writes_table_report_and_ladder(tmp_path, capsys, mitsuba):
     assert "spp=1" in out and "spp=16" in out and "Mitsuba direct 64 spp" in out
     assert "own best: equal-error time ratio" in out
     recs = ResultStore(results).load()
-    cases = [r for r in recs if r.get("kind", "case") == "case"]
-    ladder = [r for r in recs if r.get("kind") == "ladder"]
-    assert len(cases) == 3 and [r["ladder_spp"] for r in ladder] == [1, 4, 16, 64]
+    cases = [r for r in recs if r.kind == "case"]
+    ladder = [r for r in recs if r.kind == "ladder"]
+    assert len(cases) == 3 and [r.ladder_spp for r in ladder] == [1, 4, 16, 64]
     # More samples, less error: both for the own strata and for Mitsuba's ladder.
-    own = [r["metrics"]["relmse"] for r in cases]
-    mi = [r["metrics"]["relmse"] for r in ladder]
+    own = [r.metrics["relmse"] for r in cases]
+    mi = [r.metrics["relmse"] for r in ladder]
     assert own[0] > own[1] > own[2] and mi[0] > mi[-1]
-    assert all(r["metrics"]["noise_floor_relmse"] < min(own) for r in cases)
+    assert all(r.metrics["noise_floor_relmse"] < min(own) for r in cases)
     page = report.read_text()
     assert "Speed vs error" in page and "class='pareto'" in page and "pareto-table" in page
 
