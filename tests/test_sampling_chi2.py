@@ -215,7 +215,7 @@ def test_rectangle_light_sampling():
     _check(s[:, :3], pdf, wrong, axis=axis, integral=1.0, sub=24)
 
 
-# ------------------------------------------------------ rough BSDFs (issue 8) ---
+# ------------------------------------------------------ rough BSDFs ---
 
 def _rough_materials(kind, alpha, eta=1.5):
     from impl.materials import MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC

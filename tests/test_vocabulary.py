@@ -1,4 +1,4 @@
-"""Real-world scene vocabulary (issue 10): ``-D name=value`` overrides of a
+"""Real-world scene vocabulary: ``-D name=value`` overrides of a
 scene's ``<default>`` values reach both the own render and the Mitsuba
 reference (and its cache key), and the scenes of ``suites/vocabulary/`` agree
 with Mitsuba's ``direct`` integrator by the Z-test."""

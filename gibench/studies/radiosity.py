@@ -1,4 +1,4 @@
-"""Radiosity studies (thesis ch. 3, issue 5): error against patch count and time,
+"""Radiosity studies (thesis ch. 3): error against patch count and time,
 and the form-factor hard cases.  Each study returns a list of flat row dicts.
 
 ========================  =====================================================

@@ -1,4 +1,4 @@
-"""Sampler convergence study (thesis 2.5.1–2.5.4, issue 6): error of every pixel
+"""Sampler convergence study (thesis 2.5.1–2.5.4): error of every pixel
 sampler of the ``distributed`` tracer against samples per pixel and time.
 
 ========================  =====================================================
