@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
+from core.errors import UnsupportedError
 from core.loader import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -224,7 +225,7 @@ expect = "report"
     assert "cannot move shapes" in rec.time["mitsuba_skipped"]
     assert "mitsuba_median_s" not in rec.time and rec.metrics["relmse"] < 0.1
     json.dumps(rec.to_json())
-    with pytest.raises(ValueError, match="motion-blur reference does not support defines"):
+    with pytest.raises(UnsupportedError, match="motion-blur reference does not support defines"):
         get_reference(scene, transport="direct", defines={"spp": "4"}, render_missing=False)
     # Its store key has no variant: a spectral motion reference would collide with the RGB one.
     with pytest.raises(ValueError, match="does not support spectral"):
