@@ -79,6 +79,7 @@ from . import transforms as tf
 from .meshes import MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_uvs, rectangle
 from .scene import Camera, Film, Light, Material, Scene, Shape, Spectrum
 from .errors import SceneError
+from .xmlscene import Document, _snake_case, resolve, short  # noqa: F401  (_snake_case: tests)
 
 __all__ = ["SceneError", "load_scene", "SUPPORTED"]
 
@@ -95,13 +96,6 @@ SUPPORTED = {
 #: Shapes whose uv parameterisation the loader reproduces (for textures); an
 #: ``obj`` needs ``vt`` coordinates in the file.
 _UV_SHAPES = ("rectangle", "obj")
-
-#: Private attribute marking the top element spliced in by an ``<include>`` (its
-#: value indexes ``_Ctx.sources``); namespaced so no plugin property can clash.
-_SRC = "{urn:gibench:loader}source"
-
-#: Mitsuba's limit on nested ``<include>`` files (parser.cpp ``max_include_depth``).
-_MAX_INCLUDE_DEPTH = 15
 
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector",
                "transform")
@@ -144,64 +138,12 @@ _PROPS = {
 
 
 
-class _Ctx:
+class _Ctx(Document):
+    """The resolved document plus the ``id``s of its elements (for ``<ref>``)."""
+
     def __init__(self, path: Path, defines: dict[str, str] | None = None):
-        self.path = path
-        self.defaults: dict[str, str] = dict(defines or {})
+        super().__init__(path, defines)
         self.ids: dict[str, etree._Element] = {}
-        self.files: list[Path] = []
-        # <include>d files: (file, "included from a.xml:3 <- ...") by index; see _expand_includes.
-        self.sources: list[tuple[Path, str]] = []
-        # <path> directories, most recent first (Mitsuba prepends them to its file resolver).
-        self.search: list[Path] = []
-
-    def where(self, el) -> tuple[Path, str]:
-        """The file an element comes from and its include chain ("" for the scene file)."""
-        node = el
-        while node is not None:
-            src = node.get(_SRC) if isinstance(node.tag, str) else None
-            if src is not None:
-                return self.sources[int(src)]
-            node = node.getparent()
-        return self.path, ""
-
-    def error(self, el, msg: str) -> SceneError:
-        line = getattr(el, "sourceline", None) or "?"
-        tag = el.tag if isinstance(el.tag, str) else "?"
-        typ = el.get("type")
-        desc = f'<{tag} type="{typ}">' if typ else f"<{tag}>"
-        path, chain = self.where(el)
-        return SceneError(f"{path}:{line}: {desc}: {msg}{chain}")
-
-    def resolve(self, el, name: str, what: str = "file") -> Path:
-        """A file named in the scene, found as Mitsuba's file resolver finds it: an
-        absolute name as is; a relative one in the ``<path>`` directories (the latest
-        declared first), then in the scene file's directory."""
-        p = Path(name)
-        if p.is_absolute():
-            if p.is_file():
-                return p
-            raise self.error(el, f"{what} not found: {p}")
-        dirs = [*self.search, self.path.parent]
-        for d in dirs:
-            if (d / p).is_file():
-                return (d / p).resolve()
-        raise self.error(el, f"{what} '{name}' not found (searched: {', '.join(str(d) for d in dirs)})")
-
-    def attr(self, el, key: str, default=None):
-        v = el.get(key)
-        if v is None:
-            return default
-        return self.subst(el, v)
-
-    def subst(self, el, v: str) -> str:
-        def rep(m):
-            name = m.group(1)
-            if name not in self.defaults:
-                raise self.error(el, f"'${name}' has no <default> value")
-            return self.defaults[name]
-        return re.sub(r"\$([A-Za-z_][A-Za-z0-9_]*)", rep, v)
-
 
 # ---------------------------------------------------------------- values ---
 
@@ -717,138 +659,6 @@ def _integrator(ctx, el) -> dict:
     return out
 
 
-# ---------------------------------------------------------------- upgrade ---
-
-def _snake_case(name: str) -> str:
-    """Mitsuba 3's camelCase -> snake_case rule (xml.cpp ``upgrade_tree``), kept
-    exactly: at a lower-upper pair insert ``_`` and lower-case the run of capitals
-    that follows (``intIOR`` -> ``int_ior``); the character after that run is
-    skipped, as in Mitsuba's loop."""
-    i = 0
-    while i < len(name) - 1:
-        if name[i].islower() and name[i + 1].isupper():
-            name = name[:i + 1] + "_" + name[i + 1:]
-            i += 2
-            while i < len(name) and name[i].isupper():
-                name = name[:i] + name[i].lower() + name[i + 1:]
-                i += 1
-        i += 1
-    return name
-
-
-def _upgrade_pre_v2(root) -> None:
-    """In-memory upgrade of a Mitsuba 0.x/1.x scene, as Mitsuba 3 performs it
-    (parameter names only; ``<lookAt>`` is not renamed, see the module docstring)."""
-    for el in root.iter():
-        if not isinstance(el.tag, str):
-            continue
-        if el.tag != "default" and el.get("name") is not None:
-            el.set("name", _snake_case(el.get("name")))
-    for el in root.iter("bsdf"):
-        if el.get("type") == "diffuse":
-            for c in el:
-                if isinstance(c.tag, str) and c.get("name") == "diffuse_reflectance":
-                    c.set("name", "reflectance")
-
-
-# --------------------------------------------------------------- include ---
-
-def _parse_xml(path: Path, where: str = "") -> etree._Element:
-    try:
-        return etree.parse(str(path), etree.XMLParser(remove_comments=True)).getroot()
-    except etree.XMLSyntaxError as exc:
-        line = exc.lineno if exc.lineno is not None else "?"
-        raise SceneError(f"{path}:{line}: malformed XML: {exc.msg}{where}") from None
-    except OSError as exc:
-        raise SceneError(f"{path}: cannot read: {exc}{where}") from None
-
-
-def _check_version(ctx, root, where: str = "") -> int:
-    """The major version of a file's root ``version`` attribute; a file older
-    than 2.0 is upgraded in memory (:func:`_upgrade_pre_v2`)."""
-    version = root.get("version", "3.0.0")
-    m = re.fullmatch(r"\s*(\d+)\.(\d+)(?:\.(\d+))?\s*", version)
-    if m is None or int(m.group(1)) > 3:
-        raise ctx.error(root, f"unsupported scene version '{version}' (0.x to 3.x)")
-    if int(m.group(1)) < 2:
-        _upgrade_pre_v2(root)
-    return int(m.group(1))
-
-
-def _expand_includes(ctx, root, file: Path, chain: str, depth: int) -> None:
-    """Replace every ``<include filename=...>`` under ``root`` by the file's content and
-    record the ``<path value=...>`` directories, in document order, as Mitsuba 3's
-    parser does (parser.cpp, ``TagType::Include`` / ``TagType::Resource``):
-
-    * ``<path>`` may only be a child of the root; a relative directory is taken
-      from the directory of the file that declares it, else looked up in the
-      directories declared before; it must exist.  Later ones are searched first.
-    * An included file is looked up in the including file's directory, then in
-      the ``<path>`` directories, then in the scene file's directory.  It needs a
-      ``version`` on its root (files older than 2.0 are upgraded on their own
-      version); a ``<scene>`` root contributes its children, any other root
-      element (e.g. a ``<bsdf>``) is inserted itself, named by the include's
-      ``name``.  Nesting stops at depth 15.
-
-    Errors inside an included file name that file and line and then the chain
-    of includes that led to it.
-    """
-    for el in list(root.iter("include", "path")):
-        if el.tag == "path":
-            if el.getparent() is not root:
-                raise ctx.error(el, "<path> can only be a child of the root <scene>")
-            value = ctx.attr(el, "value")
-            if not value:
-                raise ctx.error(el, "<path> needs a 'value' attribute")
-            d = Path(value)
-            if not d.is_absolute():
-                cands = [file.parent / d, *(s / d for s in ctx.search), ctx.path.parent / d]
-                d = next((c for c in cands if c.is_dir()), file.parent / d)
-            if not d.is_dir():
-                raise ctx.error(el, f"<path>: folder '{value}' not found")
-            ctx.search.insert(0, d.resolve())
-            el.getparent().remove(el)
-            continue
-        name = ctx.attr(el, "filename")
-        if not name:
-            raise ctx.error(el, "<include> needs a 'filename' attribute")
-        dirs = [file.parent, *ctx.search, ctx.path.parent]
-        found = Path(name) if Path(name).is_absolute() else next(
-            (d / name for d in dirs if (d / name).is_file()), None)
-        if found is None or not found.is_file():
-            raise ctx.error(el, f"included file '{name}' not found "
-                                f"(searched: {', '.join(str(d) for d in dict.fromkeys(dirs))})")
-        if depth + 1 > _MAX_INCLUDE_DEPTH:
-            raise ctx.error(el, f"more than {_MAX_INCLUDE_DEPTH} nested <include> files")
-        found = found.resolve()
-        ctx.files.append(found)
-        here = f"{file.name if file == ctx.path else file}:{el.sourceline}"
-        sub_chain = f" (included from {here}" + (f", {chain[2:]}" if chain else ")")
-        inc = _parse_xml(found, sub_chain)
-        ctx.sources.append((found, sub_chain))
-        mark = str(len(ctx.sources) - 1)
-        inc.set(_SRC, mark)
-        if inc.get("version") is None:
-            raise ctx.error(inc, "an included file needs a 'version' attribute on its root element")
-        _check_version(ctx, inc)
-        if inc.tag == "scene":
-            for c in inc:
-                if isinstance(c.tag, str) and c.tag == "default":
-                    ctx.defaults.setdefault(c.get("name"), c.get("value"))
-        _expand_includes(ctx, inc, found, sub_chain, depth + 1)
-        parts = [c for c in inc if isinstance(c.tag, str)] if inc.tag == "scene" else [inc]
-        parent, at = el.getparent(), el.getparent().index(el)
-        for c in parts:
-            if c.get(_SRC) is None:
-                c.set(_SRC, mark)
-        if inc.tag != "scene" and el.get("name") is not None:
-            inc.set("name", el.get("name"))
-        parent.remove(el)
-        for k, c in enumerate(parts):
-            parent.insert(at + k, c)
-
-
-# ------------------------------------------------------------------ entry ---
 
 def load_scene(path, defines: dict | None = None) -> Scene:
     """Parse a Mitsuba 3 XML scene file into a :class:`~core.scene.Scene`.
@@ -864,23 +674,9 @@ def load_scene(path, defines: dict | None = None) -> Scene:
         malformed XML, an unsupported plugin or property, or a missing mesh.
     """
     path = Path(path)
-    if not path.is_file():
-        raise SceneError(f"{path}: scene file not found")
-    root = _parse_xml(path)
-    ctx = _Ctx(path, {str(k): str(v) for k, v in (defines or {}).items()})
-    if root.tag != "scene":
-        raise ctx.error(root, "the root element must be <scene>")
-    _check_version(ctx, root)
-
-    # Pass 1: defaults, includes and paths, then ids (Mitsuba resolves <default>
-    # before anything else; an included scene's defaults join in document order).
-    for c in root:
-        if isinstance(c.tag, str) and c.tag == "default":
-            name, value = c.get("name"), c.get("value")
-            if name is None or value is None:
-                raise ctx.error(c, "<default> needs 'name' and 'value'")
-            ctx.defaults.setdefault(name, value)
-    _expand_includes(ctx, root, path, "", 0)
+    # Pass 1 (core.xmlscene): defaults, includes and paths; then ids.
+    ctx = resolve(path, defines, cls=_Ctx)
+    root = ctx.root
     for c in root.iter():
         if isinstance(c.tag, str) and c.get("id") is not None and c.tag != "ref":
             ctx.ids[ctx.attr(c, "id")] = c

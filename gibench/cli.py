@@ -138,20 +138,42 @@ def _find_variance(image: Path) -> Path | None:
     return None
 
 
+def _read_variance(path: Path):
+    """A variance image: finite and non-negative, else a one-line :class:`ImageError`."""
+    from core.imageio import ImageError, read_exr
+
+    v = read_exr(path, allow_nonfinite=False)
+    if (v < 0).any():
+        raise ImageError(f"{path}: a variance image holds negative values")
+    return v
+
+
 def cmd_compare(args) -> int:
     from reports.metrics import compare
 
-    from core.imageio import read_exr
+    from core.imageio import ImageError, read_exr
+    from references.store import EntryInvalid, is_entry, read_entry
 
     test_path, ref_path = Path(args.image), Path(args.reference)
-    if ref_path.is_dir():
-        ref_path = ref_path / "image.exr"
-    test = read_exr(test_path)
-    ref = read_exr(ref_path)
-    rv = Path(args.reference_variance) if args.reference_variance else _find_variance(ref_path)
+    entry = ref_path if ref_path.is_dir() else (
+        ref_path.parent if ref_path.name == "image.exr" and is_entry(ref_path.parent) else None)
+    test = read_exr(test_path, allow_nonfinite=False)
+    if entry is not None and not args.reference_variance:
+        # A store entry is read through the store's checks (key, image hashes, finite, shapes).
+        try:
+            ref, ref_var, _ = read_entry(entry)
+        except EntryInvalid as exc:
+            raise ImageError(f"{entry}: stored reference not usable: {exc}") from None
+        ref_path, rv = entry / "image.exr", entry / "variance.exr"
+    else:
+        if entry is not None:
+            ref_path = entry / "image.exr"
+        ref = read_exr(ref_path, allow_nonfinite=False)
+        rv = Path(args.reference_variance) if args.reference_variance else _find_variance(ref_path)
+        ref_var = _read_variance(rv) if rv else None
     tv = Path(args.test_variance) if args.test_variance else _find_variance(test_path)
-    metrics = compare(ref, test, reference_variance=read_exr(rv) if rv else None,
-                      test_variance=read_exr(tv) if tv else None)
+    metrics = compare(ref, test, reference_variance=ref_var,
+                      test_variance=_read_variance(tv) if tv else None)
     if args.json:
         print(json.dumps(metrics, indent=2, default=str))
         return 0
