@@ -138,6 +138,92 @@ _PROPS = {
 
 
 
+#: Largest film gibench renders: each side at most 16384 pixels and at most
+#: 2**25 pixels in all (8192 x 4096); larger films are refused at load rather
+#: than failing on allocation (an image and its variance in float64 already
+#: take 1.6 GB at the limit).
+MAX_FILM_SIDE = 16384
+MAX_FILM_PIXELS = 1 << 25
+
+#: Largest bitmap texture read (pixels): a 12000² PNG would need 3.5 GB as float64 RGB.
+MAX_TEXTURE_PIXELS = 1 << 26
+
+# What each property must be, whatever plugin it belongs to: (kind, check, meaning).
+# kind: "number" (<float>/<integer>), "integer" (an integral <integer> or <float>),
+# "colour" (<rgb>/<spectrum>/<float>/<integer>, every component >= 0), "vector"
+# (<point>/<vector>), "transform", "boolean", "string", "ior" (a number > 0 or a
+# material name).  check(v) -> True when the value is in range.
+_SCHEMA = {
+    "fov": ("number", lambda v: 0.0 < v < 180.0, "in (0, 180) degrees"),
+    "near_clip": ("number", lambda v: v > 0.0, "> 0"),
+    "far_clip": ("number", lambda v: v > 0.0, "> 0"),
+    "focus_distance": ("number", lambda v: v > 0.0, "> 0"),
+    "aperture_radius": ("number", lambda v: v >= 0.0, ">= 0"),
+    "shutter_open": ("number", None, ""),
+    "shutter_close": ("number", None, ""),
+    "width": ("integer", lambda v: 1 <= v <= MAX_FILM_SIDE, f"in [1, {MAX_FILM_SIDE}]"),
+    "height": ("integer", lambda v: 1 <= v <= MAX_FILM_SIDE, f"in [1, {MAX_FILM_SIDE}]"),
+    "sample_count": ("integer", lambda v: v >= 1, ">= 1"),
+    "seed": ("integer", None, ""),
+    "stddev": ("number", lambda v: v > 0.0, "> 0"),
+    "radius": ("number", lambda v: v > 0.0, "> 0"),
+    "cutoff_angle": ("number", lambda v: 0.0 < v <= 180.0, "in (0, 180] degrees"),
+    "beam_width": ("number", lambda v: 0.0 < v <= 180.0, "in (0, 180] degrees"),
+    "alpha": ("number", lambda v: v > 0.0, "> 0"),
+    "alpha_u": ("number", lambda v: v > 0.0, "> 0"),
+    "alpha_v": ("number", lambda v: v > 0.0, "> 0"),
+    "cauchy_b": ("number", lambda v: v >= 0.0, ">= 0"),
+    "int_ior": ("ior", lambda v: v > 0.0, "> 0 or a material name"),
+    "ext_ior": ("ior", lambda v: v > 0.0, "> 0 or a material name"),
+    **{name: ("colour", None, ">= 0") for name in (
+        "reflectance", "radiance", "intensity", "irradiance", "specular_reflectance",
+        "specular_transmittance", "color0", "color1", "eta", "k")},
+    **{name: ("vector", None, "") for name in (
+        "center", "position", "direction", "p0", "p1", "gibench_velocity")},
+    **{name: ("transform", None, "") for name in ("to_world", "to_uv")},
+    **{name: ("boolean", None, "") for name in (
+        "flip_normals", "face_normals", "raw", "sample_visible", "jitter")},
+    **{name: ("string", None, "") for name in (
+        "fov_axis", "filename", "material", "distribution", "filter_type", "wrap_mode",
+        "pixel_format", "component_format", "format")},
+}
+
+_KIND_TAGS = {
+    "number": ("float", "integer"), "integer": ("integer", "float"),
+    "colour": ("rgb", "spectrum", "float", "integer"), "vector": ("point", "vector"),
+    "transform": ("transform",), "boolean": ("boolean",), "string": ("string",),
+    "ior": ("float", "integer", "string"),
+}
+
+
+def _check_property(ctx, el, name: str, value):
+    """``value`` of property ``name`` (from element ``el``) checked against
+    :data:`_SCHEMA`: the right element type, finite, in range; returns it (an
+    integral float for an integer property becomes an int)."""
+    spec = _SCHEMA.get(name)
+    if spec is None:
+        return value
+    kind, check, meaning = spec
+    if el.tag not in _KIND_TAGS[kind]:
+        raise ctx.error(el, f"'{name}' must be given as "
+                            f"{' or '.join(f'<{t}>' for t in _KIND_TAGS[kind])}, not <{el.tag}>")
+    if kind == "integer":
+        if float(value) != int(value):
+            raise ctx.error(el, f"'{name}' must be an integer, got {short(value)}")
+        value = int(value)
+    if kind == "colour":
+        comps = value.values if isinstance(value, Spectrum) else np.atleast_1d(value)
+        if np.any(np.asarray(comps, dtype=np.float64) < 0.0):
+            raise ctx.error(el, f"'{name}' must be >= 0 in every component")
+    if kind == "transform" and name == "to_world":
+        det = float(np.linalg.det(value[:3, :3]))
+        if not (np.isfinite(det) and abs(det) > 1e-300):
+            raise ctx.error(el, "to_world is singular (a zero scale or a degenerate matrix)")
+    if check is not None and not (kind == "ior" and isinstance(value, str)) and not check(value):
+        raise ctx.error(el, f"'{name}' must be {meaning}, got {short(value)}")
+    return value
+
+
 class _Ctx(Document):
     """The resolved document plus the ``id``s of its elements (for ``<ref>``)."""
 
@@ -151,9 +237,11 @@ def _floats(ctx, el, text: str, n: int | None = None) -> np.ndarray:
     try:
         vals = np.array([float(x) for x in re.split(r"[\s,]+", text.strip()) if x], dtype=np.float64)
     except ValueError:
-        raise ctx.error(el, f"cannot parse numbers from '{text}'") from None
+        raise ctx.error(el, f"cannot parse numbers from '{short(text)}'") from None
+    if not np.all(np.isfinite(vals)):
+        raise ctx.error(el, f"not a finite number in '{short(text)}'")
     if n is not None and len(vals) != n:
-        raise ctx.error(el, f"expected {n} numbers, got {len(vals)} in '{text}'")
+        raise ctx.error(el, f"expected {n} numbers, got {len(vals)} in '{short(text)}'")
     return vals
 
 
@@ -165,9 +253,9 @@ def _vec3(ctx, el, key: str = "value") -> np.ndarray:
         if len(vals) == 1:
             return np.repeat(vals, 3)
         if len(vals) != 3:
-            raise ctx.error(el, f"expected 3 numbers in {key}='{v}'")
+            raise ctx.error(el, f"expected 3 numbers in {key}='{short(v)}'")
         return vals
-    return np.array([float(ctx.attr(el, a, "0")) for a in "xyz"])
+    return np.array([_floats(ctx, el, ctx.attr(el, a, "0"), 1)[0] for a in "xyz"])
 
 
 def _transform(ctx, el) -> np.ndarray:
@@ -181,14 +269,14 @@ def _transform(ctx, el) -> np.ndarray:
             elif op.tag == "scale":
                 v = ctx.attr(op, "value")
                 s = _floats(ctx, op, v) if v is not None else np.array(
-                    [float(ctx.attr(op, a, "1")) for a in "xyz"])
+                    [_floats(ctx, op, ctx.attr(op, a, "1"), 1)[0] for a in "xyz"])
                 if len(s) not in (1, 3):
-                    raise ctx.error(op, f"expected 1 or 3 numbers in value='{v}'")
+                    raise ctx.error(op, f"expected 1 or 3 numbers in value='{short(v)}'")
                 m = tf.scale(s if len(s) == 3 else np.repeat(s, 3)) @ m
             elif op.tag == "rotate":
                 axis = _vec3(ctx, op) if op.get("value") is not None else np.array(
-                    [float(ctx.attr(op, a, "0")) for a in "xyz"])
-                m = tf.rotate(axis, float(ctx.attr(op, "angle", "0"))) @ m
+                    [_floats(ctx, op, ctx.attr(op, a, "0"), 1)[0] for a in "xyz"])
+                m = tf.rotate(axis, _floats(ctx, op, ctx.attr(op, "angle", "0"), 1)[0]) @ m
             elif op.tag == "lookat":
                 o = _floats(ctx, op, ctx.attr(op, "origin", ""), 3)
                 t = _floats(ctx, op, ctx.attr(op, "target", ""), 3)
@@ -211,6 +299,8 @@ def _transform(ctx, el) -> np.ndarray:
             if isinstance(exc, SceneError):
                 raise
             raise ctx.error(op, str(exc)) from None
+    if not np.all(np.isfinite(m)):
+        raise ctx.error(el, "the composed transform is not finite (overflow)")
     return m
 
 
@@ -229,10 +319,10 @@ def _value(ctx, el):
         try:
             return int(v)
         except ValueError:
-            raise ctx.error(el, f"'{v}' is not an integer") from None
+            raise ctx.error(el, f"'{short(v)}' is not an integer") from None
     if tag == "boolean":
         if v.lower() not in ("true", "false"):
-            raise ctx.error(el, f"'{v}' is not a boolean (true/false)")
+            raise ctx.error(el, f"'{short(v)}' is not a boolean (true/false)")
         return v.lower() == "true"
     if tag == "string":
         return v
@@ -272,7 +362,7 @@ class _Plugin:
                 if allowed is not None and name not in allowed:
                     raise ctx.error(c, f"unsupported property '{name}' of {kind} '{self.type}' "
                                        f"(supported: {', '.join(sorted(allowed)) or 'none'})")
-                self.props[name] = _value(ctx, c)
+                self.props[name] = _check_property(ctx, c, name, _value(ctx, c))
             elif c.tag == "ref":
                 ref_id = ctx.attr(c, "id")
                 if ref_id not in ctx.ids:
@@ -421,12 +511,16 @@ def _bitmap(ctx, t, to_uv) -> dict:
         if path.suffix.lower() == ".exr":
             from .imageio import read_exr
 
-            img = np.asarray(read_exr(path), dtype=np.float64)
+            img = np.asarray(read_exr(path, allow_nonfinite=False, max_pixels=MAX_TEXTURE_PIXELS),
+                             dtype=np.float64)
             srgb = False
         else:
             from PIL import Image
 
             with Image.open(path) as im:
+                if im.width * im.height > MAX_TEXTURE_PIXELS:
+                    raise ValueError(f"{im.width}x{im.height} pixels is more than gibench's limit "
+                                     f"of {MAX_TEXTURE_PIXELS} texture pixels")
                 if im.mode not in ("L", "LA", "RGB", "RGBA", "I", "I;16", "I;16B", "I;16L"):
                     im = im.convert("RGBA" if "A" in im.mode or "transparency" in im.info else "RGB")
                 mode = im.mode
@@ -439,7 +533,7 @@ def _bitmap(ctx, t, to_uv) -> dict:
                 raise ValueError(f"unsupported pixel type {arr.dtype} (mode {mode})")
             srgb = not raw
     except Exception as exc:                      # noqa: BLE001 - any decoder failure is the file's
-        raise ctx.error(t.el, f"cannot read image {path}: {exc}") from None
+        raise ctx.error(t.el, f"cannot read image {path}: {short(str(exc).splitlines()[0] if str(exc) else type(exc).__name__, 200)}") from None
     if img.ndim == 2:
         img = img[:, :, None]
     if img.shape[2] in (2, 4):                     # grey + alpha, RGBA: drop alpha
@@ -482,6 +576,8 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
         s = tf.uniform_scale_factor(m)
         if s is None:
             raise ctx.error(el, "sphere to_world must be a similarity transform (uniform scale)")
+        if not (np.isfinite(radius * s) and radius * s > 0.0):
+            raise ctx.error(el, f"sphere radius in world units must be finite and > 0, got {radius * s}")
         velocity = _velocity(ctx, el, p)
         return Shape(kind="sphere", material=mat, name=name, source="sphere",
                      center=tf.transform_points(m, center), radius=radius * s,
@@ -500,7 +596,7 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
             raise ctx.error(el, "missing 'filename' string")
         path = ctx.resolve(el, fn, "mesh file")
         try:
-            v, f, n, uvs = load_mesh_uvs(path)
+            v, f, n, uvs = load_mesh_uvs(path, p.type)
         except MeshError as exc:
             raise ctx.error(el, str(exc)) from None
         ctx.files.append(path)
@@ -612,8 +708,9 @@ def _camera(ctx, el) -> Camera:
             rp.unexpected_children(())
             rf, rfp = rp.type, dict(rp.props)
         film = Film(int(fp.get("width", 768)), int(fp.get("height", 576)), rf, rfp)
-        if film.width <= 0 or film.height <= 0:
-            raise ctx.error(f, f"film size must be positive, got {film.width}x{film.height}")
+        if film.width * film.height > MAX_FILM_PIXELS:
+            raise ctx.error(f, f"film of {film.width}x{film.height} pixels is larger than gibench's "
+                               f"limit of {MAX_FILM_PIXELS} pixels")
     for s in p.child_elements("sampler"):
         sp = _Plugin(ctx, s, "sampler")
         spp = int(sp.get("sample_count", 4))
