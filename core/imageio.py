@@ -58,6 +58,19 @@ def check_finite(image, *, name: str = "image") -> None:
         )
 
 
+def _check_writable(path: Path) -> None:
+    """Create the parent directory; refuse (one line) a path that is a directory or
+    whose directory cannot be made or written."""
+    if path.is_dir():
+        raise ImageError(f"{path}: is a directory, not a file to write")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ImageError(f"{path}: cannot create its directory ({exc.strerror or exc})") from None
+    if not os.access(path.parent, os.W_OK):
+        raise ImageError(f"{path}: directory {path.parent} is not writable")
+
+
 def write_exr(path, image, *, metadata: dict | None = None) -> Path:
     """Write a float32 RGB EXR (ZIP compression) atomically and return its path.
 
@@ -70,7 +83,7 @@ def write_exr(path, image, *, metadata: dict | None = None) -> Path:
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for key, value in (metadata or {}).items():
         header[str(key)] = str(value)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _check_writable(path)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp.exr", dir=path.parent)
     os.close(fd)
     umask = os.umask(0)
@@ -90,7 +103,7 @@ def write_text(path, text: str) -> Path:
     """Write a text file (a report page, a baseline, JSON) atomically, fsync'd, mode 0644;
     return its path.  A crash leaves the old file or the new one, never a torn one."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _check_writable(path)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:

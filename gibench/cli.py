@@ -424,8 +424,43 @@ def cmd_report(args) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a bad command line reported as one line and exit status 2."""
+
+    def error(self, message):
+        print(f"gibench: error: {self.prog.split()[-1] if ' ' in self.prog else 'gibench'}: "
+              f"{message} (see --help)", file=sys.stderr)
+        sys.exit(2)
+
+
+def _positive(text: str) -> int:
+    """An argparse type: an integer >= 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text[:40]!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    return v
+
+
+#: Seeds are unsigned 32-bit integers (Mitsuba's sampler seed).
+SEED_MAX = 2**32 - 1
+
+
+def _seed(text: str) -> int:
+    """An argparse type: a seed in [0, 2**32 - 1]."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer seed, got {text[:40]!r}") from None
+    if not 0 <= v <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"a seed must be in [0, {SEED_MAX}], got {text[:40]}")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="gibench", description="Validation and benchmarking harness "
+    p = _Parser(prog="gibench", description="Validation and benchmarking harness "
                                 "for global-illumination algorithms, against Mitsuba 3 references.")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -435,10 +470,10 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("render", help="render a scene with an own algorithm")
     s.add_argument("scene")
     s.add_argument("--algorithm", "-a", required=True)
-    s.add_argument("--spp", type=int, help="samples per pixel (default: the scene's sampler sample_count)")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--spp", type=_positive, help="samples per pixel (default: the scene's sampler sample_count)")
+    s.add_argument("--seed", type=_seed, default=0)
     s.add_argument("--set", action="append", metavar="KEY=VALUE", help="algorithm parameter")
-    s.add_argument("--repeats", type=int, default=3, help="timed renders after the warm-up")
+    s.add_argument("--repeats", type=_positive, default=3, help="timed renders after the warm-up")
     s.add_argument("--out", "-o", required=True, help="output EXR (a .json sidecar is written beside it)")
     s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
                    help="override the scene's <default name=NAME> value (as Mitsuba's -D)")
@@ -448,9 +483,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scene")
     s.add_argument("--transport", choices=("full", "direct", "whitted"), default="full",
                    help="full: Mitsuba path; direct: Mitsuba direct; whitted: delta bounces, then direct light")
-    s.add_argument("--spp", type=int, default=1024)
-    s.add_argument("--passes", type=int, default=8)
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--spp", type=_positive, default=1024)
+    s.add_argument("--passes", type=_positive, default=8)
+    s.add_argument("--seed", type=_seed, default=0)
     s.add_argument("--force", action="store_true", help="re-render even if a valid entry exists")
     s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
                    help="override the scene's <default name=NAME> value (as Mitsuba's -D)")
@@ -470,7 +505,7 @@ def build_parser() -> argparse.ArgumentParser:
         s.add_argument("--store", help="reference store directory (default: references/store)")
         s.add_argument("--history", help="history database (default: reports/out/history.sqlite)")
         s.add_argument("--no-history", action="store_true", help="do not store the records in it")
-        s.add_argument("--jobs", "-j", type=int, default=1, help="local worker processes")
+        s.add_argument("--jobs", "-j", type=_positive, default=1, help="local worker processes")
         s.add_argument("--executor", help="dask://HOST:PORT: run the cases on a Dask cluster")
         s.add_argument("--no-progress", action="store_true", help="no progress bar")
         if mitsuba:
@@ -480,7 +515,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("baseline", help="run a suite with several seeds and write a CI baseline")
     s.add_argument("suite", nargs="?", default=None, help="suite (default: ci)")
     s.add_argument("--out", "-o", required=True, help="baseline JSON to write")
-    s.add_argument("--seeds", type=int, default=3,
+    s.add_argument("--seeds", type=_positive, default=3,
                    help="own-render seeds 0..K-1; their spread sets the tolerances")
     common(s)
     s.set_defaults(func=cmd_baseline)
@@ -501,9 +536,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--set", action="append", metavar="KEY=VALUE", help="fixed algorithm parameter")
     s.add_argument("--transport", choices=("full", "direct", "whitted"),
                    help="reference transport (default: the algorithm's)")
-    s.add_argument("--reference-spp", type=int, default=1024)
-    s.add_argument("--reference-passes", type=int, default=8)
-    s.add_argument("--repeats", type=int, default=3)
+    s.add_argument("--reference-spp", type=_positive, default=1024)
+    s.add_argument("--reference-passes", type=_positive, default=8)
+    s.add_argument("--repeats", type=_positive, default=3)
     s.add_argument("--ladder", default="1,4,16,64,256", help="Mitsuba spp ladder ('' for none)")
     s.add_argument("--metric", default="relmse", help="error metric of the table")
     common(s)
@@ -513,7 +548,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--metric", help="metric or time key (default relmse)")
     s.add_argument("--scene")
     s.add_argument("--algorithm")
-    s.add_argument("--limit", type=int)
+    s.add_argument("--limit", type=_positive)
     s.add_argument("--history")
     s.add_argument("--no-history", action="store_true", help=argparse.SUPPRESS)
     s.set_defaults(func=cmd_history)
