@@ -64,6 +64,7 @@ from lxml import etree
 from core.errors import ReferenceError_, SceneError, UnsupportedError
 from core.xmlscene import check_defines as _check_defines, parse_file, resolve as resolve_xml
 from core.xmlscene import substitute
+from core.loader import MAX_FILM_PIXELS, MAX_FILM_SIDE
 from core.imageio import ImageError, as_rgb, check_finite, read_exr, write_exr
 
 from .mitsuba_env import load_mitsuba, mitsuba_versions, spectral_variant
@@ -411,6 +412,25 @@ def _override_sensors(root, sampler_factory, rfilter: str) -> dict:
     return record
 
 
+def _check_film_size(scene: Path, defines) -> None:
+    """Refuse, before Mitsuba allocates it, a film larger than the loader's limits
+    (:data:`core.loader.MAX_FILM_SIDE`, :data:`core.loader.MAX_FILM_PIXELS`): the
+    same file renders on both sides, so both refuse the same sizes."""
+    doc = resolve_xml(scene, defines)
+    for film in doc.root.iter("film"):
+        size = {}
+        for c in film:
+            if isinstance(c.tag, str) and c.get("name") in ("width", "height") and c.get("value"):
+                try:
+                    size[c.get("name")] = int(float(doc.subst(c, c.get("value"))))
+                except (ValueError, OverflowError):
+                    raise doc.error(c, f"film {c.get('name')} is not an integer") from None
+        w, h = size.get("width", 768), size.get("height", 576)
+        if not (1 <= w <= MAX_FILM_SIDE and 1 <= h <= MAX_FILM_SIDE and w * h <= MAX_FILM_PIXELS):
+            raise doc.error(film, f"film of {w}x{h} pixels is outside gibench's limits (sides "
+                                  f"1..{MAX_FILM_SIDE}, at most {MAX_FILM_PIXELS} pixels)")
+
+
 def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int = 1,
                       seed: int = 0, rfilter: str = "box", integrator: dict | None = None,
                       sampler: dict | None = None,
@@ -454,6 +474,7 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
         raise ValueError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
     _check_max_depth(max_depth, transport)
     scene = _scene_file(scene_path)
+    _check_film_size(scene, defines)
     tree = _parse(scene)
     root = tree.getroot()
     defines = _check_defines(defines)
@@ -800,6 +821,7 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     _check_args(transport, spp, passes, seed, rfilter)
     _check_max_depth(max_depth, transport)
     scene = _scene_file(scene_path)
+    _check_film_size(scene, defines)
     mi = load_mitsuba()
     family = _variant_family(mi.variant())
     defines = _check_defines(defines)
