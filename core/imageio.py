@@ -123,15 +123,19 @@ def _captured_output():
     """Collect what C libraries print on file descriptors 1 and 2 (OpenEXR reports a
     corrupt file there as well as by its exception); yields a list that receives the
     captured lines.  The caller decides what to show: one line, not a spill."""
+    import io
+
     lines: list[str] = []
     sys.stdout.flush()
     sys.stderr.flush()
     saved = [os.dup(1), os.dup(2)]
+    py_out = io.StringIO()               # what the binding prints through Python's sys.stdout
     with tempfile.TemporaryFile() as sink:
         os.dup2(sink.fileno(), 1)
         os.dup2(sink.fileno(), 2)
         try:
-            yield lines
+            with contextlib.redirect_stdout(py_out), contextlib.redirect_stderr(py_out):
+                yield lines
         finally:
             sys.stdout.flush()
             sys.stderr.flush()
@@ -140,8 +144,8 @@ def _captured_output():
             for fd in saved:
                 os.close(fd)
             sink.seek(0)
-            lines.extend(t.strip() for t in sink.read().decode("utf-8", "replace").splitlines()
-                         if t.strip())
+            text = sink.read().decode("utf-8", "replace") + "\n" + py_out.getvalue()
+            lines.extend(t.strip() for t in text.splitlines() if t.strip())
 
 
 def exr_size(path) -> tuple[int, int]:

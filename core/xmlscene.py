@@ -321,4 +321,11 @@ def resolve(path, defines: dict | None = None, *, cls=None) -> Document:
                 raise doc.error(c, f"<default> name must be an identifier, got {short(name)!r}")
             doc.defaults.setdefault(name, value)
     _expand_includes(doc, root, path, "", 0)
+    # Every $name must have a value, wherever it is used (Mitsuba substitutes all
+    # attributes before reading any): the loader and the store refuse the same files.
+    for el in root.iter():
+        if isinstance(el.tag, str):
+            for key, value in el.attrib.items():
+                if "$" in value and key != _SRC:
+                    doc.subst(el, value)
     return doc

@@ -587,7 +587,10 @@ def main(argv=None) -> int:
     """Run the command line.  Bad input (:class:`core.errors.GibenchError`) prints one
     line ``gibench: error: <cause>`` and exits 2; any other exception is a bug and
     keeps its traceback."""
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:            # a bad command line (one line, see _Parser) or --help
+        return exc.code if isinstance(exc.code, int) else 2
     try:
         return args.func(args)
     except GibenchError as exc:
