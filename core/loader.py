@@ -416,6 +416,9 @@ def _rgb(ctx, plugin, name, default):
     v = np.asarray(v, dtype=np.float64)
     if v.shape != (3,):
         raise ctx.error(plugin.el, f"'{name}' must be an rgb or float value")
+    if not np.all(np.isfinite(v)):
+        raise ctx.error(plugin.el, f"'{name}' is not finite in RGB ({v.tolist()}: a spectrum "
+                                   "too large to integrate)")
     return v
 
 
@@ -670,6 +673,18 @@ def _velocity(ctx, el, p):
     return v
 
 
+def _unit(ctx, el, d) -> np.ndarray:
+    """``d`` normalised (scaled by its largest component first, so that components
+    near the float limit do not overflow the norm); a zero or non-finite direction
+    is an error."""
+    d = np.asarray(d, dtype=np.float64)
+    big = np.abs(d).max() if d.size else 0.0
+    if not (np.isfinite(big) and big > 0.0):
+        raise ctx.error(el, f"the emitter's direction must be finite and non-zero, got {d.tolist()}")
+    d = d / big
+    return d / np.linalg.norm(d)
+
+
 def _light(ctx, el) -> Light:
     p = _Plugin(ctx, el, "emitter")
     p.unexpected_children(())
@@ -684,15 +699,13 @@ def _light(ctx, el) -> Light:
     if p.type == "directional":
         d = p.get("direction")
         d = tf.transform_vectors(m, [0.0, 0.0, 1.0]) if d is None else np.asarray(d, dtype=np.float64)
-        if np.linalg.norm(d) == 0:
-            raise ctx.error(el, "directional emitter has a zero direction")
-        return Light("directional", _rgb(ctx, p, "irradiance", 1.0), direction=d / np.linalg.norm(d),
+        return Light("directional", _rgb(ctx, p, "irradiance", 1.0), direction=_unit(ctx, el, d),
                      name=name)
     cutoff = float(p.get("cutoff_angle", 20.0))
     beam = float(p.get("beam_width", cutoff * 0.75))
     d = tf.transform_vectors(m, [0.0, 0.0, 1.0])
     return Light("spot", _rgb(ctx, p, "intensity", 1.0), position=tf.transform_points(m, np.zeros(3)),
-                 direction=d / np.linalg.norm(d), cutoff_angle=cutoff, beam_width=beam, name=name)
+                 direction=_unit(ctx, el, d), cutoff_angle=cutoff, beam_width=beam, name=name)
 
 
 def _camera(ctx, el) -> Camera:

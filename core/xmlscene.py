@@ -46,9 +46,9 @@ MAX_INCLUDES = 1000
 
 
 def short(text, limit: int = 60) -> str:
-    """``text`` for an error message: at most ``limit`` characters (a hostile value
-    of thousands of digits is not echoed in full)."""
-    text = str(text)
+    """``text`` for an error message: on one line, at most ``limit`` characters (a
+    hostile value of thousands of digits is not echoed in full)."""
+    text = " ".join(str(text).split())
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
 
@@ -129,7 +129,8 @@ class Document:
         typ = el.get("type")
         desc = f'<{tag} type="{typ}">' if typ else f"<{tag}>"
         path, chain = self.where(el)
-        return SceneError(f"{path}:{line}: {desc}: {msg}{chain}")
+        text = f"{path}:{line}: {desc}: {msg}{chain}"
+        return SceneError(text.replace("\r", " ").replace("\n", " "))      # always one line
 
     def resolve(self, el, name: str, what: str = "file") -> Path:
         """A file named in the scene, found as Mitsuba's file resolver finds it: an
