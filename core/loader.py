@@ -60,6 +60,15 @@ emitter          point, directional, spot; ``area`` inside a shape; ``constant``
                  (uniform environment radiance, :attr:`Scene.environment`)
 ===============  ==============================================================
 
+Every property is checked at load against one schema (``_SCHEMA``): the element
+it is given as (``<rgb name="radius">`` is refused), a finite value, and its
+range (fov in (0, 180), radius > 0, colours >= 0, integral integers, an
+invertible ``to_world``, ...); films are limited to :data:`MAX_FILM_SIDE` per
+side and :data:`MAX_FILM_PIXELS` in all, bitmap textures to
+:data:`MAX_TEXTURE_PIXELS`.  The XML layer (defaults, ``$name``, include, path,
+entity-free parsing, the include limits) is :mod:`core.xmlscene`, shared with
+the reference store.
+
 Anything else raises :class:`SceneError` with one line naming the element, the
 file and the line.  Properties that do not change what is rendered by the own
 algorithms and that Mitsuba accepts (``id`` names, film pixel formats, a

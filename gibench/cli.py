@@ -158,7 +158,7 @@ def cmd_compare(args) -> int:
     entry = ref_path if ref_path.is_dir() else (
         ref_path.parent if ref_path.name == "image.exr" and is_entry(ref_path.parent) else None)
     test = read_exr(test_path, allow_nonfinite=False)
-    if entry is not None and not args.reference_variance:
+    if entry is not None:
         # A store entry is read through the store's checks (key, image hashes, finite, shapes).
         try:
             ref, ref_var, _ = read_entry(entry)
@@ -166,11 +166,12 @@ def cmd_compare(args) -> int:
             raise ImageError(f"{entry}: stored reference not usable: {exc}") from None
         ref_path, rv = entry / "image.exr", entry / "variance.exr"
     else:
-        if entry is not None:
-            ref_path = entry / "image.exr"
         ref = read_exr(ref_path, allow_nonfinite=False)
-        rv = Path(args.reference_variance) if args.reference_variance else _find_variance(ref_path)
+        rv = _find_variance(ref_path)
         ref_var = _read_variance(rv) if rv else None
+    if args.reference_variance:
+        rv = Path(args.reference_variance)
+        ref_var = _read_variance(rv)
     tv = Path(args.test_variance) if args.test_variance else _find_variance(test_path)
     metrics = compare(ref, test, reference_variance=ref_var,
                       test_variance=_read_variance(tv) if tv else None)

@@ -31,7 +31,8 @@ sample variance over passes divided by ``passes`` (as Mitsuba's own render
 tests keep a ``_var.exr``).
 
 Entries live in ``references/store/<first 16 hex of key>/`` as ``image.exr``,
-``variance.exr`` and ``manifest.json``.  The key is a sha256 over the scene
+``variance.exr`` and ``manifest.json``, read and written by
+:mod:`references.store` (hash-checked reads, atomic installs).  The key is a sha256 over the scene
 bytes, the bytes of every file the scene references by ``filename``, the
 ``-D name=value`` overrides of its ``<default>`` values (when any), the
 transport, spp, passes, seed, rfilter choice, variant family and
