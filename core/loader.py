@@ -154,6 +154,10 @@ _PROPS = {
 MAX_FILM_SIDE = 16384
 MAX_FILM_PIXELS = 1 << 25
 
+#: Largest world-space coordinate (and sphere radius): 1e18, so squared distances
+#: (1e36) stay within float32's range (3.4e38), as Mitsuba's renders need.
+MAX_COORDINATE = 1e18
+
 #: Largest bitmap texture read (pixels): a 12000² PNG would need 3.5 GB as float64 RGB.
 MAX_TEXTURE_PIXELS = 1 << 26
 
@@ -326,9 +330,12 @@ def _value(ctx, el):
         return float(_floats(ctx, el, v, 1)[0])
     if tag == "integer":
         try:
-            return int(v)
+            i = int(v)
         except ValueError:
             raise ctx.error(el, f"'{short(v)}' is not an integer") from None
+        if not -2**63 <= i < 2**63:                 # Mitsuba's integers are 64-bit
+            raise ctx.error(el, f"integer '{short(v)}' is outside the 64-bit range")
+        return i
     if tag == "boolean":
         if v.lower() not in ("true", "false"):
             raise ctx.error(el, f"'{short(v)}' is not a boolean (true/false)")
@@ -779,6 +786,16 @@ def _integrator(ctx, el) -> dict:
 
 
 
+def _check_extent(ctx, el, values) -> None:
+    """World-space coordinates (vertices, centres, radii, positions) must lie within
+    :data:`MAX_COORDINATE`: squared distances then stay finite in float32, which
+    Mitsuba renders in, and areas and light pdfs stay finite in float64."""
+    big = float(np.abs(np.asarray(values, dtype=np.float64)).max(initial=0.0))
+    if not big <= MAX_COORDINATE:
+        raise ctx.error(el, f"world coordinates up to {big:.3g} exceed gibench's limit of "
+                            f"{MAX_COORDINATE:g}")
+
+
 def load_scene(path, defines: dict | None = None) -> Scene:
     """Parse a Mitsuba 3 XML scene file into a :class:`~core.scene.Scene`.
 
@@ -821,16 +838,24 @@ def load_scene(path, defines: dict | None = None) -> Scene:
             if camera is not None:
                 raise ctx.error(c, "more than one sensor")
             camera = _camera(ctx, c)
+            _check_extent(ctx, c, camera.to_world[:3, 3])
         elif c.tag == "bsdf":
             _material(ctx, c, materials, cache)
         elif c.tag == "shape":
-            shapes.append(_shape(ctx, c, materials, cache, default_mat))
+            shape = _shape(ctx, c, materials, cache, default_mat)
+            if shape.kind == "sphere":
+                _check_extent(ctx, c, [*shape.center, shape.radius])
+            else:
+                _check_extent(ctx, c, shape.vertices)
+            shapes.append(shape)
         elif c.tag == "emitter" and ctx.attr(c, "type") == "constant":
             if environment is not None:
                 raise ctx.error(c, "more than one constant environment emitter")
             environment = _environment(ctx, c)
         elif c.tag == "emitter":
             lights.append(_light(ctx, c))
+            if lights[-1].position is not None:
+                _check_extent(ctx, c, lights[-1].position)
         else:
             raise ctx.error(c, f"unsupported element '{c.tag}' at scene level "
                                "(supported: default, integrator, sensor, bsdf, shape, emitter)")

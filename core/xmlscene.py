@@ -200,9 +200,9 @@ def _check_version(ctx, root, where: str = "") -> int:
     """The major version of a file's root ``version`` attribute; a file older
     than 2.0 is upgraded in memory (:func:`_upgrade_pre_v2`)."""
     version = root.get("version", "3.0.0")
-    m = re.fullmatch(r"\s*(\d+)\.(\d+)(?:\.(\d+))?\s*", version)
+    m = re.fullmatch(r"\s*(\d{1,4})\.(\d{1,4})(?:\.(\d{1,4}))?\s*", version)
     if m is None or int(m.group(1)) > 3:
-        raise ctx.error(root, f"unsupported scene version '{version}' (0.x to 3.x)")
+        raise ctx.error(root, f"unsupported scene version '{short(version)}' (0.x to 3.x)")
     if int(m.group(1)) < 2:
         _upgrade_pre_v2(root)
     return int(m.group(1))
