@@ -62,7 +62,7 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-from core.errors import ReferenceError_, SceneError, UnsupportedError
+from core.errors import ParamError, ReferenceError_, SceneError, UnsupportedError
 from core.xmlscene import check_defines as _check_defines, parse_file, resolve as resolve_xml
 from core.xmlscene import substitute
 from core.loader import MAX_FILM_PIXELS, MAX_FILM_SIDE
@@ -470,9 +470,9 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
         Record of every override (``from``/``to``) for the manifest.
     """
     if transport not in TRANSPORTS:
-        raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
+        raise ParamError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
     if rfilter not in RFILTERS:
-        raise ValueError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
+        raise ParamError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
     _check_max_depth(max_depth, transport)
     scene = _scene_file(scene_path)
     _check_film_size(scene, defines)
@@ -717,7 +717,7 @@ def reference_device_variant(device: str | None = None) -> str | None:
     :func:`load_mitsuba`'s default (LLVM) when CUDA is not asked for or not available."""
     device = device or os.environ.get("GIBENCH_REFERENCE_DEVICE") or REFERENCE_DEVICE
     if device not in ("auto", "cuda", "llvm"):
-        raise ValueError(f"reference device must be auto, cuda or llvm, got {device!r} "
+        raise ParamError(f"reference device must be auto, cuda or llvm, got {device!r} "
                          "(GIBENCH_REFERENCE_DEVICE)")
     if device == "llvm" or os.environ.get("GIBENCH_MITSUBA_VARIANT"):
         return None
@@ -735,25 +735,25 @@ def _check_max_depth(max_depth, transport) -> None:
     if not isinstance(max_depth, (int, np.integer)) or isinstance(max_depth, bool):
         raise TypeError(f"max_depth must be an integer, got {max_depth!r}")
     if transport != "full":
-        raise ValueError(f"max_depth applies to transport='full' only, got transport={transport!r}")
+        raise ParamError(f"max_depth applies to transport='full' only, got transport={transport!r}")
     if max_depth < -1 or max_depth == 0:
-        raise ValueError(f"max_depth must be -1 (unbounded) or >= 1, got {max_depth}")
+        raise ParamError(f"max_depth must be -1 (unbounded) or >= 1, got {max_depth}")
 
 
 def _check_args(transport, spp, passes, seed, rfilter) -> None:
     if transport not in TRANSPORTS:
-        raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
+        raise ParamError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
     if rfilter not in RFILTERS:
-        raise ValueError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
+        raise ParamError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
     for name, v in (("spp", spp), ("passes", passes), ("seed", seed)):
         if not isinstance(v, (int, np.integer)) or isinstance(v, bool):
             raise TypeError(f"{name} must be an integer, got {v!r}")
     if passes < 2:
-        raise ValueError(f"passes must be >= 2 to estimate a variance, got {passes}")
+        raise ParamError(f"passes must be >= 2 to estimate a variance, got {passes}")
     if spp < 1 or spp % passes:
-        raise ValueError(f"spp ({spp}) must be a positive multiple of passes ({passes})")
+        raise ParamError(f"spp ({spp}) must be a positive multiple of passes ({passes})")
     if seed < 0:
-        raise ValueError(f"seed must be >= 0, got {seed}")
+        raise ParamError(f"seed must be >= 0, got {seed}")
 
 
 def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passes: int = 8,

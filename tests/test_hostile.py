@@ -385,6 +385,12 @@ def test_bad_parameters_and_seeds(tmp_path, capsys):
         assert word in one_line_error(code, err), extra
 
 
+def test_reference_arguments_are_one_line_errors(capsys):
+    for argv in (["--spp", 10, "--passes", 3], ["--spp", 16, "--passes", 1]):
+        code, _, err = run_cli(capsys, "reference", LIT_SPHERE, *argv)
+        assert "passes" in one_line_error(code, err)
+
+
 def test_zero_attenuation_denominator_is_not_a_kernel_exception(tmp_path, capsys):
     """--set c3=0 (with c1 = c2 = 0) divided by zero inside the kernel: a traceback."""
     scene = scene_with(tmp_path, '<integer name="width" value="160"/>', '<integer name="width" value="16"/>')
