@@ -42,6 +42,8 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
+from lxml import etree
+
 from core.errors import SceneError
 from core.xmlscene import parse_file
 

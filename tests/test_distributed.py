@@ -224,10 +224,12 @@ expect = "report"
     assert "cannot move shapes" in rec["time"]["mitsuba_skipped"]
     assert "mitsuba_median_s" not in rec["time"] and rec["metrics"]["relmse"] < 0.1
     json.dumps(rec)
-    with pytest.raises(ValueError, match="motion-blur reference does not support defines"):
+    from core.errors import UnsupportedError
+
+    with pytest.raises(UnsupportedError, match="motion-blur reference does not support defines"):
         get_reference(scene, transport="direct", defines={"spp": "4"}, render_missing=False)
     # Its store key has no variant: a spectral motion reference would collide with the RGB one.
-    with pytest.raises(ValueError, match="does not support spectral"):
+    with pytest.raises(UnsupportedError, match="does not support spectral"):
         get_reference(scene, transport="direct", spectral=True, render_missing=False)
 
 
