@@ -435,6 +435,11 @@ def _rgb(ctx, plugin, name, default):
     if not np.all(np.isfinite(v)):
         raise ctx.error(plugin.el, f"'{name}' is not finite in RGB ({v.tolist()}: a spectrum "
                                    "too large to integrate)")
+    if np.any(v < 0.0):
+        # A non-negative spectrum can still fall outside the sRGB gamut; Mitsuba's RGB
+        # variants clamp it with a warning, gibench refuses it rather than guess.
+        raise ctx.error(plugin.el, f"'{name}' converts to an RGB outside the sRGB gamut "
+                                   f"({', '.join(f'{x:.4g}' for x in v)})")
     return v
 
 
