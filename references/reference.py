@@ -52,7 +52,6 @@ import hashlib
 import json
 import os
 import platform
-import re
 import statistics
 import sys
 import tempfile
@@ -63,15 +62,15 @@ import numpy as np
 from lxml import etree
 
 from core.errors import ParamError, ReferenceError_, SceneError, UnsupportedError
-from core.xmlscene import check_defines as _check_defines, parse_file, resolve as resolve_xml
-from core.xmlscene import substitute
+from core.imageio import ImageError, as_rgb, check_finite
 from core.loader import MAX_FILM_PIXELS, MAX_FILM_SIDE
-from core.imageio import ImageError, as_rgb, check_finite, read_exr, write_exr
+from core.xmlscene import check_defines as _check_defines
+from core.xmlscene import parse_file, resolve as resolve_xml, substitute
 
 from .mitsuba_env import load_mitsuba, mitsuba_versions, spectral_variant
 from .motion_blur import has_motion
-from .store import (IMAGE_FILE, MANIFEST_FILE, VARIANCE_FILE, EntryInvalid, read_entry,  # noqa: F401
-                    sha256_file as _sha256_file, write_entry)
+from .store import EntryInvalid, read_entry, write_entry
+from .store import sha256_file as _sha256_file
 
 __all__ = [
     "STORE_FORMAT",

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from core.errors import GibenchError, MeshError, SceneError, SuiteError
+from core.errors import SceneError, SuiteError
 from core.imageio import read_exr, write_exr
 from core.loader import MAX_FILM_PIXELS, load_scene
 from gibench.cli import main
