@@ -11,6 +11,7 @@ line or a suite manifest are parsed and checked against it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -28,9 +29,12 @@ class Param:
     default: object
     doc: str
     choices: tuple | None = None
+    #: Range of valid values: ``(test, meaning)``, e.g. ``(lambda v: v >= 0, ">= 0")``.
+    valid: tuple | None = None
 
     def parse(self, value, *, algorithm: str):
-        """Convert a CLI/manifest value (string or native) to this parameter's type."""
+        """Convert a CLI/manifest value (string or native) to this parameter's type;
+        a float must be finite, and the value must pass :attr:`valid`."""
         try:
             if self.type is bool:
                 if isinstance(value, str):
@@ -43,7 +47,13 @@ class Param:
                 v = self.type(value)
         except (TypeError, ValueError):
             raise ParamError(f"{algorithm}: parameter '{self.name}' expects {self.type.__name__}, "
-                             f"got {value!r}") from None
+                             f"got {str(value)[:60]!r}") from None
+        if self.type is float and not math.isfinite(v):
+            raise ParamError(f"{algorithm}: parameter '{self.name}' must be a finite number, "
+                             f"got {str(value)[:60]!r}")
+        if self.valid is not None and not self.valid[0](v):
+            raise ParamError(f"{algorithm}: parameter '{self.name}' must be {self.valid[1]}, "
+                             f"got {str(v)[:60]}")
         if self.choices is not None and v not in self.choices:
             raise ParamError(f"{algorithm}: parameter '{self.name}' must be one of "
                              f"{', '.join(map(str, self.choices))}; got {v!r}")

@@ -9,7 +9,9 @@ truncated image behind.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -56,6 +58,19 @@ def check_finite(image, *, name: str = "image") -> None:
         )
 
 
+def _check_writable(path: Path) -> None:
+    """Create the parent directory; refuse (one line) a path that is a directory or
+    whose directory cannot be made or written."""
+    if path.is_dir():
+        raise ImageError(f"{path}: is a directory, not a file to write")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ImageError(f"{path}: cannot create its directory ({exc.strerror or exc})") from None
+    if not os.access(path.parent, os.W_OK):
+        raise ImageError(f"{path}: directory {path.parent} is not writable")
+
+
 def write_exr(path, image, *, metadata: dict | None = None) -> Path:
     """Write a float32 RGB EXR (ZIP compression) atomically and return its path.
 
@@ -68,7 +83,7 @@ def write_exr(path, image, *, metadata: dict | None = None) -> Path:
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     for key, value in (metadata or {}).items():
         header[str(key)] = str(value)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _check_writable(path)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp.exr", dir=path.parent)
     os.close(fd)
     umask = os.umask(0)
@@ -88,7 +103,7 @@ def write_text(path, text: str) -> Path:
     """Write a text file (a report page, a baseline, JSON) atomically, fsync'd, mode 0644;
     return its path.  A crash leaves the old file or the new one, never a torn one."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _check_writable(path)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
@@ -103,18 +118,67 @@ def write_text(path, text: str) -> Path:
     return path
 
 
-def read_exr(path, *, allow_nonfinite: bool = True) -> np.ndarray:
+@contextlib.contextmanager
+def _captured_output():
+    """Collect what C libraries print on file descriptors 1 and 2 (OpenEXR reports a
+    corrupt file there as well as by its exception); yields a list that receives the
+    captured lines.  The caller decides what to show: one line, not a spill."""
+    import io
+
+    lines: list[str] = []
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    py_out = io.StringIO()               # what the binding prints through Python's sys.stdout
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 1)
+        os.dup2(sink.fileno(), 2)
+        try:
+            with contextlib.redirect_stdout(py_out), contextlib.redirect_stderr(py_out):
+                yield lines
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            for fd in saved:
+                os.close(fd)
+            sink.seek(0)
+            text = sink.read().decode("utf-8", "replace") + "\n" + py_out.getvalue()
+            lines.extend(t.strip() for t in text.splitlines() if t.strip())
+
+
+def exr_size(path) -> tuple[int, int]:
+    """``(width, height)`` of an EXR from its header alone (no pixels read)."""
+    path = Path(path)
+    try:
+        with _captured_output():
+            with OpenEXR.File(str(path), header_only=True) as f:
+                lo, hi = f.header()["dataWindow"]
+    except Exception as exc:                              # noqa: BLE001
+        raise ImageError(f"{path}: not a readable EXR file ({str(exc).splitlines()[0][:200]})") from None
+    return int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
+
+
+def read_exr(path, *, allow_nonfinite: bool = True, max_pixels: int | None = None) -> np.ndarray:
     """Read an RGB EXR as a float32 ``(H, W, 3)`` array.
 
     Raises :class:`ImageError` naming the file if it is missing, is not a
-    readable EXR, or has no R, G, B channels; with ``allow_nonfinite=False``
-    also if it holds NaN or Inf.
+    readable EXR (what OpenEXR prints about it is folded into the one-line
+    message, not left on the terminal), has more than ``max_pixels`` pixels, or
+    has no R, G, B channels; with ``allow_nonfinite=False`` also if it holds NaN
+    or Inf.
     """
     path = Path(path)
     if not path.is_file():
         raise ImageError(f"{path}: no such image file")
+    if max_pixels is not None:
+        w, h = exr_size(path)
+        if w * h > max_pixels:
+            raise ImageError(f"{path}: {w}x{h} pixels is more than the limit of {max_pixels}")
+    printed: list[str] = []
     try:
-        with OpenEXR.File(str(path)) as f:
+        with _captured_output() as printed, OpenEXR.File(str(path)) as f:
             channels = f.channels()
             if "RGB" in channels:
                 a = np.asarray(channels["RGB"].pixels, dtype=np.float32)
@@ -127,7 +191,10 @@ def read_exr(path, *, allow_nonfinite: bool = True) -> np.ndarray:
     except ImageError:
         raise
     except Exception as exc:  # OpenEXR raises bare RuntimeError/OSError
-        raise ImageError(f"{path}: not a readable EXR file ({exc})") from None
+        why = (printed or str(exc).splitlines() or [type(exc).__name__])[0][:200]
+        raise ImageError(f"{path}: not a readable EXR file ({why})") from None
+    if printed:                 # OpenEXR reported damage but returned pixels: refuse them
+        raise ImageError(f"{path}: not a readable EXR file ({printed[0][:200]})")
     a = as_rgb(a, name=str(path))
     if not allow_nonfinite:
         check_finite(a, name=str(path))

@@ -60,6 +60,15 @@ emitter          point, directional, spot; ``area`` inside a shape; ``constant``
                  (uniform environment radiance, :attr:`Scene.environment`)
 ===============  ==============================================================
 
+Every property is checked at load against one schema (``_SCHEMA``): the element
+it is given as (``<rgb name="radius">`` is refused), a finite value, and its
+range (fov in (0, 180), radius > 0, colours >= 0, integral integers, an
+invertible ``to_world``, ...); films are limited to :data:`MAX_FILM_SIDE` per
+side and :data:`MAX_FILM_PIXELS` in all, bitmap textures to
+:data:`MAX_TEXTURE_PIXELS`.  The XML layer (defaults, ``$name``, include, path,
+entity-free parsing, the include limits) is :mod:`core.xmlscene`, shared with
+the reference store.
+
 Anything else raises :class:`SceneError` with one line naming the element, the
 file and the line.  Properties that do not change what is rendered by the own
 algorithms and that Mitsuba accepts (``id`` names, film pixel formats, a
@@ -79,6 +88,7 @@ from . import transforms as tf
 from .meshes import MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_uvs, rectangle
 from .scene import Camera, Film, Light, Material, Scene, Shape, Spectrum
 from .errors import SceneError
+from .xmlscene import Document, _snake_case, resolve, short  # noqa: F401  (_snake_case: tests)
 
 __all__ = ["SceneError", "load_scene", "SUPPORTED"]
 
@@ -95,13 +105,6 @@ SUPPORTED = {
 #: Shapes whose uv parameterisation the loader reproduces (for textures); an
 #: ``obj`` needs ``vt`` coordinates in the file.
 _UV_SHAPES = ("rectangle", "obj")
-
-#: Private attribute marking the top element spliced in by an ``<include>`` (its
-#: value indexes ``_Ctx.sources``); namespaced so no plugin property can clash.
-_SRC = "{urn:gibench:loader}source"
-
-#: Mitsuba's limit on nested ``<include>`` files (parser.cpp ``max_include_depth``).
-_MAX_INCLUDE_DEPTH = 15
 
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector",
                "transform")
@@ -144,64 +147,102 @@ _PROPS = {
 
 
 
-class _Ctx:
+#: Largest film gibench renders: each side at most 16384 pixels and at most
+#: 2**25 pixels in all (8192 x 4096); larger films are refused at load rather
+#: than failing on allocation (an image and its variance in float64 already
+#: take 1.6 GB at the limit).
+MAX_FILM_SIDE = 16384
+MAX_FILM_PIXELS = 1 << 25
+
+#: Largest world-space coordinate (and sphere radius): 1e18, so squared distances
+#: (1e36) stay within float32's range (3.4e38), as Mitsuba's renders need.
+MAX_COORDINATE = 1e18
+
+#: Largest bitmap texture read (pixels): a 12000² PNG would need 3.5 GB as float64 RGB.
+MAX_TEXTURE_PIXELS = 1 << 26
+
+# What each property must be, whatever plugin it belongs to: (kind, check, meaning).
+# kind: "number" (<float>/<integer>), "integer" (an integral <integer> or <float>),
+# "colour" (<rgb>/<spectrum>/<float>/<integer>, every component >= 0), "vector"
+# (<point>/<vector>), "transform", "boolean", "string", "ior" (a number > 0 or a
+# material name).  check(v) -> True when the value is in range.
+_SCHEMA = {
+    "fov": ("number", lambda v: 0.0 < v < 180.0, "in (0, 180) degrees"),
+    "near_clip": ("number", lambda v: v > 0.0, "> 0"),
+    "far_clip": ("number", lambda v: v > 0.0, "> 0"),
+    "focus_distance": ("number", lambda v: v > 0.0, "> 0"),
+    "aperture_radius": ("number", lambda v: v >= 0.0, ">= 0"),
+    "shutter_open": ("number", None, ""),
+    "shutter_close": ("number", None, ""),
+    "width": ("integer", lambda v: 1 <= v <= MAX_FILM_SIDE, f"in [1, {MAX_FILM_SIDE}]"),
+    "height": ("integer", lambda v: 1 <= v <= MAX_FILM_SIDE, f"in [1, {MAX_FILM_SIDE}]"),
+    "sample_count": ("integer", lambda v: v >= 1, ">= 1"),
+    "seed": ("integer", None, ""),
+    "stddev": ("number", lambda v: v > 0.0, "> 0"),
+    "radius": ("number", lambda v: v > 0.0, "> 0"),
+    "cutoff_angle": ("number", lambda v: 0.0 < v <= 180.0, "in (0, 180] degrees"),
+    "beam_width": ("number", lambda v: 0.0 < v <= 180.0, "in (0, 180] degrees"),
+    "alpha": ("number", lambda v: v > 0.0, "> 0"),
+    "alpha_u": ("number", lambda v: v > 0.0, "> 0"),
+    "alpha_v": ("number", lambda v: v > 0.0, "> 0"),
+    "cauchy_b": ("number", lambda v: v >= 0.0, ">= 0"),
+    "int_ior": ("ior", lambda v: v > 0.0, "> 0 or a material name"),
+    "ext_ior": ("ior", lambda v: v > 0.0, "> 0 or a material name"),
+    **{name: ("colour", None, ">= 0") for name in (
+        "reflectance", "radiance", "intensity", "irradiance", "specular_reflectance",
+        "specular_transmittance", "color0", "color1", "eta", "k")},
+    **{name: ("vector", None, "") for name in (
+        "center", "position", "direction", "p0", "p1", "gibench_velocity")},
+    **{name: ("transform", None, "") for name in ("to_world", "to_uv")},
+    **{name: ("boolean", None, "") for name in (
+        "flip_normals", "face_normals", "raw", "sample_visible", "jitter")},
+    **{name: ("string", None, "") for name in (
+        "fov_axis", "filename", "material", "distribution", "filter_type", "wrap_mode",
+        "pixel_format", "component_format", "format")},
+}
+
+_KIND_TAGS = {
+    "number": ("float", "integer"), "integer": ("integer", "float"),
+    "colour": ("rgb", "spectrum", "float", "integer"), "vector": ("point", "vector"),
+    "transform": ("transform",), "boolean": ("boolean",), "string": ("string",),
+    "ior": ("float", "integer", "string"),
+}
+
+
+def _check_property(ctx, el, name: str, value):
+    """``value`` of property ``name`` (from element ``el``) checked against
+    :data:`_SCHEMA`: the right element type, finite, in range; returns it (an
+    integral float for an integer property becomes an int)."""
+    spec = _SCHEMA.get(name)
+    if spec is None:
+        return value
+    kind, check, meaning = spec
+    if el.tag not in _KIND_TAGS[kind]:
+        raise ctx.error(el, f"'{name}' must be given as "
+                            f"{' or '.join(f'<{t}>' for t in _KIND_TAGS[kind])}, not <{el.tag}>")
+    if kind == "integer":
+        if float(value) != int(value):
+            raise ctx.error(el, f"'{name}' must be an integer, got {short(value)}")
+        value = int(value)
+    if kind == "colour":
+        comps = value.values if isinstance(value, Spectrum) else np.atleast_1d(value)
+        if np.any(np.asarray(comps, dtype=np.float64) < 0.0):
+            raise ctx.error(el, f"'{name}' must be >= 0 in every component")
+    if kind == "transform" and name == "to_world":
+        det = float(np.linalg.det(value[:3, :3]))
+        if not (np.isfinite(det) and abs(det) > 1e-300):
+            raise ctx.error(el, "to_world is singular (a zero scale or a degenerate matrix)")
+    if check is not None and not (kind == "ior" and isinstance(value, str)) and not check(value):
+        raise ctx.error(el, f"'{name}' must be {meaning}, got {short(value)}")
+    return value
+
+
+class _Ctx(Document):
+    """The resolved document plus the ``id``s of its elements (for ``<ref>``)."""
+
     def __init__(self, path: Path, defines: dict[str, str] | None = None):
-        self.path = path
-        self.defaults: dict[str, str] = dict(defines or {})
+        super().__init__(path, defines)
         self.ids: dict[str, etree._Element] = {}
-        self.files: list[Path] = []
-        # <include>d files: (file, "included from a.xml:3 <- ...") by index; see _expand_includes.
-        self.sources: list[tuple[Path, str]] = []
-        # <path> directories, most recent first (Mitsuba prepends them to its file resolver).
-        self.search: list[Path] = []
-
-    def where(self, el) -> tuple[Path, str]:
-        """The file an element comes from and its include chain ("" for the scene file)."""
-        node = el
-        while node is not None:
-            src = node.get(_SRC) if isinstance(node.tag, str) else None
-            if src is not None:
-                return self.sources[int(src)]
-            node = node.getparent()
-        return self.path, ""
-
-    def error(self, el, msg: str) -> SceneError:
-        line = getattr(el, "sourceline", None) or "?"
-        tag = el.tag if isinstance(el.tag, str) else "?"
-        typ = el.get("type")
-        desc = f'<{tag} type="{typ}">' if typ else f"<{tag}>"
-        path, chain = self.where(el)
-        return SceneError(f"{path}:{line}: {desc}: {msg}{chain}")
-
-    def resolve(self, el, name: str, what: str = "file") -> Path:
-        """A file named in the scene, found as Mitsuba's file resolver finds it: an
-        absolute name as is; a relative one in the ``<path>`` directories (the latest
-        declared first), then in the scene file's directory."""
-        p = Path(name)
-        if p.is_absolute():
-            if p.is_file():
-                return p
-            raise self.error(el, f"{what} not found: {p}")
-        dirs = [*self.search, self.path.parent]
-        for d in dirs:
-            if (d / p).is_file():
-                return (d / p).resolve()
-        raise self.error(el, f"{what} '{name}' not found (searched: {', '.join(str(d) for d in dirs)})")
-
-    def attr(self, el, key: str, default=None):
-        v = el.get(key)
-        if v is None:
-            return default
-        return self.subst(el, v)
-
-    def subst(self, el, v: str) -> str:
-        def rep(m):
-            name = m.group(1)
-            if name not in self.defaults:
-                raise self.error(el, f"'${name}' has no <default> value")
-            return self.defaults[name]
-        return re.sub(r"\$([A-Za-z_][A-Za-z0-9_]*)", rep, v)
-
 
 # ---------------------------------------------------------------- values ---
 
@@ -209,9 +250,11 @@ def _floats(ctx, el, text: str, n: int | None = None) -> np.ndarray:
     try:
         vals = np.array([float(x) for x in re.split(r"[\s,]+", text.strip()) if x], dtype=np.float64)
     except ValueError:
-        raise ctx.error(el, f"cannot parse numbers from '{text}'") from None
+        raise ctx.error(el, f"cannot parse numbers from '{short(text)}'") from None
+    if not np.all(np.isfinite(vals)):
+        raise ctx.error(el, f"not a finite number in '{short(text)}'")
     if n is not None and len(vals) != n:
-        raise ctx.error(el, f"expected {n} numbers, got {len(vals)} in '{text}'")
+        raise ctx.error(el, f"expected {n} numbers, got {len(vals)} in '{short(text)}'")
     return vals
 
 
@@ -223,9 +266,9 @@ def _vec3(ctx, el, key: str = "value") -> np.ndarray:
         if len(vals) == 1:
             return np.repeat(vals, 3)
         if len(vals) != 3:
-            raise ctx.error(el, f"expected 3 numbers in {key}='{v}'")
+            raise ctx.error(el, f"expected 3 numbers in {key}='{short(v)}'")
         return vals
-    return np.array([float(ctx.attr(el, a, "0")) for a in "xyz"])
+    return np.array([_floats(ctx, el, ctx.attr(el, a, "0"), 1)[0] for a in "xyz"])
 
 
 def _transform(ctx, el) -> np.ndarray:
@@ -239,14 +282,14 @@ def _transform(ctx, el) -> np.ndarray:
             elif op.tag == "scale":
                 v = ctx.attr(op, "value")
                 s = _floats(ctx, op, v) if v is not None else np.array(
-                    [float(ctx.attr(op, a, "1")) for a in "xyz"])
+                    [_floats(ctx, op, ctx.attr(op, a, "1"), 1)[0] for a in "xyz"])
                 if len(s) not in (1, 3):
-                    raise ctx.error(op, f"expected 1 or 3 numbers in value='{v}'")
+                    raise ctx.error(op, f"expected 1 or 3 numbers in value='{short(v)}'")
                 m = tf.scale(s if len(s) == 3 else np.repeat(s, 3)) @ m
             elif op.tag == "rotate":
                 axis = _vec3(ctx, op) if op.get("value") is not None else np.array(
-                    [float(ctx.attr(op, a, "0")) for a in "xyz"])
-                m = tf.rotate(axis, float(ctx.attr(op, "angle", "0"))) @ m
+                    [_floats(ctx, op, ctx.attr(op, a, "0"), 1)[0] for a in "xyz"])
+                m = tf.rotate(axis, _floats(ctx, op, ctx.attr(op, "angle", "0"), 1)[0]) @ m
             elif op.tag == "lookat":
                 o = _floats(ctx, op, ctx.attr(op, "origin", ""), 3)
                 t = _floats(ctx, op, ctx.attr(op, "target", ""), 3)
@@ -269,6 +312,8 @@ def _transform(ctx, el) -> np.ndarray:
             if isinstance(exc, SceneError):
                 raise
             raise ctx.error(op, str(exc)) from None
+    if not np.all(np.isfinite(m)):
+        raise ctx.error(el, "the composed transform is not finite (overflow)")
     return m
 
 
@@ -285,12 +330,15 @@ def _value(ctx, el):
         return float(_floats(ctx, el, v, 1)[0])
     if tag == "integer":
         try:
-            return int(v)
+            i = int(v)
         except ValueError:
-            raise ctx.error(el, f"'{v}' is not an integer") from None
+            raise ctx.error(el, f"'{short(v)}' is not an integer") from None
+        if not -2**63 <= i < 2**63:                 # Mitsuba's integers are 64-bit
+            raise ctx.error(el, f"integer '{short(v)}' is outside the 64-bit range")
+        return i
     if tag == "boolean":
         if v.lower() not in ("true", "false"):
-            raise ctx.error(el, f"'{v}' is not a boolean (true/false)")
+            raise ctx.error(el, f"'{short(v)}' is not a boolean (true/false)")
         return v.lower() == "true"
     if tag == "string":
         return v
@@ -330,7 +378,7 @@ class _Plugin:
                 if allowed is not None and name not in allowed:
                     raise ctx.error(c, f"unsupported property '{name}' of {kind} '{self.type}' "
                                        f"(supported: {', '.join(sorted(allowed)) or 'none'})")
-                self.props[name] = _value(ctx, c)
+                self.props[name] = _check_property(ctx, c, name, _value(ctx, c))
             elif c.tag == "ref":
                 ref_id = ctx.attr(c, "id")
                 if ref_id not in ctx.ids:
@@ -384,6 +432,14 @@ def _rgb(ctx, plugin, name, default):
     v = np.asarray(v, dtype=np.float64)
     if v.shape != (3,):
         raise ctx.error(plugin.el, f"'{name}' must be an rgb or float value")
+    if not np.all(np.isfinite(v)):
+        raise ctx.error(plugin.el, f"'{name}' is not finite in RGB ({v.tolist()}: a spectrum "
+                                   "too large to integrate)")
+    if np.any(v < 0.0):
+        # A non-negative spectrum can still fall outside the sRGB gamut; Mitsuba's RGB
+        # variants clamp it with a warning, gibench refuses it rather than guess.
+        raise ctx.error(plugin.el, f"'{name}' converts to an RGB outside the sRGB gamut "
+                                   f"({', '.join(f'{x:.4g}' for x in v)})")
     return v
 
 
@@ -479,12 +535,16 @@ def _bitmap(ctx, t, to_uv) -> dict:
         if path.suffix.lower() == ".exr":
             from .imageio import read_exr
 
-            img = np.asarray(read_exr(path), dtype=np.float64)
+            img = np.asarray(read_exr(path, allow_nonfinite=False, max_pixels=MAX_TEXTURE_PIXELS),
+                             dtype=np.float64)
             srgb = False
         else:
             from PIL import Image
 
             with Image.open(path) as im:
+                if im.width * im.height > MAX_TEXTURE_PIXELS:
+                    raise ValueError(f"{im.width}x{im.height} pixels is more than gibench's limit "
+                                     f"of {MAX_TEXTURE_PIXELS} texture pixels")
                 if im.mode not in ("L", "LA", "RGB", "RGBA", "I", "I;16", "I;16B", "I;16L"):
                     im = im.convert("RGBA" if "A" in im.mode or "transparency" in im.info else "RGB")
                 mode = im.mode
@@ -497,7 +557,7 @@ def _bitmap(ctx, t, to_uv) -> dict:
                 raise ValueError(f"unsupported pixel type {arr.dtype} (mode {mode})")
             srgb = not raw
     except Exception as exc:                      # noqa: BLE001 - any decoder failure is the file's
-        raise ctx.error(t.el, f"cannot read image {path}: {exc}") from None
+        raise ctx.error(t.el, f"cannot read image {path}: {short(str(exc).splitlines()[0] if str(exc) else type(exc).__name__, 200)}") from None
     if img.ndim == 2:
         img = img[:, :, None]
     if img.shape[2] in (2, 4):                     # grey + alpha, RGBA: drop alpha
@@ -540,6 +600,8 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
         s = tf.uniform_scale_factor(m)
         if s is None:
             raise ctx.error(el, "sphere to_world must be a similarity transform (uniform scale)")
+        if not (np.isfinite(radius * s) and radius * s > 0.0):
+            raise ctx.error(el, f"sphere radius in world units must be finite and > 0, got {radius * s}")
         velocity = _velocity(ctx, el, p)
         return Shape(kind="sphere", material=mat, name=name, source="sphere",
                      center=tf.transform_points(m, center), radius=radius * s,
@@ -558,7 +620,7 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
             raise ctx.error(el, "missing 'filename' string")
         path = ctx.resolve(el, fn, "mesh file")
         try:
-            v, f, n, uvs = load_mesh_uvs(path)
+            v, f, n, uvs = load_mesh_uvs(path, p.type)
         except MeshError as exc:
             raise ctx.error(el, str(exc)) from None
         ctx.files.append(path)
@@ -632,6 +694,18 @@ def _velocity(ctx, el, p):
     return v
 
 
+def _unit(ctx, el, d) -> np.ndarray:
+    """``d`` normalised (scaled by its largest component first, so that components
+    near the float limit do not overflow the norm); a zero or non-finite direction
+    is an error."""
+    d = np.asarray(d, dtype=np.float64)
+    big = np.abs(d).max() if d.size else 0.0
+    if not (np.isfinite(big) and big > 0.0):
+        raise ctx.error(el, f"the emitter's direction must be finite and non-zero, got {d.tolist()}")
+    d = d / big
+    return d / np.linalg.norm(d)
+
+
 def _light(ctx, el) -> Light:
     p = _Plugin(ctx, el, "emitter")
     p.unexpected_children(())
@@ -646,15 +720,13 @@ def _light(ctx, el) -> Light:
     if p.type == "directional":
         d = p.get("direction")
         d = tf.transform_vectors(m, [0.0, 0.0, 1.0]) if d is None else np.asarray(d, dtype=np.float64)
-        if np.linalg.norm(d) == 0:
-            raise ctx.error(el, "directional emitter has a zero direction")
-        return Light("directional", _rgb(ctx, p, "irradiance", 1.0), direction=d / np.linalg.norm(d),
+        return Light("directional", _rgb(ctx, p, "irradiance", 1.0), direction=_unit(ctx, el, d),
                      name=name)
     cutoff = float(p.get("cutoff_angle", 20.0))
     beam = float(p.get("beam_width", cutoff * 0.75))
     d = tf.transform_vectors(m, [0.0, 0.0, 1.0])
     return Light("spot", _rgb(ctx, p, "intensity", 1.0), position=tf.transform_points(m, np.zeros(3)),
-                 direction=d / np.linalg.norm(d), cutoff_angle=cutoff, beam_width=beam, name=name)
+                 direction=_unit(ctx, el, d), cutoff_angle=cutoff, beam_width=beam, name=name)
 
 
 def _camera(ctx, el) -> Camera:
@@ -670,8 +742,9 @@ def _camera(ctx, el) -> Camera:
             rp.unexpected_children(())
             rf, rfp = rp.type, dict(rp.props)
         film = Film(int(fp.get("width", 768)), int(fp.get("height", 576)), rf, rfp)
-        if film.width <= 0 or film.height <= 0:
-            raise ctx.error(f, f"film size must be positive, got {film.width}x{film.height}")
+        if film.width * film.height > MAX_FILM_PIXELS:
+            raise ctx.error(f, f"film of {film.width}x{film.height} pixels is larger than gibench's "
+                               f"limit of {MAX_FILM_PIXELS} pixels")
     for s in p.child_elements("sampler"):
         sp = _Plugin(ctx, s, "sampler")
         spp = int(sp.get("sample_count", 4))
@@ -717,138 +790,16 @@ def _integrator(ctx, el) -> dict:
     return out
 
 
-# ---------------------------------------------------------------- upgrade ---
 
-def _snake_case(name: str) -> str:
-    """Mitsuba 3's camelCase -> snake_case rule (xml.cpp ``upgrade_tree``), kept
-    exactly: at a lower-upper pair insert ``_`` and lower-case the run of capitals
-    that follows (``intIOR`` -> ``int_ior``); the character after that run is
-    skipped, as in Mitsuba's loop."""
-    i = 0
-    while i < len(name) - 1:
-        if name[i].islower() and name[i + 1].isupper():
-            name = name[:i + 1] + "_" + name[i + 1:]
-            i += 2
-            while i < len(name) and name[i].isupper():
-                name = name[:i] + name[i].lower() + name[i + 1:]
-                i += 1
-        i += 1
-    return name
+def _check_extent(ctx, el, values) -> None:
+    """World-space coordinates (vertices, centres, radii, positions) must lie within
+    :data:`MAX_COORDINATE`: squared distances then stay finite in float32, which
+    Mitsuba renders in, and areas and light pdfs stay finite in float64."""
+    big = float(np.abs(np.asarray(values, dtype=np.float64)).max(initial=0.0))
+    if not big <= MAX_COORDINATE:
+        raise ctx.error(el, f"world coordinates up to {big:.3g} exceed gibench's limit of "
+                            f"{MAX_COORDINATE:g}")
 
-
-def _upgrade_pre_v2(root) -> None:
-    """In-memory upgrade of a Mitsuba 0.x/1.x scene, as Mitsuba 3 performs it
-    (parameter names only; ``<lookAt>`` is not renamed, see the module docstring)."""
-    for el in root.iter():
-        if not isinstance(el.tag, str):
-            continue
-        if el.tag != "default" and el.get("name") is not None:
-            el.set("name", _snake_case(el.get("name")))
-    for el in root.iter("bsdf"):
-        if el.get("type") == "diffuse":
-            for c in el:
-                if isinstance(c.tag, str) and c.get("name") == "diffuse_reflectance":
-                    c.set("name", "reflectance")
-
-
-# --------------------------------------------------------------- include ---
-
-def _parse_xml(path: Path, where: str = "") -> etree._Element:
-    try:
-        return etree.parse(str(path), etree.XMLParser(remove_comments=True)).getroot()
-    except etree.XMLSyntaxError as exc:
-        line = exc.lineno if exc.lineno is not None else "?"
-        raise SceneError(f"{path}:{line}: malformed XML: {exc.msg}{where}") from None
-    except OSError as exc:
-        raise SceneError(f"{path}: cannot read: {exc}{where}") from None
-
-
-def _check_version(ctx, root, where: str = "") -> int:
-    """The major version of a file's root ``version`` attribute; a file older
-    than 2.0 is upgraded in memory (:func:`_upgrade_pre_v2`)."""
-    version = root.get("version", "3.0.0")
-    m = re.fullmatch(r"\s*(\d+)\.(\d+)(?:\.(\d+))?\s*", version)
-    if m is None or int(m.group(1)) > 3:
-        raise ctx.error(root, f"unsupported scene version '{version}' (0.x to 3.x)")
-    if int(m.group(1)) < 2:
-        _upgrade_pre_v2(root)
-    return int(m.group(1))
-
-
-def _expand_includes(ctx, root, file: Path, chain: str, depth: int) -> None:
-    """Replace every ``<include filename=...>`` under ``root`` by the file's content and
-    record the ``<path value=...>`` directories, in document order, as Mitsuba 3's
-    parser does (parser.cpp, ``TagType::Include`` / ``TagType::Resource``):
-
-    * ``<path>`` may only be a child of the root; a relative directory is taken
-      from the directory of the file that declares it, else looked up in the
-      directories declared before; it must exist.  Later ones are searched first.
-    * An included file is looked up in the including file's directory, then in
-      the ``<path>`` directories, then in the scene file's directory.  It needs a
-      ``version`` on its root (files older than 2.0 are upgraded on their own
-      version); a ``<scene>`` root contributes its children, any other root
-      element (e.g. a ``<bsdf>``) is inserted itself, named by the include's
-      ``name``.  Nesting stops at depth 15.
-
-    Errors inside an included file name that file and line and then the chain
-    of includes that led to it.
-    """
-    for el in list(root.iter("include", "path")):
-        if el.tag == "path":
-            if el.getparent() is not root:
-                raise ctx.error(el, "<path> can only be a child of the root <scene>")
-            value = ctx.attr(el, "value")
-            if not value:
-                raise ctx.error(el, "<path> needs a 'value' attribute")
-            d = Path(value)
-            if not d.is_absolute():
-                cands = [file.parent / d, *(s / d for s in ctx.search), ctx.path.parent / d]
-                d = next((c for c in cands if c.is_dir()), file.parent / d)
-            if not d.is_dir():
-                raise ctx.error(el, f"<path>: folder '{value}' not found")
-            ctx.search.insert(0, d.resolve())
-            el.getparent().remove(el)
-            continue
-        name = ctx.attr(el, "filename")
-        if not name:
-            raise ctx.error(el, "<include> needs a 'filename' attribute")
-        dirs = [file.parent, *ctx.search, ctx.path.parent]
-        found = Path(name) if Path(name).is_absolute() else next(
-            (d / name for d in dirs if (d / name).is_file()), None)
-        if found is None or not found.is_file():
-            raise ctx.error(el, f"included file '{name}' not found "
-                                f"(searched: {', '.join(str(d) for d in dict.fromkeys(dirs))})")
-        if depth + 1 > _MAX_INCLUDE_DEPTH:
-            raise ctx.error(el, f"more than {_MAX_INCLUDE_DEPTH} nested <include> files")
-        found = found.resolve()
-        ctx.files.append(found)
-        here = f"{file.name if file == ctx.path else file}:{el.sourceline}"
-        sub_chain = f" (included from {here}" + (f", {chain[2:]}" if chain else ")")
-        inc = _parse_xml(found, sub_chain)
-        ctx.sources.append((found, sub_chain))
-        mark = str(len(ctx.sources) - 1)
-        inc.set(_SRC, mark)
-        if inc.get("version") is None:
-            raise ctx.error(inc, "an included file needs a 'version' attribute on its root element")
-        _check_version(ctx, inc)
-        if inc.tag == "scene":
-            for c in inc:
-                if isinstance(c.tag, str) and c.tag == "default":
-                    ctx.defaults.setdefault(c.get("name"), c.get("value"))
-        _expand_includes(ctx, inc, found, sub_chain, depth + 1)
-        parts = [c for c in inc if isinstance(c.tag, str)] if inc.tag == "scene" else [inc]
-        parent, at = el.getparent(), el.getparent().index(el)
-        for c in parts:
-            if c.get(_SRC) is None:
-                c.set(_SRC, mark)
-        if inc.tag != "scene" and el.get("name") is not None:
-            inc.set("name", el.get("name"))
-        parent.remove(el)
-        for k, c in enumerate(parts):
-            parent.insert(at + k, c)
-
-
-# ------------------------------------------------------------------ entry ---
 
 def load_scene(path, defines: dict | None = None) -> Scene:
     """Parse a Mitsuba 3 XML scene file into a :class:`~core.scene.Scene`.
@@ -864,23 +815,9 @@ def load_scene(path, defines: dict | None = None) -> Scene:
         malformed XML, an unsupported plugin or property, or a missing mesh.
     """
     path = Path(path)
-    if not path.is_file():
-        raise SceneError(f"{path}: scene file not found")
-    root = _parse_xml(path)
-    ctx = _Ctx(path, {str(k): str(v) for k, v in (defines or {}).items()})
-    if root.tag != "scene":
-        raise ctx.error(root, "the root element must be <scene>")
-    _check_version(ctx, root)
-
-    # Pass 1: defaults, includes and paths, then ids (Mitsuba resolves <default>
-    # before anything else; an included scene's defaults join in document order).
-    for c in root:
-        if isinstance(c.tag, str) and c.tag == "default":
-            name, value = c.get("name"), c.get("value")
-            if name is None or value is None:
-                raise ctx.error(c, "<default> needs 'name' and 'value'")
-            ctx.defaults.setdefault(name, value)
-    _expand_includes(ctx, root, path, "", 0)
+    # Pass 1 (core.xmlscene): defaults, includes and paths; then ids.
+    ctx = resolve(path, defines, cls=_Ctx)
+    root = ctx.root
     for c in root.iter():
         if isinstance(c.tag, str) and c.get("id") is not None and c.tag != "ref":
             ctx.ids[ctx.attr(c, "id")] = c
@@ -906,16 +843,24 @@ def load_scene(path, defines: dict | None = None) -> Scene:
             if camera is not None:
                 raise ctx.error(c, "more than one sensor")
             camera = _camera(ctx, c)
+            _check_extent(ctx, c, camera.to_world[:3, 3])
         elif c.tag == "bsdf":
             _material(ctx, c, materials, cache)
         elif c.tag == "shape":
-            shapes.append(_shape(ctx, c, materials, cache, default_mat))
+            shape = _shape(ctx, c, materials, cache, default_mat)
+            if shape.kind == "sphere":
+                _check_extent(ctx, c, [*shape.center, shape.radius])
+            else:
+                _check_extent(ctx, c, shape.vertices)
+            shapes.append(shape)
         elif c.tag == "emitter" and ctx.attr(c, "type") == "constant":
             if environment is not None:
                 raise ctx.error(c, "more than one constant environment emitter")
             environment = _environment(ctx, c)
         elif c.tag == "emitter":
             lights.append(_light(ctx, c))
+            if lights[-1].position is not None:
+                _check_extent(ctx, c, lights[-1].position)
         else:
             raise ctx.error(c, f"unsupported element '{c.tag}' at scene level "
                                "(supported: default, integrator, sensor, bsdf, shape, emitter)")

@@ -104,34 +104,179 @@ def angle_weighted_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.divide(n, ln, out=np.zeros_like(n), where=ln > 0)
 
 
-def load_mesh_file(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+def load_mesh_file(path: Path, file_type: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Read an OBJ or PLY file: (vertices, faces, normals-from-the-file or None)."""
-    v, f, n, _ = load_mesh_uvs(path)
+    v, f, n, _ = load_mesh_uvs(path, file_type)
     return v, f, n
 
 
-def load_mesh_uvs(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+def _obj_text(path: Path, data: bytes) -> str:
+    """The OBJ file as text after Mitsuba's checks, or a :class:`MeshError` naming the
+    line: numbers must parse and be finite, face indices must be non-zero and refer
+    to an existing vertex (1-based, negative = relative to the vertices so far).
+    Bytes that are not UTF-8 (a Latin-1 comment) are read as Latin-1: only ASCII
+    keywords and numbers matter, as in Mitsuba's byte-oriented parser."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        text = data.decode("latin-1")
+    counts = {"v": 0, "vt": 0, "vn": 0}
+    largest = {k: (0, 0) for k in counts}         # the largest positive index and its line
+    for lineno, line in enumerate(text.splitlines(), 1):
+        tok = line.split()
+        if not tok or tok[0].startswith("#"):
+            continue
+        key = tok[0]
+        if key in counts:
+            need = 2 if key == "vt" else 3
+            try:
+                vals = [float(t) for t in tok[1:1 + need]]
+            except ValueError:
+                raise MeshError(f"{path}:{lineno}: cannot parse '{line.strip()[:60]}'") from None
+            if len(vals) < need or not all(np.isfinite(vals)):
+                raise MeshError(f"{path}:{lineno}: '{key}' needs {need} finite numbers")
+            counts[key] += 1
+        elif key == "f":
+            if len(tok) < 4:
+                raise MeshError(f"{path}:{lineno}: a face needs at least 3 vertices")
+            for t in tok[1:]:
+                parts = t.split("/")
+                for kind, raw in zip(("v", "vt", "vn"), parts):
+                    if raw == "" and kind != "v":
+                        continue
+                    try:
+                        i = int(raw)
+                    except ValueError:
+                        raise MeshError(f"{path}:{lineno}: bad face index '{t[:30]}'") from None
+                    n = counts[kind]
+                    if i == 0 or -i > n:
+                        raise MeshError(f"{path}:{lineno}: face index {i} does not refer to a "
+                                        f"'{kind}' entry (1-based; {n} before this line)")
+                    if i > largest[kind][0]:
+                        largest[kind] = (i, lineno)
+    for kind, (i, lineno) in largest.items():     # positive indices: any entry of the file
+        if i > counts[kind]:
+            raise MeshError(f"{path}:{lineno}: face index {i} is out of range (the file has "
+                            f"{counts[kind]} '{kind}' entries)")
+    return text
+
+
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2,
+              "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4,
+              "double": 8, "float64": 8}
+
+
+def _ply_check(path: Path, data: bytes) -> dict[str, int]:
+    """Check a PLY file's header and that its body holds every element the header
+    declares (a truncated file is refused, as Mitsuba does); returns the element
+    counts."""
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise MeshError(f"{path}: not a PLY file (no 'ply' magic or no end_header)")
+    nl = data.find(b"\n", end)
+    header = data[:end].decode("latin-1").splitlines()
+    body = data[nl + 1:] if nl >= 0 else b""
+    fmt, elements = None, []                        # [(name, count, [props])]
+    for lineno, line in enumerate(header, 1):
+        tok = line.split()
+        try:
+            if tok and tok[0] == "format":
+                fmt = tok[1]
+            elif tok and tok[0] == "element":
+                elements.append((tok[1], int(tok[2]), []))
+            elif tok and tok[0] == "property":
+                if tok[1] == "list":
+                    elements[-1][2].append((_PLY_SIZES[tok[2]], _PLY_SIZES[tok[3]], tok[2]))
+                else:
+                    elements[-1][2].append((None, _PLY_SIZES[tok[1]], tok[1]))
+        except (IndexError, KeyError, ValueError):
+            raise MeshError(f"{path}:{lineno}: malformed PLY header line '{line[:60]}'") from None
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise MeshError(f"{path}: unknown PLY format {fmt!r}")
+    if any(count < 0 for _, count, _ in elements):
+        raise MeshError(f"{path}: negative PLY element count")
+    truncated = MeshError(f"{path}: truncated PLY file (the body holds fewer elements than "
+                          "the header declares)")
+    if fmt == "ascii":
+        tokens = body.split()
+        at = 0
+        for _, count, props in elements:
+            if all(c is None for c, _, _ in props):
+                at += count * len(props)
+                continue
+            for _ in range(count):
+                for c, _, _ in props:
+                    if c is None:
+                        at += 1
+                    else:
+                        if at >= len(tokens):
+                            raise truncated
+                        try:
+                            at += 1 + int(tokens[at])
+                        except ValueError:
+                            raise MeshError(f"{path}: bad PLY list length {tokens[at][:20]!r}") from None
+        if at > len(tokens):
+            raise truncated
+    else:
+        order = "<" if fmt == "binary_little_endian" else ">"
+        at = 0
+        for _, count, props in elements:
+            if all(c is None for c, _, _ in props):
+                at += count * sum(sz for _, sz, _ in props)
+                continue
+            for _ in range(count):
+                for c, sz, name in props:
+                    if c is None:
+                        at += sz
+                        continue
+                    if at + c > len(body):
+                        raise truncated
+                    n = int.from_bytes(body[at:at + c], "little" if order == "<" else "big",
+                                       signed=False)
+                    at += c + n * sz
+        if at > len(body):
+            raise truncated
+    return {name: count for name, count, _ in elements}
+
+
+def load_mesh_uvs(path: Path, file_type: str | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """:func:`load_mesh_file` plus the texture coordinates, (V, 2) or None.
+
+    ``file_type`` (``"obj"``/``"ply"``, the shape's ``type``) decides the format,
+    as in Mitsuba (default: the file's extension).  The file is checked first as
+    Mitsuba checks it (see :func:`_obj_text`, :func:`_ply_check`), then read with
+    trimesh; vertices must be finite and face indices in range.
 
     OBJ ``vt`` coordinates arrive as Mitsuba's OBJ loader stores them: v is
     flipped, (u, 1 − v), so that with the bitmap texture's row 0 = first file
     row an image maps upright (measured against Mitsuba 3.9's ``uv`` AOV).
     PLY texture coordinates are not read (None).
     """
+    import io
+
     import trimesh
 
     path = Path(path)
     if not path.is_file():
         raise MeshError(f"mesh file not found: {path}")
-    ext = path.suffix.lower().lstrip(".")
-    loader = trimesh.exchange.load.mesh_loaders.get(ext)
-    if loader is None:
+    ext = (file_type or path.suffix.lower().lstrip(".")).lower()
+    if ext not in ("obj", "ply"):
         raise MeshError(f"unsupported mesh file type '.{ext}': {path}")
+    loader = trimesh.exchange.load.mesh_loaders.get(ext)
     try:
-        with open(path, "rb") as fh:
-            kw = loader(fh, file_type=ext)
-    except Exception as exc:
+        data = path.read_bytes()
+    except OSError as exc:
         raise MeshError(f"cannot read mesh file {path}: {exc}") from None
+    declared = None
+    if ext == "obj":
+        source = io.StringIO(_obj_text(path, data))
+    else:
+        declared = _ply_check(path, data)
+        source = io.BytesIO(data)
+    try:
+        kw = loader(source, file_type=ext)
+    except Exception as exc:                      # noqa: BLE001 - any parser failure is the file's
+        raise MeshError(f"cannot read mesh file {path}: {str(exc)[:200]}") from None
     # The format loaders return one geometry or a dict of them (OBJ objects).
     parts = list(kw["geometry"].values()) if "geometry" in kw else [kw]
     vs, fs, ns, uvs, base = [], [], [], [], 0
@@ -141,6 +286,9 @@ def load_mesh_uvs(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None
         gf = np.asarray(g.get("faces", np.zeros((0, 3))), dtype=np.int64)
         if gf.ndim != 2 or (len(gf) and gf.shape[1] != 3):
             raise MeshError(f"mesh file {path} has non-triangular faces")
+        if len(gf) and (gf.min() < 0 or gf.max() >= len(gv)):
+            raise MeshError(f"mesh file {path}: a face index is out of range "
+                            f"(0..{len(gv) - 1}): {int(gf.min())}..{int(gf.max())}")
         gn = g.get("vertex_normals")
         vs.append(gv)
         fs.append(gf.reshape(-1, 3) + base)
@@ -148,9 +296,16 @@ def load_mesh_uvs(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None
         uvs.append(None if uv is None or len(uv) != len(gv) else
                    np.asarray(uv, dtype=np.float64).reshape(-1, 2) * [1.0, -1.0] + [0.0, 1.0])
         base += len(gv)
-    v, f = np.concatenate(vs), np.concatenate(fs)
-    if len(f) == 0:
+    if not vs or sum(len(f) for f in fs) == 0:
         raise MeshError(f"mesh file {path} has no triangles")
+    v, f = np.concatenate(vs), np.concatenate(fs)
+    if declared is not None and len(v) != declared.get("vertex", len(v)):
+        raise MeshError(f"mesh file {path}: {len(v)} vertices read, the header declares "
+                        f"{declared['vertex']}")
+    if not np.all(np.isfinite(v)):
+        raise MeshError(f"mesh file {path} has non-finite vertex coordinates")
     normals = np.concatenate(ns) if all(n is not None and len(n) == len(vv) for n, vv in zip(ns, vs)) else None
+    if normals is not None and not np.all(np.isfinite(normals)):
+        raise MeshError(f"mesh file {path} has non-finite vertex normals")
     tex = np.concatenate(uvs) if all(u is not None for u in uvs) else None
     return v, f, normals, tex

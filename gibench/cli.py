@@ -138,20 +138,43 @@ def _find_variance(image: Path) -> Path | None:
     return None
 
 
+def _read_variance(path: Path):
+    """A variance image: finite and non-negative, else a one-line :class:`ImageError`."""
+    from core.imageio import ImageError, read_exr
+
+    v = read_exr(path, allow_nonfinite=False)
+    if (v < 0).any():
+        raise ImageError(f"{path}: a variance image holds negative values")
+    return v
+
+
 def cmd_compare(args) -> int:
     from reports.metrics import compare
 
-    from core.imageio import read_exr
+    from core.imageio import ImageError, read_exr
+    from references.store import EntryInvalid, is_entry, read_entry
 
     test_path, ref_path = Path(args.image), Path(args.reference)
-    if ref_path.is_dir():
-        ref_path = ref_path / "image.exr"
-    test = read_exr(test_path)
-    ref = read_exr(ref_path)
-    rv = Path(args.reference_variance) if args.reference_variance else _find_variance(ref_path)
+    entry = ref_path if ref_path.is_dir() else (
+        ref_path.parent if ref_path.name == "image.exr" and is_entry(ref_path.parent) else None)
+    test = read_exr(test_path, allow_nonfinite=False)
+    if entry is not None:
+        # A store entry is read through the store's checks (key, image hashes, finite, shapes).
+        try:
+            ref, ref_var, _ = read_entry(entry)
+        except EntryInvalid as exc:
+            raise ImageError(f"{entry}: stored reference not usable: {exc}") from None
+        ref_path, rv = entry / "image.exr", entry / "variance.exr"
+    else:
+        ref = read_exr(ref_path, allow_nonfinite=False)
+        rv = _find_variance(ref_path)
+        ref_var = _read_variance(rv) if rv else None
+    if args.reference_variance:
+        rv = Path(args.reference_variance)
+        ref_var = _read_variance(rv)
     tv = Path(args.test_variance) if args.test_variance else _find_variance(test_path)
-    metrics = compare(ref, test, reference_variance=read_exr(rv) if rv else None,
-                      test_variance=read_exr(tv) if tv else None)
+    metrics = compare(ref, test, reference_variance=ref_var,
+                      test_variance=_read_variance(tv) if tv else None)
     if args.json:
         print(json.dumps(metrics, indent=2, default=str))
         return 0
@@ -402,8 +425,43 @@ def cmd_report(args) -> int:
     return 0
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a bad command line reported as one line and exit status 2."""
+
+    def error(self, message):
+        print(f"gibench: error: {self.prog.split()[-1] if ' ' in self.prog else 'gibench'}: "
+              f"{message} (see --help)", file=sys.stderr)
+        sys.exit(2)
+
+
+def _positive(text: str) -> int:
+    """An argparse type: an integer >= 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text[:40]!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    return v
+
+
+#: Seeds are unsigned 32-bit integers (Mitsuba's sampler seed).
+SEED_MAX = 2**32 - 1
+
+
+def _seed(text: str) -> int:
+    """An argparse type: a seed in [0, 2**32 - 1]."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer seed, got {text[:40]!r}") from None
+    if not 0 <= v <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"a seed must be in [0, {SEED_MAX}], got {text[:40]}")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="gibench", description="Validation and benchmarking harness "
+    p = _Parser(prog="gibench", description="Validation and benchmarking harness "
                                 "for global-illumination algorithms, against Mitsuba 3 references.")
     sub = p.add_subparsers(dest="command", required=True)
 
@@ -413,10 +471,10 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("render", help="render a scene with an own algorithm")
     s.add_argument("scene")
     s.add_argument("--algorithm", "-a", required=True)
-    s.add_argument("--spp", type=int, help="samples per pixel (default: the scene's sampler sample_count)")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--spp", type=_positive, help="samples per pixel (default: the scene's sampler sample_count)")
+    s.add_argument("--seed", type=_seed, default=0)
     s.add_argument("--set", action="append", metavar="KEY=VALUE", help="algorithm parameter")
-    s.add_argument("--repeats", type=int, default=3, help="timed renders after the warm-up")
+    s.add_argument("--repeats", type=_positive, default=3, help="timed renders after the warm-up")
     s.add_argument("--out", "-o", required=True, help="output EXR (a .json sidecar is written beside it)")
     s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
                    help="override the scene's <default name=NAME> value (as Mitsuba's -D)")
@@ -426,9 +484,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scene")
     s.add_argument("--transport", choices=("full", "direct", "whitted"), default="full",
                    help="full: Mitsuba path; direct: Mitsuba direct; whitted: delta bounces, then direct light")
-    s.add_argument("--spp", type=int, default=1024)
-    s.add_argument("--passes", type=int, default=8)
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--spp", type=_positive, default=1024)
+    s.add_argument("--passes", type=_positive, default=8)
+    s.add_argument("--seed", type=_seed, default=0)
     s.add_argument("--force", action="store_true", help="re-render even if a valid entry exists")
     s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
                    help="override the scene's <default name=NAME> value (as Mitsuba's -D)")
@@ -448,7 +506,7 @@ def build_parser() -> argparse.ArgumentParser:
         s.add_argument("--store", help="reference store directory (default: references/store)")
         s.add_argument("--history", help="history database (default: reports/out/history.sqlite)")
         s.add_argument("--no-history", action="store_true", help="do not store the records in it")
-        s.add_argument("--jobs", "-j", type=int, default=1, help="local worker processes")
+        s.add_argument("--jobs", "-j", type=_positive, default=1, help="local worker processes")
         s.add_argument("--executor", help="dask://HOST:PORT: run the cases on a Dask cluster")
         s.add_argument("--no-progress", action="store_true", help="no progress bar")
         if mitsuba:
@@ -458,7 +516,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("baseline", help="run a suite with several seeds and write a CI baseline")
     s.add_argument("suite", nargs="?", default=None, help="suite (default: ci)")
     s.add_argument("--out", "-o", required=True, help="baseline JSON to write")
-    s.add_argument("--seeds", type=int, default=3,
+    s.add_argument("--seeds", type=_positive, default=3,
                    help="own-render seeds 0..K-1; their spread sets the tolerances")
     common(s)
     s.set_defaults(func=cmd_baseline)
@@ -479,9 +537,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--set", action="append", metavar="KEY=VALUE", help="fixed algorithm parameter")
     s.add_argument("--transport", choices=("full", "direct", "whitted"),
                    help="reference transport (default: the algorithm's)")
-    s.add_argument("--reference-spp", type=int, default=1024)
-    s.add_argument("--reference-passes", type=int, default=8)
-    s.add_argument("--repeats", type=int, default=3)
+    s.add_argument("--reference-spp", type=_positive, default=1024)
+    s.add_argument("--reference-passes", type=_positive, default=8)
+    s.add_argument("--repeats", type=_positive, default=3)
     s.add_argument("--ladder", default="1,4,16,64,256", help="Mitsuba spp ladder ('' for none)")
     s.add_argument("--metric", default="relmse", help="error metric of the table")
     common(s)
@@ -491,7 +549,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--metric", help="metric or time key (default relmse)")
     s.add_argument("--scene")
     s.add_argument("--algorithm")
-    s.add_argument("--limit", type=int)
+    s.add_argument("--limit", type=_positive)
     s.add_argument("--history")
     s.add_argument("--no-history", action="store_true", help=argparse.SUPPRESS)
     s.set_defaults(func=cmd_history)
@@ -530,7 +588,10 @@ def main(argv=None) -> int:
     """Run the command line.  Bad input (:class:`core.errors.GibenchError`) prints one
     line ``gibench: error: <cause>`` and exits 2; any other exception is a bug and
     keeps its traceback."""
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:            # a bad command line (one line, see _Parser) or --help
+        return exc.code if isinstance(exc.code, int) else 2
     try:
         return args.func(args)
     except GibenchError as exc:

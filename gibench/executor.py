@@ -27,7 +27,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from typing import Callable, Iterable, Iterator
 from core.errors import GibenchError
 
-__all__ = ["ExecutorError", "parse_executor", "map_unordered"]
+__all__ = ["ExecutorError", "parse_executor", "map_unordered", "handshake"]
 
 
 
@@ -95,6 +95,7 @@ def map_unordered(fn: Callable, items: Iterable, *, kind: str = "serial", detail
         except ImportError:
             raise ExecutorError("--executor dask://... needs dask[distributed] "
                                 "(pip install 'dask[distributed]')") from None
+        handshake(detail, connect_timeout)
         try:
             client = Client(detail, timeout=f"{connect_timeout}s", set_as_default=False)
         except (OSError, TimeoutError) as exc:
@@ -106,6 +107,38 @@ def map_unordered(fn: Callable, items: Iterable, *, kind: str = "serial", detail
             client.close()
         return
     raise ExecutorError(f"unknown executor kind {kind!r}")
+
+
+def handshake(address: str, timeout: float = 10.0) -> dict:
+    """Ask the Dask scheduler at ``address`` who it is, all of it (TCP connect, the
+    comm handshake, one ``identity`` request and its answer) under one deadline of
+    ``timeout`` seconds; returns the scheduler's identity.  Raises
+    :class:`ExecutorError` if nothing answers in time or the answer is not a Dask
+    scheduler's (a port that accepts and never answers would otherwise hang the
+    client's own connect, whose timeout does not cover the handshake)."""
+    import asyncio
+
+    from distributed.comm import connect
+
+    async def ask():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await comm.read()
+        finally:
+            comm.abort()
+
+    try:
+        reply = asyncio.run(asyncio.wait_for(ask(), timeout))
+    except (TimeoutError, asyncio.TimeoutError):
+        raise ExecutorError(f"the Dask scheduler at {address} did not answer within "
+                            f"{timeout:g} s") from None
+    except Exception as exc:                      # noqa: BLE001 - any failure to talk is the address's
+        first = (str(exc).splitlines() or [type(exc).__name__])[0][:200]
+        raise ExecutorError(f"cannot reach the Dask scheduler at {address}: {first}") from None
+    if not isinstance(reply, dict) or reply.get("type") != "Scheduler":
+        raise ExecutorError(f"{address} answered, but not as a Dask scheduler")
+    return reply
 
 
 def _dask_loop(client, fn, items, dask_as_completed):

@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import sqlite3
 from pathlib import Path
 
@@ -95,8 +96,13 @@ def default_db() -> Path:
 def connect(path=None) -> sqlite3.Connection:
     """Open (creating if needed) the history database at ``path`` in WAL mode."""
     path = Path(path) if path is not None else default_db()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    con = sqlite3.connect(path, timeout=30.0)
+    if path.is_dir():
+        raise HistoryError(f"{path}: is a directory, not a history database file")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        con = sqlite3.connect(path, timeout=30.0)
+    except (OSError, sqlite3.Error) as exc:
+        raise HistoryError(f"{path}: cannot open the history database ({exc})") from None
     try:
         con.execute("PRAGMA journal_mode=WAL")
         con.execute("PRAGMA synchronous=NORMAL")
@@ -108,10 +114,31 @@ def connect(path=None) -> sqlite3.Connection:
         con.close()
         raise HistoryError(f"{path}: schema version {version} is newer than this gibench's "
                            f"{SCHEMA_VERSION}; use a newer gibench or another --history file")
-    with con:
-        con.executescript(_SCHEMA)
-        con.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+    try:
+        with con:
+            con.executescript(_SCHEMA)
+            con.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+        _check_tables(con, path)
+    except (sqlite3.Error, HistoryError) as exc:
+        con.close()
+        if isinstance(exc, HistoryError):
+            raise
+        raise HistoryError(f"{path}: not a usable history database ({exc})") from None
     return con
+
+
+def _check_tables(con: sqlite3.Connection, path: Path) -> None:
+    """Refuse a database whose ``results``/``benchmarks`` tables are not gibench's
+    (another program's table of the same name): every column of the schema must be there."""
+    for table in ("results", "benchmarks"):
+        have = {row[1] for row in con.execute(f"PRAGMA table_info({table})")}
+        want = set(re.findall(r"^\s+(\w+) (?:INTEGER|TEXT|REAL)",
+                              _SCHEMA.split(f"CREATE TABLE IF NOT EXISTS {table} (")[1].split(");")[0],
+                              re.M))
+        missing = sorted(want - have)
+        if missing:
+            raise HistoryError(f"{path}: its '{table}' table is not gibench's (no column "
+                               f"{', '.join(missing)}); use another --history file")
 
 
 def _finite(x):

@@ -89,78 +89,184 @@ class Suite:
     ladder: tuple = ()           # Mitsuba spp ladder for the speed-vs-error plots (empty: none)
 
 
-def _need(table: dict, key: str, where: str, typ=None):
-    if key not in table:
-        raise SuiteError(f"{where}: missing '{key}'")
-    v = table[key]
-    if typ is not None and not isinstance(v, typ):
-        raise SuiteError(f"{where}: '{key}' must be {typ.__name__}, got {type(v).__name__}")
-    return v
+# ------------------------------------------------------------ manifest schema ---
+#
+# Every table and key a manifest may hold, with its type and range; anything
+# else (a typo, a wrong type, an out-of-range number) is a one-line SuiteError
+# naming the manifest, the line and the key.
+
+#: Tolerance names: the scalar metrics of :func:`reports.metrics.compare` that
+#: ``tolerances`` may bound from above.
+TOLERANCE_METRICS = ("mse", "rmse", "relmse", "mae", "bias", "flip", "delta_e2000", "nan_count",
+                     "inf_count")
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v) -> bool:
+    return (isinstance(v, (int, float)) and not isinstance(v, bool)) and v == v and abs(v) != float("inf")
+
+
+_KEYS_SUITE = {
+    "name": (lambda v: isinstance(v, str), "a string"),
+    "description": (lambda v: isinstance(v, str), "a string"),
+    "reference_spp": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+    "reference_passes": (lambda v: _is_int(v) and v >= 2, "an integer >= 2"),
+    "repeats": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
+    "ladder": (lambda v: isinstance(v, list) and all(_is_int(x) and x >= 1 for x in v),
+               "a list of positive integers (spp)"),
+    "studies": (lambda v: isinstance(v, str) and v != "", "a file name"),
+    "study_set": (lambda v: isinstance(v, str) and v in STUDY_SETS,
+                  f"one of {', '.join(STUDY_SETS)}"),
+}
+_TOLERANCES = (lambda v: isinstance(v, dict) and all(
+    k in TOLERANCE_METRICS and _is_number(x) and x >= 0 for k, x in v.items()),
+    f"a table of metric = non-negative number (metrics: {', '.join(TOLERANCE_METRICS)})")
+_KEYS_GROUP = {
+    "algorithm": (lambda v: isinstance(v, str), "an algorithm name (string)"),
+    "scenes": (lambda v: isinstance(v, list) and v and all(isinstance(x, str) and x for x in v),
+               "a non-empty list of scene file names (strings)"),
+    "transport": (lambda v: v in TRANSPORTS, f"one of {', '.join(TRANSPORTS)}"),
+    "expect": (lambda v: v in EXPECTATIONS, f"one of {', '.join(EXPECTATIONS)}"),
+    "tolerances": _TOLERANCES,
+    "config": (lambda v: isinstance(v, list) and v and all(isinstance(x, dict) for x in v),
+               "a non-empty list of [[group.config]] tables"),
+}
+_KEYS_CONFIG = {
+    "label": (lambda v: isinstance(v, str), "a string"),
+    "params": (lambda v: isinstance(v, dict), "a table of algorithm parameters"),
+    "expect": _KEYS_GROUP["expect"],
+    "transport": _KEYS_GROUP["transport"],
+    "tolerances": _TOLERANCES,
+}
+
+
+class _Manifest:
+    """The manifest's text, for the line of a key in error messages (tomllib keeps none)."""
+
+    def __init__(self, path: Path, text: str):
+        self.path, self.lines = path, text.splitlines()
+
+    def line(self, key: str, group: int | None = None) -> str:
+        """``path:line`` of the first ``key =`` (inside the ``group``-th ``[[group]]``)."""
+        start = 0
+        if group is not None:
+            seen = -1
+            for i, ln in enumerate(self.lines):
+                if ln.strip().startswith("[[group]]"):
+                    seen += 1
+                    if seen == group:
+                        start = i
+                        break
+        for i in range(start, len(self.lines)):
+            stripped = self.lines[i].lstrip()
+            if stripped.startswith(f"{key} ") or stripped.startswith(f"{key}=") or \
+                    f" {key} =" in self.lines[i] or f"{{{key} =" in self.lines[i]:
+                return f"{self.path}:{i + 1}"
+            if group is not None and i > start and self.lines[i].strip().startswith("[[group]]"):
+                break
+        return f"{self.path}:{start + 1 if group is not None else '?'}"
+
+    def check(self, table, schema: dict, what: str, group: int | None = None) -> dict:
+        if not isinstance(table, dict):
+            raise SuiteError(f"{self.line(what.split()[0].strip('[]'), group)}: {what} must be a table")
+        for key, value in table.items():
+            if key not in schema:
+                raise SuiteError(f"{self.line(key, group)}: unknown key '{key}' in {what} "
+                                 f"(valid: {', '.join(schema)})")
+            test, meaning = schema[key]
+            if not test(value):
+                raise SuiteError(f"{self.line(key, group)}: {what} '{key}' must be {meaning}, "
+                                 f"got {str(value)[:60]}")
+        return table
 
 
 def load_suite(path) -> Suite:
-    """Read and check a suite manifest: every scene file exists, every algorithm and
-    parameter is known, expectations and transports are valid."""
+    """Read and check a suite manifest against its schema (tables, keys, types,
+    ranges; see ``_KEYS_*``): every scene file exists, every algorithm and
+    parameter is known, expectations, transports, tolerances and the study set
+    are valid.  Any problem is a :class:`SuiteError` naming the file and line."""
     path = Path(path)
     if path.is_dir():
         path = path / "suite.toml"
     if not path.is_file():
         raise SuiteError(f"{path}: suite manifest not found")
     try:
-        data = tomllib.loads(path.read_text())
+        text = path.read_bytes().decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SuiteError(f"{path}: not a UTF-8 text file (byte {exc.start}); TOML is UTF-8") from None
+    except OSError as exc:
+        raise SuiteError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SuiteError(f"{path}: malformed TOML: {exc}") from None
-    head = data.get("suite", {})
+        raise SuiteError(f"{path}: malformed TOML: {str(exc)[:200]}") from None
+    m = _Manifest(path, text)
+    for key, value in data.items():
+        if key not in ("suite", "group", "pivot"):
+            raise SuiteError(f"{m.line(key)}: unknown table '{key}' (valid: suite, group, pivot)")
+    if "studies_module" in data.get("suite", {}):
+        raise SuiteError(f"{m.line('studies_module')}: [suite] studies_module is no longer read; "
+                         f"name the study set with study_set = one of {', '.join(STUDY_SETS)}")
+    head = m.check(data.get("suite", {}), _KEYS_SUITE, "[suite]")
+    groups = data.get("group", [])
+    if not isinstance(groups, list):
+        raise SuiteError(f"{m.line('group')}: 'group' must be [[group]] tables")
+    pivots = data.get("pivot", {})
+    if not isinstance(pivots, dict) or not all(isinstance(v, dict) for v in pivots.values()):
+        raise SuiteError(f"{m.line('pivot')}: [pivot] must hold one table per study")
     cases = []
     suites_root = path.parent
-    for gi, group in enumerate(data.get("group", [])):
+    for gi, group in enumerate(groups):
         where = f"{path}: group {gi + 1}"
-        algo = registry.get(_need(group, "algorithm", where, str))
+        if not isinstance(group, dict):
+            raise SuiteError(f"{where}: must be a [[group]] table")
+        m.check(group, _KEYS_GROUP, f"group {gi + 1}", gi)
+        for key in ("algorithm", "scenes"):
+            if key not in group:
+                raise SuiteError(f"{where}: missing '{key}'")
+        algo = registry.get(group["algorithm"])
         transport = group.get("transport", algo.transport)
-        if transport not in TRANSPORTS:
-            raise SuiteError(f"{where}: transport must be one of {TRANSPORTS}, got {transport!r}")
-        for scene in _need(group, "scenes", where, list):
+        for ci, cfg in enumerate(group.get("config", [{}])):
+            m.check(cfg, _KEYS_CONFIG, f"group {gi + 1}, config {ci + 1}", gi)
+        for scene in group["scenes"]:
             scene_path = (suites_root / scene).resolve()
             if not scene_path.is_file():
-                raise SuiteError(f"{where}: scene file not found: {scene_path}")
+                raise SuiteError(f"{m.line('scenes', gi)}: scene file not found: {scene_path}")
             scene_id = str(Path(scene).with_suffix("")).replace("\\", "/")
             for ci, cfg in enumerate(group.get("config", [{}])):
-                cw = f"{where}, config {ci + 1}"
                 params = dict(cfg.get("params", {}))
-                algo.parse_params(params)            # validates names and types now
+                try:
+                    algo.parse_params(params)            # validates names, types and ranges now
+                except GibenchError as exc:
+                    raise SuiteError(f"{m.line('params', gi)}: {exc}") from None
                 expect = cfg.get("expect", group.get("expect", "report"))
-                if expect not in EXPECTATIONS:
-                    raise SuiteError(f"{cw}: expect must be one of {EXPECTATIONS}, got {expect!r}")
                 tol = dict(group.get("tolerances", {}), **cfg.get("tolerances", {}))
                 cases.append(Case(scene=scene_path, scene_id=scene_id, algorithm=algo.name,
                                   params=params, transport=cfg.get("transport", transport),
                                   label=cfg.get("label", f"{algo.name} {params}"),
                                   expect=expect, tolerances=tol))
     ladder = head.get("ladder", [])
-    if not isinstance(ladder, list) or not all(isinstance(x, int) and x >= 1 for x in ladder):
-        raise SuiteError(f"{path}: [suite] ladder must be a list of positive integers (spp), "
-                         f"got {ladder!r}")
     studies = None
     study_set = head.get("study_set")
-    if "studies_module" in head:
-        raise SuiteError(f"{path}: [suite] studies_module is no longer read; name the study set "
-                         f"with study_set = one of {', '.join(STUDY_SETS)}")
     if "studies" in head:
         studies = (suites_root / head["studies"]).resolve()
         if not studies.is_file():
-            raise SuiteError(f"{path}: studies configuration not found: {studies}")
-        if study_set not in STUDY_SETS:
-            raise SuiteError(f"{path}: [suite] study_set must be one of {', '.join(STUDY_SETS)}, "
-                             f"got {study_set!r}")
+            raise SuiteError(f"{m.line('studies')}: studies configuration not found: {studies}")
+        if study_set is None:
+            raise SuiteError(f"{m.line('studies')}: [suite] studies needs study_set = one of "
+                             f"{', '.join(STUDY_SETS)}")
     if not cases and studies is None:
         raise SuiteError(f"{path}: the suite has no cases ([[group]] with scenes and an algorithm) "
                          "and no studies")
     return Suite(name=head.get("name", path.parent.name), path=path, cases=tuple(cases),
-                 reference_spp=int(head.get("reference_spp", 1024)),
-                 reference_passes=int(head.get("reference_passes", 8)),
-                 repeats=int(head.get("repeats", 3)), description=head.get("description", ""),
+                 reference_spp=head.get("reference_spp", 1024),
+                 reference_passes=head.get("reference_passes", 8),
+                 repeats=head.get("repeats", 3), description=head.get("description", ""),
                  studies=studies, study_set=study_set,
-                 pivots=dict(data.get("pivot", {})), ladder=tuple(ladder))
+                 pivots=dict(pivots), ladder=tuple(ladder))
 
 
 def _rel(p: Path) -> str:

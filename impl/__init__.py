@@ -13,6 +13,14 @@ cache behind.  The cache therefore lives in ``.numba_cache/<hash of impl/**/*.py
 (sub-packages such as ``impl/accel`` included)
 at the repository root: any change to this package starts a fresh cache.  Set
 ``NUMBA_CACHE_DIR`` to override.
+
+A cache file damaged on disk (truncated, bytes flipped) must not crash the
+process: numba unpickles machine code from it, and garbage there can end in a
+segmentation fault.  Every index and data file numba writes therefore carries
+a sha256 of its payload (:func:`_checksummed_cache`); a file whose checksum
+does not match is reported on stderr in one line
+(``gibench: numba cache: ... corrupt ...; recompiling``), removed, and the
+kernel is compiled afresh and cached again.
 """
 
 import hashlib as _hashlib
@@ -40,4 +48,77 @@ def _source_keyed_cache_dir() -> None:
     numba.config.CACHE_DIR = str(cache)
 
 
+_MAGIC = b"GIBENCH-NUMBA-SHA256\0"
+
+
+def _seal(payload: bytes) -> bytes:
+    return _MAGIC + _hashlib.sha256(payload).digest() + payload
+
+
+def _unseal(blob: bytes, path) -> bytes:
+    """The payload of a sealed cache file; ``OSError`` (numba's "cache miss") if the
+    file is not sealed or its checksum does not match."""
+    head = len(_MAGIC) + 32
+    if (len(blob) < head or not blob.startswith(_MAGIC)
+            or _hashlib.sha256(blob[head:]).digest() != blob[len(_MAGIC):head]):
+        import sys
+
+        print(f"gibench: numba cache: {path} is corrupt (checksum mismatch); recompiling",
+              file=sys.stderr, flush=True)
+        try:
+            _os.unlink(path)
+        except OSError:
+            pass
+        raise OSError(f"corrupt numba cache file {path}")
+    return blob[head:]
+
+
+def _checksummed_cache() -> None:
+    """Seal numba's cache files with a sha256 and check it before unpickling.
+
+    Wraps ``numba.core.caching.IndexDataCacheFile`` (numba >= 0.60): ``_dump`` (the
+    pickled payload of both the index and the data files) is sealed; ``_load_data``
+    and ``_load_index`` check the seal first.  A bad data file raises ``OSError``,
+    which numba's ``load`` treats as a miss; a bad index reads as empty, so numba
+    recompiles and rewrites it."""
+    import pickle
+
+    from numba.core import caching
+
+    cls = caching.IndexDataCacheFile
+    if getattr(cls, "_gibench_sealed", False):
+        return
+    dump = cls._dump
+
+    def _dump(self, obj):
+        return _seal(dump(self, obj))
+
+    def _load_data(self, name):
+        path = self._data_path(name)
+        with open(path, "rb") as f:
+            blob = f.read()
+        return pickle.loads(_unseal(blob, path))
+
+    def _load_index(self):
+        try:
+            with open(self._index_path, "rb") as f:
+                version = pickle.load(f)
+                blob = f.read()
+        except FileNotFoundError:
+            return {}
+        except Exception:                         # noqa: BLE001 - a damaged index is a miss
+            blob, version = b"", self._version
+        if version != self._version:
+            return {}
+        try:
+            stamp, overloads = pickle.loads(_unseal(blob, self._index_path))
+        except Exception:                         # noqa: BLE001 - reported by _unseal
+            return {}
+        return overloads if stamp == self._source_stamp else {}
+
+    cls._dump, cls._load_data, cls._load_index = _dump, _load_data, _load_index
+    cls._gibench_sealed = True
+
+
 _source_keyed_cache_dir()
+_checksummed_cache()

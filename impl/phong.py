@@ -30,14 +30,16 @@ from core.algorithm import Param
 __all__ = ["attenuation", "phong_brdf_cos", "PHONG_PARAMS"]
 
 #: The model's coefficients as algorithm parameters (they are not scene content).
+_NON_NEGATIVE = (lambda v: v >= 0.0, ">= 0")
+
 PHONG_PARAMS = (
-    Param("ka", float, 0.0, "ambient coefficient k_a (times the diffuse colour)"),
-    Param("ambient", float, 0.0, "ambient intensity I_a"),
-    Param("ks", float, 0.0, "specular coefficient k_s"),
-    Param("shininess", float, 32.0, "Phong exponent n"),
-    Param("c1", float, 0.0, "f_att constant term"),
-    Param("c2", float, 0.0, "f_att linear term"),
-    Param("c3", float, 1.0, "f_att quadratic term"),
+    Param("ka", float, 0.0, "ambient coefficient k_a (times the diffuse colour)", valid=_NON_NEGATIVE),
+    Param("ambient", float, 0.0, "ambient intensity I_a", valid=_NON_NEGATIVE),
+    Param("ks", float, 0.0, "specular coefficient k_s", valid=_NON_NEGATIVE),
+    Param("shininess", float, 32.0, "Phong exponent n", valid=_NON_NEGATIVE),
+    Param("c1", float, 0.0, "f_att constant term", valid=_NON_NEGATIVE),
+    Param("c2", float, 0.0, "f_att linear term", valid=_NON_NEGATIVE),
+    Param("c3", float, 1.0, "f_att quadratic term", valid=_NON_NEGATIVE),
     Param("fatt_clamp", bool, False, "clamp f_att to 1 (thesis 1.4.2.3)"),
 )
 
@@ -46,8 +48,11 @@ INV_PI = 1.0 / math.pi
 
 @njit(inline="always", cache=True)
 def attenuation(d, c1, c2, c3, clamp):
-    """f_att = 1 / (c1 + c2 d + c3 d²), optionally clamped to 1 (thesis 1.4.2.3)."""
-    f = 1.0 / (c1 + c2 * d + c3 * d * d)
+    """f_att = 1 / (c1 + c2 d + c3 d²), optionally clamped to 1 (thesis 1.4.2.3); +inf
+    when the denominator is 0 (c1 = c2 = c3 = 0: the image is then refused as
+    non-finite instead of the kernel raising a division by zero)."""
+    den = c1 + c2 * d + c3 * d * d
+    f = 1.0 / den if den > 0.0 else math.inf
     if clamp and f > 1.0:
         f = 1.0
     return f

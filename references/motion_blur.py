@@ -19,10 +19,16 @@ strata; its variance (of the mean) is estimated by collapsing adjacent strata
 in pairs, ``Σ_pairs (X_2j − X_2j+1)² / K²`` — conservative, since it also
 counts the change of the image between neighbouring times.
 
-Entries are stored like the other references, in ``references/store/<key>/``
-(``image.exr``, ``variance.exr``, ``manifest.json``; written to a temporary
-directory and renamed into place), keyed by the scene file's hash and the
-parameters; a stored entry is reused.
+Entries are stored like the other references, through :mod:`references.store`
+(``references/store/<key>/``: ``image.exr``, ``variance.exr``, ``manifest.json``
+with the images' sha256, written to a temporary directory and renamed into
+place), keyed by the scene file's hash and the parameters; a stored entry is
+reused only if the store's checks pass (key, hashes, finite images), otherwise
+it is re-rendered with a one-line message on stderr.
+
+This module renders nothing with Mitsuba itself: the caller
+(:func:`references.reference.get_reference`) passes the function that renders
+one scene file at one time, so the two modules do not import each other.
 """
 
 from __future__ import annotations
@@ -30,13 +36,18 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
+import sys
 import tempfile
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from lxml import etree
+
 from core.errors import SceneError
+from core.xmlscene import parse_file
+
+from .store import EntryInvalid, entry_directory, read_entry, write_entry
 
 __all__ = ["scene_at_time", "motion_reference", "has_motion", "VELOCITY", "STORE", "TIMES"]
 
@@ -52,8 +63,8 @@ def has_motion(scene_path) -> bool:
     must then come from :func:`motion_reference`: Mitsuba would refuse the file).
     A file that is not well-formed XML has none; its loader reports it."""
     try:
-        tree = etree.parse(str(scene_path), etree.XMLParser(remove_comments=True))
-    except etree.XMLSyntaxError:
+        tree = parse_file(Path(scene_path))
+    except SceneError:
         return False
     return any(c.get("name") == VELOCITY for c in tree.getroot().iter("vector"))
 
@@ -81,17 +92,25 @@ def _floats(text: str) -> np.ndarray:
 def scene_at_time(scene_path, tau: float) -> str:
     """The scene file as Mitsuba can read it, every moving sphere placed at time ``tau``."""
     path = Path(scene_path)
-    tree = etree.parse(str(path), etree.XMLParser(remove_comments=True))
+    tree = parse_file(path)
     for shape in tree.getroot().iter("shape"):
         vel = [c for c in shape if c.tag == "vector" and c.get("name") == VELOCITY]
         if not vel:
             continue
-        v = _floats(vel[0].get("value"))
+        try:
+            v = _floats(vel[0].get("value"))
+        except (AttributeError, ValueError):
+            raise SceneError(f"{path}:{vel[0].sourceline}: gibench_velocity needs a value "
+                             "'vx, vy, vz'") from None
         centre = [c for c in shape if c.tag == "point" and c.get("name") == "center"]
         if not centre or centre[0].get("value") is None:
             raise SceneError(f"{path}:{shape.sourceline}: a moving sphere needs "
                              "<point name=\"center\" value=\"x, y, z\"/>")
-        c = _floats(centre[0].get("value")) + v * tau
+        try:
+            c = _floats(centre[0].get("value")) + v * tau
+        except ValueError:
+            raise SceneError(f"{path}:{centre[0].sourceline}: a moving sphere's center must be "
+                             "literal numbers 'x, y, z'") from None
         centre[0].set("value", ", ".join(repr(float(x)) for x in c))
         shape.remove(vel[0])
     return etree.tostring(tree, encoding="unicode")
@@ -112,56 +131,53 @@ def _shutter(scene_path: Path) -> tuple[float, float]:
     return cam.shutter_open, cam.shutter_close
 
 
+#: ``render_at(scene_file, spp, sampler_seed, render_seed)``: Mitsuba's image of a
+#: scene file (one moment of the shutter), float ``(H, W, 3)``.
+RenderAt = Callable[[Path, int, int, int], np.ndarray]
+
+
 def motion_reference(scene_path, *, transport: str = "direct", times: int = 64, spp: int = 64,
-                     seed: int = 0, store: Path | None = None, render: bool = True) -> MotionReference:
-    """The stored reference of a scene with moving spheres, rendering it if missing.
+                     seed: int = 0, store: Path | None = None, render: bool = True,
+                     render_at: RenderAt | None = None) -> MotionReference:
+    """The stored reference of a scene with moving spheres, rendering it if missing or
+    unusable.
 
-    ``times`` (even) shutter strata, ``spp`` samples each.  With ``render=False`` a
-    missing entry raises ``FileNotFoundError`` naming the key.
+    ``times`` (even) shutter strata, ``spp`` samples each, each rendered by
+    ``render_at`` (required when the entry must be rendered).  With
+    ``render=False`` a missing or unusable entry raises ``FileNotFoundError``
+    naming the key and the reason.
     """
-    from core.imageio import read_exr, write_exr
-
     if times < 2 or times % 2:
         raise ValueError(f"motion_reference: times must be even and >= 2, got {times}")
     scene_path = Path(scene_path).resolve()
     store = Path(store) if store is not None else STORE
     key = _key(scene_path, transport, times, spp, seed)
-    final = store / key[:16]
-    if (final / "manifest.json").is_file():
-        m = json.loads((final / "manifest.json").read_text())
-        if m.get("key") == key:
-            return MotionReference(final, read_exr(final / "image.exr"), read_exr(final / "variance.exr"), m)
-    if not render:
-        raise FileNotFoundError(f"{scene_path}: no stored motion reference {final} (key {key[:16]})")
-    imgs = _render_times(scene_path, transport, times, spp, seed)
-    mean = imgs.mean(axis=0)
-    pairs = imgs[0::2] - imgs[1::2]
-    var = (pairs ** 2).sum(axis=0) / times ** 2
-    tmp = Path(tempfile.mkdtemp(prefix=f".{key[:16]}-", dir=store))
+    final = entry_directory(store, key)
     try:
-        write_exr(tmp / "image.exr", mean.astype(np.float32))
-        write_exr(tmp / "variance.exr", var.astype(np.float32))
-        manifest = {"key": key, "scene": os.path.relpath(scene_path, store.parent.parent),
-                    "transport": transport, "times": times, "spp": spp, "seed": seed,
-                    "kind": "motion-blur: mean of Mitsuba renders at jittered stratified shutter times",
-                    "width": int(mean.shape[1]), "height": int(mean.shape[0])}
-        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=1))
-        if final.exists():
-            shutil.rmtree(final)
-        os.replace(tmp, final)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return MotionReference(final, mean.astype(np.float32), var.astype(np.float32), manifest)
+        image, variance, manifest = read_entry(final, key)
+        return MotionReference(final, image, variance, manifest)
+    except EntryInvalid as exc:
+        cause = str(exc)
+    if not render:
+        raise FileNotFoundError(f"{scene_path}: no usable motion reference {final} "
+                                f"(key {key[:16]}: {cause})")
+    if render_at is None:
+        raise ValueError("motion_reference: render_at is needed to render a missing entry")
+    print(f"gibench: rendering motion-blur reference for {scene_path.name} ({transport}, "
+          f"{times} times x {spp} spp): {final}: {cause}", file=sys.stderr, flush=True)
+    imgs = _render_times(scene_path, transport, times, spp, seed, render_at)
+    mean = imgs.mean(axis=0).astype(np.float32)
+    pairs = imgs[0::2] - imgs[1::2]
+    var = ((pairs ** 2).sum(axis=0) / times ** 2).astype(np.float32)
+    manifest = {"key": key, "scene": os.path.relpath(scene_path, store.parent.parent),
+                "transport": transport, "times": times, "spp": spp, "seed": seed,
+                "kind": "motion-blur: mean of Mitsuba renders at jittered stratified shutter times"}
+    manifest = write_entry(final, key, mean, var, manifest)
+    return MotionReference(final, mean, var, manifest)
 
 
-def _render_times(scene_path: Path, transport: str, times: int, spp: int, seed: int) -> np.ndarray:
-    import drjit as dr
-
-    from .mitsuba_env import load_mitsuba
-    from .reference import _render_once, load_scene, prepare_scene_xml
-
-    mi = load_mitsuba()
+def _render_times(scene_path: Path, transport: str, times: int, spp: int, seed: int,
+                  render_at: RenderAt) -> np.ndarray:
     t0, t1 = _shutter(scene_path)
     rng = np.random.default_rng(seed)
     out = []
@@ -171,9 +187,7 @@ def _render_times(scene_path: Path, transport: str, times: int, spp: int, seed: 
             f.write(scene_at_time(scene_path, tau))
             tmp = Path(f.name)
         try:
-            xml, _, _ = prepare_scene_xml(tmp, transport=transport, spp_per_pass=spp, seed=seed + k)
+            out.append(np.asarray(render_at(tmp, spp, seed + k, seed * 100003 + k))[..., :3])
         finally:
             tmp.unlink()
-        scene = load_scene(mi, scene_path, xml)
-        out.append(_render_once(mi, dr, scene, spp, seed * 100003 + k)[..., :3])
     return np.stack(out).astype(np.float64)

@@ -31,7 +31,8 @@ sample variance over passes divided by ``passes`` (as Mitsuba's own render
 tests keep a ``_var.exr``).
 
 Entries live in ``references/store/<first 16 hex of key>/`` as ``image.exr``,
-``variance.exr`` and ``manifest.json``.  The key is a sha256 over the scene
+``variance.exr`` and ``manifest.json``, read and written by
+:mod:`references.store` (hash-checked reads, atomic installs).  The key is a sha256 over the scene
 bytes, the bytes of every file the scene references by ``filename``, the
 ``-D name=value`` overrides of its ``<default>`` values (when any), the
 transport, spp, passes, seed, rfilter choice, variant family and
@@ -51,8 +52,6 @@ import hashlib
 import json
 import os
 import platform
-import re
-import shutil
 import statistics
 import sys
 import tempfile
@@ -62,11 +61,16 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-from core.errors import ReferenceError_, SceneError, UnsupportedError
-from core.imageio import ImageError, as_rgb, check_finite, read_exr, write_exr
+from core.errors import ParamError, ReferenceError_, SceneError, UnsupportedError
+from core.imageio import ImageError, as_rgb, check_finite
+from core.loader import MAX_FILM_PIXELS, MAX_FILM_SIDE
+from core.xmlscene import check_defines as _check_defines
+from core.xmlscene import parse_file, resolve as resolve_xml, substitute
 
 from .mitsuba_env import load_mitsuba, mitsuba_versions, spectral_variant
 from .motion_blur import has_motion
+from .store import EntryInvalid, read_entry, write_entry
+from .store import sha256_file as _sha256_file
 
 __all__ = [
     "STORE_FORMAT",
@@ -110,9 +114,6 @@ RFILTERS = ("box", "scene")
 #: their own seeds (the LLVM backend holds one wavefront in memory).
 LANE_BUDGET = 1 << 22
 
-IMAGE_FILE = "image.exr"
-VARIANCE_FILE = "variance.exr"
-MANIFEST_FILE = "manifest.json"
 
 
 class ReferenceMissing(ReferenceError_):
@@ -155,14 +156,6 @@ class Reference:
 # ---------------------------------------------------------------------------
 
 
-def _sha256_file(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def _first_line(exc: BaseException) -> str:
     for line in str(exc).splitlines():
         if line.strip():
@@ -187,35 +180,14 @@ def _scene_file(scene_path) -> Path:
 
 
 def _parse(path: Path) -> etree._ElementTree:
-    try:
-        tree = etree.parse(str(path), etree.XMLParser(remove_blank_text=False))
-    except (etree.XMLSyntaxError, OSError) as exc:
-        raise SceneError(f"{path}: not a valid XML scene file: {_first_line(exc)}") from None
+    tree = parse_file(path)
     if tree.getroot().tag != "scene":
         raise SceneError(f"{path}: root element is <{tree.getroot().tag}>, expected <scene>")
     return tree
 
 
-def _parse_fragment(path: Path):
-    """Root element of an included XML file (any element, as Mitsuba's ``<include>`` allows)."""
-    try:
-        return etree.parse(str(path)).getroot()
-    except (etree.XMLSyntaxError, OSError) as exc:
-        raise SceneError(f"{path}: not a valid XML file: {_first_line(exc)}") from None
-
-
 def _defaults(root) -> dict[str, str]:
     return {d.get("name"): d.get("value") for d in root.iter("default") if d.get("name")}
-
-
-def _check_defines(defines) -> dict[str, str]:
-    """``{name: value}`` as strings, names checked (``-D name=value`` overrides)."""
-    out = {}
-    for k, v in (defines or {}).items():
-        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", str(k)):
-            raise ValueError(f"define name must be an identifier, got {k!r}")
-        out[str(k)] = str(v)
-    return out
 
 
 def _apply_defines(root, defines: dict[str, str]) -> None:
@@ -234,10 +206,12 @@ def _apply_defines(root, defines: dict[str, str]) -> None:
 
 
 def _substitute(value: str | None, defaults: dict[str, str]) -> str | None:
-    """Resolve ``$name`` with the file's ``<default>`` values (for recording/hashing)."""
+    """Resolve ``$name`` with the file's ``<default>`` values (for recording); the rule
+    is :func:`core.xmlscene.substitute`'s, and a name without a value is an error."""
     if value is None or "$" not in value:
         return value
-    return re.sub(r"\$(\w+)", lambda m: defaults.get(m.group(1), m.group(0)), value)
+    return substitute(value, defaults,
+                      lambda name: SceneError(f"'${name}' has no <default> value"))
 
 
 def _properties(el) -> dict:
@@ -294,48 +268,43 @@ def _render_once(mi, dr, scene, spp: int, seed: int) -> np.ndarray:
 
 
 def scene_dependencies(scene_path, defines: dict | None = None) -> list[dict]:
-    """Files a scene references by ``filename`` (attributes or ``<string>``).
-
-    Relative names are resolved against the ``<path>`` directories (latest
-    first), the scene file's directory (and, for nested ``<include>`` files,
-    the including file's directory); ``$name``
-    substitutions are resolved with the file's ``<default>`` values.  Included
-    XML files are followed.  Returns ``[{name, path, sha256}]`` sorted by name,
-    with ``path``/``sha256`` None for files that cannot be found.
+    """Files a scene references by ``filename`` (attributes or ``<string>``), found as
+    the loader finds them: the scene is resolved by :func:`core.xmlscene.resolve`
+    (``<default>``/``-D`` values, ``$name``, ``<include>``, ``<path>``: one set of
+    rules for the loader and the store), each ``<include>`` contributes the file it
+    expanded, and every other ``filename`` is looked up in the ``<path>``
+    directories (latest first), then the scene file's directory.  Returns
+    ``[{name, path, sha256}]`` sorted by name (the name as written, ``$name``
+    resolved), with ``path``/``sha256`` None for a file that cannot be found (the
+    loader reports it).
     """
-    scene = _scene_file(scene_path)
+    doc = resolve_xml(_scene_file(scene_path), defines)
     found: dict[str, dict] = {}
-    search: list[Path] = []            # <path> directories, latest first (Mitsuba's resolver)
 
-    def visit(xml_path: Path, depth: int) -> None:
-        # An included file may hold a bare fragment (e.g. a <bsdf>), as Mitsuba allows.
-        root = _parse(xml_path).getroot() if depth == 0 else _parse_fragment(xml_path)
-        defaults = {**_defaults(root), **_check_defines(defines)}
-        for c in root:
-            if c.tag == "path" and c.get("value"):
-                d = Path(_substitute(c.get("value"), defaults))
-                search.insert(0, d if d.is_absolute() else xml_path.parent / d)
-        for el in root.iter():
-            if not isinstance(el.tag, str):
-                continue
-            if el.tag == "string" and el.get("name") == "filename":
-                raw = el.get("value")
-            elif el.get("filename") is not None:
-                raw = el.get("filename")
-            else:
-                continue
-            name = _substitute(raw, defaults)
-            if not name or name in found:
-                continue
-            candidates = [Path(name)] if os.path.isabs(name) else [
-                *(d / name for d in search), scene.parent / name, xml_path.parent / name]
-            path = next((c for c in candidates if c.is_file()), None)
+    def add(name: str, path: Path | None) -> None:
+        if name and name not in found:
             found[name] = {"name": name, "path": str(path) if path else None,
                            "sha256": _sha256_file(path) if path else None}
-            if el.tag == "include" and path is not None and depth < 16:
-                visit(path, depth + 1)
 
-    visit(scene, 0)
+    for name, path in doc.includes:
+        add(name, path)
+    for el in doc.root.iter():
+        if not isinstance(el.tag, str):
+            continue
+        if el.tag == "string" and el.get("name") == "filename":
+            raw = el.get("value")
+        elif el.get("filename") is not None:
+            raw = el.get("filename")
+        else:
+            continue
+        name = doc.subst(el, raw)
+        if name in found:
+            continue
+        try:
+            path = doc.resolve(el, name)
+        except SceneError:
+            path = None
+        add(name, path)
     return [found[k] for k in sorted(found)]
 
 
@@ -443,6 +412,25 @@ def _override_sensors(root, sampler_factory, rfilter: str) -> dict:
     return record
 
 
+def _check_film_size(scene: Path, defines) -> None:
+    """Refuse, before Mitsuba allocates it, a film larger than the loader's limits
+    (:data:`core.loader.MAX_FILM_SIDE`, :data:`core.loader.MAX_FILM_PIXELS`): the
+    same file renders on both sides, so both refuse the same sizes."""
+    doc = resolve_xml(scene, defines)
+    for film in doc.root.iter("film"):
+        size = {}
+        for c in film:
+            if isinstance(c.tag, str) and c.get("name") in ("width", "height") and c.get("value"):
+                try:
+                    size[c.get("name")] = int(float(doc.subst(c, c.get("value"))))
+                except (ValueError, OverflowError):
+                    raise doc.error(c, f"film {c.get('name')} is not an integer") from None
+        w, h = size.get("width", 768), size.get("height", 576)
+        if not (1 <= w <= MAX_FILM_SIDE and 1 <= h <= MAX_FILM_SIDE and w * h <= MAX_FILM_PIXELS):
+            raise doc.error(film, f"film of {w}x{h} pixels is outside gibench's limits (sides "
+                                  f"1..{MAX_FILM_SIDE}, at most {MAX_FILM_PIXELS} pixels)")
+
+
 def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int = 1,
                       seed: int = 0, rfilter: str = "box", integrator: dict | None = None,
                       sampler: dict | None = None,
@@ -481,11 +469,12 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
         Record of every override (``from``/``to``) for the manifest.
     """
     if transport not in TRANSPORTS:
-        raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
+        raise ParamError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
     if rfilter not in RFILTERS:
-        raise ValueError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
+        raise ParamError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
     _check_max_depth(max_depth, transport)
     scene = _scene_file(scene_path)
+    _check_film_size(scene, defines)
     tree = _parse(scene)
     root = tree.getroot()
     defines = _check_defines(defines)
@@ -591,69 +580,13 @@ def load_scene(mi, scene_path, xml: str):
 # ---------------------------------------------------------------------------
 
 
-class _Invalid(Exception):
-    """Why a store entry cannot be used."""
+_Invalid = EntryInvalid
 
 
 def _load_entry(directory: Path, key: str) -> Reference:
-    if not directory.is_dir():
-        raise _Invalid("no stored entry")
-    try:
-        manifest = json.loads((directory / MANIFEST_FILE).read_text())
-    except FileNotFoundError:
-        raise _Invalid(f"{MANIFEST_FILE} missing") from None
-    except (OSError, ValueError) as exc:
-        raise _Invalid(f"{MANIFEST_FILE} unreadable ({_first_line(exc)})") from None
-    if not isinstance(manifest, dict) or manifest.get("key") != key:
-        raise _Invalid("stale entry (stored key differs)")
-    arrays = {}
-    for fname, field in ((IMAGE_FILE, "image_sha256"), (VARIANCE_FILE, "variance_sha256")):
-        path = directory / fname
-        if not path.is_file():
-            raise _Invalid(f"{fname} missing")
-        if _sha256_file(path) != manifest.get(field):
-            raise _Invalid(f"{fname} sha256 does not match the manifest (corrupt or changed)")
-        try:
-            arrays[fname] = read_exr(path, allow_nonfinite=False)
-        except ImageError as exc:
-            raise _Invalid(f"{fname} unusable: {exc}") from None
-    image, variance = arrays[IMAGE_FILE], arrays[VARIANCE_FILE]
-    shape = (manifest.get("height"), manifest.get("width"), 3)
-    if image.shape != shape or variance.shape != shape:
-        raise _Invalid(f"image shapes {image.shape}/{variance.shape} differ from manifest {shape}")
-    if (variance < 0).any():
-        raise _Invalid(f"{VARIANCE_FILE} holds negative values")
+    image, variance, manifest = read_entry(directory, key)
     return Reference(key=key, directory=directory, image=image, variance=variance,
                      manifest=manifest)
-
-
-def _remove_stale_temporaries(store: Path, max_age_s: float = 86400.0) -> None:
-    """Delete ``.tmp-*``/``.old-*`` directories left by killed runs (older than a day)."""
-    now = time.time()
-    for pattern in (".tmp-*", ".old-*"):
-        for p in store.glob(pattern):
-            try:
-                if p.is_dir() and now - p.stat().st_mtime > max_age_s:
-                    shutil.rmtree(p, ignore_errors=True)
-            except OSError:
-                pass
-
-
-def _install(tmp: Path, final: Path) -> None:
-    """Move a complete entry into place; the old entry is removed only afterwards."""
-    trash = None
-    if final.exists():
-        trash = Path(tempfile.mkdtemp(prefix=f".old-{final.name}-", dir=final.parent))
-        os.rename(final, trash / "entry")
-    try:
-        os.rename(tmp, final)
-    except OSError:
-        if trash is not None and not final.exists():
-            os.rename(trash / "entry", final)  # put the previous entry back
-        raise
-    finally:
-        if trash is not None:
-            shutil.rmtree(trash, ignore_errors=True)
 
 
 def _render_reference(scene: Path, key: str, directory: Path, *, transport: str, spp: int,
@@ -738,29 +671,16 @@ def _render_reference(scene: Path, key: str, directory: Path, *, transport: str,
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
     }
 
-    directory.parent.mkdir(parents=True, exist_ok=True)
-    _remove_stale_temporaries(directory.parent)
-    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{directory.name}-", dir=directory.parent))
-    tmp.chmod(0o755)                    # mkdtemp makes 0700; store entries are shared files
     try:
-        meta = {"gibench_key": key, "gibench_scene": manifest["scene"]}
-        write_exr(tmp / IMAGE_FILE, image, metadata=meta)
-        write_exr(tmp / VARIANCE_FILE, variance, metadata=meta)
-        manifest["image_sha256"] = _sha256_file(tmp / IMAGE_FILE)
-        manifest["variance_sha256"] = _sha256_file(tmp / VARIANCE_FILE)
-        (tmp / MANIFEST_FILE).write_text(json.dumps(manifest, indent=2) + "\n")
+        manifest = write_entry(directory, key, image, variance, manifest,
+                               exr_metadata={"gibench_key": key, "gibench_scene": manifest["scene"]})
+    except OSError:
+        # Another process may have installed the same entry meanwhile.
         try:
-            _install(tmp, directory)
-        except OSError:
-            # Another process may have installed the same entry meanwhile.
-            try:
-                return _load_entry(directory, key)
-            except _Invalid:
-                raise ReferenceError_(f"{scene}: could not install reference entry "
-                                   f"{_display_path(directory)}") from None
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
+            return _load_entry(directory, key)
+        except _Invalid:
+            raise ReferenceError_(f"{scene}: could not install reference entry "
+                                  f"{_display_path(directory)}") from None
     return Reference(key=key, directory=directory, image=image, variance=variance,
                      manifest=manifest)
 
@@ -796,7 +716,7 @@ def reference_device_variant(device: str | None = None) -> str | None:
     :func:`load_mitsuba`'s default (LLVM) when CUDA is not asked for or not available."""
     device = device or os.environ.get("GIBENCH_REFERENCE_DEVICE") or REFERENCE_DEVICE
     if device not in ("auto", "cuda", "llvm"):
-        raise ValueError(f"reference device must be auto, cuda or llvm, got {device!r} "
+        raise ParamError(f"reference device must be auto, cuda or llvm, got {device!r} "
                          "(GIBENCH_REFERENCE_DEVICE)")
     if device == "llvm" or os.environ.get("GIBENCH_MITSUBA_VARIANT"):
         return None
@@ -814,25 +734,25 @@ def _check_max_depth(max_depth, transport) -> None:
     if not isinstance(max_depth, (int, np.integer)) or isinstance(max_depth, bool):
         raise TypeError(f"max_depth must be an integer, got {max_depth!r}")
     if transport != "full":
-        raise ValueError(f"max_depth applies to transport='full' only, got transport={transport!r}")
+        raise ParamError(f"max_depth applies to transport='full' only, got transport={transport!r}")
     if max_depth < -1 or max_depth == 0:
-        raise ValueError(f"max_depth must be -1 (unbounded) or >= 1, got {max_depth}")
+        raise ParamError(f"max_depth must be -1 (unbounded) or >= 1, got {max_depth}")
 
 
 def _check_args(transport, spp, passes, seed, rfilter) -> None:
     if transport not in TRANSPORTS:
-        raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
+        raise ParamError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
     if rfilter not in RFILTERS:
-        raise ValueError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
+        raise ParamError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
     for name, v in (("spp", spp), ("passes", passes), ("seed", seed)):
         if not isinstance(v, (int, np.integer)) or isinstance(v, bool):
             raise TypeError(f"{name} must be an integer, got {v!r}")
     if passes < 2:
-        raise ValueError(f"passes must be >= 2 to estimate a variance, got {passes}")
+        raise ParamError(f"passes must be >= 2 to estimate a variance, got {passes}")
     if spp < 1 or spp % passes:
-        raise ValueError(f"spp ({spp}) must be a positive multiple of passes ({passes})")
+        raise ParamError(f"spp ({spp}) must be a positive multiple of passes ({passes})")
     if seed < 0:
-        raise ValueError(f"seed must be >= 0, got {seed}")
+        raise ParamError(f"seed must be >= 0, got {seed}")
 
 
 def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passes: int = 8,
@@ -901,6 +821,7 @@ def get_reference(scene_path, *, transport: str = "full", spp: int = 1024, passe
     _check_args(transport, spp, passes, seed, rfilter)
     _check_max_depth(max_depth, transport)
     scene = _scene_file(scene_path)
+    _check_film_size(scene, defines)
     mi = load_mitsuba()
     family = _variant_family(mi.variant())
     defines = _check_defines(defines)
@@ -949,9 +870,18 @@ def _motion(scene: Path, *, transport, spp, seed, rfilter, store, render_missing
     if unsupported:
         raise UnsupportedError(f"{_display_path(scene)}: moving spheres (gibench_velocity): the "
                          f"motion-blur reference does not support {', '.join(unsupported)}")
+    def render_at(xml_file: Path, spp_at: int, sampler_seed: int, render_seed: int):
+        mi = load_mitsuba()
+        import drjit as dr
+
+        xml, _, _ = prepare_scene_xml(xml_file, transport=transport, spp_per_pass=spp_at,
+                                      seed=sampler_seed)
+        return _render_once(mi, dr, load_scene(mi, scene, xml), spp_at, render_seed)
+
     try:
         return motion_reference(scene, transport=transport, times=TIMES, spp=max(1, spp // 16),
-                                seed=seed, store=Path(store), render=render_missing)
+                                seed=seed, store=Path(store), render=render_missing,
+                                render_at=render_at)
     except FileNotFoundError as exc:
         raise ReferenceMissing(str(exc)) from None
 

@@ -228,7 +228,7 @@ expect = "report"
     with pytest.raises(UnsupportedError, match="motion-blur reference does not support defines"):
         get_reference(scene, transport="direct", defines={"spp": "4"}, render_missing=False)
     # Its store key has no variant: a spectral motion reference would collide with the RGB one.
-    with pytest.raises(ValueError, match="does not support spectral"):
+    with pytest.raises(UnsupportedError, match="does not support spectral"):
         get_reference(scene, transport="direct", spectral=True, render_missing=False)
 
 

@@ -69,6 +69,22 @@ def test_white_furnace_box(rho, solver):
         assert res.iterations < 20000
 
 
+@pytest.mark.parametrize("solver", ["jacobi", "gauss-seidel"])
+@pytest.mark.parametrize("tol", [1e-6, 1e-9, 1e-12, 3e-13])
+def test_converged_flag_is_the_returned_iterates_residual(solver, tol):
+    """One residual decides: ``converged`` is exactly ``residual(B) <= tol`` for the B
+    returned, for any tolerance (none of it hinges on which side of tol rounding falls)."""
+    M = closed_box(3)
+    F = form_factors(M, "contour").F
+    E = np.full((M.n_patches, 3), 2.0)
+    R = np.full((M.n_patches, 3), 0.99)
+    res = solve(F, R, E, M.area, solver, tol=tol, max_iter=20000)
+    assert res.residuals[-1] == residual(F, R, E, res.B)
+    assert res.converged == (residual(F, R, E, res.B) <= tol)
+    capped = solve(F, R, E, M.area, solver, tol=tol, max_iter=3)
+    assert capped.residuals[-1] == residual(F, R, E, capped.B) and not capped.converged
+
+
 def test_progressive_ambient_term_improves_partial_solutions():
     M = closed_box(3)
     F = form_factors(M, "contour").F

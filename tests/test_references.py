@@ -18,6 +18,7 @@ import pytest
 
 from core.imageio import read_exr, write_exr
 from references import mitsuba_env, reference
+from references import store as store_module
 from references.mitsuba_env import (
     libllvm_candidates,
     llvm_major_version,
@@ -338,7 +339,7 @@ def test_interrupted_write_keeps_previous_entry(scene, store, monkeypatch):
             raise KeyboardInterrupt("simulated interruption")
         return write_exr(path, image, **kwargs)
 
-    monkeypatch.setattr(reference, "write_exr", failing_write)
+    monkeypatch.setattr(store_module, "write_exr", failing_write)
     with pytest.raises(KeyboardInterrupt):
         get_reference(scene, spp=16, passes=4, store=store)
     assert [p.name for p in store.iterdir()] == [ref.key[:16]]  # no half entry left
