@@ -75,9 +75,13 @@ def _parse_defines(items) -> dict:
 
 def cmd_algorithms(args) -> int:
     for algo in registry.algorithms():
-        print(f"{algo.name}  —  {algo.summary} ({algo.section}; transport: {algo.transport})")
+        o = registry.origin(algo.name)
+        src = "" if o["source"] == "builtin" else f"; from {o.get('dist') or o.get('file') or o['source']}"
+        print(f"{algo.name}  —  {algo.summary} ({algo.section}; transport: {algo.transport}{src})")
         print(algo.param_table())
         print()
+    for name, cause in registry.broken().items():
+        print(f"BROKEN plugin {name}: {cause}")
     return 0
 
 
@@ -98,6 +102,7 @@ def cmd_render(args) -> int:
     if args.spp is None and algo.spp_param is not None and algo.spp_param not in values:
         # As Mitsuba: without --spp the scene's sampler sample_count (after -D) is used.
         params = algo.parse_params({**values, algo.spp_param: scene.camera.sample_count})
+    external = registry.provenance(algo.name, params, defines=defines)
     result, timing = render_timed(algo, scene, params, seed=args.seed, repeats=args.repeats)
     check_finite(result.image, name=f"{algo.name} output")
     out = Path(args.out)
@@ -106,7 +111,7 @@ def cmd_render(args) -> int:
                "params": params, "seed": args.seed,
                "time": timing, "counters": result.counters, "versions": versions(),
                "commit": git_commit(), "machine": machine(), "created": utc_now(),
-               "variance": None}
+               "variance": None, "external": external}
     if result.variance is not None:
         var_path = out.with_suffix(".var.exr")
         write_exr(var_path, result.variance)
@@ -405,6 +410,9 @@ def cmd_report(args) -> int:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="gibench", description="Validation and benchmarking harness "
                                 "for global-illumination algorithms, against Mitsuba 3 references.")
+    p.add_argument("--renderers", action="append", metavar="FILE.toml",
+                   help="register the named command renderers of this TOML file "
+                   "(see gibench.external; also the GIBENCH_RENDERERS variable)")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("algorithms", help="list registered algorithms and their parameters")
@@ -532,6 +540,8 @@ def main(argv=None) -> int:
     keeps its traceback."""
     args = build_parser().parse_args(argv)
     try:
+        for f in args.renderers or []:
+            registry.add_renderer_file(f)
         return args.func(args)
     except GibenchError as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__

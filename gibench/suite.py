@@ -112,6 +112,8 @@ def load_suite(path) -> Suite:
     head = data.get("suite", {})
     cases = []
     suites_root = path.parent
+    for f in [head["renderers"]] if isinstance(head.get("renderers"), str) else head.get("renderers", []):
+        registry.add_renderer_file(suites_root / f)       # named command renderers
     for gi, group in enumerate(data.get("group", [])):
         where = f"{path}: group {gi + 1}"
         algo = registry.get(_need(group, "algorithm", where, str))
@@ -207,6 +209,7 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
         algo = registry.get(case.algorithm)
         params = algo.parse_params(case.params)
         record["params"] = params
+        record["external"] = registry.provenance(case.algorithm, params, defines=defines)
         scene = load_scene(case.scene, defines=defines)
         ref = get_reference(case.scene, transport=case.transport, spp=suite.reference_spp,
                             passes=suite.reference_passes, store=reference_store or DEFAULT_STORE,
