@@ -27,6 +27,7 @@ import matplotlib.image as mpimg
 import numpy as np
 
 from core.imageio import ImageError, read_exr, write_text
+from reports import viewer
 from reports.tonemap import tonemap_srgb
 
 __all__ = ["write_report", "fmt"]
@@ -198,6 +199,9 @@ def _image_row(r: dict, images: _Images, colorbar: str) -> str:
             err = (np.abs(own.astype(np.float64) - ref) / (np.abs(ref) + ERR_EPS)).mean(axis=2)
         err = np.nan_to_num(err, nan=ERR_RANGE[1], posinf=ERR_RANGE[1])
         figs.append(_figure(_png(_shrink(err), cmap=CMAP, vmin=ERR_RANGE[0], vmax=ERR_RANGE[1]), "error map", cap))
+        # Interactive comparison (reports.viewer); the static triplet stays for JavaScript off.
+        return viewer.wrap(f'<div class="images">{"".join(figs)}</div>', _shrink(ref), _shrink(own),
+                           exposure=exposure, err_eps=ERR_EPS, label=_label(r))
     return f'<div class="images">{"".join(figs)}</div>'
 
 
@@ -541,7 +545,7 @@ def render_report(records: list[dict], *, root, title: str = "gibench report") -
             + pareto
             + "".join(sections)
             + ("<h2>Studies</h2>" + "".join(_study(r) for r in studies) if studies else "")
-            + "</body></html>\n")
+            + viewer.assets() + "</body></html>\n")
 
 
 def write_report(records: list[dict], out_path, *, root, title: str = "gibench report") -> Path:
