@@ -407,6 +407,23 @@ def cmd_report(args) -> int:
     return 0
 
 
+def cmd_view(args) -> int:
+    from core.loader import load_scene
+
+    from .view import write_view
+
+    try:
+        w, h = (int(x) for x in args.size.lower().split("x"))
+    except ValueError:
+        raise CLIError(f"--size expects WIDTHxHEIGHT, got {args.size!r}") from None
+    scene = load_scene(args.scene, defines=_parse_defines(args.define))
+    info = write_view(scene, args.out, radiosity=args.radiosity, accel=args.accel, depth=args.depth,
+                      params=_parse_sets(args.set), size=(w, h))
+    detail = {k: v for k, v in info.items() if k not in ("out", "seconds")}
+    print(f"{info['out']}: {info['seconds']:.2f} s, {detail}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="gibench", description="Validation and benchmarking harness "
                                 "for global-illumination algorithms, against Mitsuba 3 references.")
@@ -525,6 +542,19 @@ def build_parser() -> argparse.ArgumentParser:
 
     _scene_dir_arguments(s)           # --scenes DIR and its options
     s.set_defaults(func=cmd_run)
+
+    s = sub.add_parser("view", help="the scene, a radiosity solution or an acceleration "
+                       "structure in 3D (pyvista, off screen)")
+    s.add_argument("scene")
+    s.add_argument("--out", "-o", default="view.png", help="FILE.png or FILE.html")
+    s.add_argument("--radiosity", action="store_true", help="the solved patches, coloured by B")
+    s.add_argument("--set", action="append", metavar="KEY=VALUE", help="radiosity parameter")
+    s.add_argument("--accel", help="structure whose boxes to draw (bvh-sah, octree, grid, ...)")
+    s.add_argument("--depth", type=int, default=3, help="tree levels drawn (root = 1)")
+    s.add_argument("--size", default="1024x768", help="image size WIDTHxHEIGHT")
+    s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
+                   help="override the scene's <default name=NAME> value")
+    s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("report", help="write the HTML report of a stored run")
     s.add_argument("--run", help="run id (default: the latest)")
