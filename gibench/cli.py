@@ -236,6 +236,12 @@ def cmd_run(args) -> int:
     records = run_suite(suite, store, run_id=run_id, out_root=Path(args.results).parent,
                         mitsuba_timing=not args.no_mitsuba_timing, reference_store=args.store,
                         defines=defines, history=history, command="run", **_run_common(args))
+    if suite.study_set in ("radiosity", "accel") and not args.no_views:
+        from .view import suite_views
+
+        for rec in suite_views(suite):        # 3D views in the report (not in the history)
+            store.append(dict(rec, run_id=run_id))
+            records.append(dict(rec, run_id=run_id))
     out = Path(args.report) if args.report else Path(args.results).parent / "report.html"
     write_report(records, out, root=REPO_ROOT, title=f"gibench — suite {suite.name}")
     cases = [r for r in records if r.get("kind", "case") == "case"]
@@ -407,6 +413,22 @@ def cmd_report(args) -> int:
     return 0
 
 
+def cmd_warmup(args) -> int:
+    import os
+    import time
+
+    from .runner import warm_up
+
+    t0 = time.perf_counter()
+    print(f"gibench warmup: suites {', '.join(args.suites)}")
+    rows = warm_up([_resolve_suite(s) for s in args.suites])
+    bad = [r for r in rows if r["error"]]
+    print(f"warmup: {len(rows)} renders in {time.perf_counter() - t0:.1f} s, numba cache "
+          f"{os.environ.get('NUMBA_CACHE_DIR', '(numba default)')}"
+          + (f", {len(bad)} failed" if bad else ""))
+    return 1 if bad else 0
+
+
 def cmd_view(args) -> int:
     from core.loader import load_scene
 
@@ -533,6 +555,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("run", help="run a suite against the stored references and write the report")
     s.add_argument("suite", nargs="?", default="default")
+    s.add_argument("--no-views", action="store_true",
+                   help="no 3D views in the report of the radiosity and scaling suites")
     s.add_argument("--ladder", help="Mitsuba spp ladder for the speed-vs-error plots, e.g. "
                    "1,4,16,64 (default: the suite's [suite] ladder; '' for none)")
     common(s)
@@ -542,6 +566,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     _scene_dir_arguments(s)           # --scenes DIR and its options
     s.set_defaults(func=cmd_run)
+
+    s = sub.add_parser("warmup", help="compile the numba kernels the suites need (fills .numba_cache/)")
+    s.add_argument("suites", nargs="*", default=["default", "ci"], help="suites (default: default ci)")
+    s.set_defaults(func=cmd_warmup)
 
     s = sub.add_parser("view", help="the scene, a radiosity solution or an acceleration "
                        "structure in 3D (pyvista, off screen)")

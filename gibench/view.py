@@ -318,3 +318,61 @@ def write_view(scene: Scene, out, **kw) -> dict:
                         + "".join(figs) + "</body></html>\n")
     info["out"] = str(out)
     return info
+
+
+def _data_uri(img) -> str:
+    import io
+
+    import matplotlib.image as mpimg
+
+    buf = io.BytesIO()
+    mpimg.imsave(buf, img, format="png")
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def suite_views(suite, *, size=(800, 600), log=print) -> list[dict]:
+    """3D views for a suite's report, where they are cheap: the radiosity solution
+    of each radiosity case's scene (its first configuration's parameters) for the
+    ``radiosity`` study set, a SAH BVH (4 levels) and a grid over a 1000-sphere
+    field for the ``accel`` (scaling) study set.  One study-kind record with the
+    PNGs (``images``: ``[{"title", "src"}]``); none without pyvista or for other
+    suites.  A view that fails is left out with a log line: views never fail a run.
+    """
+    try:
+        _pv()
+    except UsageError:
+        return []
+    jobs = []
+    if suite.study_set == "radiosity":
+        from core.loader import load_scene
+
+        seen = set()
+        for case in suite.cases:
+            if case.algorithm == "radiosity" and case.scene not in seen:
+                seen.add(case.scene)
+                jobs.append((f"{case.scene_id}: radiosity patches ({case.label})",
+                             lambda c=case: view_scene(load_scene(c.scene), radiosity=True,
+                                                       params=dict(c.params), size=size)))
+    elif suite.study_set == "accel":
+        from .studies.accel import sphere_field
+
+        field = sphere_field(1000)
+        jobs += [("1000-sphere field: SAH BVH, levels 1-4",
+                  lambda: view_scene(field, accel="bvh-sah", depth=4, size=size)),
+                 ("1000-sphere field: uniform grid, occupied cells",
+                  lambda: view_scene(field, accel="grid", size=size))]
+    images = []
+    for title, job in jobs:
+        try:
+            imgs, info = job()
+        except Exception as exc:          # a view is an illustration: log and go on
+            if log:
+                log(f"  view '{title}' skipped: {type(exc).__name__}: {exc}")
+            continue
+        images.append({"title": f"{title} ({info['seconds']:.1f} s)", "src": _data_uri(imgs[0])})
+    if not images:
+        return []
+    return [{"kind": "study", "study": "views", "suite": suite.name, "title": "3D views",
+             "description": "gibench view: the scene geometry, camera frustum and lights with the "
+                            "structure or solution drawn in 3D (pyvista, off screen).",
+             "rows": [], "images": images, "error": None}]

@@ -429,7 +429,10 @@ def _study(r: dict) -> str:
     return (f"<h3 id='{_slug('study-' + str(r.get('study')))}'>{_e(r.get('title') or r.get('study'))}</h3>"
             f"<p>{_e(r.get('description', ''))}</p>" + "".join(_plot(rows, p) for p in plots)
             + f"{_pivot(rows, _d(r.get('pivot')))}"
-            f"<p class='small'>{len(rows)} rows; study '{_e(r.get('study'))}'</p>")
+            + "".join(f"<figure><img src='{_e(i.get('src'))}' alt='{_e(i.get('title'))}' style='max-width:100%'>"
+                      f"<figcaption>{_e(i.get('title'))}</figcaption></figure>"
+                      for i in r.get("images") or [] if isinstance(i, dict))
+            + f"<p class='small'>{len(rows)} rows; study '{_e(r.get('study'))}'</p>")
 
 
 def _fmt_ratio(x, extrapolated: bool = False) -> str:

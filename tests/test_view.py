@@ -107,3 +107,19 @@ def test_view_bad_arguments_one_line(tmp_path, capsys, args, cause):
         args = args + ["--out", tmp_path / "x.png"]
     code, _, err = run_cli(capsys, "view", GRID, *args)
     assert cause in one_line_error(code, err)
+
+
+def test_radiosity_suite_report_embeds_the_view(tmp_path):
+    from gibench.suite import Case, Suite
+    from gibench.view import suite_views
+    from reports.html import render_report
+
+    case = Case(scene=CORNELL, scene_id="cornell/cornell_box", algorithm="radiosity",
+                params={"patch_size": 0.5}, transport="full", label="coarse", expect="report")
+    suite = Suite(name="r", path=tmp_path / "r.toml", cases=(case,), study_set="radiosity")
+    recs = suite_views(suite, size=(320, 240), log=None)
+    assert len(recs) == 1 and len(recs[0]["images"]) == 1
+    assert recs[0]["images"][0]["src"].startswith("data:image/png;base64,")
+    page = render_report(recs, root=tmp_path)
+    assert recs[0]["images"][0]["src"] in page and "radiosity patches (coarse)" in page
+    assert suite_views(Suite(name="x", path=tmp_path / "x.toml", cases=(case,)), log=None) == []
