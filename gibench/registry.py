@@ -162,16 +162,20 @@ def _load() -> None:
     global _loaded
     if _loaded:
         return
-    _loaded = True
-    for name in BUILTIN_MODULES:
-        register(importlib.import_module(name).ALGORITHM)
-    from .external import COMMAND
+    _loaded = True                    # first: add_renderer_file() calls _load() again
+    try:
+        for name in BUILTIN_MODULES:
+            register(importlib.import_module(name).ALGORITHM)
+        from .external import COMMAND
 
-    register(COMMAND, origin={"source": "command adapter"})
-    _load_entry_points()
-    for p in os.environ.get(RENDERERS_ENV, "").split(os.pathsep):
-        if p:
-            add_renderer_file(p)
+        register(COMMAND, origin={"source": "command adapter"})
+        _load_entry_points()
+        for p in os.environ.get(RENDERERS_ENV, "").split(os.pathsep):
+            if p:
+                add_renderer_file(p)
+    except BaseException:
+        reset()                       # a half-loaded registry would hide the cause next time
+        raise
 
 
 def reset() -> None:
