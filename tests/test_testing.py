@@ -69,12 +69,20 @@ def test_pytest_fixture_in_a_user_suite(tmp_path):
             (a, va), (b, vb) = _img(1, bias=0.3), _img(2)
             gibench_consistent(a, b, variance=va, reference_variance=vb)
         """))
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-p", "gibench.testing", "-q",
-                           "-p", "no:cacheprovider", "--gibench-evidence", str(tmp_path / "ev"),
-                           str(tmp_path / "test_user.py")], cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=300)
-    assert "1 failed, 1 passed" in proc.stdout, proc.stdout + proc.stderr
-    assert "Z-test failed" in proc.stdout
-    assert (tmp_path / "ev" / "test_biased" / "pvalue.exr").is_file()
-    assert not (tmp_path / "ev" / "test_same").exists()
+    # The pytest11 entry point as pyproject.toml declares it (an installed gibench has it).
+    site = tmp_path / "site" / "gibench_entry-0.dist-info"
+    site.mkdir(parents=True)
+    (site / "METADATA").write_text("Metadata-Version: 2.1\nName: gibench-entry\nVersion: 0\n")
+    (site / "entry_points.txt").write_text("[pytest11]\ngibench.testing = gibench.testing\n")
+    for how, extra, path in [("-p", ["-p", "gibench.testing"], [str(REPO)]),
+                             ("entry point", [], [str(REPO), str(site.parent)]),
+                             ("both", ["-p", "gibench.testing"], [str(REPO), str(site.parent)])]:
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(path))
+        ev = tmp_path / f"ev-{how.replace(' ', '_')}"
+        proc = subprocess.run([sys.executable, "-m", "pytest", *extra, "-q", "-p", "no:cacheprovider",
+                               "--gibench-evidence", str(ev), str(tmp_path / "test_user.py")],
+                              cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+        assert "1 failed, 1 passed" in proc.stdout, how + ": " + proc.stdout + proc.stderr
+        assert "Z-test failed" in proc.stdout
+        assert (ev / "test_biased" / "pvalue.exr").is_file()
+        assert not (ev / "test_same").exists()
