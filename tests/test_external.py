@@ -294,3 +294,19 @@ def test_generic_command_with_jobs(tmp_path, capsys):
     assert "version_cmd" in recs["command"]["error"] and "not found" in recs["command"]["error"]
     assert recs["mitsuba-direct"]["error"] is None and recs["mitsuba-direct"]["checks"][0]["passed"]
     assert code == 1                       # the failed case fails the run
+
+
+def test_command_through_sweep(tmp_path, capsys, script):
+    """``gibench sweep`` over a command renderer's parameter (here the generic ``command``
+    and its spp): one record per grid point, each with the process timed."""
+    scene = small_scene(tmp_path)
+    results = tmp_path / "out" / "results.jsonl"
+    code, out, err = run_cli(capsys, "sweep", scene, "-a", "command", "--set", f"cmd={_cmd(script, 'ok')}",
+                             "--grid", "spp=1,4", "--transport", "direct", "--reference-spp", 64,
+                             "--reference-passes", 4, "--repeats", 1, "--ladder", "", "--results", results,
+                             "--store", tmp_path / "store", "--no-mitsuba-timing", "--no-progress")
+    assert code == 0, out + err
+    recs = [r for r in ResultStore(results).load() if r.get("kind", "case") == "case"]
+    assert sorted(r["params"]["spp"] for r in recs) == [1, 4]
+    assert all(r["error"] is None and r["counters"]["process_s"] > 0 for r in recs)
+    assert all(r["external"]["source"] == "command adapter" for r in recs)
