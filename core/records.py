@@ -16,7 +16,10 @@ Three kinds share the type:
     error against the same reference; ``ladder_spp``, ``mitsuba``);
 ``study``
     one table of a study (``study``, ``title``, ``description``, ``rows``,
-    ``pivot``).
+    ``pivot``, and figures as ``images``).
+
+A case rendered by an algorithm that is not built in (a plugin package or a
+command renderer) records where it came from in ``external``.
 
 Nested values keep their producers' documented keys: ``metrics`` is
 :func:`reports.metrics.compare`'s dictionary, ``time`` the timing of
@@ -75,6 +78,7 @@ class Record:
     metrics: dict = field(default_factory=dict)
     time: dict = field(default_factory=dict)
     checks: list = field(default_factory=list)
+    external: dict | None = None          # an algorithm not built in: its origin and version
     ladder_spp: int | None = None         # kind == "ladder"
     mitsuba: str | None = None
     study: str | None = None              # kind == "study"
@@ -82,6 +86,7 @@ class Record:
     description: str | None = None
     rows: list = field(default_factory=list)
     pivot: dict = field(default_factory=dict)
+    images: list = field(default_factory=list)    # figures of a study: [{"title", "src"}]
     version: int = RECORD_VERSION
 
     # -------------------------------------------------------------- queries

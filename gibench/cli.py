@@ -75,9 +75,13 @@ def _parse_defines(items) -> dict:
 
 def cmd_algorithms(args) -> int:
     for algo in registry.algorithms():
-        print(f"{algo.name}  —  {algo.summary} ({algo.section}; transport: {algo.transport})")
+        o = registry.origin(algo.name)
+        src = "" if o["source"] == "builtin" else f"; from {o.get('dist') or o.get('file') or o['source']}"
+        print(f"{algo.name}  —  {algo.summary} ({algo.section}; transport: {algo.transport}{src})")
         print(algo.param_table())
         print()
+    for name, cause in registry.broken().items():
+        print(f"BROKEN plugin {name}: {cause}")
     return 0
 
 
@@ -98,6 +102,7 @@ def cmd_render(args) -> int:
     if args.spp is None and algo.spp_param is not None and algo.spp_param not in values:
         # As Mitsuba: without --spp the scene's sampler sample_count (after -D) is used.
         params = algo.parse_params({**values, algo.spp_param: scene.camera.sample_count})
+    external = registry.provenance(algo.name, params, defines=defines)
     result, timing = render_timed(algo, scene, params, seed=args.seed, repeats=args.repeats)
     check_finite(result.image, name=f"{algo.name} output")
     out = Path(args.out)
@@ -106,7 +111,7 @@ def cmd_render(args) -> int:
                "params": params, "seed": args.seed,
                "time": timing, "counters": result.counters, "versions": versions(),
                "commit": git_commit(), "machine": machine(), "created": utc_now(),
-               "variance": None}
+               "variance": None, "external": external}
     if result.variance is not None:
         var_path = out.with_suffix(".var.exr")
         write_exr(var_path, result.variance)
@@ -254,6 +259,13 @@ def cmd_run(args) -> int:
     records = run_suite(suite, store, run_id=run_id, out_root=Path(args.results).parent,
                         mitsuba_timing=not args.no_mitsuba_timing, reference_store=args.store,
                         defines=defines, history=history, command="run", **_run_common(args))
+    if suite.study_set in ("radiosity", "accel") and not args.no_views:
+        from .view import suite_views
+
+        for rec in suite_views(suite):        # 3D views in the report (not in the history)
+            rec.run_id = run_id
+            store.append(rec)
+            records.append(rec)
     out = Path(args.report) if args.report else Path(args.results).parent / "report.html"
     write_report(records, out, root=REPO_ROOT, title=f"gibench — suite {suite.name}")
     cases = [r for r in records if r.kind == "case"]
@@ -460,9 +472,45 @@ def _seed(text: str) -> int:
     return v
 
 
+def cmd_warmup(args) -> int:
+    import os
+    import time
+
+    from .runner import warm_up
+
+    t0 = time.perf_counter()
+    print(f"gibench warmup: suites {', '.join(args.suites)}")
+    rows = warm_up([_resolve_suite(s) for s in args.suites])
+    bad = [r for r in rows if r["error"]]
+    print(f"warmup: {len(rows)} renders in {time.perf_counter() - t0:.1f} s, numba cache "
+          f"{os.environ.get('NUMBA_CACHE_DIR', '(numba default)')}"
+          + (f", {len(bad)} failed" if bad else ""))
+    return 1 if bad else 0
+
+
+def cmd_view(args) -> int:
+    from core.loader import load_scene
+
+    from .view import write_view
+
+    try:
+        w, h = (int(x) for x in args.size.lower().split("x"))
+    except ValueError:
+        raise CLIError(f"--size expects WIDTHxHEIGHT, got {args.size!r}") from None
+    scene = load_scene(args.scene, defines=_parse_defines(args.define))
+    info = write_view(scene, args.out, radiosity=args.radiosity, accel=args.accel, depth=args.depth,
+                      params=_parse_sets(args.set), size=(w, h))
+    detail = {k: v for k, v in info.items() if k not in ("out", "seconds")}
+    print(f"{info['out']}: {info['seconds']:.2f} s, {detail}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="gibench", description="Validation and benchmarking harness "
                                 "for global-illumination algorithms, against Mitsuba 3 references.")
+    p.add_argument("--renderers", action="append", metavar="FILE.toml",
+                   help="register the named command renderers of this TOML file "
+                   "(see gibench.external; also the GIBENCH_RENDERERS variable)")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("algorithms", help="list registered algorithms and their parameters")
@@ -566,6 +614,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("run", help="run a suite against the stored references and write the report")
     s.add_argument("suite", nargs="?", default="default")
+    s.add_argument("--no-views", action="store_true",
+                   help="no 3D views in the report of the radiosity and scaling suites")
     s.add_argument("--ladder", help="Mitsuba spp ladder for the speed-vs-error plots, e.g. "
                    "1,4,16,64 (default: the suite's [suite] ladder; '' for none)")
     common(s)
@@ -575,6 +625,23 @@ def build_parser() -> argparse.ArgumentParser:
 
     _scene_dir_arguments(s)           # --scenes DIR and its options
     s.set_defaults(func=cmd_run)
+
+    s = sub.add_parser("warmup", help="compile the numba kernels the suites need (fills .numba_cache/)")
+    s.add_argument("suites", nargs="*", default=["default", "ci"], help="suites (default: default ci)")
+    s.set_defaults(func=cmd_warmup)
+
+    s = sub.add_parser("view", help="the scene, a radiosity solution or an acceleration "
+                       "structure in 3D (pyvista, off screen)")
+    s.add_argument("scene")
+    s.add_argument("--out", "-o", default="view.png", help="FILE.png or FILE.html")
+    s.add_argument("--radiosity", action="store_true", help="the solved patches, coloured by B")
+    s.add_argument("--set", action="append", metavar="KEY=VALUE", help="radiosity parameter")
+    s.add_argument("--accel", help="structure whose boxes to draw (bvh-sah, octree, grid, ...)")
+    s.add_argument("--depth", type=int, default=3, help="tree levels drawn (root = 1)")
+    s.add_argument("--size", default="1024x768", help="image size WIDTHxHEIGHT")
+    s.add_argument("-D", dest="define", action="append", metavar="NAME=VALUE",
+                   help="override the scene's <default name=NAME> value")
+    s.set_defaults(func=cmd_view)
 
     s = sub.add_parser("report", help="write the HTML report of a stored run")
     s.add_argument("--run", help="run id (default: the latest)")
@@ -593,6 +660,8 @@ def main(argv=None) -> int:
     except SystemExit as exc:            # a bad command line (one line, see _Parser) or --help
         return exc.code if isinstance(exc.code, int) else 2
     try:
+        for f in args.renderers or []:
+            registry.add_renderer_file(f)
         return args.func(args)
     except GibenchError as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__

@@ -35,3 +35,49 @@ def render_timed(algorithm: Algorithm, scene: Scene, params: dict, *, seed: int 
     median = statistics.median(times)
     return result, {"own_median_s": median, "own_times_s": times, "warmup_s": warmup,
                     "compile_s": max(warmup - median, 0.0), "repeats": repeats}
+
+
+def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6)) -> list[dict]:
+    """Compile (or load from numba's cache) every kernel the suites' cases use.
+
+    Each distinct (scene, algorithm, parameters) of the suites renders once
+    with its film shrunk to ``size`` pixels: numba compiles per argument type,
+    not per image size, so this fills ``.numba_cache/`` for the full-size
+    runs at a fraction of their cost.  External algorithms (entry points,
+    command renderers) are skipped: they compile nothing of gibench's.
+    Returns one row per render: scene, algorithm, seconds, error.
+    """
+    import dataclasses
+
+    from core.errors import GibenchError
+    from core.loader import load_scene
+
+    from . import registry
+    from .suite import load_suite
+
+    rows, seen = [], set()
+    for path in suite_paths:
+        suite = load_suite(path)
+        for case in suite.cases:
+            if registry.origin(case.algorithm)["source"] != "builtin":
+                continue
+            algo = registry.get(case.algorithm)
+            params = algo.parse_params(case.params)
+            key = (str(case.scene), algo.name, repr(sorted(params.items())))
+            if key in seen:
+                continue
+            seen.add(key)
+            t0 = time.perf_counter()
+            error = None
+            try:
+                scene = load_scene(case.scene)
+                film = dataclasses.replace(scene.camera.film, width=size[0], height=size[1])
+                scene.camera = dataclasses.replace(scene.camera, film=film)
+                algo.render(scene, params, seed=0)
+            except (GibenchError, OSError) as exc:
+                error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+            dt = time.perf_counter() - t0
+            rows.append({"scene": case.scene_id, "algorithm": algo.name, "seconds": dt, "error": error})
+            if log:
+                log(f"  {case.scene_id}: {case.label}: {dt:.2f} s" + (f" ({error})" if error else ""))
+    return rows

@@ -120,6 +120,9 @@ _KEYS_SUITE = {
     "studies": (lambda v: isinstance(v, str) and v != "", "a file name"),
     "study_set": (lambda v: isinstance(v, str) and v in STUDY_SETS,
                   f"one of {', '.join(STUDY_SETS)}"),
+    "renderers": (lambda v: (isinstance(v, str) and v != "") or (
+        isinstance(v, list) and all(isinstance(x, str) and x for x in v)),
+        "a TOML file of command renderers, or a list of them"),
 }
 _TOLERANCES = (lambda v: isinstance(v, dict) and all(
     k in TOLERANCE_METRICS and _is_number(x) and x >= 0 for k, x in v.items()),
@@ -219,6 +222,8 @@ def load_suite(path) -> Suite:
         raise SuiteError(f"{m.line('pivot')}: [pivot] must hold one table per study")
     cases = []
     suites_root = path.parent
+    for f in [head["renderers"]] if isinstance(head.get("renderers"), str) else head.get("renderers", []):
+        registry.add_renderer_file(suites_root / f)       # named command renderers
     for gi, group in enumerate(groups):
         where = f"{path}: group {gi + 1}"
         if not isinstance(group, dict):
@@ -313,6 +318,7 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
         algo = registry.get(case.algorithm)
         params = algo.parse_params(case.params)
         record.params = params
+        record.external = registry.provenance(case.algorithm, params, defines=defines)
         scene = load_scene(case.scene, defines=defines)
         ref = get_reference(case.scene, transport=case.transport, spp=suite.reference_spp,
                             passes=suite.reference_passes, store=reference_store or DEFAULT_STORE,

@@ -27,6 +27,7 @@ import numpy as np
 
 from core.imageio import ImageError, read_exr, write_text
 from core.records import Record
+from reports import viewer
 from reports.tonemap import tonemap_srgb
 
 __all__ = ["write_report", "fmt"]
@@ -198,6 +199,9 @@ def _image_row(r: dict, images: _Images, colorbar: str) -> str:
             err = (np.abs(own.astype(np.float64) - ref) / (np.abs(ref) + ERR_EPS)).mean(axis=2)
         err = np.nan_to_num(err, nan=ERR_RANGE[1], posinf=ERR_RANGE[1])
         figs.append(_figure(_png(_shrink(err), cmap=CMAP, vmin=ERR_RANGE[0], vmax=ERR_RANGE[1]), "error map", cap))
+        # Interactive comparison (reports.viewer); the static triplet stays for JavaScript off.
+        return viewer.wrap(f'<div class="images">{"".join(figs)}</div>', _shrink(ref), _shrink(own),
+                           exposure=exposure, err_eps=ERR_EPS, label=_label(r))
     return f'<div class="images">{"".join(figs)}</div>'
 
 
@@ -425,7 +429,10 @@ def _study(r: Record) -> str:
     return (f"<h3 id='{_slug('study-' + str(r.study))}'>{_e(r.title or r.study)}</h3>"
             f"<p>{_e(r.description)}</p>" + "".join(_plot(rows, p) for p in plots)
             + f"{_pivot(rows, _d(r.pivot))}"
-            f"<p class='small'>{len(rows)} rows; study '{_e(r.study)}'</p>")
+            + "".join(f"<figure><img src='{_e(i.get('src'))}' alt='{_e(i.get('title'))}' style='max-width:100%'>"
+                      f"<figcaption>{_e(i.get('title'))}</figcaption></figure>"
+                      for i in r.images if isinstance(i, dict))
+            + f"<p class='small'>{len(rows)} rows; study '{_e(r.study)}'</p>")
 
 
 def _fmt_ratio(x, extrapolated: bool = False) -> str:
@@ -541,7 +548,7 @@ def render_report(records: list[Record], *, root, title: str = "gibench report")
             + pareto
             + "".join(sections)
             + ("<h2>Studies</h2>" + "".join(_study(r) for r in studies) if studies else "")
-            + "</body></html>\n")
+            + viewer.assets() + "</body></html>\n")
 
 
 def write_report(records: list[Record], out_path, *, root, title: str = "gibench report") -> Path:

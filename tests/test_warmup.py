@@ -1,0 +1,49 @@
+"""gibench warmup: every distinct built-in case of the suites renders once at a tiny
+film size (numba compiles per argument type, so this fills the kernel cache);
+external algorithms are skipped; a bad case is reported, not raised."""
+
+import textwrap
+from pathlib import Path
+
+from gibench import registry
+from gibench.runner import warm_up
+
+from test_cli import run_cli, small_scene
+
+EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "renderers.toml"
+
+
+def test_warm_up_renders_each_builtin_case_once(tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv(registry.RENDERERS_ENV, raising=False)
+    registry.reset()
+    small_scene(tmp_path)
+    (tmp_path / "broken.xml").write_text("<scene version='3.0.0'><shape type='nope'/></scene>")
+    manifest = tmp_path / "w.toml"
+    manifest.write_text(textwrap.dedent(f"""
+        [suite]
+        name = "w"
+        renderers = "{EXAMPLES}"
+        [[group]]
+        scenes = ["small.xml", "small.xml"]
+        algorithm = "raycast"
+        [[group.config]]
+        params = {{ spp = 1 }}
+        [[group.config]]
+        params = {{ spp = "1" }}
+        [[group]]
+        scenes = ["small.xml"]
+        algorithm = "mitsuba-direct"
+        [[group]]
+        scenes = ["broken.xml"]
+        algorithm = "raycast"
+        """))
+    lines = []
+    rows = warm_up([manifest], log=lines.append)
+    # one raycast render (the four raycast cases have one scene and equal parsed params),
+    # none for the external renderer, one failed scene
+    assert [(r["scene"], r["algorithm"]) for r in rows] == [("small", "raycast"), ("broken", "raycast")]
+    assert rows[0]["error"] is None and rows[0]["seconds"] > 0
+    assert "unsupported" in rows[1]["error"] and len(lines) == 2
+    code, out, _ = run_cli(capsys, "warmup", manifest)
+    assert code == 1 and "warmup: 2 renders" in out and "1 failed" in out
+    registry.reset()
