@@ -16,6 +16,16 @@ study                     what it measures
 ``visibility``            agreement of the shape-id and depth AOVs of
                           ``zbuffer`` and ``depthsort`` with ray casting of
                           the same meshes, per scene
+``highlights``            how much of the exact Phong highlight (k_s > 0)
+                          each shading technique keeps: its peak and its
+                          energy over the highlight, per mode × tessellation
+                          (thesis 1.5.5: Gouraud loses highlights that fall
+                          inside a polygon, Phong shading keeps them)
+``mach_bands``            Mach-band strength (:func:`reports.metrics.mach_band`:
+                          jump of the log-luminance slope across polygon
+                          edges beyond the exact image's) per mode ×
+                          tessellation, on edge pixels and, for comparison,
+                          off them (thesis 1.5.3)
 ========================  ====================================================
 
 Error metric of ``shading_convergence``: relMSE (ε = 0.01, linear radiance,
@@ -38,13 +48,14 @@ import numpy as np
 from impl import depth_sort, raycast, zbuffer
 from impl.raycast import cast_primary
 from impl.tessellate import sphere_triangle_count, tessellated_scene
-from reports.metrics import relmse
+from reports.metrics import mach_band, relmse
 
 from core.loader import load_scene
 from core.provenance import REPO_ROOT
 from core.errors import SuiteError
 
-__all__ = ["STUDIES", "TABLES", "boundary_mask", "shading_convergence", "zfighting", "visibility", "run_studies"]
+__all__ = ["STUDIES", "TABLES", "boundary_mask", "polygon_edges", "shading_convergence", "highlights",
+           "mach_bands", "zfighting", "visibility", "run_studies"]
 
 SUITES = REPO_ROOT / "suites"
 ALGORITHMS = {"zbuffer": zbuffer.ALGORITHM, "depthsort": depth_sort.ALGORITHM}
@@ -105,6 +116,105 @@ def shading_convergence(*, scene="spheres/lit_sphere.xml", tessellations=(8, 16,
                          "relmse": float(relmse(ref_px, img_px)),
                          "mean_rel_err": float(np.mean(np.abs(img_px - ref_px) / scale)),
                          "time_ms": 1e3 * t, "pixels": int(mask.sum())})
+    return rows
+
+
+def _exact(sc, phong):
+    """The exact per-pixel Phong model on the analytic scene (ray casting, shadows off, pixel
+    centres) and the pixels whose 3×3 neighbourhood is all sphere: (image, shape ids, interior)."""
+    rc = raycast.ALGORITHM
+    exact = rc.render(sc, rc.parse_params(dict(phong, shadows=False)), seed=0).image.astype(np.float64)
+    _, ref_id = cast_primary(sc)
+    spheres = [i for i, s in enumerate(sc.shapes) if s.kind == "sphere"]
+    if not spheres:
+        raise SuiteError("the scene has no sphere")
+    return exact, ref_id, np.isin(ref_id, spheres) & ~boundary_mask(ref_id)
+
+
+def polygon_edges(flat_image: np.ndarray) -> np.ndarray:
+    """Pixels next to a polygon edge: where a flat-shaded image (one colour per polygon)
+    changes value between 4-neighbours.  Two adjacent polygons of equal colour are missed."""
+    img = np.asarray(flat_image, dtype=np.float64)
+    out = np.zeros(img.shape[:2], bool)
+    dx = np.any(img[:, 1:] != img[:, :-1], axis=-1)
+    dy = np.any(img[1:, :] != img[:-1, :], axis=-1)
+    out[:, 1:] |= dx
+    out[:, :-1] |= dx
+    out[1:, :] |= dy
+    out[:-1, :] |= dy
+    return out
+
+
+def highlights(*, scene="spheres/lit_sphere.xml", tessellations=(8, 16, 32, 64, 128),
+               modes=("flat", "gouraud", "phong"), algorithm="zbuffer", ks=0.5, shininess=50.0,
+               threshold=0.1) -> list[dict]:
+    """Rows (mode, tessellation, peak_kept, energy_kept, relmse_highlight, highlight_pixels).
+
+    The exact highlight is S = Y(exact with k_s) − Y(exact with k_s = 0) (luminance, ray
+    casting of the analytic scene at pixel centres, shadows off); its region is the interior
+    sphere pixels with S > ``threshold`` · max S.  For a shaded image I the highlight it shows
+    is I_S = Y(I) − Y(exact with k_s = 0): ``peak_kept`` = max I_S / max S over the region,
+    ``energy_kept`` = Σ I_S / Σ S, ``relmse_highlight`` the relMSE of the colour over the region.
+    """
+    sc = _scene(scene)
+    if not ks > 0:
+        raise SuiteError(f"highlights: ks must be > 0, got {ks}")
+    phong = {"ks": ks, "shininess": shininess}
+    exact, ref_id, interior = _exact(sc, phong)
+    diffuse, _, _ = _exact(sc, {"ks": 0.0, "shininess": shininess})
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    spec = (exact - diffuse) @ lum
+    region = interior & (spec > threshold * spec[interior].max())
+    algo = ALGORITHMS[algorithm]
+    rows = []
+    for n in tessellations:
+        for mode in modes:
+            res = algo.render(sc, algo.parse_params(dict(phong, shading=mode, tessellation=n)), seed=0)
+            img = res.image.astype(np.float64)
+            shown = (img - diffuse) @ lum
+            rows.append({"scene": str(scene), "algorithm": algorithm, "mode": mode, "tessellation": int(n),
+                         "ks": ks, "shininess": shininess,
+                         "peak_kept": float(shown[region].max() / spec[region].max()),
+                         "energy_kept": float(shown[region].sum() / spec[region].sum()),
+                         "relmse_highlight": float(relmse(exact[region][:, None, :], img[region][:, None, :])),
+                         "highlight_pixels": int(region.sum())})
+    return rows
+
+
+def mach_bands(*, scene="spheres/lit_sphere.xml", tessellations=(8, 16, 32, 64),
+               modes=("flat", "gouraud", "phong"), algorithm="zbuffer", ks=0.0,
+               shininess=32.0, lit_fraction=0.05) -> list[dict]:
+    """Rows (mode, tessellation, mach_edge, mach_off_edge, edge_pixels) per mode × tessellation.
+
+    ``mach_edge`` is :func:`reports.metrics.mach_band` of the shaded image (pixel centres)
+    against the exact per-pixel model over the lit interior sphere pixels next to a polygon
+    edge (:func:`polygon_edges` of the flat-shaded image of the same tessellation);
+    ``mach_off_edge`` the same over the other lit interior sphere pixels.  *Lit*: the exact
+    luminance exceeds ``lit_fraction`` of its maximum over the sphere in the pixel and its
+    4-neighbours (near the terminator the coarse polyhedron moves the shadow line, a geometry
+    error the log-contrast would magnify).
+    """
+    from scipy.ndimage import binary_erosion
+
+    sc = _scene(scene)
+    phong = {"ks": ks, "shininess": shininess}
+    exact, ref_id, interior = _exact(sc, phong)
+    lum = exact @ np.array([0.2126, 0.7152, 0.0722])
+    interior = interior & binary_erosion(lum > lit_fraction * lum[interior].max(), iterations=1)
+    algo = ALGORITHMS[algorithm]
+    rows = []
+    for n in tessellations:
+        flat = algo.render(sc, algo.parse_params(dict(phong, shading="flat", tessellation=n)), seed=0)
+        same = interior & (flat.aovs["shape_id"] == ref_id)
+        edges = polygon_edges(flat.image) & same
+        for mode in modes:
+            res = (flat if mode == "flat" else
+                   algo.render(sc, algo.parse_params(dict(phong, shading=mode, tessellation=n)), seed=0))
+            rows.append({"scene": str(scene), "algorithm": algorithm, "mode": mode, "tessellation": int(n),
+                         "ks": ks,
+                         "mach_edge": mach_band(exact, res.image, mask=edges),
+                         "mach_off_edge": mach_band(exact, res.image, mask=same & ~edges),
+                         "edge_pixels": int(edges.sum())})
     return rows
 
 
@@ -173,6 +283,15 @@ STUDIES = {
                             "Phong model on the analytic sphere (ray casting, shadows off): relMSE and mean "
                             "relative error over interior sphere pixels, triangles and render time (thesis 1.5).",
                             shading_convergence),
+    "highlights": ("Highlights kept by each shading technique",
+                   "Share of the exact Phong highlight (k_s > 0, ray casting of the analytic sphere) that "
+                   "flat, Gouraud and Phong shading keep: peak and energy over the highlight, per "
+                   "tessellation (thesis 1.5.5: Gouraud loses a highlight inside a polygon).",
+                   highlights),
+    "mach_bands": ("Mach bands vs shading technique and tessellation",
+                   "Excess curvature of log-luminance over the exact image, on pixels at polygon edges "
+                   "and off them: the slope jumps the eye sees as Mach bands (thesis 1.5.3).",
+                   mach_bands),
     "zfighting": ("Z-fighting vs near plane and depth format",
                   "Two surfaces 0.01 apart seen at a slant: pixels where the z-buffer keeps the farther one, "
                   "per depth format (float32, 24- and 16-bit fixed point) and near clip distance (thesis 1.3.1).",
