@@ -108,9 +108,35 @@ def test_furnace_scene_displays_le_over_one_minus_rho(tmp_path, display):
     assert np.abs(img - expected).max() / expected.max() < 1e-5
 
 
-def test_refuses_spheres_and_non_diffuse(tmp_path):
-    with pytest.raises(NotImplementedError, match="radiosity: shape 'sphere' is a sphere"):
-        render(load_scene(SUITES / "spheres" / "lit_sphere.xml"))
+FURNACE_SPHERE = """    <shape type="sphere">
+        <point name="center" value="-0.2, -0.3, -0.4"/>
+        <float name="radius" value="0.35"/>
+        <bsdf type="diffuse"><rgb name="reflectance" value="{rho}, {rho}, {rho}"/></bsdf>
+        <emitter type="area"><rgb name="radiance" value="1, 0.5, 0.25"/></emitter>
+    </shape>
+</scene>"""
+
+
+@pytest.mark.parametrize("formfactor", ["hemicube", "hemicube-zbuffer"])
+def test_sphere_is_meshed_into_patches_and_the_furnace_holds(tmp_path, formfactor):
+    """A sphere inside the closed emitting box, both with ρ = 0.75 and the same L_e, meshed into
+    patches (12 segments): hemicube form factors close every row exactly, so every pixel —
+    box and sphere — shows L_e / (1 − ρ).  Negative control: the point approximation does
+    not close its rows (here Σ_j ρ F_ij > 1 for neighbouring patches, so the iteration
+    diverges), and the furnace check fails with it."""
+    p = tmp_path / "furnace_sphere.xml"
+    p.write_text(FURNACE_XML.format(rho=0.75).replace("</scene>", FURNACE_SPHERE.format(rho=0.75)))
+    scene = load_scene(p)
+    expected = np.array([1.0, 0.5, 0.25]) / 0.25
+    res = render(scene, display="flat", patches=100, formfactor=formfactor, hemicube_res=32,
+                 solver="gauss-seidel", tol=1e-12)
+    assert res.counters["patches"] >= 2 * 12 * 5             # the sphere's 120 triangles at least
+    assert np.abs(res.image - expected).max() / expected.max() < 1e-5
+    bad = render(scene, display="flat", patches=100, formfactor="point", vis_rays=4).image
+    assert not (np.abs(bad - expected).max() / expected.max() < 1e-5)          # nan/inf fail too
+
+
+def test_refuses_non_diffuse(tmp_path):
     p = tmp_path / "metal.xml"
     p.write_text(FURNACE_XML.format(rho=0.5).replace(
         '<bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.5, 0.5"/></bsdf>', '<bsdf type="conductor"/>'))
