@@ -183,3 +183,31 @@ def test_error_falls_with_patch_refinement_against_mitsuba_full(scene):
     abs_ = [r[2] for r in rows]
     assert rel[0] > rel[1] > rel[2] and abs_[0] > abs_[1] > abs_[2], rows
     assert rel[2] < 0.5 * rel[0]
+
+
+def test_views_of_one_solution_equal_full_renders_per_view():
+    """View independence (thesis 3.4): displaying each of 3 views from one solution gives the
+    image a full render (mesh, form factors, solve, display) of that view gives.  Negative
+    control: a solution of the scene with other reflectances does not."""
+    import dataclasses
+
+    from gibench.studies.radiosity import camera_views, view_independence
+
+    base = load_scene(SUITES / "cornell" / "cornell_box.xml")
+    params = RADIOSITY.parse_params({"patches": 64, "display": "gouraud"})
+    sol = radiosity.solve_scene(base, params)
+    views = camera_views(base, 3, 30.0)
+    assert not np.allclose(views[0].camera.to_world, views[2].camera.to_world)
+    for view in views:
+        shared, _, _ = radiosity.display(view, sol, mode="gouraud")
+        radiosity.clear_cache()
+        fresh = RADIOSITY.render(view, params).image
+        np.testing.assert_allclose(shared, fresh, rtol=1e-5, atol=1e-7)
+    grey = dataclasses.replace(base, materials=[dataclasses.replace(m, reflectance=(0.3, 0.3, 0.3))
+                                                for m in base.materials])
+    other = radiosity.solve_scene(grey, params)
+    wrong, _, _ = radiosity.display(views[1], other, mode="gouraud")
+    assert not np.allclose(wrong, RADIOSITY.render(views[1], params).image, rtol=1e-3)
+    rows = view_independence(views=(1, 2), patches=32, spp=1, path_spp=1)
+    assert [r["views"] for r in rows] == [1, 2]
+    assert rows[1]["radiosity_total_s"] >= rows[0]["radiosity_total_s"] and rows[0]["solve_s"] > 0
