@@ -80,3 +80,28 @@ def test_incremental_traversal_renders_the_same_image(name, algorithm):
     print(algorithm, name, {k: (e.counters[k], i.counters[k]) for k in
                             ("fragments", "pixels_visited", "edge_evals", "span_solves", "interp_evals",
                              "interp_steps")})
+
+
+def test_scan_coherence_study_counts_fewer_operations_for_the_same_image():
+    from gibench.studies.shading import scan_coherence
+
+    rows = scan_coherence(scenes=("cornell/cornell_point.xml",), tessellation=16, repeats=1)
+    edge, inc = rows
+    assert edge["traversal"] == "edge" and inc["traversal"] == "incremental"
+    assert inc["identical"] and inc["fragments"] == edge["fragments"]
+    assert inc["ops"] < edge["ops"] / 4 and inc["pixels_visited"] == inc["fragments"]
+
+
+def test_frame_coherence_is_total_for_a_still_camera_and_partial_when_it_turns():
+    """A camera that does not move reuses everything (negative control of the measure);
+    turning 2° per frame keeps most but not all pixels' visible triangle."""
+    from gibench.studies.shading import frame_coherence
+
+    still = frame_coherence(frames=3, step_deg=0.0, tessellation=16)
+    assert all(r["visible_same"] == 1.0 and r["survivors_same"] == 1.0 and r["vertices_reused"] == 1.0
+               for r in still)
+    moving = frame_coherence(frames=3, step_deg=2.0, tessellation=16)
+    for r in moving:
+        print(r)
+        assert 0.3 < r["visible_same"] < 1.0
+        assert abs(r["tess_share"] + r["geometry_share"] + r["raster_share"] + r["shading_share"] - 1) < 1e-9

@@ -21,6 +21,16 @@ study                     what it measures
                           energy over the highlight, per mode × tessellation
                           (thesis 1.5.5: Gouraud loses highlights that fall
                           inside a polygon, Phong shading keeps them)
+``scan_coherence``        operation counts of scan conversion with per-pixel
+                          edge functions against scan-line spans with
+                          incremental interpolation (thesis 1.2.1), and the
+                          render time of each, per scene
+``frame_coherence``       frame coherence along a short camera path (thesis
+                          1.2.1): what of frame k is still valid in frame
+                          k+1 — visible triangle per pixel, triangles past
+                          the geometry stage, Gouraud vertices shaded — and
+                          the time share of the tessellation every frame
+                          could reuse
 ``mach_bands``            Mach-band strength (:func:`reports.metrics.mach_band`:
                           jump of the log-luminance slope across polygon
                           edges beyond the exact image's) per mode ×
@@ -55,7 +65,7 @@ from core.provenance import REPO_ROOT
 from core.errors import SuiteError
 
 __all__ = ["STUDIES", "TABLES", "boundary_mask", "polygon_edges", "shading_convergence", "highlights",
-           "mach_bands", "zfighting", "visibility", "run_studies"]
+           "mach_bands", "scan_coherence", "frame_coherence", "zfighting", "visibility", "run_studies"]
 
 SUITES = REPO_ROOT / "suites"
 ALGORITHMS = {"zbuffer": zbuffer.ALGORITHM, "depthsort": depth_sort.ALGORITHM}
@@ -218,6 +228,102 @@ def mach_bands(*, scene="spheres/lit_sphere.xml", tessellations=(8, 16, 32, 64),
     return rows
 
 
+#: Arithmetic operations per counted step of :mod:`impl.raster` (see its docstring):
+#: a full edge-function evaluation (2 multiplications, 5 additions), a per-row span solve
+#: (the row's constant: 2 multiplications, 5 additions; one division, one comparison), a
+#: full interpolation of λ0, λ1, λ2, 1/z (9 multiplications, 14 additions), an incremental
+#: step (3 additions).
+OPS_PER = {"edge_evals": 7, "span_solves": 9, "interp_evals": 23, "interp_steps": 3}
+
+
+def scan_coherence(*, scenes=("spheres/lit_sphere.xml", "cornell/cornell_point.xml", "spheres/meshes.xml"),
+                   tessellation=64, spp=1, repeats=3) -> list[dict]:
+    """Rows (scene, traversal, counters, arithmetic operations, time_ms, identical) per scene ×
+    traversal.  ``ops`` weighs the counters with :data:`OPS_PER`; ``identical`` says whether
+    the image equals the per-pixel traversal's."""
+    algo = zbuffer.ALGORITHM
+    rows = []
+    for scene in scenes:
+        sc = _scene(scene)
+        base = None
+        for tr in ("edge", "incremental"):
+            params = algo.parse_params({"traversal": tr, "tessellation": tessellation, "spp": spp,
+                                        "shading": "gouraud"})
+            res, t = _timed(lambda: algo.render(sc, params, seed=0), repeats)
+            c = res.counters
+            base = res.image if base is None else base
+            rows.append({"scene": str(scene), "traversal": tr, "fragments": c["fragments"],
+                         "pixels_visited": c["pixels_visited"], "edge_evals": c["edge_evals"],
+                         "span_solves": c["span_solves"], "interp_evals": c["interp_evals"],
+                         "interp_steps": c["interp_steps"],
+                         "ops": int(sum(OPS_PER[k] * c[k] for k in OPS_PER)),
+                         "time_ms": 1e3 * t, "identical": bool(np.array_equal(res.image, base))})
+    return rows
+
+
+def _turned(scene, degrees):
+    """``scene`` with its camera turned about its own up axis by ``degrees``."""
+    a = np.deg2rad(degrees)
+    rot = np.eye(4)
+    rot[0, 0], rot[0, 2], rot[2, 0], rot[2, 2] = np.cos(a), np.sin(a), -np.sin(a), np.cos(a)
+    cam = dataclasses.replace(scene.camera, to_world=scene.camera.to_world @ rot)
+    return dataclasses.replace(scene, camera=cam)
+
+
+def frame_coherence(*, scene="cornell/cornell_point.xml", frames=8, step_deg=1.0, tessellation=64) -> list[dict]:
+    """Rows per frame pair (k, k+1) of a camera turning ``step_deg`` per frame: fraction of
+    pixels whose visible triangle is unchanged (``visible_same``, over pixels covered in either
+    frame), Jaccard overlap of the triangles past the geometry stage (``survivors_same``),
+    fraction of frame k+1's Gouraud vertex evaluations already made in frame k
+    (``vertices_reused``: with k_s = 0 a vertex's diffuse shading does not depend on the
+    view), and the time shares of frame k+1's stages (tessellation, geometry, raster, shading;
+    tessellation is what a static scene never needs to redo)."""
+    from impl.pipeline import camera_frame, geometry_stage
+    from impl.raster import DEPTH_FLOAT32, rasterize
+    from impl.scene_arrays import flatten
+    from impl.shading import GOURAUD, PhongParams, resolve
+    from impl.tessellate import scene_triangles
+
+    base = _scene(scene)
+    algo = zbuffer.ALGORITHM
+    params = algo.parse_params({"tessellation": tessellation, "shading": "gouraud"})
+    algo.render(base, params, seed=0)                    # warm-up (compilation)
+    A = flatten(base)
+    pp = PhongParams(params, 0)
+    prev = None
+    rows = []
+    for k in range(frames):
+        sc = _turned(base, k * step_deg)
+        cam = sc.camera
+        W, H = cam.film.width, cam.film.height
+        t0 = time.perf_counter()
+        soup = scene_triangles(sc, tessellation)
+        t1 = time.perf_counter()
+        scr = geometry_stage(soup, cam, cull=True, n_shapes=len(sc.shapes))
+        t2 = time.perf_counter()
+        vis, _ = rasterize(scr.xy, scr.cam[:, :, 2], W, H, depth_mode=DEPTH_FLOAT32, near=cam.near_clip,
+                           far=cam.far_clip)
+        t3 = time.perf_counter()
+        _, eye = camera_frame(cam)
+        resolve(GOURAUD, vis, scr, soup, eye, A, pp)
+        t4 = time.perf_counter()
+        src = np.where(vis.id >= 0, scr.src[np.maximum(vis.id, 0)], -1)
+        survivors = set(np.unique(scr.src).tolist())
+        verts = set(np.unique(soup.tri[np.unique(scr.src)]).tolist())
+        if prev is not None:
+            covered = (src >= 0) | (prev[0] >= 0)
+            total = t4 - t0
+            rows.append({"scene": str(scene), "frame": k, "step_deg": step_deg,
+                         "visible_same": float(np.mean(src[covered] == prev[0][covered])),
+                         "survivors_same": len(survivors & prev[1]) / max(len(survivors | prev[1]), 1),
+                         "vertices_reused": len(verts & prev[2]) / max(len(verts), 1),
+                         "tess_share": (t1 - t0) / total, "geometry_share": (t2 - t1) / total,
+                         "raster_share": (t3 - t2) / total, "shading_share": (t4 - t3) / total,
+                         "frame_ms": 1e3 * total})
+        prev = (src, survivors, verts)
+    return rows
+
+
 def zfighting(*, scene="spheres/coplanar.xml", nears=(1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0), far=None,
               depths=("float32", "fixed24", "fixed16")) -> list[dict]:
     """Rows (depth, near, far, fight_pixels, fight_frac, predicted_dz_max) per depth format × near plane.
@@ -292,6 +398,16 @@ STUDIES = {
                    "Excess curvature of log-luminance over the exact image, on pixels at polygon edges "
                    "and off them: the slope jumps the eye sees as Mach bands (thesis 1.5.3).",
                    mach_bands),
+    "scan_coherence": ("Scan conversion: per-pixel edge functions vs scan-line coherence",
+                       "Pixels visited, edge-function evaluations, span solves, full and incremental "
+                       "interpolations, weighted arithmetic operations and time of the two traversals "
+                       "of impl.raster, and whether the images are identical (thesis 1.2.1).",
+                       scan_coherence),
+    "frame_coherence": ("Frame coherence along a camera path",
+                        "Consecutive frames of a turning camera: share of pixels with the same visible "
+                        "triangle, of triangles past the geometry stage, of Gouraud vertices already "
+                        "shaded, and the time share of each pipeline stage (thesis 1.2.1).",
+                        frame_coherence),
     "zfighting": ("Z-fighting vs near plane and depth format",
                   "Two surfaces 0.01 apart seen at a slant: pixels where the z-buffer keeps the farther one, "
                   "per depth format (float32, 24- and 16-bit fixed point) and near clip distance (thesis 1.3.1).",
