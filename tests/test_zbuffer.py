@@ -230,3 +230,17 @@ def test_rasterisers_refuse_sensors_they_do_not_model(scene):
         algo = registry.get(name)
         with pytest.raises(NotImplementedError, match=s.camera.kind):
             algo.render(s, algo.parse_params({}))
+
+
+def test_culling_check_has_power_when_the_front_faces_are_culled():
+    """Negative control of ``test_counters_and_culling`` (cull on = cull off on closed shapes):
+    with the sphere's winding reversed (``flip_normals``), back-face culling removes the faces
+    the camera sees, and the same comparison fails: the far inside of the sphere shows through."""
+    scene = load_scene(SUITES / "spheres/lit_sphere.xml")
+    flipped = dataclasses.replace(scene.shapes[0], flip_normals=True)
+    scene = dataclasses.replace(scene, shapes=[flipped] + scene.shapes[1:])
+    on = render(scene, tessellation=32)
+    off = render(scene, tessellation=32, cull=False)
+    sphere = off.aovs["shape_id"] == 0
+    assert sphere.sum() > 100
+    assert np.all(on.aovs["depth"][sphere] > off.aovs["depth"][sphere])
