@@ -244,3 +244,24 @@ def test_culling_check_has_power_when_the_front_faces_are_culled():
     sphere = off.aovs["shape_id"] == 0
     assert sphere.sum() > 100
     assert np.all(on.aovs["depth"][sphere] > off.aovs["depth"][sphere])
+
+
+def test_visibility_check_has_power_against_a_half_pixel_projection_error():
+    """Negative control of ``test_visibility_and_depth_match_raycast_of_the_same_mesh``: a
+    camera moved sideways by half a pixel's footprint at the scene (a viewport or projection
+    off by half a pixel would do the same) breaks its depth bound."""
+    scene = load_scene(SUITES / "cornell/cornell_point.xml")
+    depth_rc, id_rc = cast_primary(tessellated_scene(scene, 64))
+    cam = scene.camera
+    # Half a pixel at the median hit distance, along the camera's x axis.
+    half = 0.5 * 2.0 * cam.tan_half_fov_x / cam.film.width * float(np.median(depth_rc[np.isfinite(depth_rc)]))
+    moved = cam.to_world.copy()
+    moved[:3, 3] += half * moved[:3, 0]
+    shifted = dataclasses.replace(scene, camera=dataclasses.replace(cam, to_world=moved))
+    res = render(shifted, tessellation=64)
+    same = res.aovs["shape_id"] == id_rc
+    hit = same & np.isfinite(depth_rc)
+    rel = np.abs(res.aovs["depth"][hit] - depth_rc[hit]) / depth_rc[hit]
+    ok = (same.mean() >= 0.998 and same[~boundary_mask(id_rc)].mean() >= 0.9999 and rel.max() <= 1e-4)
+    print(f"shifted: same {same.mean():.4f}, max rel depth {rel.max():.3g}")
+    assert not ok
