@@ -136,6 +136,12 @@ def test_bounding_volume_rejection():
     res = render(scene, tessellation=16)
     assert res.counters["rejected_bv"] == 16 * 2 + 2 * 16 * (8 - 2)
     assert not np.any(res.aovs["shape_id"] == 0)
+    # Negative control: the sphere back in view, or with its centre outside the frustum (beside
+    # it) but its surface reaching in, is not rejected: the count check fails for it.
+    for center in ([0.0, 1.0, 0.0], [3.0, 1.0, 0.0]):
+        s = dataclasses.replace(scene.shapes[0], center=np.array(center), radius=1.5)
+        kept = render(dataclasses.replace(scene, shapes=[s] + scene.shapes[1:]), tessellation=16)
+        assert kept.counters["rejected_bv"] == 0 and np.any(kept.aovs["shape_id"] == 0), center
 
 
 def test_supersampling_is_the_mean_of_the_grid():
