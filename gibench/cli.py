@@ -85,6 +85,17 @@ def cmd_algorithms(args) -> int:
     return 0
 
 
+def _reference_transport(value: str) -> str:
+    """argparse type of ``reference --transport``: a fixed name or a canonical phong(...) name."""
+    if value in ("full", "direct", "whitted"):
+        return value
+    from references.phong_reference import parse_phong_transport, phong_transport
+    try:
+        return phong_transport(parse_phong_transport(value))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def cmd_render(args) -> int:
     from core.imageio import check_finite, write_exr
     from core.loader import load_scene
@@ -530,8 +541,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("reference", help="render (or reuse) a Mitsuba reference")
     s.add_argument("scene")
-    s.add_argument("--transport", choices=("full", "direct", "whitted"), default="full",
-                   help="full: Mitsuba path; direct: Mitsuba direct; whitted: delta bounces, then direct light")
+    s.add_argument("--transport", type=_reference_transport, default="full",
+                   help="full: Mitsuba path; direct: Mitsuba direct; whitted: delta bounces, then "
+                        "direct light; phong(ka=..,ambient=..,ks=..,shininess=..,c1=..,c2=..,c3=..,"
+                        "clamp=..): the matched Phong model (missing coefficients take the "
+                        "algorithms' defaults)")
     s.add_argument("--spp", type=_positive, default=1024)
     s.add_argument("--passes", type=_positive, default=8)
     s.add_argument("--seed", type=_seed, default=0)

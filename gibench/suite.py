@@ -52,7 +52,16 @@ from .runner import render_timed
 __all__ = ["Case", "Suite", "load_suite", "run_suite", "SuiteError", "EXPECTATIONS"]
 
 EXPECTATIONS = ("ztest", "report", "model-error")
-TRANSPORTS = ("direct", "full", "whitted")
+TRANSPORTS = ("direct", "full", "whitted", "phong")
+
+
+def _case_transport(transport: str, params: dict) -> str:
+    """``phong`` names the matched Phong reference with the case's own coefficients
+    (references/phong_reference.py): the reference store keys the full name."""
+    if transport == "phong":
+        from references.phong_reference import phong_transport
+        return phong_transport(params)
+    return transport
 
 
 
@@ -234,6 +243,9 @@ def load_suite(path) -> Suite:
                 raise SuiteError(f"{where}: missing '{key}'")
         algo = registry.get(group["algorithm"])
         transport = group.get("transport", algo.transport)
+        if transport == "phong" and "ka" not in {p.name for p in algo.params}:
+            raise SuiteError(f"{where}: transport 'phong' needs an algorithm with the Phong "
+                             f"parameters (ka, ks, shininess, c1..c3), not '{algo.name}'")
         for ci, cfg in enumerate(group.get("config", [{}])):
             m.check(cfg, _KEYS_CONFIG, f"group {gi + 1}, config {ci + 1}", gi)
         for scene in group["scenes"]:
@@ -250,7 +262,8 @@ def load_suite(path) -> Suite:
                 expect = cfg.get("expect", group.get("expect", "report"))
                 tol = dict(group.get("tolerances", {}), **cfg.get("tolerances", {}))
                 cases.append(Case(scene=scene_path, scene_id=scene_id, algorithm=algo.name,
-                                  params=params, transport=cfg.get("transport", transport),
+                                  params=params,
+                                  transport=_case_transport(cfg.get("transport", transport), params),
                                   label=cfg.get("label", f"{algo.name} {params}"),
                                   expect=expect, tolerances=tol))
     ladder = head.get("ladder", [])

@@ -54,7 +54,7 @@ from core.algorithm import Algorithm, RenderResult
 from core.scene import Scene
 
 from .pipeline import ScreenTriangles, clip_polygon, project
-from .raster import DEPTH_NONE, rasterize
+from .raster import DEPTH_NONE, TRAVERSALS, rasterize
 from .zbuffer import PARAMS, render_polygons
 
 __all__ = ["EPS_REL", "MAX_SPLIT_FACTOR", "depth_sort_order", "depthsort_visibility", "render", "ALGORITHM"]
@@ -378,7 +378,8 @@ def depthsort_visibility(scr: ScreenTriangles, scene: Scene, width: int, height:
     cam = scene.camera
     scr2, order, counters = depth_sort_order(scr, cam, width, height)
     vis, rc = rasterize(scr2.xy, scr2.cam[:, :, 2], width, height, depth_mode=DEPTH_NONE,
-                        near=cam.near_clip, far=cam.far_clip, order=order)
+                        near=cam.near_clip, far=cam.far_clip, order=order,
+                        traversal=TRAVERSALS[params.get("traversal", "edge")])
     counters.update(rc)
     return vis, scr2, counters
 

@@ -33,6 +33,26 @@ method         how
                The table is normalised to sum to 1 (its raw sum at ``res`` is
                :func:`hemicube_table`'s third value), so closure is exact in a
                closed scene and the error is the aliasing of small patches.
+``hemicube-   thesis 3.4.2 as Cohen & Greenberg built it: every patch is
+zbuffer``      *projected* onto the five faces of the hemicube with the
+               z-buffer rasteriser (:func:`impl.raster.rasterize`: item buffer
+               of patch ids, float32 window depth with near plane
+               :data:`HEMICUBE_NEAR` × the scene's extent, top-left fill rule
+               at cell centres), instead of one ray per cell.  Same cells
+               and ΔF table as ``hemicube``, so the two differ only where a
+               patch edge or a near-plane clip decides a cell differently.
+               Triangles are clipped against the near plane first (a patch
+               closer than it to the hemicube centre is cut, as in hardware
+               hemicubes).
+``point``      the thesis's point approximation (3.4.1, last formula): the
+               integral over A_j replaced by its value at the centre of j,
+               F_ij ≈ A_j cosθ_i cosθ_j / (π r²) · V (with the 1/π that
+               normalises a cosine-weighted hemisphere; the thesis's formula
+               omits it), at the quadrature points of i, times the visibility
+               by the contour method's shadow rays.  Good when r ≫ √A_j,
+               badly wrong for neighbouring patches (it can exceed 1; rows
+               are not normalised): the ablation the thesis's approximation
+               invites.
 ``montecarlo`` area-to-area by ray shooting (Malley's method): uniform points
                on A_i, cosine-distributed directions, the closest hit's patch
                scores 1/n.  F̂_ij is a binomial proportion: the 99 %
@@ -50,8 +70,7 @@ T. J. V. Malley, "A shading method for computer generated images" (1988);
 J. R. Howell, *A Catalog of Radiation Heat Transfer Configuration Factors*
 (C-11, C-14 are the checks of ``tests/test_form_factors.py``).
 
-Leaves out: z-buffer hemicubes (ray-cast item buffers here), adaptive
-hemicubes, analytic area-to-area (Schröder & Hanrahan 1993).
+Leaves out: adaptive hemicubes, analytic area-to-area (Schröder & Hanrahan 1993).
 """
 
 from __future__ import annotations
@@ -64,13 +83,16 @@ import numpy as np
 from numba import njit, prange
 
 from .patches import PatchMesh, closest_face, locate, occluded
+from .raster import DEPTH_FLOAT32, rasterize
 from .rng import uniform
 from core.errors import ParamError
 
-__all__ = ["METHODS", "FormFactors", "form_factors", "contour_point_polygon", "point_form_factor",
-           "hemicube_table", "quadrature_1d", "patch_quadrature", "Z99"]
+__all__ = ["METHODS", "HEMICUBE_NEAR", "FormFactors", "form_factors", "contour_point_polygon",
+           "point_form_factor", "hemicube_table", "hemicube_face_weights", "patch_triangles", "quadrature_1d", "patch_quadrature", "Z99"]
 
-METHODS = ("contour", "hemicube", "montecarlo")
+METHODS = ("contour", "hemicube", "hemicube-zbuffer", "point", "montecarlo")
+#: Near plane of the z-buffer hemicube, as a fraction of the scene's extent.
+HEMICUBE_NEAR = 1e-3
 #: Two-sided 99 % normal quantile, for the Monte Carlo confidence interval.
 Z99 = 2.5758293035489004
 
@@ -323,6 +345,163 @@ def _hemicube_kernel(M: PatchMesh, pts, wts, dirs, dF, eps, F, rays):
         rays[i] = _hemicube_row(M, i, pts[i], wts[i], dirs, dF, eps, F[i])
 
 
+# ------------------------------------------------------ z-buffer hemicube ---
+
+def hemicube_face_weights(res: int):
+    """ΔF of the cells of the five hemicube faces in the rasteriser's pixel layout: the top
+    face (res, res) and a side face (res/2, res), rows from the top (row 0 of a side face
+    is the cell row nearest the pole); normalised with :func:`hemicube_table`'s raw sum so
+    both hemicube methods use the same table."""
+    _, _, raw = hemicube_table(res)
+    h = 2.0 / res
+    c = -1.0 + h * (np.arange(res) + 0.5)
+    U, V = np.meshgrid(c, -c, indexing="xy")                 # pixel (row, col) → (u, v), v up
+    top = h * h / (np.pi * (U ** 2 + V ** 2 + 1.0) ** 2)
+    z = 1.0 - h * (np.arange(res // 2) + 0.5)                # side rows: height above the horizon
+    U2, Z = np.meshgrid(c, z, indexing="xy")
+    side = Z * h * h / (np.pi * (U2 ** 2 + Z ** 2 + 1.0) ** 2)
+    return top / raw, side / raw
+
+
+def patch_triangles(M: PatchMesh):
+    """The patches as triangles (T, 3, 3) and the patch of each (T,): a parallelogram
+    patch gives two, a triangle one."""
+    tris, src = [], []
+    for i in range(M.n_patches):
+        v = M.poly[i]
+        tris.append(v[[0, 1, 2]])
+        src.append(i)
+        if M.nverts[i] == 4:
+            tris.append(v[[0, 2, 3]])
+            src.append(i)
+    return np.ascontiguousarray(np.array(tris)), np.array(src, dtype=np.int64)
+
+
+@njit(cache=True)
+def _project_face(tris, x, r, up, f, near, res, out_xy, out_z, out_src):
+    """Camera-space (u, v, w) of every triangle about x for the face looking along f (right r,
+    up ``up``), clipped to w ≥ near, projected to a res-wide face (90° field of view,
+    pixel y down).  Writes up to two triangles per input; returns their count."""
+    m = 0
+    poly = np.empty((4, 3))
+    for t in range(tris.shape[0]):
+        cam = np.empty((3, 3))
+        inside = 0
+        for k in range(3):
+            dx = tris[t, k, 0] - x[0]
+            dy = tris[t, k, 1] - x[1]
+            dz = tris[t, k, 2] - x[2]
+            cam[k, 0] = dx * r[0] + dy * r[1] + dz * r[2]
+            cam[k, 1] = dx * up[0] + dy * up[1] + dz * up[2]
+            cam[k, 2] = dx * f[0] + dy * f[1] + dz * f[2]
+            if cam[k, 2] >= near:
+                inside += 1
+        if inside == 0:
+            continue
+        # Sutherland–Hodgman against w = near.
+        n = 0
+        for k in range(3):
+            a = cam[k]
+            b = cam[(k + 1) % 3]
+            ia = a[2] >= near
+            ib = b[2] >= near
+            if ia:
+                poly[n, 0], poly[n, 1], poly[n, 2] = a[0], a[1], a[2]
+                n += 1
+            if ia != ib:
+                s = (near - a[2]) / (b[2] - a[2])
+                poly[n, 0] = a[0] + s * (b[0] - a[0])
+                poly[n, 1] = a[1] + s * (b[1] - a[1])
+                poly[n, 2] = near
+                n += 1
+        for k in range(1, n - 1):
+            for c, idx in enumerate((0, k, k + 1)):
+                w = poly[idx, 2]
+                out_xy[m, c, 0] = (poly[idx, 0] / w + 1.0) * 0.5 * res
+                out_xy[m, c, 1] = (1.0 - poly[idx, 1] / w) * 0.5 * res
+                out_z[m, c] = w
+            out_src[m] = t
+            m += 1
+    return m
+
+
+def _hemicube_zbuffer(M: PatchMesh, pts, wts, res: int, F: np.ndarray) -> int:
+    """Rows of F by rasterised hemicubes; returns the number of hemicube cells evaluated."""
+    tris, tri_patch = patch_triangles(M)
+    top_w, side_w = hemicube_face_weights(res)
+    extent = max(float(np.abs(M.tri_v).max()), 1.0)
+    near, far = HEMICUBE_NEAR * extent, 4.0 * extent * math.sqrt(3.0)
+    T = len(tris)
+    xy = np.empty((2 * T, 3, 2))
+    zc = np.empty((2 * T, 3))
+    src = np.empty(2 * T, dtype=np.int64)
+    eps = _eps(M)
+    cells = 0
+    for i in range(M.n_patches):
+        n = M.normal[i]
+        tx, ty, tz, bx, by, bz = _frame(n)
+        t_ax, b_ax = np.array([tx, ty, tz]), np.array([bx, by, bz])
+        # (forward, right, up, weights) of the top face and the four side faces.
+        faces = ((n, t_ax, b_ax, top_w), (t_ax, b_ax, n, side_w), (-t_ax, -b_ax, n, side_w),
+                 (b_ax, -t_ax, n, side_w), (-b_ax, t_ax, n, side_w))
+        front = ((pts[i][:, None, :] + eps * n - M.centre[None, :, :]) * M.normal[None, :, :]).sum(-1) > 0.0
+        for q in range(pts.shape[1]):
+            x = pts[i, q] + eps * n
+            for fwd, right, up, weights in faces:
+                H = weights.shape[0]
+                m = _project_face(tris, x, np.ascontiguousarray(right), np.ascontiguousarray(up),
+                                  np.ascontiguousarray(fwd), near, res, xy, zc, src)
+                cells += weights.size
+                if m == 0:
+                    continue
+                vis, _ = rasterize(xy[:m], zc[:m], res, H, depth_mode=DEPTH_FLOAT32, near=near, far=far)
+                ids = vis.id.ravel()
+                hit = ids >= 0
+                j = tri_patch[src[ids[hit]]]
+                w = weights.ravel()[hit]
+                keep = (j != i) & front[q, j]
+                np.add.at(F[i], j[keep], wts[i, q] * w[keep])
+    return cells
+
+
+# ---------------------------------------------------------------- point ---
+
+@njit(cache=True)
+def _point_row(M: PatchMesh, i, pts, wts, vis_k, eps, row):
+    """Row i of F by the point approximation A_j cosθ_i cosθ_j / (π r²) × visibility."""
+    N = M.area.shape[0]
+    ni = M.normal[i]
+    x = np.empty(3)
+    rays = 0
+    for q in range(pts.shape[0]):
+        for c in range(3):
+            x[c] = pts[q, c] + eps * ni[c]
+        for j in range(N):
+            if j == i or M.patch_face[j] == M.patch_face[i]:
+                continue
+            cj = M.centre[j]
+            nj = M.normal[j]
+            dx, dy, dz = cj[0] - x[0], cj[1] - x[1], cj[2] - x[2]
+            r2 = dx * dx + dy * dy + dz * dz
+            if r2 <= 0.0:
+                continue
+            cos_i = (ni[0] * dx + ni[1] * dy + ni[2] * dz)
+            cos_j = -(nj[0] * dx + nj[1] * dy + nj[2] * dz)
+            if cos_i <= 0.0 or cos_j <= 0.0:
+                continue
+            f = M.area[j] * cos_i * cos_j / (math.pi * r2 * r2)     # the cosines carry r each
+            vis, nr = _visibility(M, x, j, vis_k, eps)
+            rays += nr
+            row[j] += wts[q] * f * vis
+    return rays
+
+
+@njit(parallel=True, cache=True)
+def _point_kernel(M: PatchMesh, pts, wts, vis_k, eps, F, rays):
+    for i in prange(F.shape[0]):
+        rays[i] = _point_row(M, i, pts[i], wts[i], vis_k, eps, F[i])
+
+
 # ----------------------------------------------------------- Monte Carlo ---
 
 @njit(cache=True)
@@ -374,12 +553,12 @@ def form_factors(M: PatchMesh, method: str = "contour", *, hemicube_res: int = 6
 
     Parameters
     ----------
-    method : 'contour' | 'hemicube' | 'montecarlo'
+    method : 'contour' | 'hemicube' | 'hemicube-zbuffer' | 'point' | 'montecarlo'
     hemicube_res : hemicube top-face resolution (even)
-    points : k for a k×k quadrature over patch i (contour, hemicube); 1 = centre
+    points : k for a k×k quadrature over patch i (all but montecarlo); 1 = centre
     graded : grade the quadrature towards the patch edges (adjacent patches)
-    vis_rays : shadow rays per (point, patch) pair for the contour method, a
-        square k² (0 = assume visible)
+    vis_rays : shadow rays per (point, patch) pair for the contour and point
+        methods, a square k² (0 = assume visible)
     mc_samples : rays per patch (montecarlo)
     """
     if method not in METHODS:
@@ -390,12 +569,16 @@ def form_factors(M: PatchMesh, method: str = "contour", *, hemicube_res: int = 6
     eps = _eps(M)
     t0 = time.perf_counter()
     half = None
-    if method == "contour":
+    if method in ("contour", "point"):
         k = int(round(math.sqrt(vis_rays)))
         if vis_rays < 0 or k * k != vis_rays:
             raise ParamError(f"radiosity: vis_rays must be 0 or a square k², got {vis_rays}")
         pts, wts = patch_quadrature(M, points, graded)
-        _contour_kernel(M, pts, wts, k, eps, F, rays)
+        (_contour_kernel if method == "contour" else _point_kernel)(M, pts, wts, k, eps, F, rays)
+    elif method == "hemicube-zbuffer":
+        hemicube_table(hemicube_res)                    # checks the resolution
+        pts, wts = patch_quadrature(M, points, graded)
+        rays[0] = _hemicube_zbuffer(M, pts, wts, hemicube_res, F)
     elif method == "hemicube":
         dirs, dF, _ = hemicube_table(hemicube_res)
         pts, wts = patch_quadrature(M, points, graded)

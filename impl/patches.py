@@ -30,7 +30,16 @@ exitance of a Lambertian emitter of radiance ``L_e``).  Per face a vertex grid
 is kept for Gouraud display: vertex radiosity = mean of the radiosities of the
 patches of the same face that share the vertex.
 
-Leaves out: spheres and curved surfaces, non-diffuse and two-sided materials
+Curved shapes: a ``sphere`` is meshed as a UV sphere of ``sphere_segments``
+segments (:func:`impl.tessellate.uv_sphere`, an inscribed polyhedron whose
+every triangle is a triangle face, so at least 2n(n/2 − 1) patches); the
+loader already tessellates ``disk`` and ``cylinder`` (128 sides) into
+triangles, each a face.  The patches are flat: the surface is the
+polyhedron's (area 1 − O(n⁻²) of the sphere's, light leaving and arriving by
+its facets), and Gouraud display never blends across faces, so such a shape
+shows its facets.
+
+Leaves out: non-diffuse and two-sided materials
 (each refused with ``NotImplementedError`` naming the shape), textured
 reflectance (the texture's mean is used, with a note), adaptive subdivision
 and T-vertex handling across faces (Gouraud interpolation never crosses a face
@@ -49,7 +58,9 @@ from numba import njit
 from core.scene import Scene
 from core.errors import ParamError, UnsupportedError
 
-__all__ = ["PatchMesh", "polygons_from_scene", "mesh_polygons", "mesh_scene", "size_for_count",
+from .tessellate import uv_sphere
+
+__all__ = ["PatchMesh", "SPHERE_SEGMENTS", "polygons_from_scene", "mesh_polygons", "mesh_scene", "size_for_count",
            "locate", "vertex_radiosity", "FACE_PARALLELOGRAM", "FACE_TRIANGLE"]
 
 FACE_PARALLELOGRAM, FACE_TRIANGLE = 0, 1
@@ -141,15 +152,18 @@ def _pair_parallelogram(a: np.ndarray, b: np.ndarray, n: np.ndarray):
     return r.copy(), e1, e2
 
 
-def polygons_from_scene(scene: Scene) -> list[Polygon]:
-    """The planar faces of every shape; refuses what radiosity cannot model."""
+#: Segments around a sphere meshed into patches (:func:`polygons_from_scene`).
+SPHERE_SEGMENTS = 12
+
+
+def polygons_from_scene(scene: Scene, *, sphere_segments: int = SPHERE_SEGMENTS) -> list[Polygon]:
+    """The planar faces of every shape (spheres as UV spheres of ``sphere_segments``
+    segments); refuses what radiosity cannot model."""
+    if sphere_segments < 3:
+        raise ParamError(f"radiosity: sphere_segments must be >= 3, got {sphere_segments}")
     out = []
     for si, shape in enumerate(scene.shapes):
         label = shape.name or shape.source
-        if shape.kind == "sphere":
-            raise UnsupportedError(
-                f"radiosity: shape '{label}' is a sphere; radiosity models planar diffuse polygons "
-                "(tessellate it into an obj/ply mesh to use it)")
         mat = scene.materials[shape.material]
         if mat.kind != "diffuse":
             raise UnsupportedError(
@@ -161,7 +175,11 @@ def polygons_from_scene(scene: Scene) -> list[Polygon]:
                 "(make the back side a separate shape)")
         radiance = tuple(shape.emitter_radiance) if shape.is_emitter else (0.0, 0.0, 0.0)
         rho = tuple(float(x) for x in mat.reflectance)
-        tris = shape.vertices[shape.faces]
+        if shape.kind == "sphere":
+            verts, faces = uv_sphere(shape.center, shape.radius, sphere_segments)
+            tris = verts[faces]
+        else:
+            tris = shape.vertices[shape.faces]
         normals = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
         lens = np.linalg.norm(normals, axis=1)
         k = 0
@@ -320,9 +338,11 @@ def mesh_polygons(polys: list[Polygon], *, patch_size: float = 0.0, patches: int
         patch_face=patch_face, patch_vidx=np.asarray(VIDX, dtype=np.int64))
 
 
-def mesh_scene(scene: Scene, *, patch_size: float = 0.0, patches: int = 0) -> PatchMesh:
+def mesh_scene(scene: Scene, *, patch_size: float = 0.0, patches: int = 0,
+               sphere_segments: int = SPHERE_SEGMENTS) -> PatchMesh:
     """:func:`polygons_from_scene` then :func:`mesh_polygons`."""
-    return mesh_polygons(polygons_from_scene(scene), patch_size=patch_size, patches=patches)
+    return mesh_polygons(polygons_from_scene(scene, sphere_segments=sphere_segments),
+                         patch_size=patch_size, patches=patches)
 
 
 # ------------------------------------------------------ hit → patch lookup ---

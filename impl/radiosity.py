@@ -14,7 +14,10 @@ scene's camera.  The pipeline (thesis 3.3):
    or ``patches``); emitters get E = π L_e, every patch its diffuse ρ (RGB);
 2. form factors (:mod:`impl.form_factors`): ``contour`` (hemisphere / Nusselt
    analog, 3.4.1, closed form × shadow-ray visibility), ``hemicube`` (3.4.2,
-   ray-cast item buffers) or ``montecarlo`` (area-to-area ray shooting);
+   ray-cast item buffers), ``hemicube-zbuffer`` (3.4.2, patches projected
+   onto the five faces by the z-buffer rasteriser), ``point`` (the thesis's
+   point approximation A_j cos cos / (π r²), for ablation) or ``montecarlo``
+   (area-to-area ray shooting);
 3. solve (:mod:`impl.radiosity_solvers`): ``jacobi``, ``gauss-seidel``,
    ``progressive`` refinement or the ``direct`` dense solve;
 4. display: eye rays (pixel centres, or k×k jittered strata with a box filter
@@ -44,7 +47,9 @@ emission becomes E_i + ρ_i π L_env V_i before the solve (V_i estimated with
 :func:`environment_fraction`); eye rays that escape show L_env.  The light it
 brings after one or more bounces follows from the solve as any other.
 
-Leaves out: spheres, non-diffuse and two-sided materials (refused with
+Spheres are meshed into flat patches (``sphere_segments``, :mod:`impl.patches`).
+
+Leaves out: non-diffuse and two-sided materials (refused with
 ``NotImplementedError`` naming the shape), textures (the mean reflectance),
 delta lights (point/spot/directional, refused), adaptive subdivision and
 discontinuity meshing, so shadows are as sharp as the patches are small and
@@ -56,10 +61,10 @@ Parameters
 ============  ======  ============  ===========================================
 name          type    default       meaning
 ============  ======  ============  ===========================================
-formfactor    str     contour       contour | hemicube | montecarlo
+formfactor    str     contour       contour | hemicube | hemicube-zbuffer | point | montecarlo
 hemicube_res  int     64            hemicube top-face resolution (even)
 ff_points     int     1             k: k×k quadrature points on patch i (1 = centre)
-vis_rays      int     4             contour: shadow rays per pair (k²; 0 = none)
+vis_rays      int     4             contour, point: shadow rays per pair (k²; 0 = none)
 mc_samples    int     1024          montecarlo: rays per patch
 patches       int     256           target patch count (when patch_size = 0)
 patch_size    float   0             target patch edge length (overrides patches)
@@ -72,6 +77,8 @@ spp           int     1             1 = pixel centre, k² = k×k jittered strata
 ambient       bool    true          progressive: add the ambient term to the display
 env_rays      int     256           constant environment: rays per patch for V_i
 ============  ======  ============  ===========================================
+
+``sphere_segments`` (int, 12): segments around a sphere meshed into patches.
 """
 
 from __future__ import annotations
@@ -212,7 +219,8 @@ def solve_scene(scene: Scene, params: dict, *, seed: int = 0, mesh: PatchMesh | 
     """Mesh, form factors and solve (cached); ``params`` as parsed by the registry."""
     _check(params)
     M = mesh if mesh is not None else mesh_scene(scene, patch_size=params["patch_size"],
-                                                 patches=params["patches"])
+                                                 patches=params["patches"],
+                                                 sphere_segments=params["sphere_segments"])
     _check_lights(scene)
     M = _with_environment(scene, M, params["env_rays"], seed)
     digest = M.digest()
@@ -356,10 +364,11 @@ ALGORITHM = Algorithm(
         Param("formfactor", str, "contour", "form-factor method", choices=METHODS),
         Param("hemicube_res", int, 64, "hemicube top-face resolution (even)"),
         Param("ff_points", int, 1, "k: k×k quadrature points on the emitting patch (1 = centre)"),
-        Param("vis_rays", int, 4, "contour: shadow rays per patch pair (square; 0 = no occlusion test)"),
+        Param("vis_rays", int, 4, "contour, point: shadow rays per patch pair (square; 0 = no occlusion test)"),
         Param("mc_samples", int, 1024, "montecarlo: rays shot per patch"),
         Param("patches", int, 256, "target patch count (used when patch_size = 0)"),
         Param("patch_size", float, 0.0, "target patch edge length (0 = use patches)"),
+        Param("sphere_segments", int, 12, "segments around a sphere meshed into patches (UV sphere)"),
         Param("solver", str, "gauss-seidel", "linear solver", choices=SOLVERS),
         Param("tol", float, 1e-8, "relative residual to stop at"),
         Param("max_iter", int, 10000, "iteration cap (progressive: N shots per iteration)"),

@@ -71,6 +71,7 @@ from .mitsuba_env import load_mitsuba, mitsuba_versions, spectral_variant
 from .motion_blur import has_motion
 from .store import EntryInvalid, read_entry, write_entry
 from .store import sha256_file as _sha256_file
+from .phong_reference import is_phong_transport, prepare_phong_xml
 
 __all__ = [
     "STORE_FORMAT",
@@ -468,7 +469,7 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
     overrides : dict
         Record of every override (``from``/``to``) for the manifest.
     """
-    if transport not in TRANSPORTS:
+    if transport not in TRANSPORTS and not is_phong_transport(transport):
         raise ParamError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
     if rfilter not in RFILTERS:
         raise ParamError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
@@ -517,6 +518,8 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
             used = {"type": "whitted", "max_depth": WHITTED_MAX_DEPTH,
                     "lobe_choice": WHITTED_LOBE_CHOICE,
                     "source": _display_path(source), "source_sha256": _sha256_file(source)}
+        elif is_phong_transport(transport):   # references/phong_reference.py: Phong BSDF + f_att/ambient
+            new, used = prepare_phong_xml(root, transport, _make, _prop)
         else:
             new = _make("integrator", {"type": "direct"})
             used = {"type": "direct"}
@@ -556,9 +559,11 @@ def load_scene(mi, scene_path, xml: str):
     duration of the load and the resolver is restored afterwards.  Raises
     :class:`SceneError` naming the file and the first line of Mitsuba's reason.
     """
+    from .phong_reference import register as register_phong
     from .whitted_integrator import register as register_whitted
 
     register_whitted(mi)                # the "whitted" transport's integrator, per variant
+    register_phong(mi)                  # the "phong(...)" transport's BSDF and integrator
     scene_path = Path(scene_path).resolve()
     get_resolver = getattr(mi, "file_resolver", None) or (
         lambda: mi.Thread.thread().file_resolver())
@@ -740,7 +745,7 @@ def _check_max_depth(max_depth, transport) -> None:
 
 
 def _check_args(transport, spp, passes, seed, rfilter) -> None:
-    if transport not in TRANSPORTS:
+    if transport not in TRANSPORTS and not is_phong_transport(transport):
         raise ParamError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
     if rfilter not in RFILTERS:
         raise ParamError(f"rfilter must be one of {RFILTERS}, got {rfilter!r}")
@@ -907,7 +912,7 @@ def time_mitsuba(scene_path, *, transport: str, spp: int, seed: int = 0, repeats
         ``median_s``, ``times_s``, ``spp``, ``variant``, ``warmup_s`` (plus
         ``transport``, ``width``, ``height``, ``scene``).
     """
-    if transport not in TRANSPORTS:
+    if transport not in TRANSPORTS and not is_phong_transport(transport):
         raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
     if repeats < 1 or spp < 1:
         raise ValueError(f"repeats and spp must be >= 1, got {repeats}, {spp}")

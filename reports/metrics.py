@@ -49,6 +49,7 @@ __all__ = [
     "noise_floor",
     "z_test",
     "ZTestResult",
+    "mach_band",
     "compare",
 ]
 
@@ -206,6 +207,85 @@ def relmse(reference, test, *, eps=1e-2):
         raise ValueError(f"eps must be positive, got {eps}")
     ref, tst = _pair(reference, test)
     return float(np.mean((tst - ref) ** 2 / (ref**2 + eps)))
+
+
+def mach_band(reference, test, *, mask, floor=1e-3):
+    """Mach-band strength: excess curvature of log-luminance of ``test`` over ``reference``.
+
+    Parameters
+    ----------
+    reference, test : ndarray, shape (H, W, 3)
+        Linear radiance, same shape.  ``reference`` is the smooth image the
+        test approximates (e.g. per-pixel shading of the exact surface).
+    mask : ndarray of bool, shape (H, W)
+        Pixels to average over (e.g. pixels on polygon edges, away from
+        silhouettes).  Pixels in the outermost row and column are never used.
+    floor : float, optional
+        Luminance floor, as a fraction of the reference's maximum luminance,
+        added before the logarithm (default 1e-3).
+
+    Returns
+    -------
+    float
+        ``mean over mask of max(|Δ²_x l_t − Δ²_x l_r|, |Δ²_y l_t − Δ²_y l_r|)``,
+        with ``l = ln(Y + floor · max Y_ref)`` the log of Rec. 709 luminance and
+        ``Δ²_x l = l[x+1] − 2 l[x] + l[x−1]`` the second difference along x
+        (likewise y).  0 when the test bends exactly as the reference;
+        ``nan`` if the mask selects no usable pixel.
+
+    Raises
+    ------
+    ImageError
+        If the images' shapes differ or are not (H, W, 3), or ``mask`` is not
+        an (H, W) array.
+    ValueError
+        If ``floor <= 0``.
+
+    Notes
+    -----
+    Thesis 1.5.3: the eye exaggerates a jump of the luminance *gradient*
+    (lateral inhibition), so Gouraud shading, continuous in value but not in
+    slope across polygon edges, shows bright and dark bands along them.  A
+    jump of slope is a spike of the second difference.  The logarithm makes
+    the measure a contrast (Weber–Fechner: equal ratios look equal), which is
+    the perceptual weighting used here; it is not a full model of the
+    contrast-sensitivity function (no spatial-frequency weighting).
+    Subtracting the reference's curvature leaves what the shading technique
+    adds: curvature of the true surface's shading is not a Mach band.
+
+    References
+    ----------
+    .. [1] F. Ratliff, *Mach Bands: Quantitative Studies on Neural Networks
+       in the Retina*, Holden-Day, 1965.
+    """
+    if not floor > 0:
+        raise ValueError(f"floor must be positive, got {floor}")
+    ref, tst = _pair(reference, test)
+    mask = np.asarray(mask, dtype=bool)
+    if mask.shape != ref.shape[:2]:
+        raise ImageError(f"mask shape {mask.shape} does not match image shape {ref.shape[:2]}")
+    y_ref = ref @ _LUMINANCE
+    y_tst = tst @ _LUMINANCE
+    off = floor * max(float(y_ref.max()), 1e-300)
+    l_ref = np.log(np.maximum(y_ref, 0.0) + off)
+    l_tst = np.log(np.maximum(y_tst, 0.0) + off)
+
+    def second(l):
+        dxx = np.zeros_like(l)
+        dyy = np.zeros_like(l)
+        dxx[:, 1:-1] = l[:, 2:] - 2.0 * l[:, 1:-1] + l[:, :-2]
+        dyy[1:-1, :] = l[2:, :] - 2.0 * l[1:-1, :] + l[:-2, :]
+        return dxx, dyy
+
+    rx, ry = second(l_ref)
+    tx, ty = second(l_tst)
+    inner = mask.copy()
+    inner[0, :] = inner[-1, :] = False
+    inner[:, 0] = inner[:, -1] = False
+    if not inner.any():
+        return float("nan")
+    excess = np.maximum(np.abs(tx - rx), np.abs(ty - ry))
+    return float(excess[inner].mean())
 
 
 def psnr(reference, test, *, exposure=1.0):

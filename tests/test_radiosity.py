@@ -124,9 +124,35 @@ def test_furnace_scene_displays_le_over_one_minus_rho(tmp_path, display):
     assert np.abs(img - expected).max() / expected.max() < 1e-5
 
 
-def test_refuses_spheres_and_non_diffuse(tmp_path):
-    with pytest.raises(NotImplementedError, match="radiosity: shape 'sphere' is a sphere"):
-        render(load_scene(SUITES / "spheres" / "lit_sphere.xml"))
+FURNACE_SPHERE = """    <shape type="sphere">
+        <point name="center" value="-0.2, -0.3, -0.4"/>
+        <float name="radius" value="0.35"/>
+        <bsdf type="diffuse"><rgb name="reflectance" value="{rho}, {rho}, {rho}"/></bsdf>
+        <emitter type="area"><rgb name="radiance" value="1, 0.5, 0.25"/></emitter>
+    </shape>
+</scene>"""
+
+
+@pytest.mark.parametrize("formfactor", ["hemicube", "hemicube-zbuffer"])
+def test_sphere_is_meshed_into_patches_and_the_furnace_holds(tmp_path, formfactor):
+    """A sphere inside the closed emitting box, both with ρ = 0.75 and the same L_e, meshed into
+    patches (12 segments): hemicube form factors close every row exactly, so every pixel —
+    box and sphere — shows L_e / (1 − ρ).  Negative control: the point approximation does
+    not close its rows (here Σ_j ρ F_ij > 1 for neighbouring patches, so the iteration
+    diverges), and the furnace check fails with it."""
+    p = tmp_path / "furnace_sphere.xml"
+    p.write_text(FURNACE_XML.format(rho=0.75).replace("</scene>", FURNACE_SPHERE.format(rho=0.75)))
+    scene = load_scene(p)
+    expected = np.array([1.0, 0.5, 0.25]) / 0.25
+    res = render(scene, display="flat", patches=100, formfactor=formfactor, hemicube_res=32,
+                 solver="gauss-seidel", tol=1e-12)
+    assert res.counters["patches"] >= 2 * 12 * 5             # the sphere's 120 triangles at least
+    assert np.abs(res.image - expected).max() / expected.max() < 1e-5
+    bad = render(scene, display="flat", patches=100, formfactor="point", vis_rays=4).image
+    assert not (np.abs(bad - expected).max() / expected.max() < 1e-5)          # nan/inf fail too
+
+
+def test_refuses_non_diffuse(tmp_path):
     p = tmp_path / "metal.xml"
     p.write_text(FURNACE_XML.format(rho=0.5).replace(
         '<bsdf type="diffuse"><rgb name="reflectance" value="0.5, 0.5, 0.5"/></bsdf>', '<bsdf type="conductor"/>'))
@@ -173,3 +199,31 @@ def test_error_falls_with_patch_refinement_against_mitsuba_full(scene):
     abs_ = [r[2] for r in rows]
     assert rel[0] > rel[1] > rel[2] and abs_[0] > abs_[1] > abs_[2], rows
     assert rel[2] < 0.5 * rel[0]
+
+
+def test_views_of_one_solution_equal_full_renders_per_view():
+    """View independence (thesis 3.4): displaying each of 3 views from one solution gives the
+    image a full render (mesh, form factors, solve, display) of that view gives.  Negative
+    control: a solution of the scene with other reflectances does not."""
+    import dataclasses
+
+    from gibench.studies.radiosity import camera_views, view_independence
+
+    base = load_scene(SUITES / "cornell" / "cornell_box.xml")
+    params = RADIOSITY.parse_params({"patches": 64, "display": "gouraud"})
+    sol = radiosity.solve_scene(base, params)
+    views = camera_views(base, 3, 30.0)
+    assert not np.allclose(views[0].camera.to_world, views[2].camera.to_world)
+    for view in views:
+        shared, _, _ = radiosity.display(view, sol, mode="gouraud")
+        radiosity.clear_cache()
+        fresh = RADIOSITY.render(view, params).image
+        np.testing.assert_allclose(shared, fresh, rtol=1e-5, atol=1e-7)
+    grey = dataclasses.replace(base, materials=[dataclasses.replace(m, reflectance=(0.3, 0.3, 0.3))
+                                                for m in base.materials])
+    other = radiosity.solve_scene(grey, params)
+    wrong, _, _ = radiosity.display(views[1], other, mode="gouraud")
+    assert not np.allclose(wrong, RADIOSITY.render(views[1], params).image, rtol=1e-3)
+    rows = view_independence(views=(1, 2), patches=32, spp=1, path_spp=1)
+    assert [r["views"] for r in rows] == [1, 2]
+    assert rows[1]["radiosity_total_s"] >= rows[0]["radiosity_total_s"] and rows[0]["solve_s"] > 0

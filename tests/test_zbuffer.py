@@ -136,6 +136,12 @@ def test_bounding_volume_rejection():
     res = render(scene, tessellation=16)
     assert res.counters["rejected_bv"] == 16 * 2 + 2 * 16 * (8 - 2)
     assert not np.any(res.aovs["shape_id"] == 0)
+    # Negative control: the sphere back in view, or with its centre outside the frustum (beside
+    # it) but its surface reaching in, is not rejected: the count check fails for it.
+    for center in ([0.0, 1.0, 0.0], [3.0, 1.0, 0.0]):
+        s = dataclasses.replace(scene.shapes[0], center=np.array(center), radius=1.5)
+        kept = render(dataclasses.replace(scene, shapes=[s] + scene.shapes[1:]), tessellation=16)
+        assert kept.counters["rejected_bv"] == 0 and np.any(kept.aovs["shape_id"] == 0), center
 
 
 def test_supersampling_is_the_mean_of_the_grid():
@@ -230,3 +236,38 @@ def test_rasterisers_refuse_sensors_they_do_not_model(scene):
         algo = registry.get(name)
         with pytest.raises(NotImplementedError, match=s.camera.kind):
             algo.render(s, algo.parse_params({}))
+
+
+def test_culling_check_has_power_when_the_front_faces_are_culled():
+    """Negative control of ``test_counters_and_culling`` (cull on = cull off on closed shapes):
+    with the sphere's winding reversed (``flip_normals``), back-face culling removes the faces
+    the camera sees, and the same comparison fails: the far inside of the sphere shows through."""
+    scene = load_scene(SUITES / "spheres/lit_sphere.xml")
+    flipped = dataclasses.replace(scene.shapes[0], flip_normals=True)
+    scene = dataclasses.replace(scene, shapes=[flipped] + scene.shapes[1:])
+    on = render(scene, tessellation=32)
+    off = render(scene, tessellation=32, cull=False)
+    sphere = off.aovs["shape_id"] == 0
+    assert sphere.sum() > 100
+    assert np.all(on.aovs["depth"][sphere] > off.aovs["depth"][sphere])
+
+
+def test_visibility_check_has_power_against_a_half_pixel_projection_error():
+    """Negative control of ``test_visibility_and_depth_match_raycast_of_the_same_mesh``: a
+    camera moved sideways by half a pixel's footprint at the scene (a viewport or projection
+    off by half a pixel would do the same) breaks its depth bound."""
+    scene = load_scene(SUITES / "cornell/cornell_point.xml")
+    depth_rc, id_rc = cast_primary(tessellated_scene(scene, 64))
+    cam = scene.camera
+    # Half a pixel at the median hit distance, along the camera's x axis.
+    half = 0.5 * 2.0 * cam.tan_half_fov_x / cam.film.width * float(np.median(depth_rc[np.isfinite(depth_rc)]))
+    moved = cam.to_world.copy()
+    moved[:3, 3] += half * moved[:3, 0]
+    shifted = dataclasses.replace(scene, camera=dataclasses.replace(cam, to_world=moved))
+    res = render(shifted, tessellation=64)
+    same = res.aovs["shape_id"] == id_rc
+    hit = same & np.isfinite(depth_rc)
+    rel = np.abs(res.aovs["depth"][hit] - depth_rc[hit]) / depth_rc[hit]
+    ok = (same.mean() >= 0.998 and same[~boundary_mask(id_rc)].mean() >= 0.9999 and rel.max() <= 1e-4)
+    print(f"shifted: same {same.mean():.4f}, max rel depth {rel.max():.3g}")
+    assert not ok

@@ -22,6 +22,10 @@ study                     what it measures
 ``thin_gap``              light leaking under a partition 0.02 above the floor
                           (suites/cornell/thin_gap.xml): the dark side's mean
                           radiance, own / Mitsuba, per patch count and method
+``view_independence``     thesis 3.4's closing point: one solve, N views.
+                          Radiosity's total time (form factors + solve once,
+                          then one display per view) against N renders of
+                          the own path tracer, per N
 ========================  =====================================================
 
 Times are wall-clock on whatever machine runs the study; every row carries
@@ -42,7 +46,7 @@ from core.provenance import REPO_ROOT
 from . import StudyInfo, read_config, run_registered
 
 __all__ = ["STUDIES", "TABLES", "DEFAULT_CONFIG", "load_config", "run_studies", "error_vs_patches",
-           "adjacent_patches", "hemicube_aliasing", "thin_gap"]
+           "adjacent_patches", "hemicube_aliasing", "thin_gap", "view_independence", "camera_views"]
 
 DEFAULT_CONFIG = REPO_ROOT / "suites" / "radiosity" / "studies.toml"
 SUITES = REPO_ROOT / "suites"
@@ -249,6 +253,84 @@ def thin_gap(*, scene="cornell/thin_gap.xml", patch_counts=(64, 256, 1024, 4096)
     return rows
 
 
+def camera_views(scene, n: int, spread_deg: float):
+    """``n`` copies of ``scene`` whose cameras turn about their own up axis by angles spread
+    evenly over [−spread/2, spread/2] degrees (the same position, n different views)."""
+    import dataclasses
+
+    angles = np.linspace(-0.5, 0.5, n) * spread_deg if n > 1 else np.zeros(1)
+    out = []
+    for a in np.deg2rad(angles):
+        rot = np.eye(4)
+        rot[0, 0], rot[0, 2], rot[2, 0], rot[2, 2] = math.cos(a), math.sin(a), -math.sin(a), math.cos(a)
+        cam = dataclasses.replace(scene.camera, to_world=scene.camera.to_world @ rot)
+        out.append(dataclasses.replace(scene, camera=cam))
+    return out
+
+
+def view_independence(*, scene="cornell/cornell_box.xml", views=(1, 2, 4, 8, 16), spread_deg=30.0,
+                      patches=256, formfactor="contour", display="gouraud", spp=4,
+                      path_spp=16, path_max_depth=-1) -> list[dict]:
+    """Rows per N in ``views``: radiosity's time for N views of one solution against N
+    path-traced renders (own ``path``, ``path_spp`` samples per pixel, ``path_max_depth``).
+
+    The max(views) views are rendered once by each method (after one untimed warm-up of
+    each) and the totals for smaller N are the sums over the first N of them, so the rows
+    share one measurement.  Radiosity: ``solve_s`` (meshing, form factors and solve, caches
+    cleared) plus the display time of each view; the path tracer renders every view from
+    scratch.  ``crossover`` is whether radiosity's total is the smaller.  The two methods
+    are not at equal error (radiosity is biased, the path tracer noisy): times only.
+    """
+    from impl import radiosity as rad
+
+    from .. import registry
+
+    sc = _scene_path(scene)
+    from core.loader import load_scene
+
+    base = load_scene(sc)
+    n_max = max(views)
+    scenes = camera_views(base, n_max, spread_deg)
+    ralgo = registry.get("radiosity")
+    params = ralgo.parse_params({"patches": patches, "formfactor": formfactor, "display": display, "spp": spp})
+    palgo = registry.get("path")
+    pparams = palgo.parse_params({"spp": path_spp, "max_depth": path_max_depth})
+    # Warm-up (compilation) of both, untimed.
+    rad.clear_cache()
+    ralgo.render(scenes[0], params, seed=0)
+    palgo.render(scenes[0], pparams, seed=0)
+    rad.clear_cache()
+    t0 = time.perf_counter()
+    sol = rad.solve_scene(base, params, seed=0)
+    solve_s = time.perf_counter() - t0
+    view_s = []
+    for s in scenes:
+        t0 = time.perf_counter()
+        rad.display(s, sol, mode=display, spp=spp, seed=0)
+        view_s.append(time.perf_counter() - t0)
+    path_s = []
+    for s in scenes:
+        t0 = time.perf_counter()
+        palgo.render(s, pparams, seed=0)
+        path_s.append(time.perf_counter() - t0)
+    rows = []
+    for n in views:
+        r_total = solve_s + sum(view_s[:n])
+        p_total = sum(path_s[:n])
+        rows.append({"scene": str(scene), "views": int(n), "patches": sol.mesh.n_patches,
+                     "formfactor": formfactor, "path_spp": path_spp,
+                     "solve_s": solve_s, "view_s_median": float(np.median(view_s[:n])),
+                     "radiosity_total_s": r_total, "radiosity_per_view_s": r_total / n,
+                     "path_total_s": p_total, "path_per_view_s": p_total / n,
+                     "path_over_radiosity": p_total / r_total, "crossover": bool(r_total < p_total)})
+    return rows
+
+
+def _scene_path(scene):
+    p = Path(scene)
+    return p if p.is_absolute() else SUITES / p
+
+
 # ================================================================ registry ===
 
 STUDIES = {s.name: s for s in (
@@ -270,6 +352,11 @@ STUDIES = {s.name: s for s in (
               "A partition 0.02 above the floor splits a lit from a dark half; patches of floor and ceiling "
               "straddle it.  Mean radiance of the dark side, own / Mitsuba (leak ratio), per patch count.",
               thin_gap),
+    StudyInfo("view_independence", "Radiosity: one solve, many views",
+              "Radiosity's time for N views of one solution (form factors and solve once, then a display "
+              "per view) against N renders of the own path tracer, per N (thesis 3.4: once the form "
+              "factors are computed a new view needs only the shading).  Times only, not at equal error.",
+              view_independence),
 )}
 
 TABLES = {name: (info.title, info.description) for name, info in STUDIES.items()}

@@ -16,6 +16,26 @@ study                     what it measures
 ``visibility``            agreement of the shape-id and depth AOVs of
                           ``zbuffer`` and ``depthsort`` with ray casting of
                           the same meshes, per scene
+``highlights``            how much of the exact Phong highlight (k_s > 0)
+                          each shading technique keeps: its peak and its
+                          energy over the highlight, per mode × tessellation
+                          (thesis 1.5.5: Gouraud loses highlights that fall
+                          inside a polygon, Phong shading keeps them)
+``scan_coherence``        operation counts of scan conversion with per-pixel
+                          edge functions against scan-line spans with
+                          incremental interpolation (thesis 1.2.1), and the
+                          render time of each, per scene
+``frame_coherence``       frame coherence along a short camera path (thesis
+                          1.2.1): what of frame k is still valid in frame
+                          k+1 — visible triangle per pixel, triangles past
+                          the geometry stage, Gouraud vertices shaded — and
+                          the time share of the tessellation every frame
+                          could reuse
+``mach_bands``            Mach-band strength (:func:`reports.metrics.mach_band`:
+                          jump of the log-luminance slope across polygon
+                          edges beyond the exact image's) per mode ×
+                          tessellation, on edge pixels and, for comparison,
+                          off them (thesis 1.5.3)
 ========================  ====================================================
 
 Error metric of ``shading_convergence``: relMSE (ε = 0.01, linear radiance,
@@ -38,13 +58,14 @@ import numpy as np
 from impl import depth_sort, raycast, zbuffer
 from impl.raycast import cast_primary
 from impl.tessellate import sphere_triangle_count, tessellated_scene
-from reports.metrics import relmse
+from reports.metrics import mach_band, relmse
 
 from core.loader import load_scene
 from core.provenance import REPO_ROOT
 from core.errors import SuiteError
 
-__all__ = ["STUDIES", "TABLES", "boundary_mask", "shading_convergence", "zfighting", "visibility", "run_studies"]
+__all__ = ["STUDIES", "TABLES", "boundary_mask", "polygon_edges", "shading_convergence", "highlights",
+           "mach_bands", "scan_coherence", "frame_coherence", "zfighting", "visibility", "run_studies"]
 
 SUITES = REPO_ROOT / "suites"
 ALGORITHMS = {"zbuffer": zbuffer.ALGORITHM, "depthsort": depth_sort.ALGORITHM}
@@ -105,6 +126,201 @@ def shading_convergence(*, scene="spheres/lit_sphere.xml", tessellations=(8, 16,
                          "relmse": float(relmse(ref_px, img_px)),
                          "mean_rel_err": float(np.mean(np.abs(img_px - ref_px) / scale)),
                          "time_ms": 1e3 * t, "pixels": int(mask.sum())})
+    return rows
+
+
+def _exact(sc, phong):
+    """The exact per-pixel Phong model on the analytic scene (ray casting, shadows off, pixel
+    centres) and the pixels whose 3×3 neighbourhood is all sphere: (image, shape ids, interior)."""
+    rc = raycast.ALGORITHM
+    exact = rc.render(sc, rc.parse_params(dict(phong, shadows=False)), seed=0).image.astype(np.float64)
+    _, ref_id = cast_primary(sc)
+    spheres = [i for i, s in enumerate(sc.shapes) if s.kind == "sphere"]
+    if not spheres:
+        raise SuiteError("the scene has no sphere")
+    return exact, ref_id, np.isin(ref_id, spheres) & ~boundary_mask(ref_id)
+
+
+def polygon_edges(flat_image: np.ndarray) -> np.ndarray:
+    """Pixels next to a polygon edge: where a flat-shaded image (one colour per polygon)
+    changes value between 4-neighbours.  Two adjacent polygons of equal colour are missed."""
+    img = np.asarray(flat_image, dtype=np.float64)
+    out = np.zeros(img.shape[:2], bool)
+    dx = np.any(img[:, 1:] != img[:, :-1], axis=-1)
+    dy = np.any(img[1:, :] != img[:-1, :], axis=-1)
+    out[:, 1:] |= dx
+    out[:, :-1] |= dx
+    out[1:, :] |= dy
+    out[:-1, :] |= dy
+    return out
+
+
+def highlights(*, scene="spheres/lit_sphere.xml", tessellations=(8, 16, 32, 64, 128),
+               modes=("flat", "gouraud", "phong"), algorithm="zbuffer", ks=0.5, shininess=50.0,
+               threshold=0.1) -> list[dict]:
+    """Rows (mode, tessellation, peak_kept, energy_kept, relmse_highlight, highlight_pixels).
+
+    The exact highlight is S = Y(exact with k_s) − Y(exact with k_s = 0) (luminance, ray
+    casting of the analytic scene at pixel centres, shadows off); its region is the interior
+    sphere pixels with S > ``threshold`` · max S.  For a shaded image I the highlight it shows
+    is I_S = Y(I) − Y(exact with k_s = 0): ``peak_kept`` = max I_S / max S over the region,
+    ``energy_kept`` = Σ I_S / Σ S, ``relmse_highlight`` the relMSE of the colour over the region.
+    """
+    sc = _scene(scene)
+    if not ks > 0:
+        raise SuiteError(f"highlights: ks must be > 0, got {ks}")
+    phong = {"ks": ks, "shininess": shininess}
+    exact, ref_id, interior = _exact(sc, phong)
+    diffuse, _, _ = _exact(sc, {"ks": 0.0, "shininess": shininess})
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    spec = (exact - diffuse) @ lum
+    region = interior & (spec > threshold * spec[interior].max())
+    algo = ALGORITHMS[algorithm]
+    rows = []
+    for n in tessellations:
+        for mode in modes:
+            res = algo.render(sc, algo.parse_params(dict(phong, shading=mode, tessellation=n)), seed=0)
+            img = res.image.astype(np.float64)
+            shown = (img - diffuse) @ lum
+            rows.append({"scene": str(scene), "algorithm": algorithm, "mode": mode, "tessellation": int(n),
+                         "ks": ks, "shininess": shininess,
+                         "peak_kept": float(shown[region].max() / spec[region].max()),
+                         "energy_kept": float(shown[region].sum() / spec[region].sum()),
+                         "relmse_highlight": float(relmse(exact[region][:, None, :], img[region][:, None, :])),
+                         "highlight_pixels": int(region.sum())})
+    return rows
+
+
+def mach_bands(*, scene="spheres/lit_sphere.xml", tessellations=(8, 16, 32, 64),
+               modes=("flat", "gouraud", "phong"), algorithm="zbuffer", ks=0.0,
+               shininess=32.0, lit_fraction=0.05) -> list[dict]:
+    """Rows (mode, tessellation, mach_edge, mach_off_edge, edge_pixels) per mode × tessellation.
+
+    ``mach_edge`` is :func:`reports.metrics.mach_band` of the shaded image (pixel centres)
+    against the exact per-pixel model over the lit interior sphere pixels next to a polygon
+    edge (:func:`polygon_edges` of the flat-shaded image of the same tessellation);
+    ``mach_off_edge`` the same over the other lit interior sphere pixels.  *Lit*: the exact
+    luminance exceeds ``lit_fraction`` of its maximum over the sphere in the pixel and its
+    4-neighbours (near the terminator the coarse polyhedron moves the shadow line, a geometry
+    error the log-contrast would magnify).
+    """
+    from scipy.ndimage import binary_erosion
+
+    sc = _scene(scene)
+    phong = {"ks": ks, "shininess": shininess}
+    exact, ref_id, interior = _exact(sc, phong)
+    lum = exact @ np.array([0.2126, 0.7152, 0.0722])
+    interior = interior & binary_erosion(lum > lit_fraction * lum[interior].max(), iterations=1)
+    algo = ALGORITHMS[algorithm]
+    rows = []
+    for n in tessellations:
+        flat = algo.render(sc, algo.parse_params(dict(phong, shading="flat", tessellation=n)), seed=0)
+        same = interior & (flat.aovs["shape_id"] == ref_id)
+        edges = polygon_edges(flat.image) & same
+        for mode in modes:
+            res = (flat if mode == "flat" else
+                   algo.render(sc, algo.parse_params(dict(phong, shading=mode, tessellation=n)), seed=0))
+            rows.append({"scene": str(scene), "algorithm": algorithm, "mode": mode, "tessellation": int(n),
+                         "ks": ks,
+                         "mach_edge": mach_band(exact, res.image, mask=edges),
+                         "mach_off_edge": mach_band(exact, res.image, mask=same & ~edges),
+                         "edge_pixels": int(edges.sum())})
+    return rows
+
+
+#: Arithmetic operations per counted step of :mod:`impl.raster` (see its docstring):
+#: a full edge-function evaluation (2 multiplications, 5 additions), a per-row span solve
+#: (the row's constant: 2 multiplications, 5 additions; one division, one comparison), a
+#: full interpolation of λ0, λ1, λ2, 1/z (9 multiplications, 14 additions), an incremental
+#: step (3 additions).
+OPS_PER = {"edge_evals": 7, "span_solves": 9, "interp_evals": 23, "interp_steps": 3}
+
+
+def scan_coherence(*, scenes=("spheres/lit_sphere.xml", "cornell/cornell_point.xml", "spheres/meshes.xml"),
+                   tessellation=64, spp=1, repeats=3) -> list[dict]:
+    """Rows (scene, traversal, counters, arithmetic operations, time_ms, identical) per scene ×
+    traversal.  ``ops`` weighs the counters with :data:`OPS_PER`; ``identical`` says whether
+    the image equals the per-pixel traversal's."""
+    algo = zbuffer.ALGORITHM
+    rows = []
+    for scene in scenes:
+        sc = _scene(scene)
+        base = None
+        for tr in ("edge", "incremental"):
+            params = algo.parse_params({"traversal": tr, "tessellation": tessellation, "spp": spp,
+                                        "shading": "gouraud"})
+            res, t = _timed(lambda: algo.render(sc, params, seed=0), repeats)
+            c = res.counters
+            base = res.image if base is None else base
+            rows.append({"scene": str(scene), "traversal": tr, "fragments": c["fragments"],
+                         "pixels_visited": c["pixels_visited"], "edge_evals": c["edge_evals"],
+                         "span_solves": c["span_solves"], "interp_evals": c["interp_evals"],
+                         "interp_steps": c["interp_steps"],
+                         "ops": int(sum(OPS_PER[k] * c[k] for k in OPS_PER)),
+                         "time_ms": 1e3 * t, "identical": bool(np.array_equal(res.image, base))})
+    return rows
+
+
+def _turned(scene, degrees):
+    """``scene`` with its camera turned about its own up axis by ``degrees``."""
+    a = np.deg2rad(degrees)
+    rot = np.eye(4)
+    rot[0, 0], rot[0, 2], rot[2, 0], rot[2, 2] = np.cos(a), np.sin(a), -np.sin(a), np.cos(a)
+    cam = dataclasses.replace(scene.camera, to_world=scene.camera.to_world @ rot)
+    return dataclasses.replace(scene, camera=cam)
+
+
+def frame_coherence(*, scene="cornell/cornell_point.xml", frames=8, step_deg=1.0, tessellation=64) -> list[dict]:
+    """Rows per frame pair (k, k+1) of a camera turning ``step_deg`` per frame: fraction of
+    pixels whose visible triangle is unchanged (``visible_same``, over pixels covered in either
+    frame), Jaccard overlap of the triangles past the geometry stage (``survivors_same``),
+    fraction of frame k+1's Gouraud vertex evaluations already made in frame k
+    (``vertices_reused``: with k_s = 0 a vertex's diffuse shading does not depend on the
+    view), and the time shares of frame k+1's stages (tessellation, geometry, raster, shading;
+    tessellation is what a static scene never needs to redo)."""
+    from impl.pipeline import camera_frame, geometry_stage
+    from impl.raster import DEPTH_FLOAT32, rasterize
+    from impl.scene_arrays import flatten
+    from impl.shading import GOURAUD, PhongParams, resolve
+    from impl.tessellate import scene_triangles
+
+    base = _scene(scene)
+    algo = zbuffer.ALGORITHM
+    params = algo.parse_params({"tessellation": tessellation, "shading": "gouraud"})
+    algo.render(base, params, seed=0)                    # warm-up (compilation)
+    A = flatten(base)
+    pp = PhongParams(params, 0)
+    prev = None
+    rows = []
+    for k in range(frames):
+        sc = _turned(base, k * step_deg)
+        cam = sc.camera
+        W, H = cam.film.width, cam.film.height
+        t0 = time.perf_counter()
+        soup = scene_triangles(sc, tessellation)
+        t1 = time.perf_counter()
+        scr = geometry_stage(soup, cam, cull=True, n_shapes=len(sc.shapes))
+        t2 = time.perf_counter()
+        vis, _ = rasterize(scr.xy, scr.cam[:, :, 2], W, H, depth_mode=DEPTH_FLOAT32, near=cam.near_clip,
+                           far=cam.far_clip)
+        t3 = time.perf_counter()
+        _, eye = camera_frame(cam)
+        resolve(GOURAUD, vis, scr, soup, eye, A, pp)
+        t4 = time.perf_counter()
+        src = np.where(vis.id >= 0, scr.src[np.maximum(vis.id, 0)], -1)
+        survivors = set(np.unique(scr.src).tolist())
+        verts = set(np.unique(soup.tri[np.unique(scr.src)]).tolist())
+        if prev is not None:
+            covered = (src >= 0) | (prev[0] >= 0)
+            total = t4 - t0
+            rows.append({"scene": str(scene), "frame": k, "step_deg": step_deg,
+                         "visible_same": float(np.mean(src[covered] == prev[0][covered])),
+                         "survivors_same": len(survivors & prev[1]) / max(len(survivors | prev[1]), 1),
+                         "vertices_reused": len(verts & prev[2]) / max(len(verts), 1),
+                         "tess_share": (t1 - t0) / total, "geometry_share": (t2 - t1) / total,
+                         "raster_share": (t3 - t2) / total, "shading_share": (t4 - t3) / total,
+                         "frame_ms": 1e3 * total})
+        prev = (src, survivors, verts)
     return rows
 
 
@@ -173,6 +389,25 @@ STUDIES = {
                             "Phong model on the analytic sphere (ray casting, shadows off): relMSE and mean "
                             "relative error over interior sphere pixels, triangles and render time (thesis 1.5).",
                             shading_convergence),
+    "highlights": ("Highlights kept by each shading technique",
+                   "Share of the exact Phong highlight (k_s > 0, ray casting of the analytic sphere) that "
+                   "flat, Gouraud and Phong shading keep: peak and energy over the highlight, per "
+                   "tessellation (thesis 1.5.5: Gouraud loses a highlight inside a polygon).",
+                   highlights),
+    "mach_bands": ("Mach bands vs shading technique and tessellation",
+                   "Excess curvature of log-luminance over the exact image, on pixels at polygon edges "
+                   "and off them: the slope jumps the eye sees as Mach bands (thesis 1.5.3).",
+                   mach_bands),
+    "scan_coherence": ("Scan conversion: per-pixel edge functions vs scan-line coherence",
+                       "Pixels visited, edge-function evaluations, span solves, full and incremental "
+                       "interpolations, weighted arithmetic operations and time of the two traversals "
+                       "of impl.raster, and whether the images are identical (thesis 1.2.1).",
+                       scan_coherence),
+    "frame_coherence": ("Frame coherence along a camera path",
+                        "Consecutive frames of a turning camera: share of pixels with the same visible "
+                        "triangle, of triangles past the geometry stage, of Gouraud vertices already "
+                        "shaded, and the time share of each pipeline stage (thesis 1.2.1).",
+                        frame_coherence),
     "zfighting": ("Z-fighting vs near plane and depth format",
                   "Two surfaces 0.01 apart seen at a slant: pixels where the z-buffer keeps the farther one, "
                   "per depth format (float32, 24- and 16-bit fixed point) and near clip distance (thesis 1.3.1).",
