@@ -10,6 +10,11 @@ configurations × reference transport × expectations::
     repeats = 3                 # timed renders per configuration (after a warm-up)
     ladder = [1, 4, 16, 64]     # optional: Mitsuba's integrator at these spp, timed and
                                 # compared in the same run (speed-vs-error plots)
+    ladder_samplers = ["independent", "multijitter", "ldsampler"]
+                                # optional: Mitsuba samplers probed per scene; the ladder
+                                # uses the most efficient (default: independent only)
+    seeds = 3                   # optional: own renders with seeds 0..seeds-1 (error mean
+                                # and spread); seed 0 is timed with `repeats` and judged
 
     [[group]]
     scenes = ["spheres/lit_sphere.xml"]      # relative to the manifest
@@ -87,6 +92,8 @@ class Suite:
     study_set: str | None = None     # the study set that runs them (gibench.studies.STUDY_SETS)
     pivots: dict = field(default_factory=dict)   # report layout of each study's table
     ladder: tuple = ()           # Mitsuba spp ladder for the speed-vs-error plots (empty: none)
+    ladder_samplers: tuple = ("independent",)   # Mitsuba samplers probed for the ladder
+    seeds: int = 1               # own-render seeds 0..seeds-1
 
 
 def _need(table: dict, key: str, where: str, typ=None):
@@ -140,6 +147,16 @@ def load_suite(path) -> Suite:
     if not isinstance(ladder, list) or not all(isinstance(x, int) and x >= 1 for x in ladder):
         raise SuiteError(f"{path}: [suite] ladder must be a list of positive integers (spp), "
                          f"got {ladder!r}")
+    from references.ladder import SAMPLERS
+
+    samplers = head.get("ladder_samplers", ["independent"])
+    if (not isinstance(samplers, list) or not samplers
+            or not all(isinstance(x, str) and x in SAMPLERS for x in samplers)):
+        raise SuiteError(f"{path}: [suite] ladder_samplers must be a non-empty list of "
+                         f"{', '.join(SAMPLERS)}, got {samplers!r}")
+    seeds = head.get("seeds", 1)
+    if not isinstance(seeds, int) or isinstance(seeds, bool) or seeds < 1:
+        raise SuiteError(f"{path}: [suite] seeds must be a positive integer, got {seeds!r}")
     studies = None
     study_set = head.get("study_set")
     if "studies_module" in head:
@@ -160,7 +177,8 @@ def load_suite(path) -> Suite:
                  reference_passes=int(head.get("reference_passes", 8)),
                  repeats=int(head.get("repeats", 3)), description=head.get("description", ""),
                  studies=studies, study_set=study_set,
-                 pivots=dict(data.get("pivot", {})), ladder=tuple(ladder))
+                 pivots=dict(data.get("pivot", {})), ladder=tuple(ladder),
+                 ladder_samplers=tuple(samplers), seeds=seeds)
 
 
 def _rel(p: Path) -> str:
@@ -188,11 +206,14 @@ def _checks(case: Case, metrics: dict) -> list[dict]:
 
 def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_timing: bool,
              timing_cache: dict, reference_store=None, log=print,
-             defines: dict | None = None, seed: int = 0) -> Record:
+             defines: dict | None = None, seed: int = 0, repeats: int | None = None,
+             judge: bool = True) -> Record:
     """Run one case and return its result record (never raises for a bad case:
     the record's ``error`` names the cause).  ``defines`` overrides the scene's
     ``<default>`` values in both the own render and the reference (``-D``);
-    ``seed`` is the own render's seed."""
+    ``seed`` is the own render's seed; ``repeats`` the timed renders (default
+    ``suite.repeats``); ``judge=False`` records the metrics without the
+    case's checks (a finite image is still required)."""
     from references.motion_blur import has_motion
     from references.reference import DEFAULT_STORE, get_reference, time_mitsuba
     from reports.metrics import compare
@@ -216,7 +237,8 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
                                "variance": _rel(ref.directory / "variance.exr"),
                                "spp": ref.manifest.get("spp"), "variant": ref.manifest.get("variant"),
                                "integrator": case.transport}
-        result, timing = render_timed(algo, scene, params, seed=seed, repeats=suite.repeats)
+        result, timing = render_timed(algo, scene, params, seed=seed,
+                                      repeats=repeats or suite.repeats)
         suffix = f".seed{seed}" if seed else ""
         image_path = out_dir / f"{case.name}{suffix}.exr"
         write_exr(image_path, result.image)
@@ -252,7 +274,7 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
             record.checks = [{"name": "finite image", "expected": "pass", "passed": False,
                                  "detail": f"{m['nan_count']} NaN, {m['inf_count']} Inf"}]
         else:
-            record.checks = [] if case.expect == "model-error" else _checks(case, m)
+            record.checks = [] if case.expect == "model-error" or not judge else _checks(case, m)
     except (GibenchError, OSError) as exc:
         record.error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
         if log:
@@ -294,6 +316,19 @@ def _case_task(job: tuple) -> Record:
     return run_case(case, suite, timing_cache={}, log=None, **kw)
 
 
+def _seed_jobs(suite: Suite, seed: int) -> list[tuple[int, Case, dict]]:
+    """(case index, case, run_case options) of every case and seed: the first seed is
+    timed with ``suite.repeats``, Mitsuba-timed and judged; the others (seeds
+    ``seed + 1 ..``) give the error's spread: one timed render each, no checks."""
+    jobs = []
+    for i, case in enumerate(suite.cases):
+        jobs.append((i, case, {"seed": seed}))
+        for k in range(1, suite.seeds):
+            jobs.append((i, case, {"seed": seed + k, "repeats": 1, "judge": False,
+                                   "mitsuba_timing": False}))
+    return jobs
+
+
 def _summary_line(rec: Record) -> str:
     if rec.error:
         return f"  error: {rec.error}"
@@ -313,11 +348,18 @@ def _progress(total: int, desc: str, enabled):
 
 
 def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=print,
-                defines: dict | None = None) -> list[Record]:
+                defines: dict | None = None, sampler_cache=None) -> list[Record]:
     """Mitsuba's spp ladder (``suite.ladder``) for every (scene, transport) of ``cases``:
     one record (``kind = "ladder"``) per spp with Mitsuba's time and error, measured
-    in this run for the speed-vs-error plots."""
-    from .ladder import ladder_points
+    in this run for the speed-vs-error plots.
+
+    The ladder's sampler is Mitsuba's most efficient of ``suite.ladder_samplers``
+    on the scene (:func:`gibench.ladder.choose_sampler`; ``sampler_cache``: its
+    JSON cache, default :data:`gibench.ladder.SAMPLER_CACHE`); each record's
+    ``params`` name it (``sampler``) with the probe's figures
+    (``sampler_probe``).  The error is the mean over the ``suite.repeats``
+    timed renders, each with its own seed (``metrics["relmse_seeds"]``)."""
+    from .ladder import SAMPLER_CACHE, choose_sampler, ladder_points
     from references.motion_blur import has_motion
     from references.reference import DEFAULT_STORE, get_reference
 
@@ -335,8 +377,16 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
             ref = get_reference(scene, transport=transport, spp=suite.reference_spp,
                                 passes=suite.reference_passes,
                                 store=reference_store or DEFAULT_STORE, defines=defines)
+            choice = choose_sampler(scene, transport=transport, reference=ref,
+                                    candidates=suite.ladder_samplers, defines=defines,
+                                    cache=sampler_cache if sampler_cache is not None else SAMPLER_CACHE)
+            if log and choice["candidates"]:
+                log(f"  ladder {scene_id} ({transport}): sampler {choice['sampler']} ("
+                    + ", ".join(f"{k} relMSE {v['relmse']:.3g} in {v['median_s'] * 1e3:.0f} ms"
+                                for k, v in choice["candidates"].items())
+                    + f" at {choice['probe_spp']} spp{'; cached' if choice['cached'] else ''})")
             points = ladder_points(scene, transport=transport, spps=suite.ladder, reference=ref,
-                                   repeats=suite.repeats, defines=defines)
+                                   repeats=suite.repeats, defines=defines, sampler=choice["sampler"])
         except (GibenchError, OSError) as exc:
             msg = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
             if log:
@@ -348,15 +398,19 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
         for pt in points:
             if ref.variance is not None:
                 pt["metrics"]["noise_floor_relmse"] = noise_floor_relmse(ref.image, ref.variance)
+            params = {"spp": pt["spp"], "sampler": choice["sampler"]}
+            if choice["candidates"]:
+                params.update(sampler_probe=choice["candidates"], probe_spp=choice["probe_spp"])
             records.append(Record(**base, label=f"Mitsuba {transport} {pt['spp']} spp",
-                                  params={"spp": pt["spp"]}, metrics=pt["metrics"],
+                                  params=params, metrics=pt["metrics"],
                                   time={"own_median_s": pt["median_s"], "own_times_s": pt["times_s"],
-                                        "repeats": suite.repeats, "variant": pt["variant"]},
+                                        "repeats": suite.repeats, "variant": pt["variant"],
+                                        "sampler": pt["sampler"]},
                                   reference={"key": ref.key, "dir": _rel(ref.directory),
                                              "spp": ref.manifest.get("spp")},
                                   ladder_spp=pt["spp"], mitsuba=pt["mitsuba"]))
             if log:
-                log(f"  ladder {scene_id} ({transport}) {pt['spp']} spp: relMSE "
+                log(f"  ladder {scene_id} ({transport}, {pt['sampler']}) {pt['spp']} spp: relMSE "
                     f"{pt['metrics']['relmse']:.3g}, {pt['median_s'] * 1e3:.1f} ms")
     return records
 
@@ -373,7 +427,9 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
     always flow back to this process, which alone writes the stores.
     ``progress``: a tqdm bar on stderr (None: only on a terminal).
     ``ladder``: time Mitsuba's spp ladder (default: when ``suite.ladder``
-    is set).
+    is set).  ``seed``: the first own-render seed; with ``suite.seeds`` = K
+    every case also renders seeds ``seed + 1 .. seed + K - 1`` (error spread;
+    :func:`_seed_jobs`).
     """
     from .executor import map_unordered, parse_executor
 
@@ -389,34 +445,45 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
             add_record(history, rec, command=command)
         records.append(rec)
 
-    n = len(suite.cases)
+    seed_jobs = _seed_jobs(suite, seed)
+    n = len(seed_jobs)
     bar = _progress(n, f"{suite.name}", progress)
     # Lines go above the bar while it is shown; nothing is printed with log=None.
     say = ((bar.write if not bar.disable else log) if log else (lambda s: None))
+
+    def head(case, opts):
+        extra = f" (seed {opts['seed']})" if suite.seeds > 1 else ""
+        return f"{case.scene_id}: {case.label} vs {case.transport}{extra}"
+
     try:
         if kind == "serial":
             timing_cache: dict = {}
-            for i, case in enumerate(suite.cases):
-                say(f"[{i + 1}/{n}] {case.scene_id}: {case.label} vs {case.transport}")
+            for k, (i, case, opts) in enumerate(seed_jobs):
+                say(f"[{k + 1}/{n}] {head(case, opts)}")
+                opts = dict(opts)
                 rec = run_case(case, suite, run_id=run_id, out_dir=out_dir,
-                               mitsuba_timing=mitsuba_timing, timing_cache=timing_cache,
-                               reference_store=reference_store, log=log, defines=defines, seed=seed)
+                               mitsuba_timing=opts.pop("mitsuba_timing", mitsuba_timing),
+                               timing_cache=timing_cache, reference_store=reference_store,
+                               log=log, defines=defines, **opts)
                 keep(rec)
                 bar.update(1)
                 if rec.ok:
                     say(_summary_line(rec))
         else:
             say(f"running {n} cases on {kind} ({detail})")
-            kw = dict(run_id=run_id, out_dir=out_dir, mitsuba_timing=mitsuba_timing,
-                      reference_store=reference_store, defines=defines, seed=seed)
-            jobs_ = [(case, suite, kw) for case in suite.cases]
+            jobs_ = []
+            for i, case, opts in seed_jobs:
+                kw = dict(run_id=run_id, out_dir=out_dir, mitsuba_timing=mitsuba_timing,
+                          reference_store=reference_store, defines=defines)
+                kw.update(opts)
+                jobs_.append((case, suite, kw))
             done = 0
-            for i, rec in map_unordered(_case_task, jobs_, kind=kind, detail=detail):
+            for j, rec in map_unordered(_case_task, jobs_, kind=kind, detail=detail):
                 keep(rec)
                 done += 1
                 bar.update(1)
-                c = suite.cases[i]
-                say(f"[{done}/{n}] {c.scene_id}: {c.label} vs {c.transport}\n{_summary_line(rec)}")
+                _, c, opts = seed_jobs[j]
+                say(f"[{done}/{n}] {head(c, opts)}\n{_summary_line(rec)}")
     finally:
         bar.close()
     if (suite.ladder if ladder is None else ladder) and suite.ladder:
