@@ -18,7 +18,8 @@ configurations × reference transport × expectations::
 
     [[group]]
     scenes = ["spheres/lit_sphere.xml"]      # relative to the manifest
-    algorithm = "raycast"
+    algorithm = "raycast"                    # "auto": gibench.advise's choice per scene
+                                             # (transport then defaults to "full")
     transport = "direct"                     # which reference to compare with
     [[group.config]]
     label = "4x4 strata"
@@ -39,6 +40,7 @@ from __future__ import annotations
 import hashlib
 import json
 import sys
+import time
 import tomllib
 import traceback
 from dataclasses import dataclass, field
@@ -105,6 +107,17 @@ def _need(table: dict, key: str, where: str, typ=None):
     return v
 
 
+def _auto(scene_path: Path) -> tuple[str, dict]:
+    """``algorithm = "auto"``: the advised algorithm and parameters for a scene, from
+    the leaderboard records of the default results store when there are any."""
+    from reports.results import ResultStore
+
+    from .advise import resolve_auto
+
+    store = ResultStore(REPO_ROOT / "reports" / "out" / "results.jsonl")
+    return resolve_auto(scene_path, records=store.load())
+
+
 def load_suite(path) -> Suite:
     """Read and check a suite manifest: every scene file exists, every algorithm and
     parameter is known, expectations and transports are valid."""
@@ -122,8 +135,10 @@ def load_suite(path) -> Suite:
     suites_root = path.parent
     for gi, group in enumerate(data.get("group", [])):
         where = f"{path}: group {gi + 1}"
-        algo = registry.get(_need(group, "algorithm", where, str))
-        transport = group.get("transport", algo.transport)
+        name = _need(group, "algorithm", where, str)
+        auto = name == "auto"
+        algo = None if auto else registry.get(name)
+        transport = group.get("transport", "full" if auto else algo.transport)
         if transport not in TRANSPORTS:
             raise SuiteError(f"{where}: transport must be one of {TRANSPORTS}, got {transport!r}")
         for scene in _need(group, "scenes", where, list):
@@ -131,9 +146,13 @@ def load_suite(path) -> Suite:
             if not scene_path.is_file():
                 raise SuiteError(f"{where}: scene file not found: {scene_path}")
             scene_id = str(Path(scene).with_suffix("")).replace("\\", "/")
+            advised = {}
+            if auto:                     # the advised algorithm of this scene (gibench.advise)
+                chosen, advised = _auto(scene_path)
+                algo = registry.get(chosen)
             for ci, cfg in enumerate(group.get("config", [{}])):
                 cw = f"{where}, config {ci + 1}"
-                params = dict(cfg.get("params", {}))
+                params = {**advised, **cfg.get("params", {})}
                 algo.parse_params(params)            # validates names and types now
                 expect = cfg.get("expect", group.get("expect", "report"))
                 if expect not in EXPECTATIONS:
@@ -211,8 +230,9 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
     """Run one case and return its result record (never raises for a bad case:
     the record's ``error`` names the cause).  ``defines`` overrides the scene's
     ``<default>`` values in both the own render and the reference (``-D``);
-    ``seed`` is the own render's seed; ``repeats`` the timed renders (default
-    ``suite.repeats``); ``judge=False`` records the metrics without the
+    ``seed`` is the own render's seed; ``repeats`` the timed renders after a
+    warm-up (default ``suite.repeats``; 0: one render without warm-up, whose
+    time may include compilation); ``judge=False`` records the metrics without the
     case's checks (a finite image is still required)."""
     from references.motion_blur import has_motion
     from references.reference import DEFAULT_STORE, get_reference, time_mitsuba
@@ -237,8 +257,14 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
                                "variance": _rel(ref.directory / "variance.exr"),
                                "spp": ref.manifest.get("spp"), "variant": ref.manifest.get("variant"),
                                "integrator": case.transport}
-        result, timing = render_timed(algo, scene, params, seed=seed,
-                                      repeats=repeats or suite.repeats)
+        if repeats == 0:                 # an extra seed: one render, for its error only
+            t0 = time.perf_counter()
+            result = algo.render(scene, params, seed=seed)
+            t = time.perf_counter() - t0
+            timing = {"own_median_s": t, "own_times_s": [t], "repeats": 1, "warmup": False}
+        else:
+            result, timing = render_timed(algo, scene, params, seed=seed,
+                                          repeats=repeats or suite.repeats)
         suffix = f".seed{seed}" if seed else ""
         image_path = out_dir / f"{case.name}{suffix}.exr"
         write_exr(image_path, result.image)
@@ -319,12 +345,13 @@ def _case_task(job: tuple) -> Record:
 def _seed_jobs(suite: Suite, seed: int) -> list[tuple[int, Case, dict]]:
     """(case index, case, run_case options) of every case and seed: the first seed is
     timed with ``suite.repeats``, Mitsuba-timed and judged; the others (seeds
-    ``seed + 1 ..``) give the error's spread: one timed render each, no checks."""
+    ``seed + 1 ..``) give the error's spread: one render each (no warm-up: the
+    point's time is the first seed's), no checks."""
     jobs = []
     for i, case in enumerate(suite.cases):
         jobs.append((i, case, {"seed": seed}))
         for k in range(1, suite.seeds):
-            jobs.append((i, case, {"seed": seed + k, "repeats": 1, "judge": False,
+            jobs.append((i, case, {"seed": seed + k, "repeats": 0, "judge": False,
                                    "mitsuba_timing": False}))
     return jobs
 

@@ -34,7 +34,8 @@ from core.records import Record
 
 __all__ = ["pareto_front", "loglog_interp", "time_at_error", "error_at_time",
            "equal_error_time_ratio", "equal_time_error_ratio", "efficiency", "noise_floor_relmse",
-           "summarize_points", "points_from_records", "primary_records", "top_rung_race"]
+           "summarize_points", "points_from_records", "primary_records", "top_rung_race",
+           "model_floors"]
 
 
 def _points(times, errors):
@@ -312,3 +313,22 @@ def top_rung_race(own: list[dict], mitsuba: list[dict], *, extrapolate: bool = T
     return {"spp": top.get("spp"), "error": top["error"], "time": top["time"], "own_time": ot,
             "ratio": ot / top["time"] if math.isfinite(ot) and top["time"] > 0 else math.nan,
             "extrapolated": bool(ext and math.isfinite(ot)), "label": near["label"]}
+
+
+def model_floors(own: list[dict]) -> dict:
+    """Per algorithm of the own points (``algorithm``, ``label``, ``error``, ``time``):
+    the error at its most converged setting (the most expensive point) as an upper
+    bound of its model-error floor, and ``drop`` = that error / the error of the
+    next cheaper point of the same algorithm (close to 1 when more samples no
+    longer help: the floor is reached; NaN with one point).
+    ``{algorithm: {"floor", "label", "drop", "time"}}``."""
+    out = {}
+    by: dict = {}
+    for p in own:
+        by.setdefault(p["algorithm"], []).append(p)
+    for algo, pts in by.items():
+        pts = sorted(pts, key=lambda p: p["time"])
+        last = pts[-1]
+        drop = last["error"] / pts[-2]["error"] if len(pts) > 1 and pts[-2]["error"] > 0 else math.nan
+        out[algo] = {"floor": last["error"], "label": last["label"], "drop": drop, "time": last["time"]}
+    return out
