@@ -29,8 +29,8 @@ __all__ = ["render_ladder", "LADDER_SEED", "SAMPLERS", "sampler_spec"]
 
 LADDER_SEED = 987654
 #: Mitsuba's samplers a ladder may use.  ``stratified`` and ``multijitter`` round the
-#: sample count up to a square, ``ldsampler`` to a power of two: a ladder of powers of 4
-#: renders exactly its spp with all four.
+#: sample count up to a square, ``ldsampler`` to a square power of two above 1: a ladder
+#: of powers of 4 from 4 on renders exactly its spp with all four.
 SAMPLERS = ("independent", "stratified", "multijitter", "ldsampler")
 
 
@@ -45,7 +45,9 @@ def render_ladder(scene_path, *, transport: str, spps=(1, 4, 16, 64), repeats: i
                   defines: dict | None = None, sampler: str = "independent") -> list[dict]:
     """Mitsuba's integrator for ``transport`` at each spp of ``spps`` with ``sampler``.
 
-    Returns one dict per spp: ``spp``, ``images`` (float32 ``(H, W, 3)``, one per
+    Returns one dict per rendered sample count: ``spp`` (what the sampler
+    rendered: ``ldsampler`` rounds up to a power of 4, and a rung equal to an
+    earlier one is dropped), ``requested_spp``, ``images`` (float32 ``(H, W, 3)``, one per
     timed render, distinct seeds), ``image`` (the last), ``median_s``,
     ``times_s``, ``variant``, ``mitsuba``, ``sampler``.
     """
@@ -75,12 +77,16 @@ def render_ladder(scene_path, *, transport: str, spps=(1, 4, 16, 64), repeats: i
             return np.asarray(img, dtype=np.float32)[..., :3]
 
         once(LADDER_SEED)                            # warm-up: kernel compilation
+        # A sampler may round the count (ldsampler: 1 -> 4); the rung is what was rendered.
+        actual = int(scene.sensors()[0].sampler().sample_count())
+        if any(r["spp"] == actual for r in out):
+            continue
         times, images = [], []
         for k in range(repeats):
             t0 = time.perf_counter()
             images.append(once(LADDER_SEED + 1 + k))
             times.append(time.perf_counter() - t0)
-        out.append({"spp": spp, "image": images[-1], "images": images,
+        out.append({"spp": actual, "requested_spp": spp, "image": images[-1], "images": images,
                     "median_s": statistics.median(times), "times_s": times,
                     "variant": mi.variant(), "mitsuba": mi.__version__, "sampler": sampler})
     return out

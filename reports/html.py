@@ -467,7 +467,7 @@ def _pareto_plot(scene, transport, g: dict, metric: str) -> str:
     spread = [p.get("spread") for p in mi]
     if any(isinstance(x, float) and math.isfinite(x) for x in spread):
         ax.errorbar([p["time"] for p in mi], [p["error"] for p in mi],
-                    yerr=[_err_bar(p) for p in mi], fmt="none", ecolor="#444", lw=0.8)
+                    yerr=np.array([_err_bar(p) for p in mi]).T, fmt="none", ecolor="#444", lw=0.8)
     own = g["own"]
     if own:
         t = np.array([p["time"] for p in own])
@@ -579,12 +579,31 @@ def _speed_vs_error(records: list[Record], metric: str = "relmse") -> str:
                     f"<b>{_fmt_ratio(best['equal_time_error_ratio'], best['equal_time_extrapolated'])}</b> ({_e(best['equal_time_label'])}).</p>"
                     if best else "<p class='small'>No own configuration falls inside Mitsuba's ladder.</p>")
         probe = next((p for p in g["mitsuba"] if p.get("sampler")), None)
+        floors_html = _floors(g["own"])
         out.append(f"<h3 id='{_slug('sve-' + scene + '-' + str(transport))}'>{_e(scene)} vs Mitsuba {_e(transport)}</h3>"
                    + _pareto_plot(scene, transport, g, metric) + best_txt
                    + f"<table class='data pareto-table'><tr><th>configuration</th><th>{_e(METRIC_NAMES.get(metric, metric))}</th>"
                    "<th>time [ms]</th><th>efficiency</th><th>front</th><th>t / t<sub>Mitsuba</sub> at equal error</th>"
-                   f"<th>e / e<sub>Mitsuba</sub> at equal time</th></tr>{rows}</table>")
+                   f"<th>e / e<sub>Mitsuba</sub> at equal time</th></tr>{rows}</table>" + floors_html)
     return "".join(out)
+
+
+def _floors(own: list[dict]) -> str:
+    """Leaderboard rows: each algorithm's error at its most converged setting (an upper
+    bound of its model-error floor) when a scene has several own algorithms."""
+    from reports.pareto import model_floors
+
+    floors = model_floors(own)
+    if len(floors) < 2:
+        return ""
+    rows = "".join(
+        f"<tr><td>{_e(a)}</td><td class='n'>{fmt(f['floor'])}</td><td>{_e(f['label'])}</td>"
+        f"<td class='n'>{fmt(f['drop'])}</td></tr>"
+        for a, f in sorted(floors.items(), key=lambda kv: kv[1]["floor"]))
+    return ("<p class='small'>Model error floors: each algorithm's error at its most converged "
+            "setting; <i>drop</i> = that error over the previous setting's (near 1: more samples "
+            "no longer help, the rest is the model's error).</p><table class='data'><tr>"
+            "<th>algorithm</th><th>error</th><th>at</th><th>drop</th></tr>" + rows + "</table>")
 
 
 def render_report(records: list[Record], *, root, title: str = "gibench report") -> str:

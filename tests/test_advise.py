@@ -134,3 +134,17 @@ def test_choose_sampler_picks_the_most_efficient_and_caches(tmp_path, monkeypatc
     with pytest.raises(ValueError, match="sampler"):
         gl.choose_sampler("scene.xml", transport="full", reference=Ref(), candidates=["sobol"])
     assert rl.sampler_spec("ldsampler", 16)["type"] == "ldsampler"
+
+
+def test_mitsuba_ladder_samplers_seeds_and_rounding(mitsuba):
+    # Needs Mitsuba: a 64x48 scene, two timed renders per rung.
+    from references.ladder import render_ladder
+
+    scene = SUITES / "distributed/gloss.xml"
+    rungs = render_ladder(scene, transport="whitted", spps=(1, 4), repeats=2, sampler="ldsampler")
+    # ldsampler renders 1 spp as 4: one rung, recorded as what was rendered.
+    assert [(r["spp"], r["requested_spp"]) for r in rungs] == [(4, 1)]
+    a, b = rungs[0]["images"]
+    assert a.shape == (48, 64, 3) and not np.array_equal(a, b)     # distinct seeds
+    rungs = render_ladder(scene, transport="whitted", spps=(1, 4), repeats=1, sampler="multijitter")
+    assert [r["spp"] for r in rungs] == [1, 4] and rungs[0]["sampler"] == "multijitter"
