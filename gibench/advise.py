@@ -49,7 +49,8 @@ MODELS = {
     "whitted": {"thesis": "2.4", "shadows": True, "delta": True, "glossy": False,
                 "interreflection": False, "delta_lights": True, "area_lights": True, "dof": False},
     "radiosity": {"thesis": "3.3-3.4", "shadows": True, "delta": False, "glossy": False,
-                  "interreflection": True, "delta_lights": False, "area_lights": True, "dof": False},
+                  "interreflection": True, "delta_lights": False, "area_lights": True, "dof": False,
+                  "spheres": False},
     "distributed": {"thesis": "2.5", "shadows": True, "delta": True, "glossy": True,
                     "interreflection": False, "delta_lights": True, "area_lights": True, "dof": True},
     "path": {"thesis": "3.2", "shadows": True, "delta": True, "glossy": True,
@@ -59,7 +60,7 @@ MODELS = {
 _WHAT = {"shadows": "shadows", "delta": "mirror/glass reflection and refraction",
          "glossy": "glossy reflection", "interreflection": "diffuse interreflection",
          "delta_lights": "point/spot/directional lights", "area_lights": "area lights",
-         "dof": "depth of field"}
+         "dof": "depth of field", "spheres": "analytic spheres (polygons only)"}
 
 
 def _directions(n: int) -> np.ndarray:
@@ -147,6 +148,7 @@ def scene_features(scene) -> dict:
         "closed": escape == 0.0,
         "enclosing": escape < ENCLOSED,
         "primitives": int(prims),
+        "spheres": any(s.kind == "sphere" for s in scene.shapes),
         "dof": cam.kind == "thinlens" and cam.aperture_radius > 0,
         "motion": any(s.velocity is not None for s in scene.shapes),
     }
@@ -163,8 +165,8 @@ def omissions(algorithm: str, features: dict) -> list[str]:
     need = {"shadows": features["primitives"] > 1, "delta": features["delta"],
             "glossy": features["glossy"], "interreflection": features["enclosing"],
             "delta_lights": features["delta_lights"], "area_lights": features["area_lights"],
-            "dof": features["dof"]}
-    return [_WHAT[k] for k, v in need.items() if v and not m[k]]
+            "dof": features["dof"], "spheres": features["spheres"]}
+    return [_WHAT[k] for k, v in need.items() if v and not m.get(k, True)]
 
 
 @dataclass
