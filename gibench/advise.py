@@ -248,7 +248,7 @@ def advise(scene_path, *, records=None, target: float | None = None) -> Advice:
             reason = (f"no measured configuration reaches the {goal_txt}; the lowest error is "
                       f"{best['error']:.3g} in {best['time'] * 1e3:.0f} ms (leaderboard run "
                       f"{g['run_id']}); more samples of it, or of path, are needed")
-        algo, params = best["algorithm"], dict(best.get("params") or {})
+        algo, params = best["algorithm"], _non_default(best["algorithm"], best.get("params") or {})
         lines.append(f"recommended: {algo} {params}: {reason}")
         floors = {}
         for p in g["own"]:
@@ -256,14 +256,13 @@ def advise(scene_path, *, records=None, target: float | None = None) -> Advice:
             if f is None or p["time"] > f["time"]:
                 floors[p["algorithm"]] = p
         lines.append("what each model leaves out here (error at its most converged setting):")
+        failed = dict(g["failed"])
         for a in MODELS:
             om = omissions(a, feats)
             fl = floors.get(a)
-            meas = (f"relMSE {fl['error']:.3g} at {fl['label']} ({fl['time'] * 1e3:.0f} ms)"
-                    if fl else "not measured")
+            meas = (f"relMSE {fl['error']:.3g} at {fl['label']} ({fl['time'] * 1e3:.0f} ms)" if fl
+                    else f"cannot render ({failed[a]})" if a in failed else "not measured")
             lines.append(f"  {a:<12} {'covers the scene' if not om else 'no ' + ', no '.join(om)}; {meas}")
-        for a, err in g["failed"]:
-            lines.append(f"  {a}: cannot render: {err}")
         return Advice(scene_id, feats, algo, params, reason, lines, measured=True)
     algo = covering[0] if covering else "path"
     params = dict(CONFIGS[algo][-1][1])
@@ -277,6 +276,20 @@ def advise(scene_path, *, records=None, target: float | None = None) -> Advice:
             break
         lines.append(f"  {a:<12} no {', no '.join(omissions(a, feats))}")
     return Advice(scene_id, feats, algo, params, reason, lines)
+
+
+def _non_default(algorithm: str, params: dict) -> dict:
+    """``params`` without the values equal to the algorithm's defaults (the sample count
+    is kept)."""
+    from . import registry
+
+    try:
+        algo = registry.get(algorithm)
+    except GibenchError:
+        return dict(params)
+    defaults = {p.name: p.default for p in algo.params}
+    return {k: v for k, v in params.items()
+            if k not in defaults or defaults[k] != v or k == algo.spp_param}
 
 
 def resolve_auto(scene_path, *, records=None) -> tuple[str, dict]:
