@@ -434,6 +434,14 @@ def _fmt_ratio(x, extrapolated: bool = False) -> str:
     return ("~" if extrapolated else "") + fmt(x)
 
 
+def _ee_cell(r: dict) -> str:
+    """The equal-error ratio, or '> bound' when the error exceeds Mitsuba's cheapest rung's."""
+    b = r.get("equal_error_lower_bound")
+    if math.isnan(r["equal_error_time_ratio"]) and isinstance(b, float) and math.isfinite(b):
+        return f"&gt; {fmt(b)}"
+    return _fmt_ratio(r["equal_error_time_ratio"], r["equal_error_extrapolated"])
+
+
 def _spread(p: dict) -> str:
     sd = p.get("spread")
     if isinstance(sd, float) and math.isfinite(sd):
@@ -560,14 +568,15 @@ def _speed_vs_error(records: list[Record], metric: str = "relmse") -> str:
            "floor (errors near it cannot be resolved). Efficiency = 1 / (error × time). "
            "Equal-error time ratio = own time / Mitsuba's time for the same error, equal-time error "
            "ratio = own error / Mitsuba's error in the same time (log–log interpolation along "
-           "Mitsuba's ladder; ~ marks a power-law extrapolation of its end segment beyond it); "
+           "Mitsuba's ladder; ~ marks a power-law extrapolation of its end segment beyond it; "
+           "&gt; x: more error than Mitsuba's 1-spp render, which is x times faster); "
            "below 1 the own configuration wins.</p>"]
     for (scene, transport), g in groups.items():
         s = summarize_points(g["own"], g["mitsuba"])
         rows = "".join(
             f"<tr><td>{_e(r['label'])}</td><td class='n'>{fmt(r['error'])}{_spread(r)}</td>"
             f"<td class='n'>{fmt(r['time'] * 1e3)}</td><td class='n'>{fmt(r['efficiency'])}</td>"
-            f"<td>{'★' if r['pareto'] else ''}</td><td class='n'>{_fmt_ratio(r['equal_error_time_ratio'], r['equal_error_extrapolated'])}</td>"
+            f"<td>{'★' if r['pareto'] else ''}</td><td class='n'>{_ee_cell(r)}</td>"
             f"<td class='n'>{_fmt_ratio(r['equal_time_error_ratio'], r['equal_time_extrapolated'])}</td></tr>" for r in s["rows"])
         rows += "".join(
             f"<tr class='small'><td>{_e(r['label'])} ({_e(r.get('sampler', 'independent'))})</td><td class='n'>{fmt(r['error'])}{_spread(r)}</td>"

@@ -171,7 +171,10 @@ def summarize_points(own: list[dict], mitsuba: list[dict]) -> dict:
     Mitsuba curve, interpolated inside it and extrapolated as a power law
     outside (flags ``equal_error_extrapolated`` / ``equal_time_extrapolated``);
     ``best`` holds the smallest of each ratio over the own configurations and
-    which configuration gives it.
+    which configuration gives it.  A configuration with more error than
+    Mitsuba's cheapest rung has no equal-error ratio; its
+    ``equal_error_lower_bound`` is its time over that rung's (the ratio is at
+    least that).
     """
     mt = [p["time"] for p in mitsuba]
     me = [p["error"] for p in mitsuba]
@@ -188,7 +191,15 @@ def summarize_points(own: list[dict], mitsuba: list[dict]) -> dict:
         et_x = math.isnan(et)
         if et_x:
             et = equal_time_error_ratio(p["time"], p["error"], mt, me, extrapolate=True)
+        bound = math.nan
+        if math.isnan(ee) and mt:
+            # Worse than Mitsuba's cheapest rung: Mitsuba reaches a lower error in its
+            # cheapest time, so the ratio is at least own time / that time.
+            k = int(np.argmin(mt))
+            if p["error"] > me[k] and mt[k] > 0:
+                bound = p["time"] / mt[k]
         rows.append(dict(p, efficiency=efficiency(p["error"], p["time"]), pareto=i in front,
+                         equal_error_lower_bound=bound,
                          equal_error_time_ratio=ee, equal_error_extrapolated=ee_x and not math.isnan(ee),
                          equal_time_error_ratio=et, equal_time_extrapolated=et_x and not math.isnan(et)))
     mrows = [dict(p, efficiency=efficiency(p["error"], p["time"])) for p in mitsuba]

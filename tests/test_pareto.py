@@ -180,3 +180,11 @@ def test_model_floors_per_algorithm():
     f = model_floors(own)
     assert f["raycast"]["floor"] == 0.19 and f["raycast"]["drop"] == pytest.approx(0.95)
     assert f["path"]["label"] == "p16" and f["path"]["drop"] == pytest.approx(0.25)
+
+
+def test_worse_than_the_cheapest_rung_gets_a_lower_bound():
+    mitsuba = [{"label": f"m{n}", "spp": n, "time": 0.01 * n, "error": 0.1 / n} for n in (1, 4)]
+    s = summarize_points([{"label": "bad", "time": 0.05, "error": 0.3}], mitsuba)
+    (row,) = s["rows"]
+    assert math.isnan(row["equal_error_time_ratio"])
+    assert row["equal_error_lower_bound"] == pytest.approx(5.0)
