@@ -13,6 +13,8 @@ same values and its cache key includes them.
     gibench baseline [SUITE] --out FILE [--seeds K]
     gibench check --baseline FILE [SUITE] [--speed-factor F]
     gibench sweep SCENE --algorithm A --grid key=v1,v2 [--grid ...] [--transport T]
+    gibench leaderboard SCENE [--algorithms a,b] [--seeds K]
+    gibench advise SCENE [--target RELMSE]      (--algorithm auto: render and sweep)
     gibench history [--metric M] [--scene S] [--algorithm A]
     gibench dashboard [--out FILE.html] [--benchmarks DIR]
 
@@ -96,13 +98,65 @@ def _reference_transport(value: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def _auto(scene, results=None) -> tuple[str, dict]:
+    """``--algorithm auto``: the advised algorithm and parameters (:mod:`gibench.advise`),
+    from the leaderboard records in the results store when there are any."""
+    from reports.results import ResultStore
+
+    from .advise import resolve_auto
+
+    records = ResultStore(Path(results or RESULTS)).load()
+    name, params = resolve_auto(scene, records=records)
+    print(f"--algorithm auto: {name} {params}")
+    return name, params
+
+
+def cmd_advise(args) -> int:
+    from reports.results import ResultStore
+
+    from .advise import advise
+
+    print(advise(args.scene, records=ResultStore(Path(args.results)).load(), target=args.target))
+    return 0
+
+
+def cmd_leaderboard(args) -> int:
+    from reports.html import write_report
+    from reports.results import ResultStore, new_run_id
+
+    from .leaderboard import leaderboard_suite, leaderboard_table
+    from .suite import run_suite
+
+    try:
+        ladder = tuple(int(x) for x in args.ladder.split(",") if x.strip())
+    except ValueError:
+        raise CLIError(f"--ladder expects comma-separated spp, got {args.ladder!r}") from None
+    suite = leaderboard_suite(args.scene, algorithms=args.algorithms.split(",") if args.algorithms
+                              else None, repeats=args.repeats, seeds=args.seeds, ladder=ladder)
+    store = ResultStore(Path(args.results))
+    run_id = new_run_id()
+    print(f"gibench leaderboard {run_id}: {suite.name}, {len(suite.cases)} configurations")
+    records = run_suite(suite, store, run_id=run_id, out_root=Path(args.results).parent,
+                        mitsuba_timing=False, reference_store=args.store,
+                        history=_history(args), command="leaderboard", **_run_common(args))
+    out = Path(args.report) if args.report else Path(args.results).parent / "leaderboard" / "report.html"
+    write_report(records, out, root=REPO_ROOT, title=f"gibench — {suite.name}")
+    print(leaderboard_table(records))
+    print(f"report:  {out}")
+    return 0
+
+
 def cmd_render(args) -> int:
     from core.imageio import check_finite, write_exr
     from core.loader import load_scene
     from .runner import render_timed
 
-    algo = registry.get(args.algorithm)
     values = _parse_sets(args.set)
+    if args.algorithm == "auto":
+        name, advised = _auto(args.scene, getattr(args, "results", None))
+        values = {**advised, **values}
+        args.algorithm = name
+    algo = registry.get(args.algorithm)
     if args.spp is not None:
         if algo.spp_param is None:
             raise CLIError(f"{algo.name} takes no --spp")
@@ -300,7 +354,10 @@ def _baseline_suite(args, baseline: dict | None = None):
     name = args.suite
     if name is None and baseline is not None:
         name = str(REPO_ROOT / baseline["suite_file"]) if baseline.get("suite_file") else baseline["suite"]
-    return load_suite(_resolve_suite(name or "ci"))
+    import dataclasses
+
+    # baseline and check choose their own seeds: one record per case and run.
+    return dataclasses.replace(load_suite(_resolve_suite(name or "ci")), seeds=1)
 
 
 def cmd_baseline(args) -> int:
@@ -382,11 +439,17 @@ def cmd_sweep(args) -> int:
     from .sweep import parse_grid, sweep_suite, sweep_table
     from .suite import run_suite
 
+    base = _parse_sets(args.set)
+    if args.algorithm == "auto":
+        name, advised = _auto(args.scene, args.results)
+        args.algorithm = name
+        base = {**{k: v for k, v in advised.items()
+                   if not any(g.split("=", 1)[0].strip() == k for g in args.grid)}, **base}
     algo = registry.get(args.algorithm)
     grid = parse_grid(args.grid, algo)
     suite = sweep_suite(args.scene, algo, grid, transport=args.transport,
                         reference_spp=args.reference_spp, reference_passes=args.reference_passes,
-                        repeats=args.repeats, ladder=args.ladder, base_params=_parse_sets(args.set))
+                        repeats=args.repeats, ladder=args.ladder, base_params=base)
     store = ResultStore(Path(args.results))
     run_id = new_run_id()
     print(f"gibench sweep {run_id}: {suite.name}, {len(suite.cases)} configurations")
@@ -529,7 +592,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("render", help="render a scene with an own algorithm")
     s.add_argument("scene")
-    s.add_argument("--algorithm", "-a", required=True)
+    s.add_argument("--algorithm", "-a", required=True, help="own algorithm, or auto (gibench advise)")
     s.add_argument("--spp", type=_positive, help="samples per pixel (default: the scene's sampler sample_count)")
     s.add_argument("--seed", type=_seed, default=0)
     s.add_argument("--set", action="append", metavar="KEY=VALUE", help="algorithm parameter")
@@ -594,7 +657,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("sweep", help="speed vs error over a parameter grid of one algorithm")
     s.add_argument("scene")
-    s.add_argument("--algorithm", "-a", required=True)
+    s.add_argument("--algorithm", "-a", required=True, help="own algorithm, or auto (gibench advise)")
     s.add_argument("--grid", "-g", action="append", metavar="KEY=V1,V2,...", required=True)
     s.add_argument("--set", action="append", metavar="KEY=VALUE", help="fixed algorithm parameter")
     s.add_argument("--transport", choices=("full", "direct", "whitted"),
@@ -606,6 +669,22 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--metric", default="relmse", help="error metric of the table")
     common(s)
     s.set_defaults(func=cmd_sweep)
+
+    s = sub.add_parser("leaderboard", help="every own algorithm on one scene against full "
+                       "transport, with each model's error floor")
+    s.add_argument("scene")
+    s.add_argument("--algorithms", help="comma-separated subset (default: every registered one)")
+    s.add_argument("--seeds", type=int, default=3, help="own-render seeds per configuration")
+    s.add_argument("--repeats", type=int, default=3)
+    s.add_argument("--ladder", default="1,4,16,64", help="Mitsuba spp ladder")
+    common(s, mitsuba=False)
+    s.set_defaults(func=cmd_leaderboard)
+
+    s = sub.add_parser("advise", help="the cheapest own algorithm whose model covers a scene")
+    s.add_argument("scene")
+    s.add_argument("--results", default=str(RESULTS), help="results store with leaderboard runs")
+    s.add_argument("--target", type=float, help="relMSE to reach (default: Mitsuba's top ladder rung)")
+    s.set_defaults(func=cmd_advise)
 
     s = sub.add_parser("history", help="metrics and times across commits, from the history database")
     s.add_argument("--metric", help="metric or time key (default relmse)")

@@ -10,10 +10,16 @@ configurations × reference transport × expectations::
     repeats = 3                 # timed renders per configuration (after a warm-up)
     ladder = [1, 4, 16, 64]     # optional: Mitsuba's integrator at these spp, timed and
                                 # compared in the same run (speed-vs-error plots)
+    ladder_samplers = ["independent", "multijitter", "ldsampler"]
+                                # optional: Mitsuba samplers probed per scene; the ladder
+                                # uses the most efficient (default: independent only)
+    seeds = 3                   # optional: own renders with seeds 0..seeds-1 (error mean
+                                # and spread); seed 0 is timed with `repeats` and judged
 
     [[group]]
     scenes = ["spheres/lit_sphere.xml"]      # relative to the manifest
-    algorithm = "raycast"
+    algorithm = "raycast"                    # "auto": gibench.advise's choice per scene
+                                             # (transport then defaults to "full")
     transport = "direct"                     # which reference to compare with
     [[group.config]]
     label = "4x4 strata"
@@ -34,6 +40,7 @@ from __future__ import annotations
 import hashlib
 import json
 import sys
+import time
 import tomllib
 import traceback
 from dataclasses import dataclass, field
@@ -44,6 +51,7 @@ from core.imageio import write_exr
 from core.loader import load_scene
 from core.provenance import REPO_ROOT, git_commit, machine, utc_now, versions
 from core.records import Record
+from references.ladder import SAMPLERS as LADDER_SAMPLERS
 
 from . import registry
 from .studies import STUDY_SETS, load_study_set
@@ -96,6 +104,8 @@ class Suite:
     study_set: str | None = None     # the study set that runs them (gibench.studies.STUDY_SETS)
     pivots: dict = field(default_factory=dict)   # report layout of each study's table
     ladder: tuple = ()           # Mitsuba spp ladder for the speed-vs-error plots (empty: none)
+    ladder_samplers: tuple = ("independent",)   # Mitsuba samplers probed for the ladder
+    seeds: int = 1               # own-render seeds 0..seeds-1
 
 
 # ------------------------------------------------------------ manifest schema ---
@@ -129,6 +139,10 @@ _KEYS_SUITE = {
     "studies": (lambda v: isinstance(v, str) and v != "", "a file name"),
     "study_set": (lambda v: isinstance(v, str) and v in STUDY_SETS,
                   f"one of {', '.join(STUDY_SETS)}"),
+    "ladder_samplers": (lambda v: isinstance(v, list) and v and all(
+        isinstance(x, str) and x in LADDER_SAMPLERS for x in v),
+        f"a non-empty list of {', '.join(LADDER_SAMPLERS)}"),
+    "seeds": (lambda v: _is_int(v) and v >= 1, "a positive integer"),
     "renderers": (lambda v: (isinstance(v, str) and v != "") or (
         isinstance(v, list) and all(isinstance(x, str) and x for x in v)),
         "a TOML file of command renderers, or a list of them"),
@@ -195,6 +209,17 @@ class _Manifest:
         return table
 
 
+def _auto(scene_path: Path) -> tuple[str, dict]:
+    """``algorithm = "auto"``: the advised algorithm and parameters for a scene, from
+    the leaderboard records of the default results store when there are any."""
+    from reports.results import ResultStore
+
+    from .advise import resolve_auto
+
+    store = ResultStore(REPO_ROOT / "reports" / "out" / "results.jsonl")
+    return resolve_auto(scene_path, records=store.load())
+
+
 def load_suite(path) -> Suite:
     """Read and check a suite manifest against its schema (tables, keys, types,
     ranges; see ``_KEYS_*``): every scene file exists, every algorithm and
@@ -241,9 +266,10 @@ def load_suite(path) -> Suite:
         for key in ("algorithm", "scenes"):
             if key not in group:
                 raise SuiteError(f"{where}: missing '{key}'")
-        algo = registry.get(group["algorithm"])
-        transport = group.get("transport", algo.transport)
-        if transport == "phong" and "ka" not in {p.name for p in algo.params}:
+        auto = group["algorithm"] == "auto"
+        algo = None if auto else registry.get(group["algorithm"])
+        transport = group.get("transport", "full" if auto else algo.transport)
+        if not auto and transport == "phong" and "ka" not in {p.name for p in algo.params}:
             raise SuiteError(f"{where}: transport 'phong' needs an algorithm with the Phong "
                              f"parameters (ka, ks, shininess, c1..c3), not '{algo.name}'")
         for ci, cfg in enumerate(group.get("config", [{}])):
@@ -253,8 +279,12 @@ def load_suite(path) -> Suite:
             if not scene_path.is_file():
                 raise SuiteError(f"{m.line('scenes', gi)}: scene file not found: {scene_path}")
             scene_id = str(Path(scene).with_suffix("")).replace("\\", "/")
+            advised = {}
+            if auto:                     # the advised algorithm of this scene (gibench.advise)
+                chosen, advised = _auto(scene_path)
+                algo = registry.get(chosen)
             for ci, cfg in enumerate(group.get("config", [{}])):
-                params = dict(cfg.get("params", {}))
+                params = {**advised, **cfg.get("params", {})}
                 try:
                     algo.parse_params(params)            # validates names, types and ranges now
                 except GibenchError as exc:
@@ -267,6 +297,8 @@ def load_suite(path) -> Suite:
                                   label=cfg.get("label", f"{algo.name} {params}"),
                                   expect=expect, tolerances=tol))
     ladder = head.get("ladder", [])
+    samplers = head.get("ladder_samplers", ["independent"])
+    seeds = head.get("seeds", 1)
     studies = None
     study_set = head.get("study_set")
     if "studies" in head:
@@ -284,7 +316,8 @@ def load_suite(path) -> Suite:
                  reference_passes=head.get("reference_passes", 8),
                  repeats=head.get("repeats", 3), description=head.get("description", ""),
                  studies=studies, study_set=study_set,
-                 pivots=dict(pivots), ladder=tuple(ladder))
+                 pivots=dict(pivots), ladder=tuple(ladder),
+                 ladder_samplers=tuple(samplers), seeds=seeds)
 
 
 def _rel(p: Path) -> str:
@@ -312,11 +345,15 @@ def _checks(case: Case, metrics: dict) -> list[dict]:
 
 def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_timing: bool,
              timing_cache: dict, reference_store=None, log=print,
-             defines: dict | None = None, seed: int = 0) -> Record:
+             defines: dict | None = None, seed: int = 0, repeats: int | None = None,
+             judge: bool = True) -> Record:
     """Run one case and return its result record (never raises for a bad case:
     the record's ``error`` names the cause).  ``defines`` overrides the scene's
     ``<default>`` values in both the own render and the reference (``-D``);
-    ``seed`` is the own render's seed."""
+    ``seed`` is the own render's seed; ``repeats`` the timed renders after a
+    warm-up (default ``suite.repeats``; 0: one render without warm-up, whose
+    time may include compilation); ``judge=False`` records the metrics without the
+    case's checks (a finite image is still required)."""
     from references.motion_blur import has_motion
     from references.reference import DEFAULT_STORE, get_reference, time_mitsuba
     from reports.metrics import compare
@@ -341,7 +378,14 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
                                "variance": _rel(ref.directory / "variance.exr"),
                                "spp": ref.manifest.get("spp"), "variant": ref.manifest.get("variant"),
                                "integrator": case.transport}
-        result, timing = render_timed(algo, scene, params, seed=seed, repeats=suite.repeats)
+        if repeats == 0:                 # an extra seed: one render, for its error only
+            t0 = time.perf_counter()
+            result = algo.render(scene, params, seed=seed)
+            t = time.perf_counter() - t0
+            timing = {"own_median_s": t, "own_times_s": [t], "repeats": 1, "warmup": False}
+        else:
+            result, timing = render_timed(algo, scene, params, seed=seed,
+                                          repeats=repeats or suite.repeats)
         suffix = f".seed{seed}" if seed else ""
         image_path = out_dir / f"{case.name}{suffix}.exr"
         write_exr(image_path, result.image)
@@ -377,7 +421,7 @@ def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_ti
             record.checks = [{"name": "finite image", "expected": "pass", "passed": False,
                                  "detail": f"{m['nan_count']} NaN, {m['inf_count']} Inf"}]
         else:
-            record.checks = [] if case.expect == "model-error" else _checks(case, m)
+            record.checks = [] if case.expect == "model-error" or not judge else _checks(case, m)
     except (GibenchError, OSError) as exc:
         record.error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
         if log:
@@ -419,6 +463,20 @@ def _case_task(job: tuple) -> Record:
     return run_case(case, suite, timing_cache={}, log=None, **kw)
 
 
+def _seed_jobs(suite: Suite, seed: int) -> list[tuple[int, Case, dict]]:
+    """(case index, case, run_case options) of every case and seed: the first seed is
+    timed with ``suite.repeats``, Mitsuba-timed and judged; the others (seeds
+    ``seed + 1 ..``) give the error's spread: one render each (no warm-up: the
+    point's time is the first seed's), no checks."""
+    jobs = []
+    for i, case in enumerate(suite.cases):
+        jobs.append((i, case, {"seed": seed}))
+        for k in range(1, suite.seeds):
+            jobs.append((i, case, {"seed": seed + k, "repeats": 0, "judge": False,
+                                   "mitsuba_timing": False}))
+    return jobs
+
+
 def _summary_line(rec: Record) -> str:
     if rec.error:
         return f"  error: {rec.error}"
@@ -438,11 +496,18 @@ def _progress(total: int, desc: str, enabled):
 
 
 def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=print,
-                defines: dict | None = None) -> list[Record]:
+                defines: dict | None = None, sampler_cache=None) -> list[Record]:
     """Mitsuba's spp ladder (``suite.ladder``) for every (scene, transport) of ``cases``:
     one record (``kind = "ladder"``) per spp with Mitsuba's time and error, measured
-    in this run for the speed-vs-error plots."""
-    from .ladder import ladder_points
+    in this run for the speed-vs-error plots.
+
+    The ladder's sampler is Mitsuba's most efficient of ``suite.ladder_samplers``
+    on the scene (:func:`gibench.ladder.choose_sampler`; ``sampler_cache``: its
+    JSON cache, default :data:`gibench.ladder.SAMPLER_CACHE`); each record's
+    ``params`` name it (``sampler``) with the probe's figures
+    (``sampler_probe``).  The error is the mean over the ``suite.repeats``
+    timed renders, each with its own seed (``metrics["relmse_seeds"]``)."""
+    from .ladder import SAMPLER_CACHE, choose_sampler, ladder_points
     from references.motion_blur import has_motion
     from references.reference import DEFAULT_STORE, get_reference
 
@@ -460,8 +525,16 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
             ref = get_reference(scene, transport=transport, spp=suite.reference_spp,
                                 passes=suite.reference_passes,
                                 store=reference_store or DEFAULT_STORE, defines=defines)
+            choice = choose_sampler(scene, transport=transport, reference=ref,
+                                    candidates=suite.ladder_samplers, defines=defines,
+                                    cache=sampler_cache if sampler_cache is not None else SAMPLER_CACHE)
+            if log and choice["candidates"]:
+                log(f"  ladder {scene_id} ({transport}): sampler {choice['sampler']} ("
+                    + ", ".join(f"{k} relMSE {v['relmse']:.3g} in {v['median_s'] * 1e3:.0f} ms"
+                                for k, v in choice["candidates"].items())
+                    + f" at {choice['probe_spp']} spp{'; cached' if choice['cached'] else ''})")
             points = ladder_points(scene, transport=transport, spps=suite.ladder, reference=ref,
-                                   repeats=suite.repeats, defines=defines)
+                                   repeats=suite.repeats, defines=defines, sampler=choice["sampler"])
         except (GibenchError, OSError) as exc:
             msg = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
             if log:
@@ -473,15 +546,19 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
         for pt in points:
             if ref.variance is not None:
                 pt["metrics"]["noise_floor_relmse"] = noise_floor_relmse(ref.image, ref.variance)
+            params = {"spp": pt["spp"], "sampler": choice["sampler"]}
+            if choice["candidates"]:
+                params.update(sampler_probe=choice["candidates"], probe_spp=choice["probe_spp"])
             records.append(Record(**base, label=f"Mitsuba {transport} {pt['spp']} spp",
-                                  params={"spp": pt["spp"]}, metrics=pt["metrics"],
+                                  params=params, metrics=pt["metrics"],
                                   time={"own_median_s": pt["median_s"], "own_times_s": pt["times_s"],
-                                        "repeats": suite.repeats, "variant": pt["variant"]},
+                                        "repeats": suite.repeats, "variant": pt["variant"],
+                                        "sampler": pt["sampler"]},
                                   reference={"key": ref.key, "dir": _rel(ref.directory),
                                              "spp": ref.manifest.get("spp")},
                                   ladder_spp=pt["spp"], mitsuba=pt["mitsuba"]))
             if log:
-                log(f"  ladder {scene_id} ({transport}) {pt['spp']} spp: relMSE "
+                log(f"  ladder {scene_id} ({transport}, {pt['sampler']}) {pt['spp']} spp: relMSE "
                     f"{pt['metrics']['relmse']:.3g}, {pt['median_s'] * 1e3:.1f} ms")
     return records
 
@@ -498,7 +575,9 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
     always flow back to this process, which alone writes the stores.
     ``progress``: a tqdm bar on stderr (None: only on a terminal).
     ``ladder``: time Mitsuba's spp ladder (default: when ``suite.ladder``
-    is set).
+    is set).  ``seed``: the first own-render seed; with ``suite.seeds`` = K
+    every case also renders seeds ``seed + 1 .. seed + K - 1`` (error spread;
+    :func:`_seed_jobs`).
     """
     from .executor import map_unordered, parse_executor
 
@@ -514,34 +593,45 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
             add_record(history, rec, command=command)
         records.append(rec)
 
-    n = len(suite.cases)
+    seed_jobs = _seed_jobs(suite, seed)
+    n = len(seed_jobs)
     bar = _progress(n, f"{suite.name}", progress)
     # Lines go above the bar while it is shown; nothing is printed with log=None.
     say = ((bar.write if not bar.disable else log) if log else (lambda s: None))
+
+    def head(case, opts):
+        extra = f" (seed {opts['seed']})" if suite.seeds > 1 else ""
+        return f"{case.scene_id}: {case.label} vs {case.transport}{extra}"
+
     try:
         if kind == "serial":
             timing_cache: dict = {}
-            for i, case in enumerate(suite.cases):
-                say(f"[{i + 1}/{n}] {case.scene_id}: {case.label} vs {case.transport}")
+            for k, (i, case, opts) in enumerate(seed_jobs):
+                say(f"[{k + 1}/{n}] {head(case, opts)}")
+                opts = dict(opts)
                 rec = run_case(case, suite, run_id=run_id, out_dir=out_dir,
-                               mitsuba_timing=mitsuba_timing, timing_cache=timing_cache,
-                               reference_store=reference_store, log=log, defines=defines, seed=seed)
+                               mitsuba_timing=opts.pop("mitsuba_timing", mitsuba_timing),
+                               timing_cache=timing_cache, reference_store=reference_store,
+                               log=log, defines=defines, **opts)
                 keep(rec)
                 bar.update(1)
                 if rec.ok:
                     say(_summary_line(rec))
         else:
             say(f"running {n} cases on {kind} ({detail})")
-            kw = dict(run_id=run_id, out_dir=out_dir, mitsuba_timing=mitsuba_timing,
-                      reference_store=reference_store, defines=defines, seed=seed)
-            jobs_ = [(case, suite, kw) for case in suite.cases]
+            jobs_ = []
+            for i, case, opts in seed_jobs:
+                kw = dict(run_id=run_id, out_dir=out_dir, mitsuba_timing=mitsuba_timing,
+                          reference_store=reference_store, defines=defines)
+                kw.update(opts)
+                jobs_.append((case, suite, kw))
             done = 0
-            for i, rec in map_unordered(_case_task, jobs_, kind=kind, detail=detail):
+            for j, rec in map_unordered(_case_task, jobs_, kind=kind, detail=detail):
                 keep(rec)
                 done += 1
                 bar.update(1)
-                c = suite.cases[i]
-                say(f"[{done}/{n}] {c.scene_id}: {c.label} vs {c.transport}\n{_summary_line(rec)}")
+                _, c, opts = seed_jobs[j]
+                say(f"[{done}/{n}] {head(c, opts)}\n{_summary_line(rec)}")
     finally:
         bar.close()
     if (suite.ladder if ladder is None else ladder) and suite.ladder:

@@ -441,6 +441,30 @@ def _fmt_ratio(x, extrapolated: bool = False) -> str:
     return ("~" if extrapolated else "") + fmt(x)
 
 
+def _ee_cell(r: dict) -> str:
+    """The equal-error ratio, or '> bound' when the error exceeds Mitsuba's cheapest rung's."""
+    b = r.get("equal_error_lower_bound")
+    if math.isnan(r["equal_error_time_ratio"]) and isinstance(b, float) and math.isfinite(b):
+        return f"&gt; {fmt(b)}"
+    return _fmt_ratio(r["equal_error_time_ratio"], r["equal_error_extrapolated"])
+
+
+def _spread(p: dict) -> str:
+    sd = p.get("spread")
+    if isinstance(sd, float) and math.isfinite(sd):
+        return f" <span class='small'>± {fmt(sd)} (n={p.get('seeds')})</span>"
+    return ""
+
+
+def _err_bar(p: dict) -> list[float]:
+    """Lower and upper error bar of a point: the seeds' standard deviation, clipped at
+    the error (log axes), zero without a spread."""
+    sd = p.get("spread")
+    if not (isinstance(sd, float) and math.isfinite(sd)):
+        return [0.0, 0.0]
+    return [min(sd, 0.9 * p["error"]), sd]
+
+
 def _pareto_plot(scene, transport, g: dict, metric: str) -> str:
     from matplotlib.figure import Figure
 
@@ -450,16 +474,25 @@ def _pareto_plot(scene, transport, g: dict, metric: str) -> str:
     ax = fig.add_subplot(1, 1, 1)
     mi = g["mitsuba"]
     ax.plot([p["time"] for p in mi], [p["error"] for p in mi], "s-", color="#444", ms=4,
-            label=f"Mitsuba {transport} (spp ladder)")
+            label=f"Mitsuba {transport} ({g.get('sampler') or 'independent'} sampler, spp ladder)")
     for p in mi:
         if p.get("spp"):
             ax.annotate(f"{p['spp']}", (p["time"], p["error"]), fontsize=7, xytext=(3, 3),
                         textcoords="offset points", color="#444")
+    spread = [p.get("spread") for p in mi]
+    if any(isinstance(x, float) and math.isfinite(x) for x in spread):
+        ax.errorbar([p["time"] for p in mi], [p["error"] for p in mi],
+                    yerr=np.array([_err_bar(p) for p in mi]).T, fmt="none", ecolor="#444", lw=0.8)
     own = g["own"]
     if own:
         t = np.array([p["time"] for p in own])
         e = np.array([p["error"] for p in own])
-        ax.scatter(t, e, s=30, color="#1f77b4", label="own configurations", zorder=3)
+        algos = list(dict.fromkeys(p["algorithm"] for p in own))
+        colors = ["#1f77b4", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22"]
+        for k, a in enumerate(algos):
+            sel = [i for i, p in enumerate(own) if p["algorithm"] == a]
+            ax.errorbar(t[sel], e[sel], yerr=np.array([_err_bar(own[i]) for i in sel]).T, fmt="o", ms=5, color=colors[k % len(colors)],
+                        label=f"own {a}", zorder=3, lw=0.8)
         f = pareto_front(t, e)
         ax.plot(t[f], e[f], "-", color="#d62728", lw=1.5, label="own Pareto front", zorder=2)
         for p in own:
@@ -482,6 +515,52 @@ def _pareto_plot(scene, transport, g: dict, metric: str) -> str:
     return f"<img class='pareto' alt='speed vs error {_e(scene)}' src='{src}'>"
 
 
+def _headline(records: list[Record], metric: str = "relmse") -> str:
+    """The report's leading table: per scene and transport with a Mitsuba ladder, the
+    own side's best equal-error time ratio and equal-time error ratio, and the
+    race to Mitsuba's most expensive ladder error (own time / Mitsuba time)."""
+    from reports.pareto import points_from_records, summarize_points, top_rung_race
+
+    groups = points_from_records(records, metric=metric)
+    if not groups:
+        return ""
+    rows = []
+    for (scene, transport), g in groups.items():
+        s = summarize_points(g["own"], g["mitsuba"])
+        best = s["best"] or {}
+        race = top_rung_race(g["own"], g["mitsuba"])
+        seeds = sorted({p["seeds"] for p in g["own"]})
+        mseeds = sorted({p["seeds"] for p in g["mitsuba"]})
+        probe = next((p for p in g["mitsuba"]), {})
+        race_txt = (f"{_fmt_ratio(race['ratio'], race['extrapolated'])} "
+                    f"<span class='small'>({fmt(race['own_time'] * 1e3)} vs {fmt(race['time'] * 1e3)} ms "
+                    f"to {fmt(race['error'])}, Mitsuba {race['spp']} spp)</span>"
+                    if race and math.isfinite(race["ratio"]) else DASH)
+        win = race and math.isfinite(race["ratio"]) and race["ratio"] < 1
+        rows.append(
+            f"<tr><td><a href='#{_slug('sve-' + scene + '-' + str(transport))}'>{_e(scene)}</a></td>"
+            f"<td>{_e(transport)}</td><td>{_e(g.get('sampler') or 'independent')}</td>"
+            f"<td class='n'>{_fmt_ratio(best.get('equal_error_time_ratio', math.nan), best.get('equal_error_extrapolated', False))}</td>"
+            f"<td class='small'>{_e(best.get('equal_error_label', DASH))}</td>"
+            f"<td class='n'>{_fmt_ratio(best.get('equal_time_error_ratio', math.nan), best.get('equal_time_extrapolated', False))}</td>"
+            f"<td class='n'>{'<b>' if win else ''}{race_txt}{'</b>' if win else ''}</td>"
+            f"<td class='n'>{'/'.join(map(str, seeds))} / {'/'.join(map(str, mseeds))}</td></tr>")
+        del probe
+    return ("<h2 id='speed-vs-error-summary'>Speed against error</h2>"
+            "<p class='small'>Each row: the own configurations on one scene against Mitsuba's "
+            "spp ladder measured in the same run, with Mitsuba's most efficient sampler on that "
+            "scene (probed per scene; column <i>sampler</i>). Equal-error ratio = own time / "
+            "Mitsuba's time for the same error; equal-time ratio = own error / Mitsuba's error in "
+            "the same time (best own configuration of each; &lt; 1: the own side wins; ~ power-law "
+            "extrapolation beyond the ladder). <i>To Mitsuba's top error</i>: the time the own "
+            "Pareto front needs for the error of Mitsuba's most expensive rung, over Mitsuba's time "
+            f"for it. Errors ({_e(METRIC_NAMES.get(metric, metric))}) are means over the seeds "
+            "(own / Mitsuba counts in the last column); times are medians with warm-up excluded."
+            "</p><table class='data'><tr><th>scene</th><th>vs Mitsuba</th><th>sampler</th>"
+            "<th>equal-error t/t<sub>Mi</sub></th><th>(own config)</th><th>equal-time e/e<sub>Mi</sub></th>"
+            "<th>to Mitsuba's top error</th><th>seeds</th></tr>" + "".join(rows) + "</table>")
+
+
 def _speed_vs_error(records: list[Record], metric: str = "relmse") -> str:
     """The speed-vs-error section: per scene/transport with a Mitsuba ladder, the plot
     and the table of efficiency and equal-error / equal-time ratios."""
@@ -496,17 +575,18 @@ def _speed_vs_error(records: list[Record], metric: str = "relmse") -> str:
            "floor (errors near it cannot be resolved). Efficiency = 1 / (error × time). "
            "Equal-error time ratio = own time / Mitsuba's time for the same error, equal-time error "
            "ratio = own error / Mitsuba's error in the same time (log–log interpolation along "
-           "Mitsuba's ladder; ~ marks a power-law extrapolation of its end segment beyond it); "
+           "Mitsuba's ladder; ~ marks a power-law extrapolation of its end segment beyond it; "
+           "&gt; x: more error than Mitsuba's 1-spp render, which is x times faster); "
            "below 1 the own configuration wins.</p>"]
     for (scene, transport), g in groups.items():
         s = summarize_points(g["own"], g["mitsuba"])
         rows = "".join(
-            f"<tr><td>{_e(r['label'])}</td><td class='n'>{fmt(r['error'])}</td>"
+            f"<tr><td>{_e(r['label'])}</td><td class='n'>{fmt(r['error'])}{_spread(r)}</td>"
             f"<td class='n'>{fmt(r['time'] * 1e3)}</td><td class='n'>{fmt(r['efficiency'])}</td>"
-            f"<td>{'★' if r['pareto'] else ''}</td><td class='n'>{_fmt_ratio(r['equal_error_time_ratio'], r['equal_error_extrapolated'])}</td>"
+            f"<td>{'★' if r['pareto'] else ''}</td><td class='n'>{_ee_cell(r)}</td>"
             f"<td class='n'>{_fmt_ratio(r['equal_time_error_ratio'], r['equal_time_extrapolated'])}</td></tr>" for r in s["rows"])
         rows += "".join(
-            f"<tr class='small'><td>{_e(r['label'])}</td><td class='n'>{fmt(r['error'])}</td>"
+            f"<tr class='small'><td>{_e(r['label'])} ({_e(r.get('sampler', 'independent'))})</td><td class='n'>{fmt(r['error'])}{_spread(r)}</td>"
             f"<td class='n'>{fmt(r['time'] * 1e3)}</td><td class='n'>{fmt(r['efficiency'])}</td>"
             f"<td></td><td></td><td></td></tr>" for r in s["mitsuba_rows"])
         best = s["best"]
@@ -514,12 +594,32 @@ def _speed_vs_error(records: list[Record], metric: str = "relmse") -> str:
                     f"({_e(best['equal_error_label'])}); equal-time error ratio "
                     f"<b>{_fmt_ratio(best['equal_time_error_ratio'], best['equal_time_extrapolated'])}</b> ({_e(best['equal_time_label'])}).</p>"
                     if best else "<p class='small'>No own configuration falls inside Mitsuba's ladder.</p>")
-        out.append(f"<h3>{_e(scene)} vs Mitsuba {_e(transport)}</h3>"
+        probe = next((p for p in g["mitsuba"] if p.get("sampler")), None)
+        floors_html = _floors(g["own"])
+        out.append(f"<h3 id='{_slug('sve-' + scene + '-' + str(transport))}'>{_e(scene)} vs Mitsuba {_e(transport)}</h3>"
                    + _pareto_plot(scene, transport, g, metric) + best_txt
                    + f"<table class='data pareto-table'><tr><th>configuration</th><th>{_e(METRIC_NAMES.get(metric, metric))}</th>"
                    "<th>time [ms]</th><th>efficiency</th><th>front</th><th>t / t<sub>Mitsuba</sub> at equal error</th>"
-                   f"<th>e / e<sub>Mitsuba</sub> at equal time</th></tr>{rows}</table>")
+                   f"<th>e / e<sub>Mitsuba</sub> at equal time</th></tr>{rows}</table>" + floors_html)
     return "".join(out)
+
+
+def _floors(own: list[dict]) -> str:
+    """Leaderboard rows: each algorithm's error at its most converged setting (an upper
+    bound of its model-error floor) when a scene has several own algorithms."""
+    from reports.pareto import model_floors
+
+    floors = model_floors(own)
+    if len(floors) < 2:
+        return ""
+    rows = "".join(
+        f"<tr><td>{_e(a)}</td><td class='n'>{fmt(f['floor'])}</td><td>{_e(f['label'])}</td>"
+        f"<td class='n'>{fmt(f['drop'])}</td></tr>"
+        for a, f in sorted(floors.items(), key=lambda kv: kv[1]["floor"]))
+    return ("<p class='small'>Model error floors: each algorithm's error at its most converged "
+            "setting; <i>drop</i> = that error over the previous setting's (near 1: more samples "
+            "no longer help, the rest is the model's error).</p><table class='data'><tr>"
+            "<th>algorithm</th><th>error</th><th>at</th><th>drop</th></tr>" + rows + "</table>")
 
 
 def render_report(records: list[Record], *, root, title: str = "gibench report") -> str:
@@ -527,10 +627,15 @@ def render_report(records: list[Record], *, root, title: str = "gibench report")
 
     Records of ``kind == "study"`` (hard-case tables) get their own section.
     """
+    from reports.pareto import primary_records
+
     records = [r for r in records if isinstance(r, Record)]
     studies = [r for r in records if r.kind == "study"]
+    headline = _headline(records)
     pareto = _speed_vs_error(records)
-    records = [r for r in records if r.kind not in ("study", "ladder")]
+    # Extra seeds feed the error means above; the tables and images below show the
+    # judged (lowest) seed of each configuration.
+    records = [r for r in primary_records(records) if r.kind not in ("study", "ladder")]
     images, colorbar = _Images(Path(root)), _colorbar()
     scenes: dict[str, list[Record]] = {}
     for r in records:
@@ -543,9 +648,9 @@ def render_report(records: list[Record], *, root, title: str = "gibench report")
     return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             f"<title>{_e(title)}</title><style>{CSS}</style></head><body>"
             + _header(records or studies, title)
-            + ("<h2>Summary</h2>" + _summary(records) + "<h2>Timing</h2>" + _timing(records)
-               if records or not studies else "")
-            + pareto
+            + headline + pareto
+            + ("<h2>Summary</h2>" + _summary(records) + "<h2>Timing</h2>"
+               + _timing(records) if records or not studies else "")
             + "".join(sections)
             + ("<h2>Studies</h2>" + "".join(_study(r) for r in studies) if studies else "")
             + viewer.assets() + "</body></html>\n")

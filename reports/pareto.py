@@ -34,7 +34,8 @@ from core.records import Record
 
 __all__ = ["pareto_front", "loglog_interp", "time_at_error", "error_at_time",
            "equal_error_time_ratio", "equal_time_error_ratio", "efficiency", "noise_floor_relmse",
-           "summarize_points", "points_from_records"]
+           "summarize_points", "points_from_records", "primary_records", "top_rung_race",
+           "model_floors"]
 
 
 def _points(times, errors):
@@ -170,7 +171,10 @@ def summarize_points(own: list[dict], mitsuba: list[dict]) -> dict:
     Mitsuba curve, interpolated inside it and extrapolated as a power law
     outside (flags ``equal_error_extrapolated`` / ``equal_time_extrapolated``);
     ``best`` holds the smallest of each ratio over the own configurations and
-    which configuration gives it.
+    which configuration gives it.  A configuration with more error than
+    Mitsuba's cheapest rung has no equal-error ratio; its
+    ``equal_error_lower_bound`` is its time over that rung's (the ratio is at
+    least that).
     """
     mt = [p["time"] for p in mitsuba]
     me = [p["error"] for p in mitsuba]
@@ -187,7 +191,15 @@ def summarize_points(own: list[dict], mitsuba: list[dict]) -> dict:
         et_x = math.isnan(et)
         if et_x:
             et = equal_time_error_ratio(p["time"], p["error"], mt, me, extrapolate=True)
+        bound = math.nan
+        if math.isnan(ee) and mt:
+            # Worse than Mitsuba's cheapest rung: Mitsuba reaches a lower error in its
+            # cheapest time, so the ratio is at least own time / that time.
+            k = int(np.argmin(mt))
+            if p["error"] > me[k] and mt[k] > 0:
+                bound = p["time"] / mt[k]
         rows.append(dict(p, efficiency=efficiency(p["error"], p["time"]), pareto=i in front,
+                         equal_error_lower_bound=bound,
                          equal_error_time_ratio=ee, equal_error_extrapolated=ee_x and not math.isnan(ee),
                          equal_time_error_ratio=et, equal_time_extrapolated=et_x and not math.isnan(et)))
     mrows = [dict(p, efficiency=efficiency(p["error"], p["time"])) for p in mitsuba]
@@ -210,17 +222,45 @@ def _num(x):
     return float(x) if isinstance(x, (int, float)) and not isinstance(x, bool) else None
 
 
+def _case_key(r: Record) -> tuple:
+    import json
+
+    return (r.scene, r.transport, r.algorithm, r.label,
+            json.dumps(r.params, sort_keys=True, default=str))
+
+
+def primary_records(records: list[Record]) -> list[Record]:
+    """The records without the extra seeds: of the ``case`` records of one
+    configuration (scene, transport, algorithm, label, params) only the lowest
+    seed is kept (the timed and judged one); other kinds pass unchanged."""
+    first: dict = {}
+    for r in records:
+        if r.kind == "case":
+            k = _case_key(r)
+            if k not in first or r.seed < first[k].seed:
+                first[k] = r
+    keep = {id(r) for r in first.values()}
+    return [r for r in records if r.kind != "case" or id(r) in keep]
+
+
 def points_from_records(records: list[Record], *, metric: str = "relmse") -> dict:
     """Group result records (kinds ``case`` and ``ladder``) into speed-vs-error point sets
-    ``{(scene, transport): {"own": [...], "mitsuba": [...], "noise_floor": x}}``.
+    ``{(scene, transport): {"own": [...], "mitsuba": [...], "noise_floor": x, "sampler": s}}``.
 
-    Own points are the cases (label, algorithm, time = own median, error =
-    ``metrics[metric]``); Mitsuba points are the ladder records.  The noise
-    floor is the record's ``metrics["noise_floor_" + metric]`` (relmse) or
+    Own points are the configurations (label, algorithm, ``model_error``): the
+    records of one configuration with different seeds are one point whose
+    error is the mean of ``metrics[metric]`` over the seeds (``errors`` the
+    values, ``spread`` their sample standard deviation, ``seeds`` how many)
+    and whose time is the lowest seed's own median (the one timed with the
+    suite's repeats).  Mitsuba points are the ladder records (error: the mean
+    over the ladder's seeds when ``metrics[metric + "_seeds"]`` is present);
+    ``sampler`` is the ladder's Mitsuba sampler.  The noise floor is the
+    record's ``metrics["noise_floor_" + metric]`` (relmse) or
     ``metrics["noise_floor"]`` (mse).  Only scene/transport pairs with a
     Mitsuba ladder are returned.
     """
     groups: dict = {}
+    own: dict = {}
     for r in records:
         kind = r.kind
         if kind not in ("case", "ladder") or r.error:
@@ -230,17 +270,76 @@ def points_from_records(records: list[Record], *, metric: str = "relmse") -> dic
         if err is None or tm is None or not (math.isfinite(err) and math.isfinite(tm)):
             continue
         g = groups.setdefault((r.scene, r.transport),
-                              {"own": [], "mitsuba": [], "noise_floor": None})
-        pt = {"label": str(r.label), "algorithm": r.algorithm, "time": tm, "error": err,
-              "model_error": bool(r.model_error)}
+                              {"own": [], "mitsuba": [], "noise_floor": None, "sampler": None})
         if kind == "ladder":
-            pt["spp"] = r.ladder_spp
+            errs = [x for x in (m.get(f"{metric}_seeds") or []) if _num(x) is not None]
+            pt = {"label": str(r.label), "algorithm": r.algorithm, "time": tm, "error": err,
+                  "model_error": False, "spp": r.ladder_spp, "errors": errs or [err],
+                  "seeds": max(len(errs), 1),
+                  "spread": float(np.std(errs, ddof=1)) if len(errs) > 1 else math.nan,
+                  "sampler": r.params.get("sampler", "independent")}
             g["mitsuba"].append(pt)
+            g["sampler"] = pt["sampler"]
         else:
-            g["own"].append(pt)
+            own.setdefault(_case_key(r), []).append((r.seed, err, tm, r))
         floor = _num(m.get(f"noise_floor_{metric}")) if metric != "mse" else _num(m.get("noise_floor"))
         if floor is not None:
             g["noise_floor"] = floor
+    for key, runs in own.items():
+        runs.sort(key=lambda x: x[0])
+        errs = [e for _, e, _, _ in runs]
+        r0 = runs[0][3]
+        groups[key[:2]]["own"].append(
+            {"label": str(r0.label), "algorithm": r0.algorithm, "time": runs[0][2],
+             "error": float(np.mean(errs)), "errors": errs, "seeds": len(errs),
+             "spread": float(np.std(errs, ddof=1)) if len(errs) > 1 else math.nan,
+             "model_error": bool(r0.model_error), "params": dict(r0.params)})
     for g in groups.values():
         g["mitsuba"].sort(key=lambda p: p.get("spp") or 0)
     return {k: v for k, v in groups.items() if v["mitsuba"]}
+
+
+def top_rung_race(own: list[dict], mitsuba: list[dict], *, extrapolate: bool = True) -> dict | None:
+    """Whether the own configurations reach Mitsuba's most expensive ladder error faster.
+
+    ``spp``, ``error`` and ``time`` of Mitsuba's top rung; ``own_time`` the time
+    the own Pareto front (all own points, log–log interpolated, extrapolated as
+    a power law beyond its cheapest-error end when ``extrapolate``) needs for
+    that error; ``ratio = own_time / time`` (< 1: the own side is faster);
+    ``extrapolated`` whether the front had to be extended; ``label`` the own
+    configuration nearest that error on the front.  None without points.
+    """
+    if not own or not mitsuba:
+        return None
+    top = max(mitsuba, key=lambda p: (p.get("spp") or 0, p["time"]))
+    t = [p["time"] for p in own]
+    e = [p["error"] for p in own]
+    inside = time_at_error(t, e, top["error"])
+    ext = math.isnan(inside)
+    ot = time_at_error(t, e, top["error"], extrapolate=extrapolate) if ext else inside
+    if math.isnan(ot) and min(e) <= top["error"]:
+        # Every own point at or below the error: the fastest of them bounds the time.
+        ot, ext = min(p["time"] for p in own if p["error"] <= top["error"]), False
+    near = min(own, key=lambda p: abs(math.log(max(p["error"], 1e-300) / top["error"])))
+    return {"spp": top.get("spp"), "error": top["error"], "time": top["time"], "own_time": ot,
+            "ratio": ot / top["time"] if math.isfinite(ot) and top["time"] > 0 else math.nan,
+            "extrapolated": bool(ext and math.isfinite(ot)), "label": near["label"]}
+
+
+def model_floors(own: list[dict]) -> dict:
+    """Per algorithm of the own points (``algorithm``, ``label``, ``error``, ``time``):
+    the error at its most converged setting (the most expensive point) as an upper
+    bound of its model-error floor, and ``drop`` = that error / the error of the
+    next cheaper point of the same algorithm (close to 1 when more samples no
+    longer help: the floor is reached; NaN with one point).
+    ``{algorithm: {"floor", "label", "drop", "time"}}``."""
+    out = {}
+    by: dict = {}
+    for p in own:
+        by.setdefault(p["algorithm"], []).append(p)
+    for algo, pts in by.items():
+        pts = sorted(pts, key=lambda p: p["time"])
+        last = pts[-1]
+        drop = last["error"] / pts[-2]["error"] if len(pts) > 1 and pts[-2]["error"] > 0 else math.nan
+        out[algo] = {"floor": last["error"], "label": last["label"], "drop": drop, "time": last["time"]}
+    return out

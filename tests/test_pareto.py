@@ -119,3 +119,72 @@ def test_extrapolation_follows_the_end_segment_power_law():
     (row,) = s["rows"]
     assert row["equal_error_time_ratio"] == pytest.approx(2.0) and row["equal_error_extrapolated"]
     assert s["best"]["equal_error_extrapolated"]
+
+
+def _ladder(errs_by_spp, sampler="multijitter"):
+    return [Record.from_json({"kind": "ladder", "scene": "s", "transport": "full",
+                              "label": f"Mitsuba {n}", "ladder_spp": n,
+                              "params": {"spp": n, "sampler": sampler},
+                              "metrics": {"relmse": float(np.mean(e)), "relmse_seeds": e},
+                              "time": {"own_median_s": 0.01 * n}})
+            for n, e in errs_by_spp.items()]
+
+
+def _case(label, seed, err, t, algorithm="a"):
+    return Record.from_json({"kind": "case", "scene": "s", "transport": "full", "label": label,
+                             "algorithm": algorithm, "seed": seed, "params": {"spp": 4},
+                             "metrics": {"relmse": err}, "time": {"own_median_s": t}})
+
+
+def test_seeds_of_one_configuration_are_one_point_with_mean_and_spread():
+    from reports.pareto import primary_records
+
+    recs = _ladder({1: [0.1, 0.12, 0.08], 4: [0.025, 0.03, 0.02], 16: [0.006, 0.007, 0.005]})
+    recs += [_case("c", 0, 0.02, 0.05), _case("c", 1, 0.04, 0.9), _case("c", 2, 0.03, 0.9)]
+    g = points_from_records(recs)[("s", "full")]
+    (p,) = g["own"]
+    assert p["seeds"] == 3 and p["error"] == pytest.approx(0.03)
+    assert p["spread"] == pytest.approx(0.01)
+    assert p["time"] == 0.05                              # the lowest seed's (timed) median
+    assert g["sampler"] == "multijitter"
+    m = g["mitsuba"][0]
+    assert m["error"] == pytest.approx(0.1) and m["spread"] == pytest.approx(0.02)
+    prim = primary_records(recs)
+    assert [r.seed for r in prim if r.kind == "case"] == [0]
+    assert sum(r.kind == "ladder" for r in prim) == 3
+
+
+def test_top_rung_race_against_mitsubas_most_expensive_error():
+    from reports.pareto import top_rung_race
+
+    mitsuba = [{"label": f"m{n}", "spp": n, "time": 0.01 * n, "error": 0.1 / n} for n in (1, 4, 16, 64)]
+    # Own curve error = 0.01 / t: reaches 0.1/64 at t = 6.4 vs Mitsuba's 0.64 -> ratio 10.
+    own = [{"label": f"o{k}", "time": t, "error": 0.01 / t} for k, t in enumerate((0.5, 1.0, 2.0))]
+    race = top_rung_race(own, mitsuba)
+    assert race["spp"] == 64 and race["extrapolated"]
+    assert race["ratio"] == pytest.approx(10.0)
+    # A faster own curve inside its range: error = 1e-4 / t reaches 0.1/64 at t = 0.064.
+    own = [{"label": f"o{k}", "time": t, "error": 1e-4 / t} for k, t in enumerate((0.01, 0.1))]
+    race = top_rung_race(own, mitsuba)
+    assert not race["extrapolated"] and race["ratio"] == pytest.approx(0.1)
+    assert top_rung_race([], mitsuba) is None
+
+
+def test_model_floors_per_algorithm():
+    from reports.pareto import model_floors
+
+    own = [{"algorithm": "raycast", "label": "r4", "time": 1.0, "error": 0.2},
+           {"algorithm": "raycast", "label": "r16", "time": 4.0, "error": 0.19},
+           {"algorithm": "path", "label": "p4", "time": 2.0, "error": 0.1},
+           {"algorithm": "path", "label": "p16", "time": 8.0, "error": 0.025}]
+    f = model_floors(own)
+    assert f["raycast"]["floor"] == 0.19 and f["raycast"]["drop"] == pytest.approx(0.95)
+    assert f["path"]["label"] == "p16" and f["path"]["drop"] == pytest.approx(0.25)
+
+
+def test_worse_than_the_cheapest_rung_gets_a_lower_bound():
+    mitsuba = [{"label": f"m{n}", "spp": n, "time": 0.01 * n, "error": 0.1 / n} for n in (1, 4)]
+    s = summarize_points([{"label": "bad", "time": 0.05, "error": 0.3}], mitsuba)
+    (row,) = s["rows"]
+    assert math.isnan(row["equal_error_time_ratio"])
+    assert row["equal_error_lower_bound"] == pytest.approx(5.0)

@@ -208,3 +208,30 @@ def test_study_records_become_tables_and_plots(tmp_path):
     page = write_report([bare], tmp_path / "b.html", root=tmp_path).read_text()
     table = page[page.index("<table class='data'>"):]
     assert table[:table.index("</table>")].count("<tr>") == len(rows) + 1
+
+
+def test_speed_against_error_leads_the_report(tmp_path):
+    from reports.html import render_report
+
+    recs = [Record(kind="ladder", scene="s", transport="full", label=f"Mitsuba {n}", ladder_spp=n,
+                   params={"spp": n, "sampler": "multijitter"},
+                   metrics={"relmse": 0.1 / n, "relmse_seeds": [0.09 / n, 0.1 / n, 0.11 / n]},
+                   time={"own_median_s": 0.01 * n}) for n in (1, 4, 16, 64)]
+    for algo, err in (("raycast", 0.3), ("path", 0.004)):
+        for seed in (0, 1, 2):
+            recs.append(Record(kind="case", scene="s", transport="full", algorithm=algo,
+                               label=f"{algo} 4", seed=seed, params={"spp": 4},
+                               metrics={"relmse": err * (1 + 0.1 * seed)},
+                               time={"own_median_s": 0.05}))
+            recs.append(Record(kind="case", scene="s", transport="full", algorithm=algo,
+                               label=f"{algo} 16", seed=seed, params={"spp": 16},
+                               metrics={"relmse": err / 3 * (1 + 0.1 * seed)},
+                               time={"own_median_s": 0.2}))
+    page = render_report(recs, root=tmp_path)
+    head = page.index("Speed against error")
+    assert head < page.index("<h2>Summary</h2>")
+    assert "multijitter" in page[head:page.index("<h2>Summary</h2>")]
+    assert "Model error floors" in page
+    # Extra seeds feed the means only: the summary shows one row per configuration.
+    summary = page[page.index("<h2>Summary</h2>"):page.index("<h2>Timing</h2>")]
+    assert summary.count("<tr>") == 1 + 4

@@ -1,0 +1,262 @@
+"""Owen-scrambled Sobol points for the numba kernels.
+
+The Sobol sequence (Sobol 1967) in base 2: point ``i`` of dimension ``d`` is
+the XOR of the generator columns ``V_d[k]`` for every set bit ``k`` of ``i``.
+Dimension 0 is the van der Corput sequence (``V_0[k] = 2**(31-k)``); the
+others come from a primitive polynomial of degree ``s`` over GF(2) with
+coefficients ``a`` and initial direction numbers ``m_1..m_s`` (Joe & Kuo
+2008, the ``new-joe-kuo-6.21201`` table; :data:`JOE_KUO` holds its first
+rows) through the recurrence (Bratley & Fox 1988)
+
+    m_k = 2 a_1 m_{k-1} ^ 4 a_2 m_{k-2} ^ ... ^ 2^{s-1} a_{s-1} m_{k-s+1}
+          ^ 2^s m_{k-s} ^ m_{k-s},      V[k-1] = m_k << (32 - k).
+
+Dimensions 0 and 1 together are a (0, 2)-sequence: every block of ``2**m``
+consecutive points (starting at a multiple of ``2**m``) puts exactly one point
+in each elementary interval ``[a/2^j, (a+1)/2^j) x [b/2^(m-j), (b+1)/2^(m-j))``.
+
+Randomisation (Burley 2020, "Practical Hash-based Owen Scrambling", JCGT
+9(4)):
+
+* the *value* is Owen-scrambled (each bit flipped by a hash of the bits above
+  it) with the Laine–Karras permutation applied to the bit-reversed value
+  (``nested_uniform_scramble``); this keeps every elementary-interval property
+  and makes each point uniform on [0, 1);
+* the *index* is shuffled with the same nested scramble, a permutation of
+  every aligned block ``[k 2^m, (k+1) 2^m)``, so the first ``2**m`` indices of
+  any seed still form a (0, m, 2)-net.
+
+:func:`sample_2d` is the padded form a tracer uses (as Burley §4 and pbrt-v4's
+``PaddedSobolSampler``): each 2D pair ``pair`` (lens, time/light, BSDF, ...)
+takes Sobol dimensions (0, 1) with its own index shuffle and value scrambles
+seeded by ``hash(seed, pair)``, so every pair is a scrambled (0, 2)-sequence
+and different pairs are decorrelated.  :func:`sobol_point` gives the
+full-dimensional (unpadded) Sobol point, scrambled per dimension.
+
+Limits: 2**32 points per sequence; :data:`JOE_KUO` holds
+:data:`MAX_DIMENSIONS` dimensions (padding needs only two); points are float64
+with 32 significant bits.  The tracers do not draw from this module yet.
+
+References
+----------
+.. [1] I. M. Sobol, "On the distribution of points in a cube and the
+   approximate evaluation of integrals", USSR Comput. Math. Math. Phys. 7(4), 1967.
+.. [2] S. Joe and F. Y. Kuo, "Constructing Sobol sequences with better
+   two-dimensional projections", SIAM J. Sci. Comput. 30(5), 2008.
+.. [3] B. Burley, "Practical Hash-based Owen Scrambling", JCGT 9(4), 2020.
+.. [4] S. Laine and T. Karras, "Stratified sampling for stochastic transparency",
+   EGSR 2011 (the multiply-xor permutation).
+.. [5] A. B. Owen, "Randomly permuted (t,m,s)-nets and (t,s)-sequences", 1995.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["JOE_KUO", "MAX_DIMENSIONS", "generator_matrices", "sobol_uint", "sobol_point",
+           "sample_1d", "sample_2d", "samples_2d", "sobol_points", "nested_uniform_scramble",
+           "pixel_seed"]
+
+#: First rows of Joe & Kuo's ``new-joe-kuo-6.21201`` table (dimension 2 onwards, as
+#: ``(s, a, (m_1, ..., m_s))``); dimension 1 (van der Corput) needs none.
+JOE_KUO = (
+    (1, 0, (1,)),
+    (2, 1, (1, 3)),
+    (3, 1, (1, 3, 1)),
+    (3, 2, (1, 1, 1)),
+    (4, 1, (1, 1, 3, 3)),
+    (4, 4, (1, 3, 5, 13)),
+    (5, 2, (1, 1, 5, 5, 17)),
+    (5, 4, (1, 1, 5, 5, 5)),
+    (5, 7, (1, 1, 7, 11, 19)),
+    (5, 11, (1, 1, 5, 1, 1)),
+    (5, 13, (1, 1, 1, 3, 11)),
+    (5, 14, (1, 3, 5, 5, 31)),
+    (6, 1, (1, 3, 3, 9, 7, 49)),
+    (6, 13, (1, 1, 1, 15, 21, 21)),
+    (6, 16, (1, 3, 1, 13, 27, 49)),
+)
+MAX_DIMENSIONS = len(JOE_KUO) + 1
+_MASK = np.uint64(0xFFFFFFFF)
+
+
+def generator_matrices(ndim: int = MAX_DIMENSIONS) -> np.ndarray:
+    """The Sobol generator columns, uint32 ``(ndim, 32)``: ``V[d, k]`` is XORed into
+    point ``i`` of dimension ``d`` when bit ``k`` of ``i`` is set."""
+    if not 1 <= ndim <= MAX_DIMENSIONS:
+        raise ValueError(f"ndim must be in 1..{MAX_DIMENSIONS}, got {ndim}")
+    v = np.zeros((ndim, 32), dtype=np.uint64)
+    v[0] = [1 << (31 - k) for k in range(32)]
+    for d in range(1, ndim):
+        s, a, m_init = JOE_KUO[d - 1]
+        m = list(m_init)
+        for k in range(s, 32):
+            # m_k from the s previous ones (0-based: m[k] from m[k-1] .. m[k-s])
+            new = m[k - s] ^ (m[k - s] << s)
+            for j in range(1, s):
+                if (a >> (s - 1 - j)) & 1:
+                    new ^= m[k - j] << j
+            m.append(new)
+        v[d] = [m[k] << (31 - k) for k in range(32)]
+    return (v & 0xFFFFFFFF).astype(np.uint32)
+
+
+_V = generator_matrices()
+
+
+# --------------------------------------------------------------------- hashing
+
+
+@njit(inline="always", cache=True)
+def _mix32(x):
+    """Wellons' ``lowbias32`` integer hash (32-bit in uint64, masked)."""
+    x = x & _MASK
+    x ^= x >> np.uint64(16)
+    x = (x * np.uint64(0x7FEB352D)) & _MASK
+    x ^= x >> np.uint64(15)
+    x = (x * np.uint64(0x846CA68B)) & _MASK
+    x ^= x >> np.uint64(16)
+    return x
+
+
+@njit(inline="always", cache=True)
+def _hash2(a, b):
+    """A 32-bit hash of two non-negative integers."""
+    return _mix32(_mix32(np.uint64(a)) ^ (np.uint64(b) * np.uint64(0x9E3779B9) & _MASK)
+                  ^ np.uint64(0x85EBCA6B))
+
+
+@njit(inline="always", cache=True)
+def _reverse32(x):
+    x = x & _MASK
+    x = ((x >> np.uint64(1)) & np.uint64(0x55555555)) | ((x & np.uint64(0x55555555)) << np.uint64(1))
+    x = ((x >> np.uint64(2)) & np.uint64(0x33333333)) | ((x & np.uint64(0x33333333)) << np.uint64(2))
+    x = ((x >> np.uint64(4)) & np.uint64(0x0F0F0F0F)) | ((x & np.uint64(0x0F0F0F0F)) << np.uint64(4))
+    x = ((x >> np.uint64(8)) & np.uint64(0x00FF00FF)) | ((x & np.uint64(0x00FF00FF)) << np.uint64(8))
+    x = (x >> np.uint64(16)) | ((x & np.uint64(0xFFFF)) << np.uint64(16))
+    return x & _MASK
+
+
+@njit(inline="always", cache=True)
+def _laine_karras(x, seed):
+    # Burley 2020, listing 2: output bit k depends only on input bits <= k.
+    x = (x + seed) & _MASK
+    x ^= (x * np.uint64(0x6C50B47C)) & _MASK
+    x ^= (x * np.uint64(0xB82F1E52)) & _MASK
+    x ^= (x * np.uint64(0xC7AFE638)) & _MASK
+    x ^= (x * np.uint64(0x8D22F6E6)) & _MASK
+    return x
+
+
+@njit(inline="always", cache=True)
+def nested_uniform_scramble(x, seed):
+    """Owen scrambling of a 32-bit value: bit ``j`` (from the top) flipped by a hash of
+    the bits above it and ``seed`` (Burley 2020, listing 3)."""
+    return _reverse32(_laine_karras(_reverse32(np.uint64(x)), _mix32(np.uint64(seed))))
+
+
+# ---------------------------------------------------------------------- points
+
+
+@njit(inline="always", cache=True)
+def _sobol(v, index, dim):
+    x = np.uint64(0)
+    i = np.uint64(index) & _MASK
+    k = 0
+    while i:
+        if i & np.uint64(1):
+            x ^= np.uint64(v[dim, k])
+        i >>= np.uint64(1)
+        k += 1
+    return x
+
+
+@njit(cache=True)
+def sobol_uint(index, dim):
+    """The unscrambled Sobol point ``index`` of dimension ``dim`` as a 32-bit integer
+    (``value / 2**32`` in [0, 1))."""
+    return _sobol(_V, index, dim)
+
+
+_INV32 = 1.0 / 4294967296.0
+
+
+@njit(inline="always", cache=True)
+def sobol_point(index, dim, seed):
+    """Dimension ``dim`` of Owen-scrambled Sobol point ``index`` (float64 in [0, 1)).
+
+    One index shuffle for the whole point (seeded by ``seed``), one value
+    scramble per dimension: all dimensions of a point share it, so this is the
+    full ``MAX_DIMENSIONS``-dimensional sequence.
+    """
+    i = nested_uniform_scramble(np.uint64(index), _hash2(seed, 0xFFFFFFFF))
+    x = _sobol(_V, i, dim)
+    return float(nested_uniform_scramble(x, _hash2(seed, dim))) * _INV32
+
+
+@njit(inline="always", cache=True)
+def sample_1d(dim, index, seed):
+    """Padded 1D sample: the scrambled van der Corput point ``index`` of 1D dimension
+    ``dim`` (own index shuffle and scramble per ``(seed, dim)``)."""
+    h = _hash2(seed, np.uint64(2) * np.uint64(dim) + np.uint64(0x10000))
+    i = nested_uniform_scramble(np.uint64(index), h)
+    return float(nested_uniform_scramble(_sobol(_V, i, 0), _mix32(h + np.uint64(1)))) * _INV32
+
+
+@njit(inline="always", cache=True)
+def sample_2d(pair, index, seed):
+    """Padded 2D sample ``(u, v)``: Sobol dimensions (0, 1) with an index shuffle and two
+    value scrambles seeded by ``(seed, pair)``.  For every ``pair`` and ``seed`` the
+    points ``index = 0 .. 2**m - 1`` are a scrambled (0, m, 2)-net."""
+    h = _hash2(seed, np.uint64(2) * np.uint64(pair) + np.uint64(1))
+    i = nested_uniform_scramble(np.uint64(index), h)
+    u = nested_uniform_scramble(_sobol(_V, i, 0), _mix32(h + np.uint64(1)))
+    v = nested_uniform_scramble(_sobol(_V, i, 1), _mix32(h + np.uint64(2)))
+    return float(u) * _INV32, float(v) * _INV32
+
+
+@njit(inline="always", cache=True)
+def pixel_seed(x, y, seed):
+    """A per-pixel sequence seed: pixels draw decorrelated scrambles of one sequence."""
+    return _hash2(_hash2(seed, x), y)
+
+
+@njit(cache=True)
+def _samples_2d(n, pair, seed, start, out):
+    for k in range(n):
+        u, v = sample_2d(pair, start + k, seed)
+        out[k, 0] = u
+        out[k, 1] = v
+
+
+@njit(cache=True)
+def _points(n, ndim, seed, start, out):
+    for k in range(n):
+        for d in range(ndim):
+            out[k, d] = sobol_point(start + k, d, seed)
+
+
+def _check(n, seed, start):
+    if n < 0 or start < 0 or n + start > 2 ** 32:
+        raise ValueError(f"need 0 <= start and start + n <= 2**32, got start={start}, n={n}")
+    if seed < 0:
+        raise ValueError(f"seed must be non-negative, got {seed}")
+
+
+def samples_2d(n: int, *, pair: int = 0, seed: int = 0, start: int = 0) -> np.ndarray:
+    """Points ``start .. start + n - 1`` of :func:`sample_2d`, float64 ``(n, 2)``."""
+    _check(n, seed, start)
+    out = np.empty((n, 2), dtype=np.float64)
+    _samples_2d(n, pair, seed, start, out)
+    return out
+
+
+def sobol_points(n: int, ndim: int, *, seed: int = 0, start: int = 0) -> np.ndarray:
+    """Points ``start .. start + n - 1`` of :func:`sobol_point`, float64 ``(n, ndim)``."""
+    _check(n, seed, start)
+    if not 1 <= ndim <= MAX_DIMENSIONS:
+        raise ValueError(f"ndim must be in 1..{MAX_DIMENSIONS}, got {ndim}")
+    out = np.empty((n, ndim), dtype=np.float64)
+    _points(n, ndim, seed, start, out)
+    return out
