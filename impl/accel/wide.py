@@ -1,0 +1,401 @@
+"""A wide BVH: the binary SAH tree collapsed to nodes of WIDTH children (thesis 2.6.1).
+
+The hierarchy is the one of :mod:`impl.accel.bvh` (binned SAH); only its
+storage and traversal change.  Each wide node holds the boxes of up to
+:data:`WIDTH` children structure-of-arrays, ``lo_x[W] lo_y[W] lo_z[W]
+hi_x[W] hi_y[W] hi_z[W]`` (the layout of Embree's BVH4 nodes), so one ray
+meets all the children in one loop over W lanes that LLVM vectorises: per
+axis the near and far planes are picked once per ray from the sign of the
+direction, so each plane costs one subtract and one multiply by the
+precomputed reciprocal direction, with no per-child swap and no branch.
+
+Collapse (Wald, Benthin, Boulos 2008; Embree's BVH4 builder): starting
+from a binary node's two children, the interior child of largest surface
+area is replaced by its two children until the node has W children or
+only leaves remain.  The leaves are the binary tree's (≤ 4 primitives).
+
+Exactness.  The boxes are stored in float32, each coordinate rounded
+outward (``lo`` down, ``hi`` up) from the padded float64 bounds of
+:mod:`.primitives`, so every stored box contains its float64 box.  The slab
+test reads them into float64 and computes exactly as
+:func:`.primitives.box_enter` does (same NaN rule for zero direction
+components): a ray enters every box the float64 tree would let it enter,
+and the primitives it reaches are tested by the same kernels, in the
+configured form and precision, with the same tie rule (:func:`.closer`).
+So the closest hit (primitive id and ``t``) is brute force's.  The float64
+arithmetic is a choice, not a necessity: with W = 4 (AVX2) or 8 (AVX-512)
+lanes a float64 plane costs as many vector instructions as a float32 one,
+and it needs no error bound on the origin's float32 rounding.
+
+Traversal: nearest child first (children sorted by entry ``t`` on the
+stack), popped entries entered beyond the nearest hit skipped; shadow rays
+(:func:`wide_any`) stop at the first hit in (tmin, tmax).
+
+Arrays (the :class:`impl.accel.Accel` fields; ``M`` wide nodes):
+
+=========  =================  ===========================================
+field      shape              meaning
+=========  =================  ===========================================
+node_lo/hi (1, 3) f64         the root's box
+node_a     (M·W,) i64         slot ``n·W + k``: child node (interior) or
+                              first entry of ``prim_idx`` (leaf)
+node_b     (M·W,) i64         ``-1`` interior, ``c ≥ 0`` leaf of c
+                              primitives (0: empty slot, empty box)
+prim_idx   (P,) i64           the leaves' primitive ids
+acc_f      (M·6·W/2,) f64     the float32 boxes, node by node
+                              ``[lo_x, lo_y, lo_z, hi_x, hi_y, hi_z]×W``,
+                              stored two per float64 word (read through
+                              ``acc_f.view(np.float32)``)
+acc_i      (1,) i64           W
+=========  =================  ===========================================
+
+Leaves out: compressed (quantised) boxes, SIMD primitive tests over a
+leaf's primitives (the primitive kernels are the scalar brute-force ones,
+which is what keeps the hit bit-identical), spatial splits.
+
+References: I. Wald, C. Benthin, S. Boulos, "Getting rid of packets —
+efficient SIMD single-ray traversal using multi-branching BVHs", IEEE RT
+2008; H. Dammertz, J. Hanika, A. Keller, "Shallow bounding volume
+hierarchies for fast SIMD ray tracing of incoherent rays", EGSR 2008;
+I. Wald et al., "Embree: a kernel framework for efficient CPU ray
+tracing", ACM TOG 33(4), 2014.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.extending import intrinsic
+
+from ..intersect import like, ray_sphere_form, ray_triangle
+from .primitives import box_enter, closer, ulp_above
+from .tree import STACK, stack_f64, stack_i64
+
+__all__ = ["WIDTH", "collapse", "wide_closest", "wide_any", "wide_depth",
+           "wide_closest_batch", "wide_occluded_batch"]
+
+#: Children per node.
+WIDTH = 4
+_PLANES = 6 * WIDTH                 # float32 words of one node's boxes
+
+
+@njit(inline="always", cache=True)
+def _area(lo, hi, c):
+    ex, ey, ez = hi[c, 0] - lo[c, 0], hi[c, 1] - lo[c, 1], hi[c, 2] - lo[c, 2]
+    return ex * ey + ey * ez + ez * ex
+
+
+@njit(cache=True)
+def _collapse(nlo, nhi, na, nb, W):
+    """Wide nodes of the binary tree (node_b = -2 interior): ``(box (M, 6, W) f64,
+    slot_a (M·W,), slot_b (M·W,))``, depth-first."""
+    cap = na.shape[0] + 1
+    box = np.empty((cap, 6, W))
+    box[:, :3, :] = np.inf
+    box[:, 3:, :] = -np.inf
+    sa = np.zeros(cap * W, dtype=np.int64)
+    sb = np.zeros(cap * W, dtype=np.int64)
+    st_bin = np.empty(cap, dtype=np.int64)
+    st_wide = np.empty(cap, dtype=np.int64)
+    cand = np.empty(W, dtype=np.int64)
+    st_bin[0], st_wide[0] = 0, 0
+    sp, m_nodes = 1, 1
+    while sp > 0:
+        sp -= 1
+        b, w = st_bin[sp], st_wide[sp]
+        if nb[b] >= 0:                          # a leaf root (tiny scene)
+            cand[0] = b
+            m = 1
+        else:
+            cand[0], cand[1] = na[b], na[b] + 1
+            m = 2
+            while m < W:                        # open the largest interior child
+                best, best_a = -1, -1.0
+                for i in range(m):
+                    c = cand[i]
+                    if nb[c] < 0:
+                        a = _area(nlo, nhi, c)
+                        if a > best_a:
+                            best, best_a = i, a
+                if best < 0:
+                    break
+                c = cand[best]
+                cand[best] = na[c]
+                cand[m] = na[c] + 1
+                m += 1
+        for k in range(m - 1, -1, -1):          # first child pushed last: visited next
+            c = cand[k]
+            for a in range(3):
+                box[w, a, k] = nlo[c, a]
+                box[w, 3 + a, k] = nhi[c, a]
+            s = w * W + k
+            if nb[c] >= 0:
+                sa[s], sb[s] = na[c], nb[c]
+            else:
+                sa[s], sb[s] = m_nodes, -1
+                st_bin[sp], st_wide[sp] = c, m_nodes
+                sp += 1
+                m_nodes += 1
+    return box[:m_nodes].copy(), sa[:m_nodes * W].copy(), sb[:m_nodes * W].copy()
+
+
+def _round_out(box):
+    """float32 copy of the (M, 6, W) boxes rounded outward (lo down, hi up)."""
+    b32 = box.astype(np.float32)
+    lo, hi = b32[:, :3], b32[:, 3:]
+    down = lo.astype(np.float64) > box[:, :3]
+    lo[down] = np.nextafter(lo[down], np.float32(-np.inf))
+    up = hi.astype(np.float64) < box[:, 3:]
+    hi[up] = np.nextafter(hi[up], np.float32(np.inf))
+    return np.ascontiguousarray(b32)
+
+
+def collapse(nlo, nhi, na, nb, width: int = WIDTH):
+    """The wide-BVH arrays ``(box32 (M, 6, W) float32, slot_a, slot_b)`` of a binary
+    tree in the flat layout of :mod:`.tree` (children in pairs, ``node_b = -2``)."""
+    if np.any((nb < 0) & (nb != -2)):
+        raise ValueError("collapse: the tree is not binary")
+    box, sa, sb = _collapse(nlo, nhi, na, nb, int(width))
+    return _round_out(box), sa, sb
+
+
+@njit(cache=True)
+def wide_depth(slot_a, slot_b, W):
+    """Largest traversal stack the wide tree can need (children − 1 summed along a
+    path, + 1, counting leaves as stack entries)."""
+    m = slot_a.shape[0] // W
+    need = np.zeros(m, dtype=np.int64)
+    need[0] = 1
+    max_s = 1
+    for n in range(m):                       # children come after their parent
+        k = 0
+        for j in range(W):
+            if slot_b[n * W + j] != 0:
+                k += 1
+        for j in range(W):
+            s = n * W + j
+            if slot_b[s] < 0:
+                need[slot_a[s]] = need[n] + k - 1
+            max_s = max(max_s, need[n] + k - 1)
+    return max_s
+
+
+@intrinsic
+def _enter_all(typingctx, box, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy, iz, tmin, tmax, tn):
+    """Slab test of one node's WIDTH children in WIDTH-lane vectors: ``tn[k]`` = entry t
+    of child k's box within [tmin, tmax] (inf on a miss); returns the hit mask
+    (bit k: child k entered).
+
+    ``box`` is the float32 view of the boxes, ``base`` the node's first word, ``nx``
+    … ``fz`` the word offsets of the near / far plane of each axis
+    (:func:`_planes`); ray and limits float64, ``tn`` a float64 array.  Per axis
+    ``a = (near − o)·(1/d)``, ``t0 = a if a > t0 else t0`` (and ``t1`` alike with
+    ``<``): the arithmetic and NaN rule of :func:`.primitives.box_enter`, lane by
+    lane, on the boxes widened to float64 (exact).  Written as LLVM vector IR
+    because numba leaves LLVM's SLP vectoriser off and a 4-trip loop is below
+    the loop vectoriser's threshold."""
+    sig = types.int64(box, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy, iz, tmin, tmax, tn)
+
+    def codegen(context, builder, sig, args):
+        args = [a if isinstance(t, types.Array) else
+                context.cast(builder, a, t, types.int64 if isinstance(t, types.Integer) else types.float64)
+                for a, t in zip(args, sig.args)]
+        (abox, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy, iz, tmin, tmax, atn) = args
+        box_ptr = context.make_array(sig.args[0])(context, builder, abox).data
+        tn_ptr = context.make_array(sig.args[16])(context, builder, atn).data
+        f32v = ir.VectorType(ir.FloatType(), WIDTH)
+        f64v = ir.VectorType(ir.DoubleType(), WIDTH)
+
+        def splat(x):
+            v = ir.Constant(f64v, ir.Undefined)
+            for k in range(WIDTH):
+                v = builder.insert_element(v, x, ir.Constant(ir.IntType(32), k))
+            return v
+
+        def plane(off, o, inv):
+            p = builder.gep(box_ptr, [builder.add(base, off)])
+            v = builder.load(builder.bitcast(p, f32v.as_pointer()), align=4)
+            return builder.fmul(builder.fsub(builder.fpext(v, f64v), o), inv)
+
+        t0, t1 = splat(tmin), splat(tmax)
+        for n, f, o, inv in ((nx, fx, ox, ix), (ny, fy, oy, iy), (nz, fz, oz, iz)):
+            vo, vi = splat(o), splat(inv)
+            a = plane(n, vo, vi)
+            b = plane(f, vo, vi)
+            t0 = builder.select(builder.fcmp_ordered(">", a, t0), a, t0)
+            t1 = builder.select(builder.fcmp_ordered("<", b, t1), b, t1)
+        hit = builder.fcmp_ordered("<=", t0, t1)
+        inf = ir.Constant(f64v, [math.inf] * WIDTH)
+        builder.store(builder.select(hit, t0, inf), builder.bitcast(tn_ptr, f64v.as_pointer()),
+                      align=8)
+        return builder.zext(builder.bitcast(hit, ir.IntType(WIDTH)), ir.IntType(64))
+
+    return sig, codegen
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _prim(form, sc, sr, tv, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """:func:`.primitives.prim_test` on the configuration's arrays, unpacked once per
+    ray: binding the whole configuration per test would increment and decrement
+    the reference count of each of its arrays, atomic operations that the
+    threads tracing in parallel contend for."""
+    ns = sr.shape[0]
+    if p < ns:
+        t = ray_sphere_form(form, ox, oy, oz, dx, dy, dz, sc[p, 0], sc[p, 1], sc[p, 2], sr[p],
+                            tmin, tmax)
+        return t, like(t, 0.0), like(t, 0.0)
+    return ray_triangle(ox, oy, oz, dx, dy, dz, tv[p - ns], tmin, tmax)
+
+
+@njit(inline="always", cache=True)
+def _planes(ix, iy, iz):
+    """Word offsets of the near and far planes of each axis in a node's boxes."""
+    nx = 3 * WIDTH if ix < 0.0 else 0
+    ny = (4 if iy < 0.0 else 1) * WIDTH
+    nz = (5 if iz < 0.0 else 2) * WIDTH
+    return nx, ny, nz, 3 * WIDTH - nx, 5 * WIDTH - ny, 7 * WIDTH - nz
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and t in
+    R's precision, prim = -1 on a miss (nodes counts the wide nodes and leaves opened)."""
+    na, nb, idx = R.node_a, R.node_b, R.prim_idx
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    box = R.acc_f.view(np.float32)
+    best_t, best_p = tmax, -1
+    bb1 = bb2 = like(tmax, 0.0)
+    nodes = tests = 0
+    fox, foy, foz = float(ox), float(oy), float(oz)
+    ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
+    ftmin = float(tmin)
+    t_root = box_enter(R.node_lo, R.node_hi, 0, fox, foy, foz, ix, iy, iz, ftmin, float(tmax))
+    if t_root == math.inf:
+        return best_t, best_p, bb1, bb2, 1, 0
+    nx, ny, nz, fx, fy, fz = _planes(ix, iy, iz)
+    stack_n = stack_i64()
+    stack_t = stack_f64()
+    tn = stack_f64()
+    stack_n[0], stack_t[0] = 0, t_root
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        ref = stack_n[sp]
+        if stack_t[sp] > float(best_t):          # entered beyond the nearest hit: skip
+            continue
+        nodes += 1
+        if ref < 0:
+            # Leaf: the brute-force test of each primitive, tie-inclusive tmax.
+            s = -ref - 1
+            for k in range(na[s], na[s] + nb[s]):
+                p = idx[k]
+                tests += 1
+                t, b1, b2 = _prim(form, sc, sr, tv, p, ox, oy, oz, dx, dy, dz, tmin, ulp_above(best_t))
+                if closer(t, p, best_t, best_p):
+                    best_t, best_p, bb1, bb2 = t, p, b1, b2
+            continue
+        # Interior: all W boxes in one loop, then push the entered ones nearest on top.
+        mask = _enter_all(box, ref * _PLANES, nx, ny, nz, fx, fy, fz, fox, foy, foz, ix, iy, iz,
+                          ftmin, float(best_t), tn)
+        sp0 = sp
+        for k in range(WIDTH):
+            if mask & (1 << k):
+                tc = tn[k]
+                s = ref * WIDTH + k
+                c = na[s] if nb[s] < 0 else -s - 1
+                j = sp
+                while j > sp0 and stack_t[j - 1] < tc:
+                    stack_t[j] = stack_t[j - 1]
+                    stack_n[j] = stack_n[j - 1]
+                    j -= 1
+                stack_t[j] = tc
+                stack_n[j] = c
+                sp += 1
+    return best_t, best_p, bb1, bb2, nodes, tests
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
+    na, nb, idx = R.node_a, R.node_b, R.prim_idx
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    box = R.acc_f.view(np.float32)
+    nodes = tests = 0
+    fox, foy, foz = float(ox), float(oy), float(oz)
+    ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
+    ftmin, ftmax = float(tmin), float(tmax)
+    if box_enter(R.node_lo, R.node_hi, 0, fox, foy, foz, ix, iy, iz, ftmin, ftmax) == math.inf:
+        return False, 1, 0
+    nx, ny, nz, fx, fy, fz = _planes(ix, iy, iz)
+    stack_n = stack_i64()
+    tn = stack_f64()
+    stack_n[0] = 0
+    sp = 1
+    zero = like(tmax, 0.0)
+    while sp > 0:
+        sp -= 1
+        ref = stack_n[sp]
+        nodes += 1
+        if ref < 0:
+            s = -ref - 1
+            for k in range(na[s], na[s] + nb[s]):
+                tests += 1
+                t, b1, b2 = _prim(form, sc, sr, tv, idx[k], ox, oy, oz, dx, dy, dz, tmin, tmax)
+                if t > zero:
+                    return True, nodes, tests
+            continue
+        mask = _enter_all(box, ref * _PLANES, nx, ny, nz, fx, fy, fz, fox, foy, foz, ix, iy, iz,
+                          ftmin, ftmax, tn)
+        for k in range(WIDTH):
+            if mask & (1 << k):
+                s = ref * WIDTH + k
+                stack_n[sp] = na[s] if nb[s] < 0 else -s - 1
+                sp += 1
+    return False, nodes, tests
+
+
+@njit(cache=True, error_model="numpy")
+def wide_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and t in
+    R's precision, prim = -1 on a miss (nodes: wide nodes and leaves opened)."""
+    return _closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(cache=True, error_model="numpy")
+def wide_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
+    return _any(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+# ------------------------------------------------------------------ batches ---
+# The traversal is inlined into the parallel loop: the configuration's arrays are
+# then bound once per thread, not once per ray (each binding is an atomic
+# reference-count update the threads contend for).
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def wide_closest_batch(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2):
+    """Closest hits of the N rays given as SoA float64 arrays (N,), in parallel, through
+    R's wide BVH (``R.accel`` = WIDE): each ray rounded to R's precision as
+    :func:`impl.rays.hit` rounds it; ``out_t`` (tmax on a miss), ``out_b1``,
+    ``out_b2`` float64 (N,), ``out_prim`` int64 (N,) (-1 on a miss)."""
+    g = R.sph_radius
+    for i in prange(ox.shape[0]):
+        t, p, b1, b2, _, _ = _closest(R, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
+                                      like(g, dx[i]), like(g, dy[i]), like(g, dz[i]),
+                                      like(g, tmin[i]), like(g, tmax[i]))
+        out_t[i], out_prim[i], out_b1[i], out_b2[i] = float(t), p, float(b1), float(b2)
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def wide_occluded_batch(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
+    """Any-hit of the N rays (SoA float64 arrays (N,)) within (tmin[i], tmax[i]) through
+    R's wide BVH, in parallel: ``out_hit`` bool (N,)."""
+    g = R.sph_radius
+    for i in prange(ox.shape[0]):
+        h, _, _ = _any(R, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
+                       like(g, dx[i]), like(g, dy[i]), like(g, dz[i]),
+                       like(g, tmin[i]), like(g, tmax[i]))
+        out_hit[i] = h
