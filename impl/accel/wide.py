@@ -263,23 +263,32 @@ def _planes(ix, iy, iz):
 def _closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and t in
     R's precision, prim = -1 on a miss (nodes counts the wide nodes and leaves opened)."""
+    ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
+    t_root = box_enter(R.node_lo, R.node_hi, 0, float(ox), float(oy), float(oz), ix, iy, iz,
+                       float(tmin), float(tmax))
+    zero = like(tmax, 0.0)
+    if t_root == math.inf:
+        return tmax, -1, zero, zero, 1, 0
+    return _walk(R, 0, t_root, ox, oy, oz, dx, dy, dz, tmin, tmax, -1, zero, zero)
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _walk(R, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_p, bb1, bb2):
+    """Closest-hit traversal of the subtree ``ref0`` (a node, or ``-s - 1`` for the leaf
+    of slot s) entered at ``t0``, from the hit so far ``(best_t, best_p, bb1, bb2)``:
+    ``(t, prim, b1, b2, nodes_visited, prim_tests)``."""
     na, nb, idx = R.node_a, R.node_b, R.prim_idx
     form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
     box = R.acc_f.view(np.float32)
-    best_t, best_p = tmax, -1
-    bb1 = bb2 = like(tmax, 0.0)
     nodes = tests = 0
     fox, foy, foz = float(ox), float(oy), float(oz)
     ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
     ftmin = float(tmin)
-    t_root = box_enter(R.node_lo, R.node_hi, 0, fox, foy, foz, ix, iy, iz, ftmin, float(tmax))
-    if t_root == math.inf:
-        return best_t, best_p, bb1, bb2, 1, 0
     nx, ny, nz, fx, fy, fz = _planes(ix, iy, iz)
     stack_n = stack_i64()
     stack_t = stack_f64()
     tn = stack_f64()
-    stack_n[0], stack_t[0] = 0, t_root
+    stack_n[0], stack_t[0] = ref0, t0
     sp = 1
     while sp > 0:
         sp -= 1
@@ -320,6 +329,16 @@ def _closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
 @njit(inline="always", cache=True, error_model="numpy")
 def _any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
+    ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
+    if box_enter(R.node_lo, R.node_hi, 0, float(ox), float(oy), float(oz), ix, iy, iz,
+                 float(tmin), float(tmax)) == math.inf:
+        return False, 1, 0
+    return _any_from(R, 0, ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _any_from(R, ref0, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Any-hit traversal of the subtree ``ref0`` (see :func:`_walk`)."""
     na, nb, idx = R.node_a, R.node_b, R.prim_idx
     form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
     box = R.acc_f.view(np.float32)
@@ -327,12 +346,10 @@ def _any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     fox, foy, foz = float(ox), float(oy), float(oz)
     ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
     ftmin, ftmax = float(tmin), float(tmax)
-    if box_enter(R.node_lo, R.node_hi, 0, fox, foy, foz, ix, iy, iz, ftmin, ftmax) == math.inf:
-        return False, 1, 0
     nx, ny, nz, fx, fy, fz = _planes(ix, iy, iz)
     stack_n = stack_i64()
     tn = stack_f64()
-    stack_n[0] = 0
+    stack_n[0] = ref0
     sp = 1
     zero = like(tmax, 0.0)
     while sp > 0:
@@ -399,3 +416,272 @@ def wide_occluded_batch(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
                        like(g, dx[i]), like(g, dy[i]), like(g, dz[i]),
                        like(g, tmin[i]), like(g, tmax[i]))
         out_hit[i] = h
+
+
+# ------------------------------------------------------------------ packets ---
+#: A packet's rays continue one by one (:func:`_walk`) from a node that this many
+#: or fewer of them enter (Embree's switch threshold of its hybrid traversal).
+SWITCH = 4
+
+
+@njit(cache=True, error_model="numpy")
+def _packet_setup(R, ox, oy, oz, dx, dy, dz, tmin, tmax, fo, inv, ft0, fbest, entered):
+    """Float64 origins, reciprocal directions and limits of the packet's rays; row 0 of
+    ``entered`` = which rays enter the root box.  Returns how many do."""
+    n_in = 0
+    for i in range(ox.shape[0]):
+        fo[0, i], fo[1, i], fo[2, i] = float(ox[i]), float(oy[i]), float(oz[i])
+        inv[0, i], inv[1, i], inv[2, i] = 1.0 / float(dx[i]), 1.0 / float(dy[i]), 1.0 / float(dz[i])
+        ft0[i], fbest[i] = float(tmin[i]), float(tmax[i])
+        e = box_enter(R.node_lo, R.node_hi, 0, fo[0, i], fo[1, i], fo[2, i],
+                      inv[0, i], inv[1, i], inv[2, i], ft0[i], fbest[i]) != math.inf
+        entered[0, i] = e
+        n_in += e
+    return n_in
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _packet_child(box, base, k, fo, inv, ft0, fbest, act, cm, te):
+    """Child ``k`` of the node at word ``base`` against the packet's active rays, one
+    vectorised loop over the rays: ``cm[i]`` = ray i is active and enters the box,
+    ``te[i]`` its entry t (the arithmetic of :func:`.primitives.box_enter`); returns
+    how many enter."""
+    lx, ly, lz = float(box[base + k]), float(box[base + WIDTH + k]), float(box[base + 2 * WIDTH + k])
+    hx = float(box[base + 3 * WIDTH + k])
+    hy = float(box[base + 4 * WIDTH + k])
+    hz = float(box[base + 5 * WIDTH + k])
+    cnt = 0
+    for i in range(act.shape[0]):
+        t0, t1 = ft0[i], fbest[i]
+        v = inv[0, i]
+        a = ((hx if v < 0.0 else lx) - fo[0, i]) * v
+        b = ((lx if v < 0.0 else hx) - fo[0, i]) * v
+        t0 = a if a > t0 else t0
+        t1 = b if b < t1 else t1
+        v = inv[1, i]
+        a = ((hy if v < 0.0 else ly) - fo[1, i]) * v
+        b = ((ly if v < 0.0 else hy) - fo[1, i]) * v
+        t0 = a if a > t0 else t0
+        t1 = b if b < t1 else t1
+        v = inv[2, i]
+        a = ((hz if v < 0.0 else lz) - fo[2, i]) * v
+        b = ((lz if v < 0.0 else hz) - fo[2, i]) * v
+        t0 = a if a > t0 else t0
+        t1 = b if b < t1 else t1
+        h = np.uint8(t0 <= t1) & act[i]
+        cm[i] = h
+        te[i] = t0
+        cnt += h
+    return cnt
+
+
+@njit(cache=True, error_model="numpy")
+def wide_packet_closest(R, ox, oy, oz, dx, dy, dz, tmin, best_t, best_p, bb1, bb2, counts):
+    """Closest hits of a packet of P rays traversed together (Wald et al. 2001) through
+    R's wide BVH.
+
+    Rays: SoA arrays (P,) in R's precision; ``best_t`` holds each ray's tmax on
+    entry.  ``best_t``, ``best_p`` (int64, -1 on entry), ``bb1``, ``bb2`` (R's
+    precision) are updated in place to exactly each ray's single-ray answer
+    (:func:`wide_closest`).  A node carries the mask of the packet's rays that
+    entered it; its children are tested against the active rays in one
+    vectorised loop each, and pushed nearest first (by the entry t of their
+    first active ray).  From a node entered by :data:`SWITCH` or fewer rays they
+    continue one by one.  ``counts[0] +=`` nodes opened (packet and single-ray),
+    ``counts[1] +=`` primitive tests."""
+    P = ox.shape[0]
+    na, nb, idx = R.node_a, R.node_b, R.prim_idx
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    box = R.acc_f.view(np.float32)
+    fo = np.empty((3, P))
+    inv = np.empty((3, P))
+    ft0 = np.empty(P)
+    fbest = np.empty(P)
+    entered = np.empty((STACK, P), dtype=np.uint8)
+    stack_n = np.empty(STACK, dtype=np.int64)
+    stack_t = np.empty(STACK)
+    act = np.empty(P, dtype=np.uint8)
+    cm = np.empty(P, dtype=np.uint8)
+    te = np.empty(P)
+    if _packet_setup(R, ox, oy, oz, dx, dy, dz, tmin, best_t, fo, inv, ft0, fbest, entered) == 0:
+        return
+    stack_n[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        ref = stack_n[sp]
+        n_act = 0
+        for i in range(P):                  # a copy: the children's masks go to this slot
+            act[i] = entered[sp, i]
+            n_act += act[i]
+        if n_act == 0:
+            continue
+        if n_act <= SWITCH:
+            for i in range(P):
+                if act[i]:
+                    t, p, b1, b2, nd, ts = _walk(R, ref, -math.inf, ox[i], oy[i], oz[i], dx[i], dy[i],
+                                                 dz[i], tmin[i], best_t[i], best_p[i], bb1[i], bb2[i])
+                    best_t[i], best_p[i], bb1[i], bb2[i] = t, p, b1, b2
+                    fbest[i] = float(t)
+                    counts[0] += nd
+                    counts[1] += ts
+            continue
+        counts[0] += 1
+        if ref < 0:
+            s = -ref - 1
+            for k in range(na[s], na[s] + nb[s]):
+                p = idx[k]
+                for i in range(P):
+                    if act[i]:
+                        counts[1] += 1
+                        t, b1, b2 = _prim(form, sc, sr, tv, p, ox[i], oy[i], oz[i], dx[i], dy[i],
+                                          dz[i], tmin[i], ulp_above(best_t[i]))
+                        if closer(t, p, best_t[i], best_p[i]):
+                            best_t[i], best_p[i], bb1[i], bb2[i] = t, p, b1, b2
+                            fbest[i] = float(t)
+            continue
+        base = ref * _PLANES
+        sp0 = sp
+        for k in range(WIDTH):
+            s = ref * WIDTH + k
+            if nb[s] == 0:
+                continue
+            if _packet_child(box, base, k, fo, inv, ft0, fbest, act, cm, te) == 0:
+                continue
+            first = 0
+            while not cm[first]:
+                first += 1
+            tc = te[first]
+            # Insert at slot j of [sp0, sp]: farther entries deeper, the nearest on top.
+            j = sp
+            while j > sp0 and stack_t[j - 1] < tc:
+                stack_t[j] = stack_t[j - 1]
+                stack_n[j] = stack_n[j - 1]
+                entered[j, :] = entered[j - 1, :]
+                j -= 1
+            stack_t[j] = tc
+            stack_n[j] = na[s] if nb[s] < 0 else -s - 1
+            entered[j, :] = cm
+            sp += 1
+
+
+@njit(cache=True, error_model="numpy")
+def wide_packet_occluded(R, ox, oy, oz, dx, dy, dz, tmin, tmax, hit, counts):
+    """Any-hit of a packet of P rays (SoA (P,) in R's precision) within (tmin[i],
+    tmax[i]), traversed together: ``hit`` (P,) bool set in place, exactly each ray's
+    :func:`wide_any` answer.  A ray leaves the packet at its first hit; from a
+    node entered by :data:`SWITCH` or fewer live rays they continue one by one."""
+    P = ox.shape[0]
+    na, nb, idx = R.node_a, R.node_b, R.prim_idx
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    box = R.acc_f.view(np.float32)
+    fo = np.empty((3, P))
+    inv = np.empty((3, P))
+    ft0 = np.empty(P)
+    fend = np.empty(P)
+    entered = np.empty((STACK, P), dtype=np.uint8)
+    stack_n = np.empty(STACK, dtype=np.int64)
+    live = np.ones(P, dtype=np.uint8)
+    act = np.empty(P, dtype=np.uint8)
+    cm = np.empty(P, dtype=np.uint8)
+    te = np.empty(P)
+    for i in range(P):
+        hit[i] = False
+    if _packet_setup(R, ox, oy, oz, dx, dy, dz, tmin, tmax, fo, inv, ft0, fend, entered) == 0:
+        return
+    stack_n[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        ref = stack_n[sp]
+        n_act = 0
+        for i in range(P):                  # a copy: the children's masks go to this slot
+            act[i] = entered[sp, i] & live[i]
+            n_act += act[i]
+        if n_act == 0:
+            continue
+        if n_act <= SWITCH:
+            for i in range(P):
+                if act[i]:
+                    h, nd, ts = _any_from(R, ref, ox[i], oy[i], oz[i], dx[i], dy[i], dz[i],
+                                          tmin[i], tmax[i])
+                    counts[0] += nd
+                    counts[1] += ts
+                    if h:
+                        hit[i] = True
+                        live[i] = 0
+            continue
+        counts[0] += 1
+        zero = like(tmax[0], 0.0)
+        if ref < 0:
+            s = -ref - 1
+            for k in range(na[s], na[s] + nb[s]):
+                for i in range(P):
+                    if act[i] and live[i]:
+                        counts[1] += 1
+                        t, b1, b2 = _prim(form, sc, sr, tv, idx[k], ox[i], oy[i], oz[i], dx[i],
+                                          dy[i], dz[i], tmin[i], tmax[i])
+                        if t > zero:
+                            hit[i] = True
+                            live[i] = 0
+            continue
+        base = ref * _PLANES
+        for k in range(WIDTH):
+            s = ref * WIDTH + k
+            if nb[s] == 0:
+                continue
+            if _packet_child(box, base, k, fo, inv, ft0, fend, act, cm, te) > 0:
+                stack_n[sp] = na[s] if nb[s] < 0 else -s - 1
+                entered[sp, :] = cm
+                sp += 1
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def wide_closest_packets(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2,
+                         packet):
+    """:func:`wide_closest_batch` for coherent rays: consecutive groups of ``packet``
+    rays (e.g. the eye rays of a pixel tile) traced as packets
+    (:func:`wide_packet_closest`), the groups in parallel; same outputs, bit for bit."""
+    g = R.sph_radius
+    n = ox.shape[0]
+    for q in prange((n + packet - 1) // packet):
+        i0 = q * packet
+        P = min(packet, n - i0)
+        o = np.empty((7, P), dtype=g.dtype)
+        best_t = np.empty(P, dtype=g.dtype)
+        best_p = np.full(P, -1, dtype=np.int64)
+        b1 = np.zeros(P, dtype=g.dtype)
+        b2 = np.zeros(P, dtype=g.dtype)
+        counts = np.zeros(2, dtype=np.int64)
+        for i in range(P):
+            o[0, i], o[1, i], o[2, i] = like(g, ox[i0 + i]), like(g, oy[i0 + i]), like(g, oz[i0 + i])
+            o[3, i], o[4, i], o[5, i] = like(g, dx[i0 + i]), like(g, dy[i0 + i]), like(g, dz[i0 + i])
+            o[6, i] = like(g, tmin[i0 + i])
+            best_t[i] = like(g, tmax[i0 + i])
+        wide_packet_closest(R, o[0], o[1], o[2], o[3], o[4], o[5], o[6], best_t, best_p, b1, b2,
+                            counts)
+        for i in range(P):
+            out_t[i0 + i], out_prim[i0 + i] = float(best_t[i]), best_p[i]
+            out_b1[i0 + i], out_b2[i0 + i] = float(b1[i]), float(b2[i])
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def wide_occluded_packets(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit, packet):
+    """:func:`wide_occluded_batch` for coherent rays (e.g. a tile's shadow rays to one
+    point light): groups of ``packet`` consecutive rays traced as packets
+    (:func:`wide_packet_occluded`), in parallel; same answers."""
+    g = R.sph_radius
+    n = ox.shape[0]
+    for q in prange((n + packet - 1) // packet):
+        i0 = q * packet
+        P = min(packet, n - i0)
+        o = np.empty((8, P), dtype=g.dtype)
+        h = np.empty(P, dtype=np.bool_)
+        counts = np.zeros(2, dtype=np.int64)
+        for i in range(P):
+            o[0, i], o[1, i], o[2, i] = like(g, ox[i0 + i]), like(g, oy[i0 + i]), like(g, oz[i0 + i])
+            o[3, i], o[4, i], o[5, i] = like(g, dx[i0 + i]), like(g, dy[i0 + i]), like(g, dz[i0 + i])
+            o[6, i], o[7, i] = like(g, tmin[i0 + i]), like(g, tmax[i0 + i])
+        wide_packet_occluded(R, o[0], o[1], o[2], o[3], o[4], o[5], o[6], o[7], h, counts)
+        for i in range(P):
+            out_hit[i0 + i] = h[i]
