@@ -18,7 +18,7 @@ epsilon    float                       1e-4     ε of ``epsilon`` and ``normal``
                                                 (scene units)
 accel      auto|none|bv|bv-sphere|     auto     acceleration structure of every
            slabs|bvh-median|bvh-sah|            query (:mod:`impl.accel`, thesis
-           bvh-gs|grid|octree                   2.6); none = brute force
+           bvh-gs|grid|octree|bvh-wide          2.6); none = brute force
 slab_normals  3|7|13                   7        plane normals of ``accel=slabs``
 packets    bool                        false    trace the eye rays of 8×8 pixel
                                                 tiles as coherent packets through
@@ -136,16 +136,14 @@ _OFFSET_CODE = {"epsilon": STRATEGIES.index("tmin"), "normal": STRATEGIES.index(
                 "robust": STRATEGIES.index("robust")}
 _SCALED = STRATEGIES.index("scaled")
 
-#: The structure of ``accel=auto``: the fastest measured (benchmarks/bench_accel.py,
-#: the scaling study), with the fastest build among the hierarchies.
-AUTO_ACCEL = "bvh-sah"
+#: The structure of ``accel=auto``: the fastest per ray measured
+#: (benchmarks/bench_accel.py, the scaling study).
+AUTO_ACCEL = "bvh-wide"
 #: ``accel=auto`` traces scenes with fewer primitives than this by brute force:
-#: a hierarchy's traversal costs more than it saves there.  Measured (median of
-#: 3 renders, each pair in one run): whitted on mirror_sphere (7 primitives)
-#: 1.3 s brute force vs 3.2–3.7 s with the SAH BVH; raycast on cornell_box (36)
-#: 2.4 s vs 3.9 s; raycast on meshes (330) 0.59–0.76 s vs 0.30 s.  The
-#: crossover lies between 36 and 330; 100 is near its log-midpoint.
-AUTO_MIN_PRIMS = 100
+#: below it a hierarchy's traversal costs more than it saves (measured crossover of
+#: camera-ray closest hits, brute force against the wide BVH, on the scaling study's
+#: sphere fields and meshes).
+AUTO_MIN_PRIMS = 40
 
 #: The parameter-table rows of the ray tracers that take a ray configuration.
 PARAMS = (
@@ -157,17 +155,17 @@ PARAMS = (
           "origin + ε·n, or Wächter-Binder ulp offset", choices=OFFSETS),
     Param("epsilon", float, 1e-4, "ε of offset=epsilon (t_min) and offset=normal (scene units)"),
     Param("accel", str, "auto", "acceleration structure of every ray query (thesis 2.6; "
-          "impl.accel): none = brute force; auto = bvh-sah with the stable sphere form from "
-          "100 primitives on, none below and with the algebraic/geometric forms", choices=("auto",) + _accel.ACCELS),
+          "impl.accel): none = brute force; auto = bvh-wide with the stable sphere form from "
+          "40 primitives on, none below and with the algebraic/geometric forms", choices=("auto",) + _accel.ACCELS),
     Param("slab_normals", int, 7, "plane normals of accel=slabs (3 axes, 7 = + cube diagonals, "
           "13 = + face diagonals)", choices=_accel.SLAB_COUNTS),
     Param("packets", bool, False, "trace the eye rays of 8x8 pixel tiles as coherent packets "
-          "through the tree (thesis 2.6; impl.accel.packets); needs a tree accel (auto = bvh-sah); "
+          "through the tree (thesis 2.6; impl.accel.packets); needs a tree accel (auto = bvh-wide); "
           "secondary and shadow rays stay single-ray; same image as false"),
 )
 
-#: The structures packets can traverse (``impl.accel.KIND`` TREE).
-PACKET_ACCELS = tuple(name for name in _accel.ACCELS if _accel.KIND[name] == _accel.TREE)
+#: The structures packets can traverse (``impl.accel.KIND`` TREE or WIDE).
+PACKET_ACCELS = tuple(name for name in _accel.ACCELS if _accel.KIND[name] in (_accel.TREE, _accel.WIDE))
 
 
 class RayConfig(NamedTuple):

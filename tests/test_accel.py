@@ -120,7 +120,7 @@ def test_the_structures_keep_the_configured_sphere_form(form):
     c, r, v, shape = random_scene(rng, 200, 0)
     o, d = random_rays(rng, 2000)
     t0, p0, _, _ = accel.trace_batch(config(c, r, v, shape, "none", np.float32, form), o, d)
-    for name in ("bvh-sah", "grid", "slabs"):
+    for name in ("bvh-sah", "grid", "slabs", "bvh-wide"):
         t, p, _, _ = accel.trace_batch(config(c, r, v, shape, name, np.float32, form), o, d)
         np.testing.assert_array_equal(p, p0, err_msg=name)
         np.testing.assert_array_equal(t, t0, err_msg=name)
@@ -134,7 +134,7 @@ def test_hierarchies_cost_fewer_tests_than_brute_force():
     v = np.empty((0, 3, 3))
     o, d = random_rays(rng, 2000)
     _, p0, _, _ = accel.trace_batch(config(c, r, v, None, "none", np.float64), o, d)
-    for name in ("bvh-median", "bvh-sah", "bvh-gs", "grid", "octree"):
+    for name in ("bvh-median", "bvh-sah", "bvh-gs", "grid", "octree", "bvh-wide"):
         _, p, _, counts = accel.trace_batch(config(c, r, v, None, name, np.float64), o, d)
         np.testing.assert_array_equal(p, p0)
         assert counts[:, 1].mean() < 30, f"{name}: {counts[:, 1].mean():.1f} primitive tests per ray"
@@ -172,6 +172,89 @@ def test_trees_are_well_formed(builder):
         assert (seen >= 1).all()
     else:
         np.testing.assert_array_equal(seen, 1)
+
+
+def test_wide_bvh_is_the_sah_tree_collapsed_with_outward_float32_boxes():
+    """Each primitive in exactly one leaf; every slot's float32 box contains the float64
+    bounds of every primitive below it; ≤ WIDTH children per node, each node's slots
+    used before empty ones are filled with empty boxes; fewer nodes than the binary tree."""
+    from impl.accel.wide import WIDTH, collapse
+
+    rng = np.random.default_rng(SEED + 17)
+    c, r, v, _ = random_scene(rng, 400, 400)
+    lo, hi = prim_bounds(c, r, v)
+    nlo, nhi, na, nb, idx = build_bvh(lo, hi, "sah")
+    box, sa, sb = collapse(nlo, nhi, na, nb)
+    assert box.dtype == np.float32 and box.shape[1:] == (6, WIDTH)
+    M = len(box)
+    assert M < (nb < 0).sum(), "collapsing must remove interior nodes"
+    seen = np.zeros(len(lo), dtype=int)
+
+    def below(slot):
+        if sb[slot] >= 0:
+            return idx[sa[slot]:sa[slot] + sb[slot]]
+        n = sa[slot]
+        assert n > slot // WIDTH, "children must follow their parent"
+        return np.concatenate([below(n * WIDTH + k) for k in range(WIDTH)])
+
+    for n in range(M):
+        for k in range(WIDTH):
+            s = n * WIDTH + k
+            if sb[s] == 0:
+                assert np.isinf(box[n, :3, k]).all() and (box[n, :3, k] > 0).all()
+                continue
+            if sb[s] > 0:
+                seen[idx[sa[s]:sa[s] + sb[s]]] += 1
+            prims = below(s)
+            assert (box[n, :3, k].astype(np.float64) <= lo[prims]).all()
+            assert (box[n, 3:, k].astype(np.float64) >= hi[prims]).all()
+    np.testing.assert_array_equal(seen, 1)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+def test_wide_batches_and_packets_return_brute_force_answers(dtype):
+    """The wavefront entry points over SoA rays — single rays, and packets of 8 and 64
+    consecutive rays (coherent camera rays and incoherent random rays, so the packets
+    both stay together and fall back to single rays) — give brute force's closest hit
+    (id, t, barycentrics) and any-hit answer."""
+    from impl.accel.wide import (wide_closest_batch, wide_closest_packets, wide_occluded_batch,
+                                 wide_occluded_packets)
+
+    rng = np.random.default_rng(SEED + 19)
+    c, r, v, shape = random_scene(rng, 300, 300)
+    o1, d1 = random_rays(rng, 1500)
+    gy, gx = np.mgrid[-1:1:40j, -1:1:40j]                      # a pinhole camera's rays
+    d2 = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, -2.0)], 1)
+    d2 /= np.linalg.norm(d2, axis=1)[:, None]
+    o = np.concatenate([np.broadcast_to([0.0, 0.0, 3.0], d2.shape), o1])
+    d = np.concatenate([d2, d1])
+    n = len(o)
+    R0 = config(c, r, v, shape, "none", dtype)
+    R = config(c, r, v, shape, "bvh-wide", dtype)
+    t0, p0, b0, _ = accel.trace_batch(R0, o, d)
+    assert (p0 >= 0).mean() > 0.3
+    cols = [np.ascontiguousarray(x) for x in (*o.T, *d.T)]
+    tmin, tmax = np.zeros(n), np.full(n, np.inf)
+    runs = {"batch": lambda *out: wide_closest_batch(R, *cols, tmin, tmax, *out)}
+    for size in (8, 64):
+        runs[f"packets{size}"] = lambda *out, size=size: wide_closest_packets(R, *cols, tmin, tmax, *out, size)
+    for label, run in runs.items():
+        t, p, b1, b2 = np.empty(n), np.empty(n, dtype=np.int64), np.empty(n), np.empty(n)
+        run(t, p, b1, b2)
+        np.testing.assert_array_equal(p, p0, err_msg=label)
+        np.testing.assert_array_equal(t, t0, err_msg=label)
+        np.testing.assert_array_equal(np.stack([b1, b2], 1), b0, err_msg=label)
+    s_max = np.where(p0 >= 0, t0, 3.0) * rng.choice([0.5, 0.999, 1.001, 2.0], n)
+    s_min = rng.choice([0.0, 0.05], n)
+    want, _ = accel.occluded_batch(R0, o, d, s_min, s_max)
+    assert 0.1 < want.mean() < 0.9
+    got = np.empty(n, dtype=np.bool_)
+    wide_occluded_batch(R, *cols, s_min, s_max, got)
+    np.testing.assert_array_equal(got, want)
+    for size in (8, 64):
+        got[:] = False
+        wide_occluded_packets(R, *cols, s_min, s_max, got, size)
+        np.testing.assert_array_equal(got, want, err_msg=f"packets of {size}")
 
 
 def test_grid_lists_every_primitive_in_every_voxel_its_box_overlaps():
@@ -245,7 +328,7 @@ def test_whitted_images_do_not_depend_on_the_structure(scene):
     sc = small(SUITES / scene, 40, 32)
     ref = algo.render(sc, algo.parse_params({"accel": "none", "light_samples": 4})).image
     assert ref.max() > 0
-    for name in ("bvh-sah", "grid", "octree", "slabs"):
+    for name in ("bvh-sah", "grid", "octree", "slabs", "bvh-wide"):
         img = algo.render(sc, algo.parse_params({"accel": name, "light_samples": 4})).image
         np.testing.assert_array_equal(img, ref, err_msg=f"{scene}: accel={name}")
 
@@ -255,7 +338,7 @@ def test_raycast_float32_image_does_not_depend_on_the_structure():
     sc = small(SUITES / "cornell" / "cornell_box.xml", 32, 32)
     p = {"precision": "float32", "light_samples": 4}
     ref = algo.render(sc, algo.parse_params({**p, "accel": "none"})).image
-    for name in ("bvh-median", "bvh-gs", "bv", "bv-sphere"):
+    for name in ("bvh-median", "bvh-gs", "bv", "bv-sphere", "bvh-wide"):
         img = algo.render(sc, algo.parse_params({**p, "accel": name})).image
         np.testing.assert_array_equal(img, ref, err_msg=f"accel={name}")
 
@@ -271,7 +354,7 @@ def test_packets_return_the_single_ray_hits_of_the_same_tree():
     scene = sphere_field(400, width=52, height=36)          # tiles cut by the image border
     A = flatten(scene)
     algo = registry.get("whitted")
-    for name in ("bvh-sah", "octree"):
+    for name in ("bvh-sah", "octree", "bvh-wide"):
         R = ray_config(A, algo.parse_params({"accel": name}), algorithm="whitted")
         d1, p1, c1 = primary_hits(R, scene.camera, packets=False)
         d2, p2, c2 = primary_hits(R, scene.camera, packets=True)
@@ -288,7 +371,7 @@ def test_packets_return_the_single_ray_hits_of_the_same_tree():
 
 
 def test_auto_uses_the_bvh_with_the_stable_form_only():
-    """accel=auto (the default): BVH-SAH for the stable sphere form from AUTO_MIN_PRIMS
+    """accel=auto (the default): the wide BVH for the stable sphere form from AUTO_MIN_PRIMS
     primitives on; brute force below that, and for the algebraic and geometric forms,
     whose far-field false hits a bounding volume would cull."""
     from impl.rays import AUTO_MIN_PRIMS
@@ -302,7 +385,7 @@ def test_auto_uses_the_bvh_with_the_stable_form_only():
     assert algo.parse_params({})["accel"] == "auto"
     kinds = {form: ray_config(A, algo.parse_params({"intersect": form}), algorithm="whitted").accel
              for form in ("stable", "algebraic", "geometric")}
-    assert kinds == {"stable": accel.TREE, "algebraic": accel.NONE, "geometric": accel.NONE}
+    assert kinds == {"stable": accel.WIDE, "algebraic": accel.NONE, "geometric": accel.NONE}
     R = ray_config(A, algo.parse_params({"intersect": "geometric", "accel": "grid"}), algorithm="whitted")
     assert R.accel == accel.GRID
 
@@ -329,7 +412,7 @@ def test_scaling_fit_recovers_known_exponents_and_logarithmic_work():
 
 
 def test_scaling_fit_separates_work_from_cost_per_node():
-    """The issue-7 columns of fit_exponents on synthetic rows: work b·ln(N/N0) has a
+    """The columns of fit_exponents on synthetic rows: work b·ln(N/N0) has a
     log–log slope above log N's (and N0 is recovered); a query time of exactly 30 ns
     per node gives a per-node slope of 30 and a per-node-time exponent of 0; a cost
     per node growing as N^0.1 gives 0.1."""

@@ -52,14 +52,16 @@ PRECISION_CASES = [(*case, "float64") for case in CASES] + [
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("accel", ["bvh-sah", "bvh-wide"])
 @pytest.mark.parametrize("tracer,scene,extra,precision", PRECISION_CASES,
                          ids=[f"{t}-{Path(s).stem}-{pr}" for t, s, _, pr in PRECISION_CASES])
-def test_packets_render_the_single_ray_image_bit_for_bit(tracer, scene, extra, precision):
-    """packets=true vs packets=false through the same BVH: identical image, variance
-    and counters (the packet counters aside), and the packets did the eye rays' work."""
+def test_packets_render_the_single_ray_image_bit_for_bit(tracer, scene, extra, precision, accel):
+    """packets=true vs packets=false through the same BVH (binary or wide): identical
+    image, variance and counters (the packet counters aside), and the packets did the
+    eye rays' work."""
     algo = registry.get(tracer)
     sc = small(scene)
-    p = {**extra, "precision": precision, "accel": "bvh-sah"}
+    p = {**extra, "precision": precision, "accel": accel}
     single = algo.render(sc, algo.parse_params(p), seed=7)
     packed = algo.render(sc, algo.parse_params({**p, "packets": True}), seed=7)
     assert single.image.max() > 0.0, f"{tracer} on {scene}: black image, the comparison would be empty"
@@ -79,10 +81,10 @@ def test_packets_render_the_single_ray_image_bit_for_bit(tracer, scene, extra, p
         np.testing.assert_array_equal(packed.aovs[name], v, err_msg=f"AOV {name}")
 
 
-def test_auto_means_the_sah_bvh_with_packets_and_counts_match_primary_hits():
-    """accel=auto with packets traces through bvh-sah whatever the scene size (the
+def test_auto_means_the_wide_bvh_with_packets_and_counts_match_primary_hits():
+    """accel=auto with packets traces through bvh-wide whatever the scene size (the
     7-primitive scene below is brute force without packets), giving the image of
-    packets=false with accel=bvh-sah; at spp = 1 the tracer's packets are exactly
+    packets=false with accel=bvh-wide; at spp = 1 the tracer's packets are exactly
     :func:`primary_hits`' pixel-centre packets, so their counters agree."""
     from impl.accel.packets import primary_hits
     from impl.rays import ray_config
@@ -93,9 +95,9 @@ def test_auto_means_the_sah_bvh_with_packets_and_counts_match_primary_hits():
     A = flatten(sc)
     assert ray_config(A, algo.parse_params({}), algorithm="raycast").accel == 0   # brute force
     auto = algo.render(sc, algo.parse_params({"packets": True}), seed=1)
-    sah = algo.render(sc, algo.parse_params({"accel": "bvh-sah"}), seed=1)
-    np.testing.assert_array_equal(auto.image, sah.image)
-    R = ray_config(A, algo.parse_params({"accel": "bvh-sah"}), algorithm="raycast")
+    wide = algo.render(sc, algo.parse_params({"accel": "bvh-wide"}), seed=1)
+    np.testing.assert_array_equal(auto.image, wide.image)
+    R = ray_config(A, algo.parse_params({"accel": "bvh-wide"}), algorithm="raycast")
     depth, prim, counts = primary_hits(R, sc.camera, packets=True)
     assert (prim >= 0).any()
     assert auto.counters["packet_nodes"] == counts[0]

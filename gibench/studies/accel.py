@@ -451,7 +451,7 @@ def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[
     fit_min = cfg.pop("fit_n_min", 100)
     out = run_registered(STUDIES, cfg, only=only)
     if "scaling" in out:
-        # One fit per least size: e.g. the whole range and the large-N part.
+        # One fit per least size: e.g. the whole range (N >= 10) and the large-N part.
         # A family whose sizes all lie above both minima gets one row.
         mins = fit_min if isinstance(fit_min, list) else [fit_min]
         fits = {}

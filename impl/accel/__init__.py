@@ -15,6 +15,8 @@ slabs          per-object Kay–Kajiya slabs, k normals      :mod:`.slabs`
 bvh-median     BVH, object-median split                    :mod:`.bvh`
 bvh-sah        BVH, binned surface-area heuristic          :mod:`.bvh`
 bvh-gs         BVH, Goldsmith–Salmon incremental insertion :mod:`.goldsmith_salmon`
+bvh-wide       the SAH BVH collapsed to 4-wide nodes,      :mod:`.wide`
+               float32 SoA child boxes
 grid           uniform grid, 3D-DDA, mailboxing            :mod:`.grid`
 octree         octree (non-uniform subdivision)            :mod:`.octree`
 =============  ==========================================  ======================
@@ -45,15 +47,17 @@ from .primitives import prim_bounds
 from .slabs import SLAB_COUNTS, build_slabs, slabs_any, slabs_closest
 from .tree import STACK, tree_any, tree_closest, tree_depth
 from core.errors import ParamError
+from .wide import WIDTH, collapse, wide_any, wide_closest, wide_depth
 
 __all__ = ["ACCELS", "KIND", "Accel", "build", "empty", "closest", "any_hit", "trace_batch",
            "occluded_batch", "SLAB_COUNTS", "memory_bytes"]
 
-ACCELS = ("none", "bv", "bv-sphere", "slabs", "bvh-median", "bvh-sah", "bvh-gs", "grid", "octree")
+ACCELS = ("none", "bv", "bv-sphere", "slabs", "bvh-median", "bvh-sah", "bvh-gs", "grid", "octree",
+          "bvh-wide")
 #: Traversal codes.
-NONE, BV, SLABS, TREE, GRID = 0, 1, 2, 3, 4
+NONE, BV, SLABS, TREE, GRID, WIDE = 0, 1, 2, 3, 4, 5
 KIND = {"none": NONE, "bv": BV, "bv-sphere": BV, "slabs": SLABS, "bvh-median": TREE,
-        "bvh-sah": TREE, "bvh-gs": TREE, "grid": GRID, "octree": TREE}
+        "bvh-sah": TREE, "bvh-gs": TREE, "grid": GRID, "octree": TREE, "bvh-wide": WIDE}
 
 
 class Accel(NamedTuple):
@@ -108,6 +112,15 @@ def build(name: str, sph_center, sph_radius, tri_v, prim_shape=None, *, slab_nor
         kw = {} if grid_density is None else {"density": grid_density}
         glo, ghi, cs, res, offsets, refs = build_grid(lo, hi, **kw)
         return Accel(GRID, glo, ghi, offsets, zi, refs, cs, res)
+    if name == "bvh-wide":
+        nlo, nhi, na, nb, idx = build_bvh(lo, hi, "sah")
+        box32, slot_a, slot_b = collapse(nlo, nhi, na, nb, WIDTH)
+        need = wide_depth(slot_a, slot_b, WIDTH)
+        if need > STACK:
+            raise RuntimeError(f"accel {name}: the tree needs a traversal stack of {need} "
+                               f"(> {STACK}); the scene is too degenerate for it")
+        return Accel(WIDE, nlo[:1].copy(), nhi[:1].copy(), slot_a, slot_b, idx,
+                     box32.reshape(-1).view(np.float64), np.array([WIDTH], dtype=np.int64))
     if name == "bvh-median":
         arrays = build_bvh(lo, hi, "median")
     elif name == "bvh-sah":
@@ -136,6 +149,8 @@ def closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit through R's structure: ``(t, prim, b1, b2, nodes, tests)`` in R's
     precision (arguments too); ``R.accel`` must not be ``NONE``."""
     k = R.accel
+    if k == WIDE:
+        return wide_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if k == TREE:
         return tree_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if k == GRID:
@@ -149,6 +164,8 @@ def closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
 def any_hit(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any hit in (tmin, tmax) through R's structure: ``(hit, nodes, tests)``."""
     k = R.accel
+    if k == WIDE:
+        return wide_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if k == TREE:
         return tree_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
     if k == GRID:

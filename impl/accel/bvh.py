@@ -23,8 +23,8 @@ probability argument leads to.  Two top-down builders:
 Both emit the flat layout of :mod:`impl.accel.tree` (binary: ``node_b = -2``),
 traversed nearest child first by :func:`impl.accel.tree.tree_closest`.
 
-Leaves out: spatial splits (SBVH), refitting for animation, compressed or
-wide (BVH4/8) nodes.  The incremental Goldsmith–Salmon build is in
+Leaves out: spatial splits (SBVH), refitting for animation, compressed
+nodes.  The collapse to wide nodes is :mod:`impl.accel.wide`.  The incremental Goldsmith–Salmon build is in
 :mod:`impl.accel.goldsmith_salmon`.
 
 References: T. L. Kay, J. T. Kajiya, "Ray tracing complex scenes", SIGGRAPH

@@ -12,8 +12,12 @@ answer (same primitive tests, same tie rule as :mod:`.tree`); the gain is in
 memory traffic and loop overhead, the loss in boxes tested for rays that do
 not need them (incoherent packets).
 
-Here in scalar numba (no SIMD lanes, which is where Wald et al.'s packets get
-most of their 4×): the packet's rays are looped over at each node.
+Through a binary tree (:func:`packet_closest`) the packet's rays are looped
+over one by one at each node.  Through the wide BVH (``accel=bvh-wide``,
+:func:`.wide.wide_packet_closest`) the rays are structure-of-arrays and each
+child box is tested against all active rays in one vectorised loop, with the
+packet's active mask; from a node entered by few rays they continue one by
+one (Embree's switch to single rays).
 
 Scope: primary (eye) rays.  :func:`primary_hits` gives the depth / primitive
 buffers of a camera, by packets or one ray at a time through the same tree.
@@ -45,6 +49,8 @@ from ..sampling import pixel_sample
 from .primitives import box_enter, closer, prim_test, ulp_above
 from .tree import STACK, tree_closest
 from core.errors import ParamError
+from .wide import wide_closest, wide_packet_closest
+from . import WIDE as _WIDE
 
 __all__ = ["packet_closest", "packet_hits", "packet_buffers", "tile_eye_packet", "primary_hits", "tile_rect",
            "tile_count", "TILE", "NOT_TRACED"]
@@ -142,6 +148,9 @@ def packet_hits(R, rays, n, hit_t, hit_p, hit_b, counts):
     packet, ``counts[1] +=`` primitive tests.
     """
     g = R.sph_radius
+    if R.accel == _WIDE:
+        _wide_packet_hits(R, rays, n, hit_t, hit_p, hit_b, counts)
+        return
     o = np.empty((n, 3), dtype=g.dtype)
     d = np.empty((n, 3), dtype=g.dtype)
     inv = np.empty((n, 3))
@@ -163,6 +172,27 @@ def packet_hits(R, rays, n, hit_t, hit_p, hit_b, counts):
         hit_p[i] = best_p[i]
         hit_b[i, 0] = bb[i, 0]
         hit_b[i, 1] = bb[i, 1]
+
+
+@njit(cache=True, error_model="numpy")
+def _wide_packet_hits(R, rays, n, hit_t, hit_p, hit_b, counts):
+    """:func:`packet_hits` through a wide BVH (:func:`.wide.wide_packet_closest`, rays SoA)."""
+    g = R.sph_radius
+    r = np.empty((7, n), dtype=g.dtype)
+    best_t = np.empty(n, dtype=g.dtype)
+    best_p = np.full(n, -1, dtype=np.int64)
+    b1 = np.zeros(n, dtype=g.dtype)
+    b2 = np.zeros(n, dtype=g.dtype)
+    for i in range(n):
+        for a in range(7):
+            r[a, i] = like(g, float(like(g, rays[i, a])))
+        best_t[i] = like(g, rays[i, 7])
+    wide_packet_closest(R, r[0], r[1], r[2], r[3], r[4], r[5], r[6], best_t, best_p, b1, b2, counts)
+    for i in range(n):
+        hit_t[i] = float(best_t[i])
+        hit_p[i] = best_p[i]
+        hit_b[i, 0] = float(b1[i])
+        hit_b[i, 1] = float(b2[i])
 
 
 @njit(inline="always", cache=True)
@@ -223,9 +253,13 @@ def _tile(R, cam, tile, W, H, packets, depth, prim, counts):
     else:
         g = R.sph_radius
         for i in range(P):
-            t, p, b1, b2, nodes, tests = tree_closest(
-                R, like(g, rays[i, 0]), like(g, rays[i, 1]), like(g, rays[i, 2]), like(g, rays[i, 3]),
-                like(g, rays[i, 4]), like(g, rays[i, 5]), like(g, rays[i, 6]), like(g, rays[i, 7]))
+            ox, oy, oz = like(g, rays[i, 0]), like(g, rays[i, 1]), like(g, rays[i, 2])
+            dx, dy, dz = like(g, rays[i, 3]), like(g, rays[i, 4]), like(g, rays[i, 5])
+            t0, t1 = like(g, rays[i, 6]), like(g, rays[i, 7])
+            if R.accel == _WIDE:
+                t, p, b1, b2, nodes, tests = wide_closest(R, ox, oy, oz, dx, dy, dz, t0, t1)
+            else:
+                t, p, b1, b2, nodes, tests = tree_closest(R, ox, oy, oz, dx, dy, dz, t0, t1)
             hit_t[i], hit_p[i] = float(t), p
             counts[0] += nodes
             counts[1] += tests
@@ -247,11 +281,11 @@ def primary_hits(R, camera, *, packets: bool):
     = (nodes opened, primitive tests) summed over the image — by packets of a tile's
     64 rays traversed together, or ray by ray."""
     from ..camera import camera_params
-    from . import TREE
+    from . import TREE, WIDE
 
-    if R.accel != TREE:
+    if R.accel not in (TREE, WIDE):
         raise ParamError("primary_hits: packets need a tree structure (accel=bvh-median, bvh-sah, "
-                         f"bvh-gs or octree); this configuration has traversal code {R.accel}")
+                         f"bvh-gs, octree or bvh-wide); this configuration has traversal code {R.accel}")
     W, H = camera.film.width, camera.film.height
     depth = np.empty(W * H)
     prim = np.empty(W * H, dtype=np.int64)

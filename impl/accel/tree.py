@@ -23,32 +23,11 @@ hierarchy its logarithmic cost (Kay & Kajiya 1986, their heap of candidate
 nodes is this sorted stack).  The any-hit (shadow) traversal stops at the
 first hit in (tmin, tmax), in any order.
 
-Memory layout (issue 7, measured, left as it is).  The builders already
-emit the nodes depth-first with siblings consecutive (a node's children
-are allocated when it is split, and the first child is split next), so a
-descent reads forward through the arrays.  Three interleaved layouts were
-built and timed against these arrays (commits 59cbc6c, 7c33d12 and fc556ab
-on the ``bvhlayout`` branch): a 32-byte record per node (float32 box
-rounded outward, int32 child/primitive offset and count; a binary sibling
-pair in one 64-byte line, as pbrt-v4's ``LinearBVHNode`` and Embree's
-compressed boxes), a 64-byte float64 record, and the boxes alone
-interleaved in 64-byte rows (node_a/node_b apart).  Camera rays of the
-256×192 sphere fields, one thread, old and new processes alternated,
-medians of 11 queries per process, ratios per round: the 32-byte records
-took 0.96–1.12× the time of the arrays over N = 1e3 … 1e5 (medians of 3
-rounds), the 64-byte records 0.90–1.00× (3 rounds; 0.95–1.09× in an
-earlier 2-round run), the interleaved boxes 0.91–1.06×; on the 1e5 /
-1e6-triangle meshes all within 0.88–1.13×.  No variant was faster at
-every N or in every round (another engineer's jobs shared the 2 cores).  The number of cache lines a node visit touches is not what
-bounds the traversal (a likely reason, not measured: the four arrays'
-loads do not depend on each other and overlap); the time per node visited
-stays 30–43 ns from 1e3 to 1e5 spheres (log–log slope 0.017 against N;
-studies ``node_cost`` and ``scaling`` of :mod:`gibench.studies.accel`),
-and the growth of trace time beyond log N is in the number of nodes
-visited, b·ln(N/N₀) with N₀ ≈ 44, whose own log–log slope (0.19 over
-1e3 … 1e5) exceeds that of ln N (0.11).  So the packed copy was not kept
-(it would also have added memory beside the arrays :mod:`impl.accel.packets`
-reads).
+Layout: the builders emit the nodes depth-first with siblings consecutive
+(a node's children are allocated when it is split, and the first child is
+split next), so a descent reads forward through the arrays.  The wide
+collapse of the SAH tree, with float32 structure-of-arrays child boxes, is
+:mod:`impl.accel.wide`.
 """
 
 from __future__ import annotations
@@ -87,11 +66,9 @@ def _alloca_f64(typingctx):
 
 @njit(inline="always", cache=True)
 def stack_i64():
-    """A traversal stack of STACK int64 on the native stack: the traversal kernels
-    run once per ray, and two heap allocations per ray made the BVH queries of
-    benchmarks/bench_accel.py 1.1–1.4× slower (measured on the shared 2-core VM).
-    Only for functions that are *not* inlined into a loop (the space lives
-    until the function returns)."""
+    """A traversal stack of STACK int64 on the native stack (no heap allocation per
+    ray).  The space is allocated once in the entry block of the function it ends
+    up in and lives until that function returns."""
     return carray(_alloca_i64(), STACK)
 
 

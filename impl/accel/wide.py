@@ -1,0 +1,728 @@
+"""A wide BVH: the binary SAH tree collapsed to nodes of WIDTH children (thesis 2.6.1).
+
+The hierarchy is the one of :mod:`impl.accel.bvh` (binned SAH); only its
+storage and traversal change.  Each wide node holds the boxes of up to
+:data:`WIDTH` children structure-of-arrays, ``lo_x[W] lo_y[W] lo_z[W]
+hi_x[W] hi_y[W] hi_z[W]`` (the layout of Embree's BVH4 nodes), so one ray
+meets all the children in W-lane vector operations (:func:`_enter_all`): per
+axis the near and far planes are picked once per ray from the sign of the
+direction, so each plane costs one subtract and one multiply by the
+precomputed reciprocal direction, with no per-child swap and no branch.
+(Embree's ``box·rdir − org·rdir`` saves the subtract with a fused
+multiply-subtract; ``(box − org)·rdir`` is kept here because it rounds
+exactly as :func:`.primitives.box_enter`.)
+
+Collapse (Wald, Benthin, Boulos 2008; Embree's BVH4 builder): starting
+from a binary node's two children, the interior child of largest surface
+area is replaced by its two children until the node has W children or
+only leaves remain; a subtree of at most :data:`LEAF_MAX` primitives becomes
+one leaf (a leaf's test of a few primitives is cheaper than the stack work
+of opening them one node at a time).
+
+Exactness.  The boxes are stored in float32, each coordinate rounded
+outward (``lo`` down, ``hi`` up) from the padded float64 bounds of
+:mod:`.primitives`, so every stored box contains its float64 box.  The slab
+test reads them into float64 and computes exactly as
+:func:`.primitives.box_enter` does (same NaN rule for zero direction
+components): a ray enters every box the float64 tree would let it enter,
+and the primitives it reaches are tested by the same kernels, in the
+configured form and precision, with the same tie rule (:func:`.closer`).
+So the closest hit (primitive id and ``t``) is brute force's.  The float64
+arithmetic is a choice, not a necessity: with W = 4 (AVX2) or 8 (AVX-512)
+lanes a float64 plane costs as many vector instructions as a float32 one,
+and it needs no error bound on the origin's float32 rounding.
+
+Traversal: nearest child first (children sorted by entry ``t`` on the
+stack), popped entries entered beyond the nearest hit skipped; shadow rays
+(:func:`wide_any`) stop at the first hit in (tmin, tmax).
+
+Entry points: :func:`wide_closest` / :func:`wide_any` (one ray, with
+counters: what :func:`impl.accel.closest` dispatches to); over SoA ray
+arrays, in parallel, :func:`wide_closest_batch` / :func:`wide_occluded_batch`
+(single rays, the traversal inlined into the loop) and, for coherent rays,
+:func:`wide_closest_packets` / :func:`wide_occluded_packets`: groups of
+consecutive rays traversed as packets (Wald, Slusallek, Benthin, Wagner
+2001) — each child box tested against the packet's active rays in one
+vectorised loop, rays leaving the packet for single-ray traversal when
+:data:`SWITCH` or fewer still enter a node (Embree's hybrid traversal).
+Every entry point returns exactly the single-ray answer.
+
+Arrays (the :class:`impl.accel.Accel` fields; ``M`` wide nodes):
+
+=========  =================  ===========================================
+field      shape              meaning
+=========  =================  ===========================================
+node_lo/hi (1, 3) f64         the root's box
+node_a     (M·W,) i64         slot ``n·W + k``: child node (interior) or
+                              first entry of ``prim_idx`` (leaf)
+node_b     (M·W,) i64         ``-1`` interior, ``c ≥ 0`` leaf of c
+                              primitives (0: empty slot, empty box)
+prim_idx   (P,) i64           the leaves' primitive ids
+acc_f      (M·6·W/2,) f64     the float32 boxes, node by node
+                              ``[lo_x, lo_y, lo_z, hi_x, hi_y, hi_z]×W``,
+                              stored two per float64 word (read through
+                              ``acc_f.view(np.float32)``)
+acc_i      (1,) i64           W
+=========  =================  ===========================================
+
+Leaves out: compressed (quantised) boxes, SIMD primitive tests over a
+leaf's primitives (the primitive kernels are the scalar brute-force ones,
+which is what keeps the hit bit-identical), spatial splits, float32 box
+arithmetic.
+
+References: I. Wald, P. Slusallek, C. Benthin, M. Wagner, "Interactive
+rendering with coherent ray tracing", CGF 20(3), 2001; I. Wald, C. Benthin, S. Boulos, "Getting rid of packets —
+efficient SIMD single-ray traversal using multi-branching BVHs", IEEE RT
+2008; H. Dammertz, J. Hanika, A. Keller, "Shallow bounding volume
+hierarchies for fast SIMD ray tracing of incoherent rays", EGSR 2008;
+I. Wald et al., "Embree: a kernel framework for efficient CPU ray
+tracing", ACM TOG 33(4), 2014.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.extending import intrinsic
+
+from ..intersect import like, ray_sphere_form, ray_triangle
+from .primitives import box_enter, closer, ulp_above
+from .tree import STACK, stack_f64, stack_i64
+
+__all__ = ["WIDTH", "SWITCH", "collapse", "wide_closest", "wide_any", "wide_depth",
+           "wide_closest_batch", "wide_occluded_batch", "wide_packet_closest",
+           "wide_packet_occluded", "wide_closest_packets", "wide_occluded_packets"]
+
+#: Children per node.
+WIDTH = 4
+#: A subtree of the binary tree with at most this many primitives becomes one
+#: leaf (the builder keeps a subtree's primitives consecutive in ``prim_idx``).
+LEAF_MAX = 4
+_PLANES = 6 * WIDTH                 # float32 words of one node's boxes
+
+
+@njit(inline="always", cache=True)
+def _area(lo, hi, c):
+    ex, ey, ez = hi[c, 0] - lo[c, 0], hi[c, 1] - lo[c, 1], hi[c, 2] - lo[c, 2]
+    return ex * ey + ey * ez + ez * ex
+
+
+@njit(inline="always", cache=True)
+def _down(x):
+    """x rounded to float32 downward (the largest float32 <= x)."""
+    y = np.float32(x)
+    if float(y) > x:
+        y = np.nextafter(y, np.float32(-np.inf))
+    return y
+
+
+@njit(inline="always", cache=True)
+def _up(x):
+    """x rounded to float32 upward (the smallest float32 >= x)."""
+    y = np.float32(x)
+    if float(y) < x:
+        y = np.nextafter(y, np.float32(np.inf))
+    return y
+
+
+@njit(cache=True)
+def _collapse(nlo, nhi, na, nb, W):
+    """Wide nodes of the binary tree (node_b = -2 interior): ``(box (M, 6, W) float32
+    rounded outward, slot_a (M·W,), slot_b (M·W,))``, depth-first."""
+    n = nb.shape[0]
+    cap = 1                                     # one wide node per binary interior node at most
+    first = np.empty(n, dtype=np.int64)         # each subtree's primitives: prim_idx[first:first+cnt]
+    cnt = np.empty(n, dtype=np.int64)
+    leaf = np.empty(n, dtype=np.bool_)          # a wide leaf: a binary leaf, or few primitives
+    for b in range(n - 1, -1, -1):              # children come after their parent
+        if nb[b] >= 0:
+            first[b], cnt[b] = na[b], nb[b]
+            leaf[b] = True
+        else:
+            cap += 1
+            first[b] = min(first[na[b]], first[na[b] + 1])
+            cnt[b] = cnt[na[b]] + cnt[na[b] + 1]
+            leaf[b] = cnt[b] <= LEAF_MAX
+    box = np.empty((cap, 6, W), dtype=np.float32)
+    sa = np.zeros(cap * W, dtype=np.int64)
+    sb = np.zeros(cap * W, dtype=np.int64)
+    st_bin = np.empty(cap, dtype=np.int64)
+    st_wide = np.empty(cap, dtype=np.int64)
+    cand = np.empty(W, dtype=np.int64)
+    st_bin[0], st_wide[0] = 0, 0
+    sp, m_nodes = 1, 1
+    while sp > 0:
+        sp -= 1
+        b, w = st_bin[sp], st_wide[sp]
+        box[w, :3, :] = np.inf                  # empty slots: an empty box
+        box[w, 3:, :] = -np.inf
+        if leaf[b]:                             # a leaf root (tiny scene)
+            cand[0] = b
+            m = 1
+        else:
+            cand[0], cand[1] = na[b], na[b] + 1
+            m = 2
+            while m < W:                        # open the largest interior child
+                best, best_a = -1, -1.0
+                for i in range(m):
+                    c = cand[i]
+                    if not leaf[c]:
+                        a = _area(nlo, nhi, c)
+                        if a > best_a:
+                            best, best_a = i, a
+                if best < 0:
+                    break
+                c = cand[best]
+                cand[best] = na[c]
+                cand[m] = na[c] + 1
+                m += 1
+        for k in range(m - 1, -1, -1):          # first child pushed last: visited next
+            c = cand[k]
+            for a in range(3):
+                box[w, a, k] = _down(nlo[c, a])
+                box[w, 3 + a, k] = _up(nhi[c, a])
+            s = w * W + k
+            if leaf[c]:
+                sa[s], sb[s] = first[c], cnt[c]
+            else:
+                sa[s], sb[s] = m_nodes, -1
+                st_bin[sp], st_wide[sp] = c, m_nodes
+                sp += 1
+                m_nodes += 1
+    return box[:m_nodes].copy(), sa[:m_nodes * W].copy(), sb[:m_nodes * W].copy()
+
+
+def collapse(nlo, nhi, na, nb, width: int = WIDTH):
+    """The wide-BVH arrays ``(box32 (M, 6, W) float32, slot_a, slot_b)`` of a binary
+    tree in the flat layout of :mod:`.tree` (children in pairs, ``node_b = -2``)."""
+    if np.any((nb < 0) & (nb != -2)):
+        raise ValueError("collapse: the tree is not binary")
+    return _collapse(nlo, nhi, na, nb, int(width))
+
+
+@njit(cache=True)
+def wide_depth(slot_a, slot_b, W):
+    """Largest traversal stack the wide tree can need (children − 1 summed along a
+    path, + 1, counting leaves as stack entries)."""
+    m = slot_a.shape[0] // W
+    need = np.zeros(m, dtype=np.int64)
+    need[0] = 1
+    max_s = 1
+    for n in range(m):                       # children come after their parent
+        k = 0
+        for j in range(W):
+            if slot_b[n * W + j] != 0:
+                k += 1
+        for j in range(W):
+            s = n * W + j
+            if slot_b[s] < 0:
+                need[slot_a[s]] = need[n] + k - 1
+            max_s = max(max_s, need[n] + k - 1)
+    return max_s
+
+
+@intrinsic
+def _enter_all(typingctx, box, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy, iz, tmin, tmax, tn):
+    """Slab test of one node's WIDTH children in WIDTH-lane vectors: ``tn[k]`` = entry t
+    of child k's box within [tmin, tmax] (inf on a miss); returns the hit mask
+    (bit k: child k entered).
+
+    ``box`` is the float32 view of the boxes, ``base`` the node's first word, ``nx``
+    … ``fz`` the word offsets of the near / far plane of each axis
+    (:func:`_planes`); ray and limits float64, ``tn`` a float64 array.  Per axis
+    ``a = (near − o)·(1/d)``, ``t0 = a if a > t0 else t0`` (and ``t1`` alike with
+    ``<``): the arithmetic and NaN rule of :func:`.primitives.box_enter`, lane by
+    lane, on the boxes widened to float64 (exact).  Written as LLVM vector IR
+    because numba leaves LLVM's SLP vectoriser off and a 4-trip loop is below
+    the loop vectoriser's threshold."""
+    sig = types.int64(box, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy, iz, tmin, tmax, tn)
+
+    def codegen(context, builder, sig, args):
+        args = [a if isinstance(t, types.Array) else
+                context.cast(builder, a, t, types.int64 if isinstance(t, types.Integer) else types.float64)
+                for a, t in zip(args, sig.args)]
+        (abox, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy, iz, tmin, tmax, atn) = args
+        box_ptr = context.make_array(sig.args[0])(context, builder, abox).data
+        tn_ptr = context.make_array(sig.args[16])(context, builder, atn).data
+        f32v = ir.VectorType(ir.FloatType(), WIDTH)
+        f64v = ir.VectorType(ir.DoubleType(), WIDTH)
+
+        def splat(x):
+            v = ir.Constant(f64v, ir.Undefined)
+            for k in range(WIDTH):
+                v = builder.insert_element(v, x, ir.Constant(ir.IntType(32), k))
+            return v
+
+        def plane(off, o, inv):
+            p = builder.gep(box_ptr, [builder.add(base, off)])
+            v = builder.load(builder.bitcast(p, f32v.as_pointer()), align=4)
+            return builder.fmul(builder.fsub(builder.fpext(v, f64v), o), inv)
+
+        t0, t1 = splat(tmin), splat(tmax)
+        for n, f, o, inv in ((nx, fx, ox, ix), (ny, fy, oy, iy), (nz, fz, oz, iz)):
+            vo, vi = splat(o), splat(inv)
+            a = plane(n, vo, vi)
+            b = plane(f, vo, vi)
+            t0 = builder.select(builder.fcmp_ordered(">", a, t0), a, t0)
+            t1 = builder.select(builder.fcmp_ordered("<", b, t1), b, t1)
+        hit = builder.fcmp_ordered("<=", t0, t1)
+        inf = ir.Constant(f64v, [math.inf] * WIDTH)
+        builder.store(builder.select(hit, t0, inf), builder.bitcast(tn_ptr, f64v.as_pointer()),
+                      align=8)
+        return builder.zext(builder.bitcast(hit, ir.IntType(WIDTH)), ir.IntType(64))
+
+    return sig, codegen
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _prim(form, sc, sr, tv, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """:func:`.primitives.prim_test` on the configuration's arrays, unpacked once per
+    ray: binding the whole configuration per test would increment and decrement
+    the reference count of each of its arrays, atomic operations that the
+    threads tracing in parallel contend for."""
+    ns = sr.shape[0]
+    if p < ns:
+        t = ray_sphere_form(form, ox, oy, oz, dx, dy, dz, sc[p, 0], sc[p, 1], sc[p, 2], sr[p],
+                            tmin, tmax)
+        return t, like(t, 0.0), like(t, 0.0)
+    return ray_triangle(ox, oy, oz, dx, dy, dz, tv[p - ns], tmin, tmax)
+
+
+@njit(inline="always", cache=True)
+def _planes(ix, iy, iz):
+    """Word offsets of the near and far planes of each axis in a node's boxes."""
+    nx = 3 * WIDTH if ix < 0.0 else 0
+    ny = (4 if iy < 0.0 else 1) * WIDTH
+    nz = (5 if iz < 0.0 else 2) * WIDTH
+    return nx, ny, nz, 3 * WIDTH - nx, 5 * WIDTH - ny, 7 * WIDTH - nz
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and t in
+    R's precision, prim = -1 on a miss (nodes counts the wide nodes and leaves opened)."""
+    ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
+    t_root = box_enter(R.node_lo, R.node_hi, 0, float(ox), float(oy), float(oz), ix, iy, iz,
+                       float(tmin), float(tmax))
+    zero = like(tmax, 0.0)
+    if t_root == math.inf:
+        return tmax, -1, zero, zero, 1, 0
+    return _walk(R, 0, t_root, ox, oy, oz, dx, dy, dz, tmin, tmax, -1, zero, zero)
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _walk(R, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_p, bb1, bb2):
+    """Closest-hit traversal of the subtree ``ref0`` (a node, or ``-s - 1`` for the leaf
+    of slot s) entered at ``t0``, from the hit so far ``(best_t, best_p, bb1, bb2)``:
+    ``(t, prim, b1, b2, nodes_visited, prim_tests)``."""
+    na, nb, idx = R.node_a, R.node_b, R.prim_idx
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    box = R.acc_f.view(np.float32)
+    nodes = tests = 0
+    fox, foy, foz = float(ox), float(oy), float(oz)
+    ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
+    ftmin = float(tmin)
+    nx, ny, nz, fx, fy, fz = _planes(ix, iy, iz)
+    stack_n = stack_i64()
+    stack_t = stack_f64()
+    tn = stack_f64()
+    stack_n[0], stack_t[0] = ref0, t0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        ref = stack_n[sp]
+        if stack_t[sp] > float(best_t):          # entered beyond the nearest hit: skip
+            continue
+        nodes += 1
+        if ref < 0:
+            # Leaf: the brute-force test of each primitive, tie-inclusive tmax.
+            s = -ref - 1
+            for k in range(na[s], na[s] + nb[s]):
+                p = idx[k]
+                tests += 1
+                t, b1, b2 = _prim(form, sc, sr, tv, p, ox, oy, oz, dx, dy, dz, tmin, ulp_above(best_t))
+                if closer(t, p, best_t, best_p):
+                    best_t, best_p, bb1, bb2 = t, p, b1, b2
+            continue
+        # Interior: all W boxes in one loop, then push the entered ones nearest on top.
+        mask = _enter_all(box, ref * _PLANES, nx, ny, nz, fx, fy, fz, fox, foy, foz, ix, iy, iz,
+                          ftmin, float(best_t), tn)
+        sp0 = sp
+        for k in range(WIDTH):
+            if mask & (1 << k):
+                tc = tn[k]
+                s = ref * WIDTH + k
+                c = na[s] if nb[s] < 0 else -s - 1
+                j = sp
+                while j > sp0 and stack_t[j - 1] < tc:
+                    stack_t[j] = stack_t[j - 1]
+                    stack_n[j] = stack_n[j - 1]
+                    j -= 1
+                stack_t[j] = tc
+                stack_n[j] = c
+                sp += 1
+    return best_t, best_p, bb1, bb2, nodes, tests
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
+    ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
+    if box_enter(R.node_lo, R.node_hi, 0, float(ox), float(oy), float(oz), ix, iy, iz,
+                 float(tmin), float(tmax)) == math.inf:
+        return False, 1, 0
+    return _any_from(R, 0, ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _any_from(R, ref0, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Any-hit traversal of the subtree ``ref0`` (see :func:`_walk`)."""
+    na, nb, idx = R.node_a, R.node_b, R.prim_idx
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    box = R.acc_f.view(np.float32)
+    nodes = tests = 0
+    fox, foy, foz = float(ox), float(oy), float(oz)
+    ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
+    ftmin, ftmax = float(tmin), float(tmax)
+    nx, ny, nz, fx, fy, fz = _planes(ix, iy, iz)
+    stack_n = stack_i64()
+    tn = stack_f64()
+    stack_n[0] = ref0
+    sp = 1
+    zero = like(tmax, 0.0)
+    while sp > 0:
+        sp -= 1
+        ref = stack_n[sp]
+        nodes += 1
+        if ref < 0:
+            s = -ref - 1
+            for k in range(na[s], na[s] + nb[s]):
+                tests += 1
+                t, b1, b2 = _prim(form, sc, sr, tv, idx[k], ox, oy, oz, dx, dy, dz, tmin, tmax)
+                if t > zero:
+                    return True, nodes, tests
+            continue
+        mask = _enter_all(box, ref * _PLANES, nx, ny, nz, fx, fy, fz, fox, foy, foz, ix, iy, iz,
+                          ftmin, ftmax, tn)
+        for k in range(WIDTH):
+            if mask & (1 << k):
+                s = ref * WIDTH + k
+                stack_n[sp] = na[s] if nb[s] < 0 else -s - 1
+                sp += 1
+    return False, nodes, tests
+
+
+@njit(cache=True, error_model="numpy")
+def wide_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and t in
+    R's precision, prim = -1 on a miss (nodes: wide nodes and leaves opened)."""
+    return _closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(cache=True, error_model="numpy")
+def wide_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
+    return _any(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+# ------------------------------------------------------------------ batches ---
+# The traversal is inlined into the parallel loop: the configuration's arrays are
+# then bound once per thread, not once per ray (each binding is an atomic
+# reference-count update the threads contend for).
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def wide_closest_batch(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2):
+    """Closest hits of the N rays given as SoA float64 arrays (N,), in parallel, through
+    R's wide BVH (``R.accel`` = WIDE): each ray rounded to R's precision as
+    :func:`impl.rays.hit` rounds it; ``out_t`` (tmax on a miss), ``out_b1``,
+    ``out_b2`` float64 (N,), ``out_prim`` int64 (N,) (-1 on a miss)."""
+    g = R.sph_radius
+    for i in prange(ox.shape[0]):
+        t, p, b1, b2, _, _ = _closest(R, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
+                                      like(g, dx[i]), like(g, dy[i]), like(g, dz[i]),
+                                      like(g, tmin[i]), like(g, tmax[i]))
+        out_t[i], out_prim[i], out_b1[i], out_b2[i] = float(t), p, float(b1), float(b2)
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def wide_occluded_batch(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
+    """Any-hit of the N rays (SoA float64 arrays (N,)) within (tmin[i], tmax[i]) through
+    R's wide BVH, in parallel: ``out_hit`` bool (N,)."""
+    g = R.sph_radius
+    for i in prange(ox.shape[0]):
+        h, _, _ = _any(R, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
+                       like(g, dx[i]), like(g, dy[i]), like(g, dz[i]),
+                       like(g, tmin[i]), like(g, tmax[i]))
+        out_hit[i] = h
+
+
+# ------------------------------------------------------------------ packets ---
+#: A packet's rays continue one by one (:func:`_walk`) from a node that this many
+#: or fewer of them enter (Embree's switch threshold of its hybrid traversal).
+SWITCH = 4
+
+
+@njit(cache=True, error_model="numpy")
+def _packet_setup(R, ox, oy, oz, dx, dy, dz, tmin, tmax, fo, inv, ft0, fbest, entered):
+    """Float64 origins, reciprocal directions and limits of the packet's rays; row 0 of
+    ``entered`` = which rays enter the root box.  Returns how many do."""
+    n_in = 0
+    for i in range(ox.shape[0]):
+        fo[0, i], fo[1, i], fo[2, i] = float(ox[i]), float(oy[i]), float(oz[i])
+        inv[0, i], inv[1, i], inv[2, i] = 1.0 / float(dx[i]), 1.0 / float(dy[i]), 1.0 / float(dz[i])
+        ft0[i], fbest[i] = float(tmin[i]), float(tmax[i])
+        e = box_enter(R.node_lo, R.node_hi, 0, fo[0, i], fo[1, i], fo[2, i],
+                      inv[0, i], inv[1, i], inv[2, i], ft0[i], fbest[i]) != math.inf
+        entered[0, i] = e
+        n_in += e
+    return n_in
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _packet_child(box, base, k, fo, inv, ft0, fbest, act, cm, te):
+    """Child ``k`` of the node at word ``base`` against the packet's active rays, one
+    vectorised loop over the rays: ``cm[i]`` = ray i is active and enters the box,
+    ``te[i]`` its entry t (the arithmetic of :func:`.primitives.box_enter`); returns
+    how many enter."""
+    lx, ly, lz = float(box[base + k]), float(box[base + WIDTH + k]), float(box[base + 2 * WIDTH + k])
+    hx = float(box[base + 3 * WIDTH + k])
+    hy = float(box[base + 4 * WIDTH + k])
+    hz = float(box[base + 5 * WIDTH + k])
+    cnt = 0
+    for i in range(act.shape[0]):
+        t0, t1 = ft0[i], fbest[i]
+        v = inv[0, i]
+        a = ((hx if v < 0.0 else lx) - fo[0, i]) * v
+        b = ((lx if v < 0.0 else hx) - fo[0, i]) * v
+        t0 = a if a > t0 else t0
+        t1 = b if b < t1 else t1
+        v = inv[1, i]
+        a = ((hy if v < 0.0 else ly) - fo[1, i]) * v
+        b = ((ly if v < 0.0 else hy) - fo[1, i]) * v
+        t0 = a if a > t0 else t0
+        t1 = b if b < t1 else t1
+        v = inv[2, i]
+        a = ((hz if v < 0.0 else lz) - fo[2, i]) * v
+        b = ((lz if v < 0.0 else hz) - fo[2, i]) * v
+        t0 = a if a > t0 else t0
+        t1 = b if b < t1 else t1
+        h = np.uint8(t0 <= t1) & act[i]
+        cm[i] = h
+        te[i] = t0
+        cnt += h
+    return cnt
+
+
+@njit(cache=True, error_model="numpy")
+def wide_packet_closest(R, ox, oy, oz, dx, dy, dz, tmin, best_t, best_p, bb1, bb2, counts):
+    """Closest hits of a packet of P rays traversed together (Wald et al. 2001) through
+    R's wide BVH.
+
+    Rays: SoA arrays (P,) in R's precision; ``best_t`` holds each ray's tmax on
+    entry.  ``best_t``, ``best_p`` (int64, -1 on entry), ``bb1``, ``bb2`` (R's
+    precision) are updated in place to exactly each ray's single-ray answer
+    (:func:`wide_closest`).  A node carries the mask of the packet's rays that
+    entered it; its children are tested against the active rays in one
+    vectorised loop each, and pushed nearest first (by the entry t of their
+    first active ray).  From a node entered by :data:`SWITCH` or fewer rays they
+    continue one by one.  ``counts[0] +=`` nodes opened (packet and single-ray),
+    ``counts[1] +=`` primitive tests."""
+    P = ox.shape[0]
+    na, nb, idx = R.node_a, R.node_b, R.prim_idx
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    box = R.acc_f.view(np.float32)
+    fo = np.empty((3, P))
+    inv = np.empty((3, P))
+    ft0 = np.empty(P)
+    fbest = np.empty(P)
+    entered = np.empty((STACK, P), dtype=np.uint8)
+    stack_n = np.empty(STACK, dtype=np.int64)
+    stack_t = np.empty(STACK)
+    act = np.empty(P, dtype=np.uint8)
+    cm = np.empty(P, dtype=np.uint8)
+    te = np.empty(P)
+    if _packet_setup(R, ox, oy, oz, dx, dy, dz, tmin, best_t, fo, inv, ft0, fbest, entered) == 0:
+        return
+    stack_n[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        ref = stack_n[sp]
+        n_act = 0
+        for i in range(P):                  # a copy: the children's masks go to this slot
+            act[i] = entered[sp, i]
+            n_act += act[i]
+        if n_act == 0:
+            continue
+        if n_act <= SWITCH:
+            for i in range(P):
+                if act[i]:
+                    t, p, b1, b2, nd, ts = _walk(R, ref, -math.inf, ox[i], oy[i], oz[i], dx[i], dy[i],
+                                                 dz[i], tmin[i], best_t[i], best_p[i], bb1[i], bb2[i])
+                    best_t[i], best_p[i], bb1[i], bb2[i] = t, p, b1, b2
+                    fbest[i] = float(t)
+                    counts[0] += nd
+                    counts[1] += ts
+            continue
+        counts[0] += 1
+        if ref < 0:
+            s = -ref - 1
+            for k in range(na[s], na[s] + nb[s]):
+                p = idx[k]
+                for i in range(P):
+                    if act[i]:
+                        counts[1] += 1
+                        t, b1, b2 = _prim(form, sc, sr, tv, p, ox[i], oy[i], oz[i], dx[i], dy[i],
+                                          dz[i], tmin[i], ulp_above(best_t[i]))
+                        if closer(t, p, best_t[i], best_p[i]):
+                            best_t[i], best_p[i], bb1[i], bb2[i] = t, p, b1, b2
+                            fbest[i] = float(t)
+            continue
+        base = ref * _PLANES
+        sp0 = sp
+        for k in range(WIDTH):
+            s = ref * WIDTH + k
+            if nb[s] == 0:
+                continue
+            if _packet_child(box, base, k, fo, inv, ft0, fbest, act, cm, te) == 0:
+                continue
+            first = 0
+            while not cm[first]:
+                first += 1
+            tc = te[first]
+            # Insert at slot j of [sp0, sp]: farther entries deeper, the nearest on top.
+            j = sp
+            while j > sp0 and stack_t[j - 1] < tc:
+                stack_t[j] = stack_t[j - 1]
+                stack_n[j] = stack_n[j - 1]
+                entered[j, :] = entered[j - 1, :]
+                j -= 1
+            stack_t[j] = tc
+            stack_n[j] = na[s] if nb[s] < 0 else -s - 1
+            entered[j, :] = cm
+            sp += 1
+
+
+@njit(cache=True, error_model="numpy")
+def wide_packet_occluded(R, ox, oy, oz, dx, dy, dz, tmin, tmax, hit, counts):
+    """Any-hit of a packet of P rays (SoA (P,) in R's precision) within (tmin[i],
+    tmax[i]), traversed together: ``hit`` (P,) bool set in place, exactly each ray's
+    :func:`wide_any` answer.  A ray leaves the packet at its first hit; from a
+    node entered by :data:`SWITCH` or fewer live rays they continue one by one."""
+    P = ox.shape[0]
+    na, nb, idx = R.node_a, R.node_b, R.prim_idx
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    box = R.acc_f.view(np.float32)
+    fo = np.empty((3, P))
+    inv = np.empty((3, P))
+    ft0 = np.empty(P)
+    fend = np.empty(P)
+    entered = np.empty((STACK, P), dtype=np.uint8)
+    stack_n = np.empty(STACK, dtype=np.int64)
+    live = np.ones(P, dtype=np.uint8)
+    act = np.empty(P, dtype=np.uint8)
+    cm = np.empty(P, dtype=np.uint8)
+    te = np.empty(P)
+    for i in range(P):
+        hit[i] = False
+    if _packet_setup(R, ox, oy, oz, dx, dy, dz, tmin, tmax, fo, inv, ft0, fend, entered) == 0:
+        return
+    stack_n[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        ref = stack_n[sp]
+        n_act = 0
+        for i in range(P):                  # a copy: the children's masks go to this slot
+            act[i] = entered[sp, i] & live[i]
+            n_act += act[i]
+        if n_act == 0:
+            continue
+        if n_act <= SWITCH:
+            for i in range(P):
+                if act[i]:
+                    h, nd, ts = _any_from(R, ref, ox[i], oy[i], oz[i], dx[i], dy[i], dz[i],
+                                          tmin[i], tmax[i])
+                    counts[0] += nd
+                    counts[1] += ts
+                    if h:
+                        hit[i] = True
+                        live[i] = 0
+            continue
+        counts[0] += 1
+        zero = like(tmax[0], 0.0)
+        if ref < 0:
+            s = -ref - 1
+            for k in range(na[s], na[s] + nb[s]):
+                for i in range(P):
+                    if act[i] and live[i]:
+                        counts[1] += 1
+                        t, b1, b2 = _prim(form, sc, sr, tv, idx[k], ox[i], oy[i], oz[i], dx[i],
+                                          dy[i], dz[i], tmin[i], tmax[i])
+                        if t > zero:
+                            hit[i] = True
+                            live[i] = 0
+            continue
+        base = ref * _PLANES
+        for k in range(WIDTH):
+            s = ref * WIDTH + k
+            if nb[s] == 0:
+                continue
+            if _packet_child(box, base, k, fo, inv, ft0, fend, act, cm, te) > 0:
+                stack_n[sp] = na[s] if nb[s] < 0 else -s - 1
+                entered[sp, :] = cm
+                sp += 1
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def wide_closest_packets(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2,
+                         packet):
+    """:func:`wide_closest_batch` for coherent rays: consecutive groups of ``packet``
+    rays (e.g. the eye rays of a pixel tile) traced as packets
+    (:func:`wide_packet_closest`), the groups in parallel; same outputs, bit for bit."""
+    g = R.sph_radius
+    n = ox.shape[0]
+    for q in prange((n + packet - 1) // packet):
+        i0 = q * packet
+        P = min(packet, n - i0)
+        o = np.empty((7, P), dtype=g.dtype)
+        best_t = np.empty(P, dtype=g.dtype)
+        best_p = np.full(P, -1, dtype=np.int64)
+        b1 = np.zeros(P, dtype=g.dtype)
+        b2 = np.zeros(P, dtype=g.dtype)
+        counts = np.zeros(2, dtype=np.int64)
+        for i in range(P):
+            o[0, i], o[1, i], o[2, i] = like(g, ox[i0 + i]), like(g, oy[i0 + i]), like(g, oz[i0 + i])
+            o[3, i], o[4, i], o[5, i] = like(g, dx[i0 + i]), like(g, dy[i0 + i]), like(g, dz[i0 + i])
+            o[6, i] = like(g, tmin[i0 + i])
+            best_t[i] = like(g, tmax[i0 + i])
+        wide_packet_closest(R, o[0], o[1], o[2], o[3], o[4], o[5], o[6], best_t, best_p, b1, b2,
+                            counts)
+        for i in range(P):
+            out_t[i0 + i], out_prim[i0 + i] = float(best_t[i]), best_p[i]
+            out_b1[i0 + i], out_b2[i0 + i] = float(b1[i]), float(b2[i])
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def wide_occluded_packets(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit, packet):
+    """:func:`wide_occluded_batch` for coherent rays (e.g. a tile's shadow rays to one
+    point light): groups of ``packet`` consecutive rays traced as packets
+    (:func:`wide_packet_occluded`), in parallel; same answers."""
+    g = R.sph_radius
+    n = ox.shape[0]
+    for q in prange((n + packet - 1) // packet):
+        i0 = q * packet
+        P = min(packet, n - i0)
+        o = np.empty((8, P), dtype=g.dtype)
+        h = np.empty(P, dtype=np.bool_)
+        counts = np.zeros(2, dtype=np.int64)
+        for i in range(P):
+            o[0, i], o[1, i], o[2, i] = like(g, ox[i0 + i]), like(g, oy[i0 + i]), like(g, oz[i0 + i])
+            o[3, i], o[4, i], o[5, i] = like(g, dx[i0 + i]), like(g, dy[i0 + i]), like(g, dz[i0 + i])
+            o[6, i], o[7, i] = like(g, tmin[i0 + i]), like(g, tmax[i0 + i])
+        wide_packet_occluded(R, o[0], o[1], o[2], o[3], o[4], o[5], o[6], o[7], h, counts)
+        for i in range(P):
+            out_hit[i0 + i] = h[i]
