@@ -247,7 +247,7 @@ def advise(scene_path, *, records=None, target: float | None = None) -> Advice:
             best = min(g["own"], key=lambda p: p["error"])
             reason = (f"no measured configuration reaches the {goal_txt}; the lowest error is "
                       f"{best['error']:.3g} in {best['time'] * 1e3:.0f} ms (leaderboard run "
-                      f"{g["run_id"]}); a finer setting of it, or path with more samples, is needed")
+                      f"{g['run_id']}); a finer setting of it, or path with more samples, is needed")
         algo, params = best["algorithm"], _non_default(best["algorithm"], best.get("params") or {})
         lines.append(f"recommended: {algo} {params}: {reason}")
         floors = {}
