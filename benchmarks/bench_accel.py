@@ -1,20 +1,32 @@
-"""Benchmarks (not tests) of the acceleration structures (impl.accel, issue 7).
+"""Benchmarks (not tests) of the acceleration structures (impl.accel).
 
 * ``bench_build`` / ``bench_trace`` — every structure's build and closest-hit
   trace of the camera rays on 10⁴ random spheres and a 10⁵-triangle mesh.
-* ``bench_vs_mitsuba`` — own closest-hit rays per second (BVH-SAH, float32 and
-  float64) against Mitsuba's ``ray_intersect_preliminary`` and
-  ``ray_intersect`` (LLVM variant) on the same primitives and the same rays,
-  measured in one run: primary rays (pixel centres of a 256×192 camera) and
+* ``bench_build_1e6`` — the SAH build of a 10⁶-triangle mesh alone and with
+  the wide collapse (``bvh-wide``).
+* ``bench_vs_mitsuba`` — own closest-hit rays per second (float32 and float64)
+  against Mitsuba's ``ray_intersect_preliminary`` and ``ray_intersect`` (LLVM
+  variant) on the same primitives and the same rays, own and Mitsuba rounds
+  alternated in one run: primary rays (pixel centres of a 256×192 camera) and
   incoherent rays (one cosine-distributed diffuse bounce from each primary
-  hit).  ``extra_info`` carries both rays/s and the ratio own / Mitsuba.
-* ``bench_packets`` — 8×8 eye-ray packets vs single rays through the same BVH.
+  hit).  ``bvh-sah`` through :func:`impl.accel.trace_batch` (one call per ray,
+  with counters), ``bvh-wide`` through :func:`impl.accel.wide.wide_closest_batch`
+  (the SoA batch entry point, no counters).  ``extra_info`` carries both
+  rays/s and the ratio own / Mitsuba (of the medians, and the median of the
+  per-pair ratios).
+* ``bench_packets`` — 8×8 eye-ray packets vs single rays through the same tree.
+* ``bench_wide_packets`` — the wide BVH's batch entry points on coherent rays
+  (eye rays in 8×8 tile order, shadow rays from their hits to a point light):
+  single rays vs packets of 64.
 
     .venv/bin/python -m pytest benchmarks/bench_accel.py --benchmark-json reports/out/bench_accel.json
 
 Warm-up (numba compile or cache load; Dr.Jit kernel compile) is excluded;
 pytest-benchmark quotes the median of the rounds.
 """
+
+import statistics
+import time
 
 import numpy as np
 import pytest
@@ -23,6 +35,8 @@ from gibench import registry
 from gibench.studies_accel import bounce_rays, camera_rays, mesh_field, sphere_field
 from impl import accel
 from impl.accel.packets import primary_hits
+from impl.accel.wide import (wide_closest_batch, wide_closest_packets, wide_occluded_batch,
+                             wide_occluded_packets)
 from impl.rays import ray_config
 from impl.scene_arrays import flatten
 from _timing import median_s
@@ -30,6 +44,7 @@ from _timing import median_s
 SCENES = {"spheres-1e4": lambda: sphere_field(10000, width=256, height=192),
           "mesh-1e5": lambda: mesh_field(100000, width=256, height=192)}
 _cache = {}
+ROUNDS = 7
 
 
 def scene(name):
@@ -76,44 +91,210 @@ def bench_trace(benchmark, name, rays, structure):
                                 nodes_per_ray=float(counts[:, 0].mean()))
 
 
+def soa(o, d):
+    """The rays as the batch entry points take them: six contiguous (N,) arrays."""
+    return [np.ascontiguousarray(x) for x in (*np.asarray(o).T, *np.asarray(d).T)]
+
+
+def own_tracer(R, structure, o, d):
+    """A no-argument closest-hit pass over the rays: ``trace_batch`` for the binary
+    trees, the SoA batch kernel for the wide BVH; returns ``(t, prim)``."""
+    if structure != "bvh-wide":
+        return lambda: accel.trace_batch(R, o, d)[:2]
+    cols, n = soa(o, d), len(o)
+    tmin, tmax = np.zeros(n), np.full(n, np.inf)
+    out = (np.empty(n), np.empty(n, dtype=np.int64), np.empty(n), np.empty(n))
+
+    def run():
+        wide_closest_batch(R, *cols, tmin, tmax, *out)
+        return out[0], out[1]
+    return run
+
+
+@pytest.mark.parametrize("name", ["mesh-1e6"])
+@pytest.mark.parametrize("structure", ["bvh-sah", "bvh-wide"])
+def bench_build_1e6(benchmark, name, structure):
+    """Build (and collapse) over 10⁶ triangles; the 1e6 mesh is built once per session."""
+    if name not in _cache:
+        A = flatten(mesh_field(1_000_000, width=64, height=48))
+        _cache[name] = (None, A, {})
+    _, A, _ = _cache[name]
+    config(A, structure)                                            # warm-up
+    R = benchmark.pedantic(config, args=(A, structure), rounds=3, iterations=1)
+    benchmark.extra_info.update(prims=len(A.tri_v), memory_mb=accel.memory_bytes(accel.Accel(*R[8:])) / 1e6)
+
+
 @pytest.mark.mitsuba
+@pytest.mark.parametrize("structure", ["bvh-sah", "bvh-wide"])
 @pytest.mark.parametrize("precision", ["float32", "float64"])
 @pytest.mark.parametrize("rays", ["primary", "diffuse"])
 @pytest.mark.parametrize("name", list(SCENES))
-def bench_vs_mitsuba(benchmark, name, rays, precision):
-    """Own BVH-SAH closest hits vs Mitsuba on the same rays, timed in one run."""
+def bench_vs_mitsuba(benchmark, name, rays, precision, structure):
+    """Own closest hits vs Mitsuba on the same rays, rounds alternated in one run."""
     from references.mitsuba_env import load_mitsuba
     from references.raybench import mitsuba_scene, time_mitsuba
 
     mitsuba = load_mitsuba()
     _, A, ray_sets = scene(name)
     o, d = ray_sets[rays]
-    R = config(A, "bvh-sah", precision)
-    accel.trace_batch(R, o, d)                                       # warm-up
-    t, prim, _, _ = benchmark.pedantic(accel.trace_batch, args=(R, o, d), rounds=7, iterations=1)
+    R = config(A, structure, precision)
+    run = own_tracer(R, structure, o, d)
+    run()                                                            # warm-up
+    t, prim = benchmark.pedantic(run, rounds=ROUNDS, iterations=1)
     own_s = median_s(benchmark)
     mi_scene = mitsuba_scene(mitsuba, A.sph_center, A.sph_radius, A.tri_v)
-    mi_pre_s, t_mi = time_mitsuba(mitsuba, mi_scene, o, d, rounds=7)
-    mi_full_s, _ = time_mitsuba(mitsuba, mi_scene, o, d, rounds=7, full=True)
+    mi_full_s, t_mi = time_mitsuba(mitsuba, mi_scene, o, d, rounds=ROUNDS, full=True)
+    own, mi = [], []
+    for _ in range(ROUNDS):                                          # A B A B ...
+        t0 = time.perf_counter()
+        run()
+        own.append(time.perf_counter() - t0)
+        mi.append(time_mitsuba(mitsuba, mi_scene, o, d, rounds=1)[0])
     # Same rays, same geometry: hit/miss must agree except at silhouettes.
     agree = float(((prim >= 0) == np.isfinite(t_mi)).mean())
     assert agree > 0.99, f"own and Mitsuba hit/miss agree on only {agree:.4f} of the rays"
     n = len(o)
+    mi_pre_s = statistics.median(mi)
+    pair = [m / s for s, m in zip(own, mi)]
     benchmark.extra_info.update(
         variant=mitsuba.variant(), rays=n, own_rays_per_s=n / own_s,
+        own_rays_per_s_alternated=n / statistics.median(own),
         mitsuba_preliminary_rays_per_s=n / mi_pre_s, mitsuba_full_rays_per_s=n / mi_full_s,
-        ratio_own_vs_mitsuba_preliminary=(n / own_s) / (n / mi_pre_s),
-        ratio_own_vs_mitsuba_full=(n / own_s) / (n / mi_full_s), hit_miss_agreement=agree)
+        ratio_own_vs_mitsuba_preliminary=mi_pre_s / statistics.median(own),
+        ratio_own_vs_mitsuba_preliminary_pairs_median=statistics.median(pair),
+        ratio_own_vs_mitsuba_preliminary_pairs_range=(min(pair), max(pair)),
+        ratio_own_vs_mitsuba_full=mi_full_s / own_s, hit_miss_agreement=agree)
 
 
 @pytest.mark.parametrize("packets", [False, True], ids=["single", "packets"])
+@pytest.mark.parametrize("structure", ["bvh-sah", "bvh-wide"])
 @pytest.mark.parametrize("name", list(SCENES))
-def bench_packets(benchmark, name, packets):
+def bench_packets(benchmark, name, structure, packets):
     sc, A, _ = scene(name)
-    R = config(A, "bvh-sah")
+    R = config(A, structure)
     primary_hits(R, sc.camera, packets=packets)                     # warm-up
     depth, prim, counts = benchmark.pedantic(primary_hits, args=(R, sc.camera),
                                              kwargs={"packets": packets}, rounds=7, iterations=1)
     n = prim.size
     benchmark.extra_info.update(rays=n, rays_per_s=n / median_s(benchmark),
                                 nodes_per_ray=counts[0] / n, tests_per_ray=counts[1] / n)
+
+
+def tile_order(width, height, tile=8):
+    """Pixel indices of a width×height image tile by tile (row-major tiles of tile×tile)."""
+    idx = np.arange(width * height).reshape(height // tile, tile, width // tile, tile)
+    return idx.transpose(0, 2, 1, 3).reshape(-1)
+
+
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+@pytest.mark.parametrize("kind", ["eye", "shadow"])
+@pytest.mark.parametrize("packets", [False, True], ids=["single", "packets64"])
+@pytest.mark.parametrize("name", list(SCENES))
+def bench_wide_packets(benchmark, name, packets, kind, precision):
+    """Coherent rays through the wide BVH's batch entry points: eye rays in tile order
+    (closest hit), or shadow rays from their hits to a point light above the scene
+    (any hit; rays that missed are left out), single rays vs packets of 64."""
+    sc, A, ray_sets = scene(name)
+    R = config(A, "bvh-wide", precision)
+    o, d = ray_sets["primary"]
+    order = tile_order(sc.camera.film.width, sc.camera.film.height)
+    o, d = np.ascontiguousarray(o[order]), np.ascontiguousarray(d[order])
+    n = len(o)
+    tmin, tmax = np.zeros(n), np.full(n, np.inf)
+    out = (np.empty(n), np.empty(n, dtype=np.int64), np.empty(n), np.empty(n))
+    if kind == "eye":
+        cols = soa(o, d)
+        if packets:
+            def run():
+                wide_closest_packets(R, *cols, tmin, tmax, *out, 64)
+        else:
+            def run():
+                wide_closest_batch(R, *cols, tmin, tmax, *out)
+    else:
+        wide_closest_batch(R, *soa(o, d), tmin, tmax, *out)
+        hit = out[1] >= 0
+        p = o[hit] + out[0][hit, None] * d[hit]
+        to_light = np.array([0.0, 10.0, 0.0]) - p
+        dist = np.linalg.norm(to_light, axis=1)
+        sd = to_light / dist[:, None]
+        cols = soa(p + 1e-4 * sd, sd)
+        n = len(p)
+        s_min, s_max = np.zeros(n), dist * (1.0 - 1e-6)
+        occ = np.empty(n, dtype=np.bool_)
+        if packets:
+            def run():
+                wide_occluded_packets(R, *cols, s_min, s_max, occ, 64)
+        else:
+            def run():
+                wide_occluded_batch(R, *cols, s_min, s_max, occ)
+    run()                                                            # warm-up
+    benchmark.pedantic(run, rounds=ROUNDS, iterations=1)
+    benchmark.extra_info.update(rays=n, rays_per_s=n / median_s(benchmark))
+
+
+def sphere_field_xml(path, n, *, width=256, height=192, seed=3):
+    """A scene file of ``n`` diffuse spheres (centres uniform in [-1, 1]³, radius
+    0.3·n^(-1/3)) lit by one point light, readable by the own loader and by Mitsuba."""
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(-1.0, 1.0, (n, 3))
+    r = 0.3 * n ** (-1.0 / 3.0)
+    shapes = "\n".join(
+        f'    <shape type="sphere"><point name="center" value="{x:.6f}, {y:.6f}, {z:.6f}"/>'
+        f'<float name="radius" value="{r:.6f}"/><ref id="mat"/></shape>' for x, y, z in c)
+    path.write_text(f"""<?xml version="1.0" encoding="utf-8"?>
+<scene version="3.0.0">
+    <sensor type="perspective">
+        <float name="fov" value="45"/>
+        <transform name="to_world"><lookat origin="0, 0.5, 4.5" target="0, 0, 0" up="0, 1, 0"/></transform>
+        <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
+        <film type="hdrfilm"><integer name="width" value="{width}"/><integer name="height" value="{height}"/>
+            <rfilter type="box"/></film>
+    </sensor>
+    <emitter type="point"><point name="position" value="2, 4, 4"/><rgb name="intensity" value="40, 40, 40"/></emitter>
+    <bsdf type="diffuse" id="mat"><rgb name="reflectance" value="0.6, 0.6, 0.6"/></bsdf>
+{shapes}
+</scene>
+""")
+    return path
+
+
+@pytest.mark.mitsuba
+def bench_raycast_vs_mitsuba_direct(benchmark, tmp_path):
+    """Own ``raycast`` (bvh-sah and bvh-wide) vs Mitsuba ``direct`` on 2000 spheres at
+    4 spp, 256×192, renders alternated in one run (own render time includes the build)."""
+    import drjit as dr
+
+    from gibench.loader import load_scene
+    from references.mitsuba_env import load_mitsuba
+    from references.reference import load_scene as mi_load_scene, prepare_scene_xml
+
+    path = sphere_field_xml(tmp_path / "spheres2000.xml", 2000)
+    mi = load_mitsuba()
+    xml, _, _ = prepare_scene_xml(path, transport="direct", spp_per_pass=4, seed=0)
+    mi_scene = mi_load_scene(mi, path, xml)
+
+    def mitsuba():
+        img = mi.render(mi_scene, spp=4, seed=0)
+        dr.sync_thread()                                      # mi.render is lazy
+        return img
+
+    algo = registry.get("raycast")
+    sc = load_scene(path)
+    params = {s: algo.parse_params({"spp": 4, "accel": s}) for s in ("bvh-sah", "bvh-wide")}
+    runs = {"mitsuba": mitsuba, **{s: (lambda p=p: algo.render(sc, p, seed=0)) for s, p in params.items()}}
+    for run in runs.values():                                 # warm-up: compile / cache load
+        run()
+    times = {k: [] for k in runs}
+    for _ in range(ROUNDS):                                   # A B C A B C ...
+        for k, run in runs.items():
+            t0 = time.perf_counter()
+            run()
+            times[k].append(time.perf_counter() - t0)
+    benchmark.pedantic(runs["bvh-wide"], rounds=1, iterations=1)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    info = {f"{k}_s": v for k, v in med.items()}
+    for s in params:
+        pair = [m / o for o, m in zip(times[s], times["mitsuba"])]
+        info[f"speed_{s}_vs_mitsuba"] = med["mitsuba"] / med[s]
+        info[f"speed_{s}_vs_mitsuba_pairs"] = (min(pair), statistics.median(pair), max(pair))
+    benchmark.extra_info.update(info)

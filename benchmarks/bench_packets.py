@@ -1,9 +1,11 @@
-"""Benchmarks (not tests) of eye-ray packets in the ray tracers (``packets=true``, issue 7).
+"""Benchmarks (not tests) of eye-ray packets in the ray tracers (``packets=true``).
 
 ``bench_tracer_packets`` renders 10⁴ random spheres (``sphere_field``) and a
 10⁵-triangle mesh (``mesh_field``) at 256×192 with ``raycast``, ``whitted``
 and ``path`` (small spp), ``packets=false`` and ``packets=true``, both through
-the SAH BVH (``accel=bvh-sah``).  The two variants of a case run one after the
+the same structure: the binary SAH BVH (``accel=bvh-sah``; packets loop over
+their rays at each node) or the wide BVH (``accel=bvh-wide``; vectorised over
+the packet's rays, switching to single rays when few are active).  The two variants of a case run one after the
 other in the same pytest run; the ``packets=true`` one stores in ``extra_info``
 the ratio ``single / packets`` of the two medians (> 1: packets faster), the
 same ratio from ``ALTERNATED`` further renders of each alternating single and
@@ -45,7 +47,7 @@ TRACERS = {"raycast": {"spp": 4, "light_samples": 4},
 ROUNDS = 5
 ALTERNATED = 7
 _scenes = {}
-_single = {}                                   # (tracer, scene) -> median s of packets=false
+_single = {}                                   # (tracer, scene, accel) -> median s of packets=false
 
 
 def scene(name, tracer):
@@ -61,25 +63,26 @@ def scene(name, tracer):
 
 
 @pytest.mark.parametrize("packets", [False, True], ids=["single", "packets"])
+@pytest.mark.parametrize("accel", ["bvh-sah", "bvh-wide"])
 @pytest.mark.parametrize("tracer", list(TRACERS))
 @pytest.mark.parametrize("name", list(SCENES))
-def bench_tracer_packets(benchmark, name, tracer, packets):
+def bench_tracer_packets(benchmark, name, tracer, accel, packets):
     sc = scene(name, tracer)
     algo = registry.get(tracer)
-    params = algo.parse_params({**TRACERS[tracer], "accel": "bvh-sah", "packets": packets})
+    params = algo.parse_params({**TRACERS[tracer], "accel": accel, "packets": packets})
     algo.render(sc, params, seed=0)                                 # warm-up
     res = benchmark.pedantic(algo.render, args=(sc, params), kwargs={"seed": 0},
                              rounds=ROUNDS, iterations=1)
     t = median_s(benchmark)
     info = {"pixels": W * H, "spp": params["spp"]}
     if not packets:
-        _single[(tracer, name)] = (t, res.image)
+        _single[(tracer, name, accel)] = (t, res.image)
     else:
         eye = W * H * params["spp"]
         info.update(packet_nodes_per_eye_ray=res.counters["packet_nodes"] / eye,
                     packet_tests_per_eye_ray=res.counters["packet_tests"] / eye)
-        if (tracer, name) in _single:
-            t_single, img = _single[(tracer, name)]
+        if (tracer, name, accel) in _single:
+            t_single, img = _single[(tracer, name, accel)]
             info["ratio_single_over_packets"] = t_single / t
             assert (img == res.image).all(), "packets changed the image"
         single_params = {**params, "packets": False}

@@ -1,4 +1,4 @@
-"""Acceleration-structure studies (thesis 2.6, issue 7): scaling with scene size.
+"""Acceleration-structure studies (thesis 2.6): scaling with scene size.
 
 =============  ==============================================================
 study          what it measures
@@ -294,7 +294,7 @@ def shuffle_node_groups(R, rng):
 def node_cost(*, sizes=(1000, 3000, 10000, 30000, 100000), structure="bvh-sah", width=256,
               height=192, tile=16, repeats=9, threads=1, seed=1, log=print) -> list[dict]:
     """Cost per node visited of the camera-ray closest-hit query (:func:`impl.accel.trace_batch`)
-    on sphere fields of growing N, and two controls on the same tree (issue 7: is the
+    on sphere fields of growing N, and two controls on the same tree (is the
     growth of trace time beyond log N a memory effect?):
 
     * ``full`` — the pixel-centre rays of the whole image;
@@ -369,7 +369,7 @@ def fit_exponents(rows: list[dict], *, n_min: int = 100) -> list[dict]:
     the nodes visited per ray fitted as a + b·ln N (slope b, R²), the direct test of
     logarithmic work (wall time adds cache effects the node count does not have).
 
-    Why the first comparison can fail for logarithmic work (issue 7): work
+    Why the first comparison can fail for logarithmic work: work
     a + b·ln N = b·ln(N/N₀) has the log–log slope 1/ln(N/N₀), larger than ln N's
     1/ln N whenever the intercept a is negative (N₀ = exp(−a/b) > 1; a tree's
     depth is log(N/leaf size), not log N).  The rows therefore also carry
@@ -451,7 +451,7 @@ def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[
     fit_min = cfg.pop("fit_n_min", 100)
     out = run_registered(STUDIES, cfg, only=only)
     if "scaling" in out:
-        # One fit per least size: e.g. the issue's whole range and the large-N part.
+        # One fit per least size: e.g. the whole range (N >= 10) and the large-N part.
         # A family whose sizes all lie above both minima gets one row.
         mins = fit_min if isinstance(fit_min, list) else [fit_min]
         fits = {}

@@ -412,7 +412,7 @@ def test_scaling_fit_recovers_known_exponents_and_logarithmic_work():
 
 
 def test_scaling_fit_separates_work_from_cost_per_node():
-    """The issue-7 columns of fit_exponents on synthetic rows: work b·ln(N/N0) has a
+    """The columns of fit_exponents on synthetic rows: work b·ln(N/N0) has a
     log–log slope above log N's (and N0 is recovered); a query time of exactly 30 ns
     per node gives a per-node slope of 30 and a per-node-time exponent of 0; a cost
     per node growing as N^0.1 gives 0.1."""

@@ -4,15 +4,20 @@ The hierarchy is the one of :mod:`impl.accel.bvh` (binned SAH); only its
 storage and traversal change.  Each wide node holds the boxes of up to
 :data:`WIDTH` children structure-of-arrays, ``lo_x[W] lo_y[W] lo_z[W]
 hi_x[W] hi_y[W] hi_z[W]`` (the layout of Embree's BVH4 nodes), so one ray
-meets all the children in one loop over W lanes that LLVM vectorises: per
+meets all the children in W-lane vector operations (:func:`_enter_all`): per
 axis the near and far planes are picked once per ray from the sign of the
 direction, so each plane costs one subtract and one multiply by the
 precomputed reciprocal direction, with no per-child swap and no branch.
+(Embree's ``box·rdir − org·rdir`` saves the subtract with a fused
+multiply-subtract; ``(box − org)·rdir`` is kept here because it rounds
+exactly as :func:`.primitives.box_enter`.)
 
 Collapse (Wald, Benthin, Boulos 2008; Embree's BVH4 builder): starting
 from a binary node's two children, the interior child of largest surface
 area is replaced by its two children until the node has W children or
-only leaves remain.  The leaves are the binary tree's (≤ 4 primitives).
+only leaves remain; a subtree of at most :data:`LEAF_MAX` primitives becomes
+one leaf (a leaf's test of a few primitives is cheaper than the stack work
+of opening them one node at a time).
 
 Exactness.  The boxes are stored in float32, each coordinate rounded
 outward (``lo`` down, ``hi`` up) from the padded float64 bounds of
@@ -30,6 +35,17 @@ and it needs no error bound on the origin's float32 rounding.
 Traversal: nearest child first (children sorted by entry ``t`` on the
 stack), popped entries entered beyond the nearest hit skipped; shadow rays
 (:func:`wide_any`) stop at the first hit in (tmin, tmax).
+
+Entry points: :func:`wide_closest` / :func:`wide_any` (one ray, with
+counters: what :func:`impl.accel.closest` dispatches to); over SoA ray
+arrays, in parallel, :func:`wide_closest_batch` / :func:`wide_occluded_batch`
+(single rays, the traversal inlined into the loop) and, for coherent rays,
+:func:`wide_closest_packets` / :func:`wide_occluded_packets`: groups of
+consecutive rays traversed as packets (Wald, Slusallek, Benthin, Wagner
+2001) — each child box tested against the packet's active rays in one
+vectorised loop, rays leaving the packet for single-ray traversal when
+:data:`SWITCH` or fewer still enter a node (Embree's hybrid traversal).
+Every entry point returns exactly the single-ray answer.
 
 Arrays (the :class:`impl.accel.Accel` fields; ``M`` wide nodes):
 
@@ -51,9 +67,11 @@ acc_i      (1,) i64           W
 
 Leaves out: compressed (quantised) boxes, SIMD primitive tests over a
 leaf's primitives (the primitive kernels are the scalar brute-force ones,
-which is what keeps the hit bit-identical), spatial splits.
+which is what keeps the hit bit-identical), spatial splits, float32 box
+arithmetic.
 
-References: I. Wald, C. Benthin, S. Boulos, "Getting rid of packets —
+References: I. Wald, P. Slusallek, C. Benthin, M. Wagner, "Interactive
+rendering with coherent ray tracing", CGF 20(3), 2001; I. Wald, C. Benthin, S. Boulos, "Getting rid of packets —
 efficient SIMD single-ray traversal using multi-branching BVHs", IEEE RT
 2008; H. Dammertz, J. Hanika, A. Keller, "Shallow bounding volume
 hierarchies for fast SIMD ray tracing of incoherent rays", EGSR 2008;
@@ -74,11 +92,15 @@ from ..intersect import like, ray_sphere_form, ray_triangle
 from .primitives import box_enter, closer, ulp_above
 from .tree import STACK, stack_f64, stack_i64
 
-__all__ = ["WIDTH", "collapse", "wide_closest", "wide_any", "wide_depth",
-           "wide_closest_batch", "wide_occluded_batch"]
+__all__ = ["WIDTH", "SWITCH", "collapse", "wide_closest", "wide_any", "wide_depth",
+           "wide_closest_batch", "wide_occluded_batch", "wide_packet_closest",
+           "wide_packet_occluded", "wide_closest_packets", "wide_occluded_packets"]
 
 #: Children per node.
 WIDTH = 4
+#: A subtree of the binary tree with at most this many primitives becomes one
+#: leaf (the builder keeps a subtree's primitives consecutive in ``prim_idx``).
+LEAF_MAX = 4
 _PLANES = 6 * WIDTH                 # float32 words of one node's boxes
 
 
@@ -88,14 +110,43 @@ def _area(lo, hi, c):
     return ex * ey + ey * ez + ez * ex
 
 
+@njit(inline="always", cache=True)
+def _down(x):
+    """x rounded to float32 downward (the largest float32 <= x)."""
+    y = np.float32(x)
+    if float(y) > x:
+        y = np.nextafter(y, np.float32(-np.inf))
+    return y
+
+
+@njit(inline="always", cache=True)
+def _up(x):
+    """x rounded to float32 upward (the smallest float32 >= x)."""
+    y = np.float32(x)
+    if float(y) < x:
+        y = np.nextafter(y, np.float32(np.inf))
+    return y
+
+
 @njit(cache=True)
 def _collapse(nlo, nhi, na, nb, W):
-    """Wide nodes of the binary tree (node_b = -2 interior): ``(box (M, 6, W) f64,
-    slot_a (M·W,), slot_b (M·W,))``, depth-first."""
-    cap = na.shape[0] + 1
-    box = np.empty((cap, 6, W))
-    box[:, :3, :] = np.inf
-    box[:, 3:, :] = -np.inf
+    """Wide nodes of the binary tree (node_b = -2 interior): ``(box (M, 6, W) float32
+    rounded outward, slot_a (M·W,), slot_b (M·W,))``, depth-first."""
+    n = nb.shape[0]
+    cap = 1                                     # one wide node per binary interior node at most
+    first = np.empty(n, dtype=np.int64)         # each subtree's primitives: prim_idx[first:first+cnt]
+    cnt = np.empty(n, dtype=np.int64)
+    leaf = np.empty(n, dtype=np.bool_)          # a wide leaf: a binary leaf, or few primitives
+    for b in range(n - 1, -1, -1):              # children come after their parent
+        if nb[b] >= 0:
+            first[b], cnt[b] = na[b], nb[b]
+            leaf[b] = True
+        else:
+            cap += 1
+            first[b] = min(first[na[b]], first[na[b] + 1])
+            cnt[b] = cnt[na[b]] + cnt[na[b] + 1]
+            leaf[b] = cnt[b] <= LEAF_MAX
+    box = np.empty((cap, 6, W), dtype=np.float32)
     sa = np.zeros(cap * W, dtype=np.int64)
     sb = np.zeros(cap * W, dtype=np.int64)
     st_bin = np.empty(cap, dtype=np.int64)
@@ -106,7 +157,9 @@ def _collapse(nlo, nhi, na, nb, W):
     while sp > 0:
         sp -= 1
         b, w = st_bin[sp], st_wide[sp]
-        if nb[b] >= 0:                          # a leaf root (tiny scene)
+        box[w, :3, :] = np.inf                  # empty slots: an empty box
+        box[w, 3:, :] = -np.inf
+        if leaf[b]:                             # a leaf root (tiny scene)
             cand[0] = b
             m = 1
         else:
@@ -116,7 +169,7 @@ def _collapse(nlo, nhi, na, nb, W):
                 best, best_a = -1, -1.0
                 for i in range(m):
                     c = cand[i]
-                    if nb[c] < 0:
+                    if not leaf[c]:
                         a = _area(nlo, nhi, c)
                         if a > best_a:
                             best, best_a = i, a
@@ -129,11 +182,11 @@ def _collapse(nlo, nhi, na, nb, W):
         for k in range(m - 1, -1, -1):          # first child pushed last: visited next
             c = cand[k]
             for a in range(3):
-                box[w, a, k] = nlo[c, a]
-                box[w, 3 + a, k] = nhi[c, a]
+                box[w, a, k] = _down(nlo[c, a])
+                box[w, 3 + a, k] = _up(nhi[c, a])
             s = w * W + k
-            if nb[c] >= 0:
-                sa[s], sb[s] = na[c], nb[c]
+            if leaf[c]:
+                sa[s], sb[s] = first[c], cnt[c]
             else:
                 sa[s], sb[s] = m_nodes, -1
                 st_bin[sp], st_wide[sp] = c, m_nodes
@@ -142,24 +195,12 @@ def _collapse(nlo, nhi, na, nb, W):
     return box[:m_nodes].copy(), sa[:m_nodes * W].copy(), sb[:m_nodes * W].copy()
 
 
-def _round_out(box):
-    """float32 copy of the (M, 6, W) boxes rounded outward (lo down, hi up)."""
-    b32 = box.astype(np.float32)
-    lo, hi = b32[:, :3], b32[:, 3:]
-    down = lo.astype(np.float64) > box[:, :3]
-    lo[down] = np.nextafter(lo[down], np.float32(-np.inf))
-    up = hi.astype(np.float64) < box[:, 3:]
-    hi[up] = np.nextafter(hi[up], np.float32(np.inf))
-    return np.ascontiguousarray(b32)
-
-
 def collapse(nlo, nhi, na, nb, width: int = WIDTH):
     """The wide-BVH arrays ``(box32 (M, 6, W) float32, slot_a, slot_b)`` of a binary
     tree in the flat layout of :mod:`.tree` (children in pairs, ``node_b = -2``)."""
     if np.any((nb < 0) & (nb != -2)):
         raise ValueError("collapse: the tree is not binary")
-    box, sa, sb = _collapse(nlo, nhi, na, nb, int(width))
-    return _round_out(box), sa, sb
+    return _collapse(nlo, nhi, na, nb, int(width))
 
 
 @njit(cache=True)
