@@ -104,9 +104,8 @@ class Algorithm:
         ``scene`` (:func:`core.scene.scene_features`) this algorithm does not model."""
         for feature, where in scene_features(scene).items():
             if feature not in self.models:
-                modelled = ", ".join(sorted(self.models)) or "none of them"
                 raise UnsupportedError(f"{self.name}: {where} uses '{feature}', which {self.name} does "
-                                       f"not model (of {', '.join(FEATURES)}: {modelled})")
+                                       "not model")
 
     def defaults(self) -> dict:
         return {p.name: p.default for p in self.params}

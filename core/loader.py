@@ -845,12 +845,16 @@ def sensor_fov(props: dict, aspect: float) -> float:
 
     ``fov`` along ``fov_axis`` (x, y, diagonal, smaller, larger), or ``focal_length``
     (``"<f>mm"`` or ``"<f>"``, default ``"50mm"``) of a 35 mm film: the diagonal
-    field of view 2 atan(√(36² + 24²) / (2 f)), whatever ``fov_axis`` says.
+    field of view 2 atan(√(36² + 24²) / (2 f)); ``fov_axis`` without ``fov`` is an
+    error (Mitsuba's unreferenced property).
     Raises ``ValueError`` with Mitsuba's reasons.
     """
     if "fov" in props and "focal_length" in props:
         raise ValueError("give either a focal length ('focal_length') or a field of view ('fov'), "
                          "not both (as Mitsuba requires)")
+    if "fov" not in props and "fov_axis" in props:
+        raise ValueError("'fov_axis' is read only with 'fov'; with a focal length the field of view "
+                         "is diagonal (Mitsuba refuses the unused property too)")
     if "fov" in props:
         fov = float(props["fov"])
         axis = str(props.get("fov_axis", "x")).lower()
@@ -1073,6 +1077,21 @@ def _transformed(ctx, el, shape: Shape, m: np.ndarray) -> Shape:
                                normals=n)
 
 
+def _used_materials(shapes, materials):
+    """(shapes, materials) keeping only the materials some shape uses, in their order
+    (shape indices remapped): a BSDF a file declares but no shape uses (a
+    documentation scene's spare plastic) does not reach the algorithms, as it does
+    not reach Mitsuba's image."""
+    import dataclasses
+
+    used = sorted({s.material for s in shapes})
+    if len(used) == len(materials):
+        return shapes, materials
+    index = {old: new for new, old in enumerate(used)}
+    return ([dataclasses.replace(s, material=index[s.material]) for s in shapes],
+            [materials[i] for i in used])
+
+
 def load_scene(path, defines: dict | None = None) -> Scene:
     """Parse a Mitsuba 3 XML scene file into a :class:`~core.scene.Scene`.
 
@@ -1147,5 +1166,6 @@ def load_scene(path, defines: dict | None = None) -> Scene:
                                "(supported: default, integrator, sensor, bsdf, shape, emitter)")
     if camera is None:
         raise ctx.error(root, "the scene has no sensor")
+    shapes, materials = _used_materials(shapes, materials)
     return Scene(path=path, camera=camera, shapes=shapes, materials=materials, lights=lights,
                  integrator=integrator, files=ctx.files, environment=environment, envmap=envmap)

@@ -303,9 +303,11 @@ def scene_features(scene: Scene) -> dict[str, str]:
         found["envmap"] = f"envmap emitter '{scene.envmap.filename}'"
     for light in scene.lights:
         if light.kind == "projector":
-            found.setdefault("projector", f"projector emitter '{light.name}'")
+            found.setdefault("projector", f"projector emitter '{light.name}'" if light.name else
+                             "a projector emitter")
         elif light.texture is not None:
-            found.setdefault("spot texture", f"spot emitter '{light.name}'")
+            found.setdefault("spot texture", f"spot emitter '{light.name}'" if light.name else
+                             "a textured spot emitter")
     for shape in scene.shapes:
         m = scene.materials[shape.material]
         where = f"shape '{shape.name or shape.source}'"
