@@ -20,6 +20,9 @@ default          ``name``/``value``; ``$name`` is substituted in every attribute
 integrator       any type (read for the reference's transport; own algorithms ignore it)
 sensor           ``perspective``: fov, fov_axis, near_clip, far_clip, to_world
                  (focus_distance is accepted and ignored: a pinhole has no focus);
+                 ``focal_length`` instead of fov ("50mm", Mitsuba's default when
+                 neither is given: the diagonal field of view of 35 mm film,
+                 :func:`sensor_fov` = Mitsuba's ``parse_fov``);
                  ``thinlens``: the same plus aperture_radius (required, as in
                  Mitsuba) and focus_distance (default far_clip);
                  ``orthographic``: near_clip, far_clip, to_world; every sensor:
@@ -47,21 +50,41 @@ shape            sphere (center/radius or to_world; gibench's own
                  centre(τ) = center + velocity·τ over the sensor's shutter — see
                  references/motion_blur.py), rectangle, cube, obj, ply,
                  disk, cylinder (p0, p1, radius; both tessellated, see
-                 :mod:`core.meshes`), flip_normals, face_normals
-bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric, twosided
-texture          nested in a diffuse bsdf as its ``reflectance``:
+                 :mod:`core.meshes`), serialized (Mitsuba's compressed mesh format,
+                 shape_index), flip_normals, face_normals; OBJ polygons are
+                 fan-triangulated (as Mitsuba); ``shapegroup`` + ``instance``
+                 (to_world): each instance's shapes flattened into world space
+bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric, twosided,
+                 plastic, roughplastic (diffuse_reflectance, specular_reflectance,
+                 int_ior, ext_ior, nonlinear; alpha, distribution, sample_visible),
+                 normalmap / bumpmap around one bsdf (:attr:`Material.shading`);
+                 ``principled`` refused by name (not a thesis model); BSDFs no
+                 shape uses are dropped
+texture          on any parameter Mitsuba reads as a texture (a conductor's
+                 specular_reflectance, eta, k; a rough BSDF's alpha; a plastic's
+                 reflectances: :attr:`Material.textures`), declared at scene
+                 level with an id and attached by ``<ref>``, or nested in a
+                 diffuse bsdf as its ``reflectance``:
                  ``checkerboard`` (color0, color1, to_uv) and ``bitmap``
                  (filename: PNG/JPEG sRGB-decoded unless ``raw``, EXR linear;
                  filter_type bilinear|nearest, wrap_mode repeat|clamp|mirror,
                  to_uv), on ``rectangle`` (Mitsuba's uv: the local [-1, 1]²
                  square mapped to [0, 1]²) and ``obj`` shapes with ``vt``
                  coordinates (v flipped on loading, as Mitsuba does)
-emitter          point, directional, spot; ``area`` inside a shape; ``constant``
-                 (uniform environment radiance, :attr:`Scene.environment`)
+emitter          point, directional, spot (with a ``texture``); ``area`` inside a shape
+                 or declared at scene level with an id and attached by ``<ref>``;
+                 ``constant`` (uniform environment radiance,
+                 :attr:`Scene.environment`); ``envmap`` (filename, scale, to_world:
+                 :attr:`Scene.envmap`); at most one environment emitter;
+                 ``projector`` (irradiance colour or texture, scale, fov /
+                 focal_length, to_world)
+medium           refused by name: participating media are out of scope
 ===============  ==============================================================
 
 Anything else raises :class:`SceneError` with one line naming the element, the
-file and the line.  Properties that do not change what is rendered by the own
+file and the line.  Which algorithm models the newer parts (plastic, envmap,
+projector, normal/bump maps, textured parameters) is
+:attr:`core.algorithm.Algorithm.models`; the others refuse a scene using them.  Properties that do not change what is rendered by the own
 algorithms and that Mitsuba accepts (``id`` names, film pixel formats, a
 sampler's seed) are accepted; any other property is an error, so nothing in a
 file is silently ignored.

@@ -258,8 +258,8 @@ class Light:
     #: spot: a texture modulating the beam (Mitsuba's ``texture``); projector: the
     #: projected ``irradiance`` texture (None: the constant ``radiant``).
     texture: dict | None = None
-    #: projector: camera-to-world of the projector (+z forward), its horizontal field
-    #: of view (degrees, Mitsuba's ``parse_fov``) and ``scale``.
+    #: projector (and textured spot): the emitter's to_world (+z forward); projector:
+    #: its horizontal field of view (degrees, Mitsuba's ``parse_fov``) and ``scale``.
     to_world: np.ndarray | None = None
     fov_x: float = 0.0
     scale: float = 1.0

@@ -144,7 +144,9 @@ def _rgb(p: dict, name: str, default: float, where: str) -> np.ndarray:
 def plastic_params(material, *, where: str = "plastic") -> PlasticParams:
     """Decode a :class:`core.scene.Material` of kind ``plastic``/``roughplastic``
     with Mitsuba's defaults (int_ior polypropylene, ext_ior air, diffuse 0.5,
-    alpha 0.1, beckmann, sample_visible true, nonlinear false)."""
+    alpha 0.1, beckmann, sample_visible true, nonlinear false).  Textured
+    reflectances enter as their means (the lobe weight, as Mitsuba); the
+    per-point values are the caller's lookups (:mod:`impl.textures`)."""
     p = material.params
     if material.kind not in ("plastic", "roughplastic"):
         raise ValueError(f"plastic_params: not a plastic material ({material.kind})")
@@ -153,7 +155,10 @@ def plastic_params(material, *, where: str = "plastic") -> PlasticParams:
     if material.kind == "roughplastic" and n_int == n_ext:
         raise SceneError(f"{where}: roughplastic needs int_ior != ext_ior (as Mitsuba requires)")
     eta = n_int / n_ext
-    diffuse = _rgb(p, "diffuse_reflectance", 0.5, where)
+    # A textured diffuse_reflectance: the texture's mean (the loader's ``reflectance``),
+    # which is also what Mitsuba's lobe weight uses (``Texture::mean``).
+    diffuse = _rgb(p, "diffuse_reflectance", 0.5, where) if "diffuse_reflectance" in p else \
+        np.asarray(material.reflectance, dtype=np.float64)
     specular = _rgb(p, "specular_reflectance", 1.0, where)
     d_mean = float(diffuse.mean())
     s_mean = float(specular.mean()) if "specular_reflectance" in p else 1.0

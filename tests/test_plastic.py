@@ -118,3 +118,28 @@ def test_sampler_matches_pdf_chi2(kind, params):
     # the expected counts include the delta lobe's share as missing mass
     assert abs(c.sum() - e.sum()) / n < 0.02
     assert p > 0.01
+
+
+def test_plastic_arrays_rows_of_a_thirdparty_scene():
+    """Rows of the table equal plastic_params for each plastic material of a scene
+    (the diffuse texture's mean for a textured diffuse_reflectance), zeros elsewhere."""
+    from pathlib import Path
+
+    from core.loader import load_scene
+    from impl.materials import plastic_arrays
+
+    root = Path(__file__).resolve().parent.parent / "suites" / "thirdparty" / "docs" / "scenes"
+    scene = load_scene(root / "bsdf_roughplastic_preserve.xml")
+    A = plastic_arrays(scene)
+    kinds = [m.kind for m in scene.materials]
+    assert "roughplastic" in kinds
+    for i, m in enumerate(scene.materials):
+        if m.kind != "roughplastic":
+            assert A.is_plastic[i] == 0
+            continue
+        P = plastic_params(m)
+        assert A.is_plastic[i] == 2 and A.eta[i] == P.eta and A.int_r[i] == P.int_r
+        assert np.array_equal(A.ext_t[i], P.ext_t)
+        assert np.allclose(A.diffuse[i], m.reflectance)
+    with pytest.raises(Exception, match="distribution 'ggx' is not modelled"):
+        plastic_arrays(load_scene(root / "bsdf_roughplastic_ggx.xml"))
