@@ -206,3 +206,45 @@ def test_vocabulary_scenes_pass_the_ztest_against_mitsuba_direct(name):
     assert z.passed, z
     assert not z_test(ref.image, own.image * 1.03, reference_variance=ref.variance,
                       test_variance=own.variance).passed
+
+
+@pytest.mark.parametrize("props, aspect_image", [
+    ('<float name="fov" value="32"/>', None),
+    ('<string name="focal_length" value="28mm"/>', None),
+    ('<float name="fov" value="40"/><string name="fov_axis" value="y"/>', "bitmap"),
+])
+def test_projector_field_of_view_matches_mitsuba(mitsuba, tmp_path, props, aspect_image):
+    """A projector's horizontal field of view is Mitsuba's (parse_fov with the
+    irradiance texture's aspect, 1 for a constant)."""
+    mi = mitsuba
+    tex = ""
+    if aspect_image:
+        fn = THIRDPARTY / "common" / "textures" / "carrot.png"
+        tex = (f'<texture type="bitmap" name="irradiance"><string name="filename" value="{fn}"/>'
+               '</texture>')
+    extra = f'<emitter type="projector" id="proj">{props}{tex}</emitter><shape type="sphere"/>'
+    path = _write(tmp_path, SENSOR.format(props='<float name="fov" value="45"/>', w=32, h=24,
+                                          extra=extra))
+    (proj,) = load_scene(path).lights
+    emitter = [e for e in mi.load_file(str(path)).emitters()][0]
+    import re
+
+    # Mitsuba's projector does not expose x_fov as a parameter; its to_string() prints it.
+    x_fov = float(re.search(r"x_fov = ([-+0-9.eE]+)", str(emitter)).group(1))
+    assert proj.fov_x == pytest.approx(x_fov, rel=1e-5)
+
+
+def test_plastic_alone_is_refused_by_name(tmp_path):
+    """A scene whose only new feature is a plastic sphere: each algorithm names 'plastic'."""
+    from gibench import registry
+
+    extra = ('<emitter type="point"><point name="position" value="0, 0, -3"/></emitter>'
+             '<shape type="sphere" id="ball"><point name="center" value="0, 0, 3"/>'
+             '<bsdf type="plastic"/></shape>')
+    scene = load_scene(_write(tmp_path, SENSOR.format(props='<float name="fov" value="45"/>', w=8,
+                                                      h=6, extra=extra)))
+    for name in ("raycast", "whitted", "path", "distributed"):
+        algo = registry.get(name)
+        with pytest.raises(UnsupportedError) as info:
+            algo.render(scene, algo.parse_params({}), seed=0)
+        assert str(info.value) == f"{name}: shape 'ball' uses 'plastic', which {name} does not model"
