@@ -71,23 +71,25 @@ texture          on any parameter Mitsuba reads as a texture (a conductor's
                  to_uv), on ``rectangle`` (Mitsuba's uv: the local [-1, 1]²
                  square mapped to [0, 1]²) and ``obj`` shapes with ``vt``
                  coordinates (v flipped on loading, as Mitsuba does)
-emitter          point, directional, spot (with a ``texture``); ``area`` inside a shape
-                 or declared at scene level with an id and attached by ``<ref>``;
-                 ``constant`` (uniform environment radiance,
-                 :attr:`Scene.environment`); ``envmap`` (filename, scale, to_world:
-                 :attr:`Scene.envmap`); at most one environment emitter;
-                 ``projector`` (irradiance colour or texture, scale, fov /
-                 focal_length, to_world)
 medium           refused by name: participating media are out of scope
+(emitter)        ``envmap`` (filename, scale, to_world: :attr:`Scene.envmap`; at
+                 most one environment emitter); ``projector`` (irradiance colour or
+                 texture, scale, fov / focal_length, to_world); a spot's
+                 ``texture``; an ``area`` emitter declared at scene level with an id
+                 and attached by ``<ref>``
+emitter          point, directional, spot; ``area`` inside a shape; ``constant``
+                 (uniform environment radiance, :attr:`Scene.environment`)
 ===============  ==============================================================
 
 Anything else raises :class:`SceneError` with one line naming the element, the
-file and the line.  Which algorithm models the newer parts (plastic, envmap,
-projector, normal/bump maps, textured parameters) is
-:attr:`core.algorithm.Algorithm.models`; the others refuse a scene using them.  Properties that do not change what is rendered by the own
+file and the line.   Properties that do not change what is rendered by the own
 algorithms and that Mitsuba accepts (``id`` names, film pixel formats, a
 sampler's seed) are accepted; any other property is an error, so nothing in a
 file is silently ignored.
+
+Which algorithm models the newer parts of the vocabulary (plastic, envmap,
+projector, normal/bump maps, textured parameters) is
+:attr:`core.algorithm.Algorithm.models`; the others refuse a scene using them.
 """
 
 from __future__ import annotations
@@ -743,9 +745,7 @@ def _velocity(ctx, el, p):
 
 def _light(ctx, el) -> Light:
     p = _Plugin(ctx, el, "emitter")
-    if p.type == "projector":
-        return _projector(ctx, p)
-    p.unexpected_children(("texture",) if p.type == "spot" else ())
+    p.unexpected_children(())
     m = p.get("to_world", np.eye(4))
     name = ctx.attr(el, "id", "") or ""
     if p.type == "area":
@@ -765,8 +765,7 @@ def _light(ctx, el) -> Light:
     beam = float(p.get("beam_width", cutoff * 0.75))
     d = tf.transform_vectors(m, [0.0, 0.0, 1.0])
     return Light("spot", _rgb(ctx, p, "intensity", 1.0), position=tf.transform_points(m, np.zeros(3)),
-                 direction=d / np.linalg.norm(d), cutoff_angle=cutoff, beam_width=beam, name=name,
-                 texture=_emitter_texture(ctx, p, "texture"), to_world=m)
+                 direction=d / np.linalg.norm(d), cutoff_angle=cutoff, beam_width=beam, name=name)
 
 
 def _camera(ctx, el) -> Camera:
@@ -825,6 +824,73 @@ def _integrator(ctx, el) -> dict:
             out[ctx.attr(c, "name")] = v.tolist() if isinstance(v, np.ndarray) else v
     return out
 
+
+
+def load_scene(path, defines: dict | None = None) -> Scene:
+    """Parse a Mitsuba 3 XML scene file into a :class:`~core.scene.Scene`.
+
+    ``defines`` maps ``<default>`` names to values that replace the file's
+    defaults (Mitsuba's ``-D name=value``); a name the file does not declare is
+    still usable as ``$name``.
+
+    Raises
+    ------
+    SceneError
+        One line naming the file, the line and the element, for a missing file,
+        malformed XML, an unsupported plugin or property, or a missing mesh.
+    """
+    path = Path(path)
+    # Pass 1 (core.xmlscene): defaults, includes and paths; then ids.
+    ctx = resolve(path, defines, cls=_Ctx)
+    root = ctx.root
+    for c in root.iter():
+        if isinstance(c.tag, str) and c.get("id") is not None and c.tag != "ref":
+            ctx.ids[ctx.attr(c, "id")] = c
+
+    materials: list[Material] = []
+    cache: dict = {}
+    default_mat_index: list[int] = []
+
+    def default_mat() -> int:
+        if not default_mat_index:
+            materials.append(Material(kind="diffuse", reflectance=(0.5, 0.5, 0.5), name="(default)"))
+            default_mat_index.append(len(materials) - 1)
+        return default_mat_index[0]
+
+    camera, shapes, lights, integrator = None, [], [], {"type": "path"}
+    environment = None
+    vocab = _Vocabulary()
+    for c in root:
+        if not isinstance(c.tag, str) or c.tag == "default":
+            continue
+        if vocab.element(ctx, c, shapes, lights, materials, cache, default_mat):
+            continue
+        if c.tag == "integrator":
+            integrator = _integrator(ctx, c)
+        elif c.tag == "sensor":
+            if camera is not None:
+                raise ctx.error(c, "more than one sensor")
+            camera = _camera(ctx, c)
+        elif c.tag == "bsdf":
+            _material(ctx, c, materials, cache)
+        elif c.tag == "shape":
+            shapes.append(_shape(ctx, c, materials, cache, default_mat))
+        elif c.tag == "emitter" and ctx.attr(c, "type") == "constant":
+            if environment is not None:
+                raise ctx.error(c, "more than one constant environment emitter")
+            environment = _environment(ctx, c)
+        elif c.tag == "emitter":
+            lights.append(_light(ctx, c))
+        else:
+            raise ctx.error(c, f"unsupported element '{c.tag}' at scene level "
+                               "(supported: default, integrator, sensor, bsdf, shape, emitter)")
+    if camera is None:
+        raise ctx.error(root, "the scene has no sensor")
+    vocab.finish(ctx, environment)
+    shapes, materials = _used_materials(shapes, materials)
+    return Scene(path=path, camera=camera, shapes=shapes, materials=materials, lights=lights,
+                 integrator=integrator, files=ctx.files, environment=environment,
+                 envmap=vocab.envmap)
 
 
 # ------------------------------------------------------------ vocabulary ---
@@ -1115,80 +1181,68 @@ def _used_materials(shapes, materials):
             [materials[i] for i in used])
 
 
-def load_scene(path, defines: dict | None = None) -> Scene:
-    """Parse a Mitsuba 3 XML scene file into a :class:`~core.scene.Scene`.
+def _textured_spot(ctx, el) -> Light:
+    """A ``spot`` with a ``texture``: the spot as :func:`_light` reads it (from a copy
+    of the element without the texture) plus the texture and the emitter's to_world."""
+    import copy
+    import dataclasses
 
-    ``defines`` maps ``<default>`` names to values that replace the file's
-    defaults (Mitsuba's ``-D name=value``); a name the file does not declare is
-    still usable as ``$name``.
+    p = _Plugin(ctx, el, "emitter")
+    p.unexpected_children(("texture",))
+    tex = _emitter_texture(ctx, p, "texture")
+    bare = copy.deepcopy(el)
+    for c in list(bare):
+        if isinstance(c.tag, str) and (c.tag == "texture" or (c.tag == "ref" and c.get("id") in ctx.ids
+                                                              and ctx.ids[c.get("id")].tag == "texture")):
+            bare.remove(c)
+    light = _light(ctx, bare)
+    return dataclasses.replace(light, texture=tex, to_world=np.asarray(p.get("to_world", np.eye(4)),
+                                                                       dtype=np.float64))
 
-    Raises
-    ------
-    SceneError
-        One line naming the file, the line and the element, for a missing file,
-        malformed XML, an unsupported plugin or property, or a missing mesh.
-    """
-    path = Path(path)
-    # Pass 1 (core.xmlscene): defaults, includes and paths; then ids.
-    ctx = resolve(path, defines, cls=_Ctx)
-    root = ctx.root
-    for c in root.iter():
-        if isinstance(c.tag, str) and c.get("id") is not None and c.tag != "ref":
-            ctx.ids[ctx.attr(c, "id")] = c
 
-    materials: list[Material] = []
-    cache: dict = {}
-    default_mat_index: list[int] = []
+class _Vocabulary:
+    """The scene-level elements of the vocabulary beyond the original subset, read
+    before the original ones (:func:`load_scene` asks :meth:`element` first):
+    instances (their shapes flattened) and shapegroup definitions, an ``envmap``,
+    ``projector`` and textured ``spot`` emitters, area emitters and textures
+    declared with an id for ``<ref>``, and media (refused)."""
 
-    def default_mat() -> int:
-        if not default_mat_index:
-            materials.append(Material(kind="diffuse", reflectance=(0.5, 0.5, 0.5), name="(default)"))
-            default_mat_index.append(len(materials) - 1)
-        return default_mat_index[0]
+    def __init__(self):
+        self.envmap: EnvMap | None = None
+        self.envmap_el = None
 
-    camera, shapes, lights, integrator = None, [], [], {"type": "path"}
-    environment = envmap = None
-    environment_el = None
-    for c in root:
-        if not isinstance(c.tag, str) or c.tag == "default":
-            continue
-        if c.tag == "integrator":
-            integrator = _integrator(ctx, c)
-        elif c.tag == "sensor":
-            if camera is not None:
-                raise ctx.error(c, "more than one sensor")
-            camera = _camera(ctx, c)
-        elif c.tag == "bsdf":
-            _material(ctx, c, materials, cache)
-        elif c.tag == "shape" and ctx.attr(c, "type") == "shapegroup":
-            continue                   # a definition: its shapes appear through instances
-        elif c.tag == "shape" and ctx.attr(c, "type") == "instance":
+    def element(self, ctx, c, shapes, lights, materials, cache, default_mat) -> bool:
+        """Handle scene-level element ``c`` if it is one of these; True when handled."""
+        kind = ctx.attr(c, "type")
+        if c.tag == "shape" and kind == "shapegroup":
+            return True                # a definition: its shapes appear through instances
+        if c.tag == "shape" and kind == "instance":
             shapes.extend(_instance(ctx, c, materials, cache, default_mat))
-        elif c.tag == "shape":
-            shapes.append(_shape(ctx, c, materials, cache, default_mat))
-        elif c.tag == "emitter" and ctx.attr(c, "type") in ("constant", "envmap"):
-            if environment_el is not None:
-                raise ctx.error(c, "only one environment emitter (constant or envmap) can be "
-                                   f"specified per scene (as Mitsuba requires); the first is at "
-                                   f"line {environment_el.sourceline}")
-            environment_el = c
-            if ctx.attr(c, "type") == "constant":
-                environment = _environment(ctx, c)
-            else:
-                envmap = _envmap(ctx, c)
-        elif c.tag == "emitter" and ctx.attr(c, "type") == "area" and c.get("id") is not None:
-            continue                   # a definition, attached to shapes by <ref>
-        elif c.tag == "emitter":
-            lights.append(_light(ctx, c))
-        elif c.tag == "texture" and c.get("id") is not None:
+            return True
+        if c.tag == "emitter" and kind == "envmap":
+            if self.envmap_el is not None:
+                raise ctx.error(c, "only one environment emitter can be specified per scene (as "
+                                   f"Mitsuba requires); another is at line {self.envmap_el.sourceline}")
+            self.envmap_el, self.envmap = c, _envmap(ctx, c)
+            return True
+        if c.tag == "emitter" and kind == "projector":
+            lights.append(_projector(ctx, _Plugin(ctx, c, "emitter")))
+            return True
+        if c.tag == "emitter" and kind == "spot" and any(
+                isinstance(x.tag, str) and (x.tag == "texture" or x.tag == "ref") for x in c):
+            lights.append(_textured_spot(ctx, c))
+            return True
+        if c.tag == "emitter" and kind == "area" and c.get("id") is not None:
+            return True                # a definition, attached to shapes by <ref>
+        if c.tag == "texture" and c.get("id") is not None:
             _Plugin(ctx, c, "texture")  # a definition, used by <ref>; its type is checked here
-        elif c.tag == "medium":
+            return True
+        if c.tag == "medium":
             raise _medium_error(ctx, c)
-        else:
-            raise ctx.error(c, f"unsupported element '{c.tag}' at scene level "
-                               "(supported: default, integrator, sensor, bsdf, shape, emitter)")
-    if camera is None:
-        raise ctx.error(root, "the scene has no sensor")
-    shapes, materials = _used_materials(shapes, materials)
-    return Scene(path=path, camera=camera, shapes=shapes, materials=materials, lights=lights,
-                 integrator=integrator, files=ctx.files, environment=environment, envmap=envmap)
+        return False
+
+    def finish(self, ctx, environment) -> None:
+        """Checks over the whole scene: at most one environment emitter."""
+        if self.envmap_el is not None and environment is not None:
+            raise ctx.error(self.envmap_el, "only one environment emitter (constant or envmap) can "
+                                            "be specified per scene (as Mitsuba requires)")
