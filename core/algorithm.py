@@ -17,7 +17,8 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import ParamError
+from .errors import ParamError, UnsupportedError
+from .scene import FEATURES, scene_features
 
 __all__ = ["Param", "Algorithm", "RenderResult", "ParamError"]
 
@@ -89,6 +90,32 @@ class Algorithm:
     render: Callable                 # render(scene, params: dict, *, seed: int) -> RenderResult
     transport: str = "direct"        # the light transport it computes: 'direct' or 'full'
     spp_param: str | None = "spp"    # which parameter the CLI's --spp sets
+    #: Scene features (:data:`core.scene.FEATURES`) the algorithm models; a scene
+    #: with any other one is refused by ``render`` before the algorithm runs.
+    models: frozenset = frozenset()
+
+    def __post_init__(self):
+        unknown = set(self.models) - set(FEATURES)
+        if unknown:
+            raise ValueError(f"Algorithm '{self.name}': unknown features {sorted(unknown)} "
+                             f"(known: {', '.join(FEATURES)})")
+        inner = self.render
+
+        def render(scene, params, *args, **kwargs):
+            self.check_scene(scene)
+            return inner(scene, params, *args, **kwargs)
+
+        render.__wrapped__ = inner
+        render.__doc__ = inner.__doc__
+        object.__setattr__(self, "render", render)
+
+    def check_scene(self, scene) -> None:
+        """Raise :class:`UnsupportedError` (one line) naming the first feature of
+        ``scene`` (:func:`core.scene.scene_features`) this algorithm does not model."""
+        for feature, where in scene_features(scene).items():
+            if feature not in self.models:
+                raise UnsupportedError(f"{self.name}: {where} uses '{feature}', which {self.name} does "
+                                       "not model")
 
     def defaults(self) -> dict:
         return {p.name: p.default for p in self.params}

@@ -20,6 +20,9 @@ default          ``name``/``value``; ``$name`` is substituted in every attribute
 integrator       any type (read for the reference's transport; own algorithms ignore it)
 sensor           ``perspective``: fov, fov_axis, near_clip, far_clip, to_world
                  (focus_distance is accepted and ignored: a pinhole has no focus);
+                 ``focal_length`` instead of fov ("50mm", Mitsuba's default when
+                 neither is given: the diagonal field of view of 35 mm film,
+                 :func:`sensor_fov` = Mitsuba's ``parse_fov``);
                  ``thinlens``: the same plus aperture_radius (required, as in
                  Mitsuba) and focus_distance (default far_clip);
                  ``orthographic``: near_clip, far_clip, to_world; every sensor:
@@ -47,15 +50,33 @@ shape            sphere (center/radius or to_world; gibench's own
                  centre(τ) = center + velocity·τ over the sensor's shutter — see
                  references/motion_blur.py), rectangle, cube, obj, ply,
                  disk, cylinder (p0, p1, radius; both tessellated, see
-                 :mod:`core.meshes`), flip_normals, face_normals
-bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric, twosided
-texture          nested in a diffuse bsdf as its ``reflectance``:
+                 :mod:`core.meshes`), serialized (Mitsuba's compressed mesh format,
+                 shape_index), flip_normals, face_normals; OBJ polygons are
+                 fan-triangulated (as Mitsuba); ``shapegroup`` + ``instance``
+                 (to_world): each instance's shapes flattened into world space
+bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric, twosided,
+                 plastic, roughplastic (diffuse_reflectance, specular_reflectance,
+                 int_ior, ext_ior, nonlinear; alpha, distribution, sample_visible),
+                 normalmap / bumpmap around one bsdf (:attr:`Material.shading`);
+                 ``principled`` refused by name (not a thesis model); BSDFs no
+                 shape uses are dropped
+texture          on any parameter Mitsuba reads as a texture (a conductor's
+                 specular_reflectance, eta, k; a rough BSDF's alpha; a plastic's
+                 reflectances: :attr:`Material.textures`), declared at scene
+                 level with an id and attached by ``<ref>``, or nested in a
+                 diffuse bsdf as its ``reflectance``:
                  ``checkerboard`` (color0, color1, to_uv) and ``bitmap``
                  (filename: PNG/JPEG sRGB-decoded unless ``raw``, EXR linear;
                  filter_type bilinear|nearest, wrap_mode repeat|clamp|mirror,
                  to_uv), on ``rectangle`` (Mitsuba's uv: the local [-1, 1]²
                  square mapped to [0, 1]²) and ``obj`` shapes with ``vt``
                  coordinates (v flipped on loading, as Mitsuba does)
+medium           refused by name: participating media are out of scope
+(emitter)        ``envmap`` (filename, scale, to_world: :attr:`Scene.envmap`; at
+                 most one environment emitter); ``projector`` (irradiance colour or
+                 texture, scale, fov / focal_length, to_world); a spot's
+                 ``texture``; an ``area`` emitter declared at scene level with an id
+                 and attached by ``<ref>``
 emitter          point, directional, spot; ``area`` inside a shape; ``constant``
                  (uniform environment radiance, :attr:`Scene.environment`)
 ===============  ==============================================================
@@ -70,10 +91,14 @@ entity-free parsing, the include limits) is :mod:`core.xmlscene`, shared with
 the reference store.
 
 Anything else raises :class:`SceneError` with one line naming the element, the
-file and the line.  Properties that do not change what is rendered by the own
+file and the line.   Properties that do not change what is rendered by the own
 algorithms and that Mitsuba accepts (``id`` names, film pixel formats, a
 sampler's seed) are accepted; any other property is an error, so nothing in a
 file is silently ignored.
+
+Which algorithm models the newer parts of the vocabulary (plastic, envmap,
+projector, normal/bump maps, textured parameters) is
+:attr:`core.algorithm.Algorithm.models`; the others refuse a scene using them.
 """
 
 from __future__ import annotations
@@ -85,17 +110,20 @@ import numpy as np
 from lxml import etree
 
 from . import transforms as tf
-from .meshes import MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_uvs, rectangle
-from .scene import Camera, Film, Light, Material, Scene, Shape, Spectrum
+from .meshes import (MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_uvs, load_serialized,
+                     rectangle)
+from .scene import Camera, EnvMap, Film, Light, Material, Scene, Shape, Spectrum
 from .errors import SceneError
 from .xmlscene import Document, _snake_case, resolve, short  # noqa: F401  (_snake_case: tests)
 
-__all__ = ["SceneError", "load_scene", "SUPPORTED"]
+__all__ = ["SceneError", "load_scene", "SUPPORTED", "REFUSED", "sensor_fov"]
 
 SUPPORTED = {
-    "shape": ("sphere", "rectangle", "cube", "disk", "cylinder", "obj", "ply"),
-    "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric", "twosided"),
-    "emitter": ("point", "directional", "spot", "area", "constant"),
+    "shape": ("sphere", "rectangle", "cube", "disk", "cylinder", "obj", "ply", "serialized",
+              "shapegroup", "instance"),
+    "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric", "twosided",
+             "plastic", "roughplastic", "normalmap", "bumpmap"),
+    "emitter": ("point", "directional", "spot", "area", "constant", "envmap", "projector"),
     "sensor": ("perspective", "thinlens", "orthographic"),
     "film": ("hdrfilm",),
     "rfilter": ("box", "gaussian"),
@@ -104,7 +132,7 @@ SUPPORTED = {
 
 #: Shapes whose uv parameterisation the loader reproduces (for textures); an
 #: ``obj`` needs ``vt`` coordinates in the file.
-_UV_SHAPES = ("rectangle", "obj")
+_UV_SHAPES = ("rectangle", "obj", "serialized")
 
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector",
                "transform")
@@ -112,9 +140,9 @@ _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "poin
 # Properties each plugin accepts: name -> what the own algorithms do with it.
 _PROPS = {
     ("sensor", "perspective"): {"fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance",
-                                "shutter_open", "shutter_close"},
+                                "shutter_open", "shutter_close", "focal_length"},
     ("sensor", "thinlens"): {"fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance",
-                             "aperture_radius", "shutter_open", "shutter_close"},
+                             "aperture_radius", "shutter_open", "shutter_close", "focal_length"},
     ("sensor", "orthographic"): {"near_clip", "far_clip", "to_world", "shutter_open", "shutter_close"},
     ("film", "hdrfilm"): {"width", "height", "pixel_format", "component_format"},
     ("rfilter", "box"): set(),
@@ -142,6 +170,18 @@ _PROPS = {
     ("texture", "checkerboard"): {"color0", "color1", "to_uv"},
     ("texture", "bitmap"): {"filename", "filter_type", "wrap_mode", "raw", "to_uv", "format"},
     ("emitter", "constant"): {"radiance"},
+    # The rest of the Mitsuba 3 vocabulary users' files bring (see _VOCABULARY_DOC).
+    ("shape", "serialized"): {"filename", "shape_index", "to_world", "flip_normals", "face_normals"},
+    ("shape", "shapegroup"): set(),
+    ("shape", "instance"): {"to_world"},
+    ("bsdf", "plastic"): {"diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior",
+                          "nonlinear"},
+    ("bsdf", "roughplastic"): {"diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior",
+                               "nonlinear", "alpha", "distribution", "sample_visible"},
+    ("bsdf", "normalmap"): {"flip_invalid_normals", "use_shadowing_function"},
+    ("bsdf", "bumpmap"): {"scale", "flip_invalid_normals", "use_shadowing_function"},
+    ("emitter", "envmap"): {"filename", "scale", "to_world", "mis_compensation"},
+    ("emitter", "projector"): {"irradiance", "scale", "to_world", "fov", "fov_axis", "focal_length"},
 }
 
 
@@ -187,6 +227,14 @@ _SCHEMA = {
     "alpha_v": ("number", lambda v: v >= 0.0, ">= 0"),
     "cauchy_b": ("number", lambda v: v >= 0.0, ">= 0"),
     "int_ior": ("ior", lambda v: v > 0.0, "> 0 or a material name"),
+    "focal_length": ("string", None, ""),
+    "shape_index": ("integer", lambda v: v >= 0, ">= 0"),
+    "scale": ("number", None, ""),
+    "diffuse_reflectance": ("colour", None, ">= 0"),
+    "nonlinear": ("boolean", None, ""),
+    "flip_invalid_normals": ("boolean", None, ""),
+    "use_shadowing_function": ("boolean", None, ""),
+    "mis_compensation": ("boolean", None, ""),
     "ext_ior": ("ior", lambda v: v > 0.0, "> 0 or a material name"),
     **{name: ("colour", None, ">= 0") for name in (
         "reflectance", "radiance", "intensity", "irradiance", "specular_reflectance",
@@ -362,6 +410,8 @@ class _Plugin:
         self.type = ctx.attr(el, "type")
         if self.type is None:
             raise ctx.error(el, "missing 'type' attribute")
+        if (kind, self.type) in REFUSED:
+            raise ctx.error(el, f"{kind} '{self.type}' is not supported: {REFUSED[(kind, self.type)]}")
         if kind in SUPPORTED and self.type not in SUPPORTED[kind]:
             raise ctx.error(el, f"unsupported {kind} type '{self.type}' "
                                 f"(supported: {', '.join(SUPPORTED[kind])})")
@@ -383,7 +433,11 @@ class _Plugin:
                 ref_id = ctx.attr(c, "id")
                 if ref_id not in ctx.ids:
                     raise ctx.error(c, f"reference to unknown id '{ref_id}'")
+                if ctx.ids[ref_id].tag == "medium":
+                    raise _medium_error(ctx, c)
                 self.children.append((ctx.attr(c, "name"), ctx.ids[ref_id]))
+            elif c.tag == "medium":
+                raise _medium_error(ctx, c)
             else:
                 self.children.append((ctx.attr(c, "name"), c))
 
@@ -452,6 +506,7 @@ def _material(ctx, el, materials: list, cache: dict) -> int:
     if key in cache:
         return cache[key]
     p = _Plugin(ctx, el, "bsdf")
+    p, shading = _shading_wrapper(ctx, p)
     twosided = False
     if p.type == "twosided":
         inner = p.child_elements("bsdf")
@@ -461,22 +516,31 @@ def _material(ctx, el, materials: list, cache: dict) -> int:
         p = _Plugin(ctx, inner[0], "bsdf")
         if p.type == "twosided":
             raise ctx.error(inner[0], "nested twosided bsdf")
+        if shading is None:
+            p, shading = _shading_wrapper(ctx, p)
         twosided = True
+    if p.type in _WRAPPERS:
+        raise ctx.error(p.el, f"a {p.type} bsdf must wrap a plain bsdf (at most one normalmap or "
+                              "bumpmap, outside or inside twosided)")
     texture = None
     if p.type == "diffuse":
         p.unexpected_children(("texture",))
         texture = _texture(ctx, p)
+        textures = {}
     else:
-        p.unexpected_children(())
+        textures = _param_textures(ctx, p)
     if texture is not None and texture["type"] == "bitmap":
         refl = tuple(float(x) for x in texture["data"].reshape(-1, 3).mean(axis=0))
     elif texture is not None:
         refl = tuple(0.5 * (np.asarray(texture["color0"]) + np.asarray(texture["color1"])))
+    elif p.type in ("plastic", "roughplastic"):
+        refl = _plastic_albedo(ctx, p, textures)
     else:
         refl = tuple(_rgb(ctx, p, "reflectance", 0.5)) if p.type == "diffuse" else (0.0, 0.0, 0.0)
     params = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in p.props.items()}
     materials.append(Material(kind=p.type, reflectance=refl, twosided=twosided, params=params,
-                              name=ctx.attr(el, "id", "") or "", texture=texture))
+                              name=ctx.attr(el, "id", "") or "", texture=texture, textures=textures,
+                              shading=shading))
     cache[key] = len(materials) - 1
     return cache[key]
 
@@ -493,6 +557,11 @@ def _texture(ctx, bsdf) -> dict | None:
         raise ctx.error(el, f"a texture of a diffuse bsdf must be named 'reflectance', got '{name}'")
     if "reflectance" in bsdf.props:
         raise ctx.error(el, "'reflectance' is given both as a value and as a texture")
+    return _texture_element(ctx, el)
+
+
+def _texture_element(ctx, el) -> dict:
+    """A ``<texture>`` element (``checkerboard`` or ``bitmap``) as the model's texture dict."""
     t = _Plugin(ctx, el, "texture")
     t.unexpected_children(())
     m = np.asarray(t.get("to_uv", np.eye(4)), dtype=np.float64)
@@ -590,7 +659,7 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
         emit_spectrum = ep.get("radiance") if isinstance(ep.get("radiance"), Spectrum) else None
     flip = bool(p.get("flip_normals", False))
     name = ctx.attr(el, "id", "") or ""
-    tex = materials[mat].texture
+    tex = _uv_texture(materials[mat])
     if tex is not None and p.type not in _UV_SHAPES:
         raise ctx.error(el, f"a {tex['type']} texture on a {p.type} is not supported: the loader "
                             f"reproduces Mitsuba's uv only for {', '.join(_UV_SHAPES)}")
@@ -614,6 +683,10 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
         v, f, n = rectangle() if p.type == "rectangle" else cube()
         if p.type == "rectangle":
             uvs = 0.5 * (v[:, :2] + 1.0)      # Mitsuba: local (x, y) ∈ [-1, 1]² -> uv ∈ [0, 1]²
+    elif p.type == "serialized":
+        v, f, n, uvs = _serialized_mesh(ctx, p, tex)
+    elif p.type in ("shapegroup", "instance"):
+        raise ctx.error(el, f"a {p.type} must be at scene level (Mitsuba does not nest them)")
     else:
         fn = p.get("filename")
         if fn is None:
@@ -758,11 +831,7 @@ def _camera(ctx, el) -> Camera:
                   sample_count=spp, kind=p.type, shutter_open=s_open, shutter_close=s_close)
     if p.type == "orthographic":
         return Camera(**common)
-    axis = p.get("fov_axis", "x")
-    if axis not in ("x", "y", "diagonal", "smaller", "larger"):
-        raise ctx.error(el, f"unknown fov_axis '{axis}' (x, y, diagonal, smaller, larger)")
-    if "fov" not in p.props:
-        raise ctx.error(el, f"{p.type} sensor needs 'fov' (focal_length is not supported)")
+    fov, axis = _sensor_fov(ctx, p)
     lens = {}
     if p.type == "thinlens":
         if "aperture_radius" not in p.props:
@@ -773,7 +842,7 @@ def _camera(ctx, el) -> Camera:
             raise ctx.error(el, f"thinlens needs aperture_radius >= 0 and focus_distance > 0, "
                                 f"got {radius} and {focus}")
         lens = dict(aperture_radius=radius, focus_distance=focus)
-    return Camera(fov=float(p.get("fov")), fov_axis=axis, **common, **lens)
+    return Camera(fov=fov, fov_axis=axis, **common, **lens)
 
 
 def _integrator(ctx, el) -> dict:
@@ -834,8 +903,11 @@ def load_scene(path, defines: dict | None = None) -> Scene:
 
     camera, shapes, lights, integrator = None, [], [], {"type": "path"}
     environment = None
+    vocab = _Vocabulary()
     for c in root:
         if not isinstance(c.tag, str) or c.tag == "default":
+            continue
+        if vocab.element(ctx, c, shapes, lights, materials, cache, default_mat):
             continue
         if c.tag == "integrator":
             integrator = _integrator(ctx, c)
@@ -866,5 +938,363 @@ def load_scene(path, defines: dict | None = None) -> Scene:
                                "(supported: default, integrator, sensor, bsdf, shape, emitter)")
     if camera is None:
         raise ctx.error(root, "the scene has no sensor")
+    vocab.finish(ctx, environment)
+    shapes, materials = _used_materials(shapes, materials)
     return Scene(path=path, camera=camera, shapes=shapes, materials=materials, lights=lights,
-                 integrator=integrator, files=ctx.files, environment=environment)
+                 integrator=integrator, files=ctx.files, environment=environment,
+                 envmap=vocab.envmap)
+
+
+# ------------------------------------------------------------ vocabulary ---
+# The rest of the Mitsuba 3 vocabulary real scene files use: focal lengths,
+# nested and referenced definitions, instancing, the serialized mesh format,
+# plastic BSDFs, textures on any texturable parameter, normal and bump maps,
+# envmap and projector emitters.  What the scene model records for each is in
+# core.scene; which algorithm models what is Algorithm.models.
+
+#: Mitsuba plugins refused by name, with the reason.
+REFUSED = {
+    ("bsdf", "principled"): "Disney's principled BSDF is not a model of the thesis (use diffuse, "
+                            "plastic/roughplastic, conductor or dielectric and their rough forms)",
+    ("bsdf", "principledthin"): "the thin principled BSDF is not a model of the thesis",
+    ("emitter", "sunsky"): "the sun-sky model is not a model of the thesis",
+    ("emitter", "timed_sunsky"): "the sun-sky model is not a model of the thesis",
+}
+
+#: BSDFs that perturb the shading normal of the one BSDF they wrap.
+_WRAPPERS = ("normalmap", "bumpmap")
+
+#: Parameters Mitsuba reads as textures, per BSDF (beyond a diffuse reflectance).
+_TEXTURABLE = {
+    "conductor": ("specular_reflectance", "eta", "k"),
+    "roughconductor": ("specular_reflectance", "eta", "k", "alpha", "alpha_u", "alpha_v"),
+    "dielectric": ("specular_reflectance", "specular_transmittance"),
+    "roughdielectric": ("specular_reflectance", "specular_transmittance", "alpha", "alpha_u", "alpha_v"),
+    "plastic": ("diffuse_reflectance", "specular_reflectance"),
+    "roughplastic": ("diffuse_reflectance", "specular_reflectance"),
+}
+
+
+def _medium_error(ctx, el) -> SceneError:
+    return ctx.error(el, "participating media are out of scope: gibench renders surfaces only "
+                         "(no medium, interior or exterior)")
+
+
+def sensor_fov(props: dict, aspect: float) -> float:
+    """The horizontal field of view (degrees) Mitsuba's ``parse_fov`` gives a sensor or
+    projector with properties ``props`` and film aspect ``aspect`` (width/height).
+
+    ``fov`` along ``fov_axis`` (x, y, diagonal, smaller, larger), or ``focal_length``
+    (``"<f>mm"`` or ``"<f>"``, default ``"50mm"``) of a 35 mm film: the diagonal
+    field of view 2 atan(√(36² + 24²) / (2 f)); ``fov_axis`` without ``fov`` is an
+    error (Mitsuba's unreferenced property).
+    Raises ``ValueError`` with Mitsuba's reasons.
+    """
+    if "fov" in props and "focal_length" in props:
+        raise ValueError("give either a focal length ('focal_length') or a field of view ('fov'), "
+                         "not both (as Mitsuba requires)")
+    if "fov" not in props and "fov_axis" in props:
+        raise ValueError("'fov_axis' is read only with 'fov'; with a focal length the field of view "
+                         "is diagonal (Mitsuba refuses the unused property too)")
+    if "fov" in props:
+        fov = float(props["fov"])
+        axis = str(props.get("fov_axis", "x")).lower()
+        if axis == "smaller":
+            axis = "y" if aspect > 1 else "x"
+        elif axis == "larger":
+            axis = "x" if aspect > 1 else "y"
+    else:
+        text = str(props.get("focal_length", "50mm"))
+        num = text[:-2] if text.endswith("mm") else text
+        try:
+            f = float(num)
+        except ValueError:
+            raise ValueError(f"cannot parse the focal length '{short(text)}' (must be of the form "
+                             "<x>mm)") from None
+        if not (np.isfinite(f) and f > 0.0):
+            raise ValueError(f"focal_length must be a finite length > 0, got '{short(text)}'")
+        fov = float(np.rad2deg(2.0 * np.arctan(np.sqrt(36.0 * 36.0 + 24.0 * 24.0) / (2.0 * f))))
+        axis = "diagonal"
+    if axis == "x":
+        x_fov = fov
+    elif axis == "y":
+        x_fov = float(np.rad2deg(2.0 * np.arctan(np.tan(0.5 * np.deg2rad(fov)) * aspect)))
+    elif axis == "diagonal":
+        diagonal = 2.0 * np.tan(0.5 * np.deg2rad(fov))
+        width = diagonal / np.sqrt(1.0 + 1.0 / (aspect * aspect))
+        x_fov = float(np.rad2deg(2.0 * np.arctan(width * 0.5)))
+    else:
+        raise ValueError(f"unknown fov_axis '{short(axis)}' (x, y, diagonal, smaller, larger)")
+    if not 0.0 < x_fov < 180.0:
+        raise ValueError(f"the horizontal field of view must be in (0, 180) degrees, got {x_fov}")
+    return x_fov
+
+
+def _sensor_fov(ctx, p) -> tuple[float, str]:
+    """(fov, fov_axis) for :class:`Camera`: the file's ``fov``/``fov_axis``, or a
+    ``focal_length`` (default 50mm) as its diagonal field of view."""
+    try:
+        sensor_fov(p.props, 4.0 / 3.0)             # Mitsuba's checks (the aspect does not matter)
+    except ValueError as exc:
+        raise ctx.error(p.el, str(exc)) from None
+    if "fov" in p.props:
+        axis = str(p.get("fov_axis", "x")).lower()
+        return float(p.get("fov")), axis
+    text = str(p.get("focal_length", "50mm"))
+    f = float(text[:-2] if text.endswith("mm") else text)
+    return float(np.rad2deg(2.0 * np.arctan(np.sqrt(36.0 * 36.0 + 24.0 * 24.0) / (2.0 * f)))), "diagonal"
+
+
+def _shading_wrapper(ctx, p):
+    """``(inner plugin, shading)`` of a ``normalmap``/``bumpmap`` bsdf ``p``, or ``(p, None)``."""
+    if p.type not in _WRAPPERS:
+        return p, None
+    p.unexpected_children(("bsdf", "texture"))
+    inner = p.child_elements("bsdf")
+    texs = [(name, c) for name, c in p.children if c.tag == "texture"]
+    if len(inner) != 1 or len(texs) != 1:
+        raise ctx.error(p.el, f"{p.type} needs exactly one nested bsdf and one texture")
+    name, tex_el = texs[0]
+    if p.type == "normalmap" and name != "normalmap":
+        raise ctx.error(tex_el, f"the texture of a normalmap must be named 'normalmap', got '{name}'")
+    shading = {"type": p.type, "texture": _texture_element(ctx, tex_el)}
+    if p.type == "bumpmap":
+        shading["scale"] = float(p.get("scale", 1.0))
+    return _Plugin(ctx, inner[0], "bsdf"), shading
+
+
+def _param_textures(ctx, p) -> dict:
+    """The textures nested in (or referenced by) bsdf ``p``, by parameter name."""
+    allowed = _TEXTURABLE.get(p.type, ())
+    p.unexpected_children(("texture",) if allowed else ())
+    out = {}
+    for name, c in p.children:
+        if name not in allowed:
+            raise ctx.error(c, f"a texture of a {p.type} bsdf must be named one of "
+                               f"{', '.join(allowed)}, got '{name}'")
+        if name in p.props or name in out:
+            raise ctx.error(c, f"'{name}' is given twice (a value or texture already)")
+        out[name] = _texture_element(ctx, c)
+    return out
+
+
+def _texture_mean(tex: dict) -> np.ndarray:
+    if tex["type"] == "bitmap":
+        return tex["data"].reshape(-1, 3).mean(axis=0)
+    return 0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"]))
+
+
+def _plastic_albedo(ctx, p, textures) -> tuple:
+    """A plastic's ``diffuse_reflectance`` (Mitsuba's default 0.5; a texture's mean)."""
+    if "diffuse_reflectance" in textures:
+        return tuple(float(x) for x in _texture_mean(textures["diffuse_reflectance"]))
+    return tuple(_rgb(ctx, p, "diffuse_reflectance", 0.5))
+
+
+def _uv_texture(m: Material) -> dict | None:
+    """Any texture of material ``m`` that needs the shape's uv (None without one)."""
+    if m.texture is not None:
+        return m.texture
+    for t in m.textures.values():
+        return t
+    return None if m.shading is None else m.shading["texture"]
+
+
+def _serialized_mesh(ctx, p, tex):
+    """Mitsuba's ``serialized`` shape: (vertices, faces, normals, uvs) in object space."""
+    fn = p.get("filename")
+    if fn is None:
+        raise ctx.error(p.el, "missing 'filename' string")
+    path = ctx.resolve(p.el, fn, "mesh file")
+    try:
+        v, f, n, uvs = load_serialized(path, int(p.get("shape_index", 0)))
+    except MeshError as exc:
+        raise ctx.error(p.el, str(exc)) from None
+    ctx.files.append(path)
+    if tex is not None and uvs is None:
+        raise ctx.error(p.el, f"a {tex['type']} texture needs texture coordinates, and shape "
+                              f"{int(p.get('shape_index', 0))} of {path.name} has none")
+    if p.get("face_normals", False):
+        n = None
+    elif n is None:
+        n = angle_weighted_normals(v, f)
+    return v, f, n, uvs
+
+
+def _emitter_texture(ctx, p, name: str) -> dict | None:
+    """The texture ``name`` nested in emitter ``p`` (a spot's ``texture``, a
+    projector's ``irradiance``), or None."""
+    found = [(n, c) for n, c in p.children if c.tag == "texture"]
+    if not found:
+        return None
+    n, el = found[0]
+    if len(found) > 1 or n != name:
+        raise ctx.error(el, f"a {p.type} emitter takes one texture, named '{name}'")
+    return _texture_element(ctx, el)
+
+
+def _projector(ctx, p) -> Light:
+    """Mitsuba's ``projector``: a pinhole at to_world's origin projecting ``irradiance``
+    (a texture, or a constant) × ``scale``; its field of view by ``parse_fov`` with
+    the texture's aspect (1 for a constant)."""
+    p.unexpected_children(("texture",))
+    m = np.asarray(p.get("to_world", np.eye(4)), dtype=np.float64)
+    tex = _emitter_texture(ctx, p, "irradiance")
+    if tex is not None and "irradiance" in p.props:
+        raise ctx.error(p.el, "'irradiance' is given both as a value and as a texture")
+    aspect = 1.0
+    if tex is not None and tex["type"] == "bitmap":
+        h, w = tex["data"].shape[:2]
+        aspect = w / h
+    try:
+        x_fov = sensor_fov(p.props, aspect)
+    except ValueError as exc:
+        raise ctx.error(p.el, str(exc)) from None
+    d = tf.transform_vectors(m, [0.0, 0.0, 1.0])
+    return Light("projector", _rgb(ctx, p, "irradiance", 1.0) if tex is None else np.ones(3),
+                 position=tf.transform_points(m, np.zeros(3)), direction=d / np.linalg.norm(d),
+                 name=ctx.attr(p.el, "id", "") or "", texture=tex, to_world=m, fov_x=x_fov,
+                 scale=float(p.get("scale", 1.0)))
+
+
+def _envmap(ctx, el) -> EnvMap:
+    """Mitsuba's ``envmap``: the lat-long image in linear RGB (EXR as stored, 8-bit
+    images sRGB-decoded), ``scale`` and ``to_world``."""
+    p = _Plugin(ctx, el, "emitter")
+    p.unexpected_children(())
+    if p.get("filename") is None:
+        raise ctx.error(el, "envmap emitter needs a 'filename' string")
+    data = _bitmap(ctx, p, np.eye(3))["data"]
+    if data.shape[0] < 2 or data.shape[1] < 2:
+        raise ctx.error(el, f"envmap image must be at least 2x2 pixels, got "
+                            f"{data.shape[1]}x{data.shape[0]}")
+    scale = float(p.get("scale", 1.0))
+    if not scale >= 0.0:
+        raise ctx.error(el, f"envmap 'scale' must be >= 0, got {scale}")
+    m = np.asarray(p.get("to_world", np.eye(4)), dtype=np.float64)
+    return EnvMap(data=data, scale=scale, to_world=m, filename=str(p.get("filename")))
+
+
+def _instance(ctx, el, materials, cache, default_mat) -> list[Shape]:
+    """Mitsuba's ``instance`` of a ``shapegroup``: the group's shapes moved to world
+    space by the instance's ``to_world`` (composed after each shape's own)."""
+    p = _Plugin(ctx, el, "shape")
+    p.unexpected_children(("shape",))
+    groups = [c for _, c in p.children if c.tag == "shape"]
+    if len(groups) != 1 or ctx.attr(groups[0], "type") != "shapegroup":
+        raise ctx.error(el, "an instance needs exactly one reference to a shapegroup")
+    g = _Plugin(ctx, groups[0], "shape")
+    g.unexpected_children(("shape",))
+    m = np.asarray(p.get("to_world", np.eye(4)), dtype=np.float64)
+    out = []
+    for _, c in g.children:
+        if ctx.attr(c, "type") in ("shapegroup", "instance"):
+            raise ctx.error(c, "a shapegroup cannot hold another shapegroup or an instance "
+                               "(as in Mitsuba)")
+        shape = _shape(ctx, c, materials, cache, default_mat)
+        if shape.is_emitter:
+            raise ctx.error(c, "a shape in a shapegroup cannot be an emitter (Mitsuba does not "
+                               "instance emitters)")
+        out.append(_transformed(ctx, c, shape, m))
+    return out
+
+
+def _transformed(ctx, el, shape: Shape, m: np.ndarray) -> Shape:
+    """``shape`` (world space of its group) moved by the 4x4 ``m``."""
+    import dataclasses
+
+    if shape.kind == "sphere":
+        s = tf.uniform_scale_factor(m)
+        if s is None:
+            raise ctx.error(el, "an instanced sphere's to_world must be a similarity transform "
+                                "(uniform scale)")
+        if shape.velocity is not None:
+            raise ctx.error(el, "a moving sphere cannot be instanced")
+        return dataclasses.replace(shape, center=tf.transform_points(m, shape.center),
+                                   radius=shape.radius * s)
+    f = shape.faces[:, ::-1].copy() if np.linalg.det(m[:3, :3]) < 0 else shape.faces
+    n = None if shape.normals is None else tf.transform_normals(m, shape.normals)
+    return dataclasses.replace(shape, vertices=tf.transform_points(m, shape.vertices), faces=f,
+                               normals=n)
+
+
+def _used_materials(shapes, materials):
+    """(shapes, materials) keeping only the materials some shape uses, in their order
+    (shape indices remapped): a BSDF a file declares but no shape uses (a
+    documentation scene's spare plastic) does not reach the algorithms, as it does
+    not reach Mitsuba's image."""
+    import dataclasses
+
+    used = sorted({s.material for s in shapes})
+    if len(used) == len(materials):
+        return shapes, materials
+    index = {old: new for new, old in enumerate(used)}
+    return ([dataclasses.replace(s, material=index[s.material]) for s in shapes],
+            [materials[i] for i in used])
+
+
+def _textured_spot(ctx, el) -> Light:
+    """A ``spot`` with a ``texture``: the spot as :func:`_light` reads it (from a copy
+    of the element without the texture) plus the texture and the emitter's to_world."""
+    import copy
+    import dataclasses
+
+    p = _Plugin(ctx, el, "emitter")
+    p.unexpected_children(("texture",))
+    tex = _emitter_texture(ctx, p, "texture")
+    bare = copy.deepcopy(el)
+    for c in list(bare):
+        if isinstance(c.tag, str) and (c.tag == "texture" or (c.tag == "ref" and c.get("id") in ctx.ids
+                                                              and ctx.ids[c.get("id")].tag == "texture")):
+            bare.remove(c)
+    light = _light(ctx, bare)
+    return dataclasses.replace(light, texture=tex, to_world=np.asarray(p.get("to_world", np.eye(4)),
+                                                                       dtype=np.float64))
+
+
+class _Vocabulary:
+    """The scene-level elements of the vocabulary beyond the original subset, read
+    before the original ones (:func:`load_scene` asks :meth:`element` first):
+    instances (their shapes flattened) and shapegroup definitions, an ``envmap``,
+    ``projector`` and textured ``spot`` emitters, area emitters and textures
+    declared with an id for ``<ref>``, and media (refused)."""
+
+    def __init__(self):
+        self.envmap: EnvMap | None = None
+        self.envmap_el = None
+
+    def element(self, ctx, c, shapes, lights, materials, cache, default_mat) -> bool:
+        """Handle scene-level element ``c`` if it is one of these; True when handled."""
+        kind = ctx.attr(c, "type")
+        if c.tag == "shape" and kind == "shapegroup":
+            return True                # a definition: its shapes appear through instances
+        if c.tag == "shape" and kind == "instance":
+            shapes.extend(_instance(ctx, c, materials, cache, default_mat))
+            return True
+        if c.tag == "emitter" and kind == "envmap":
+            if self.envmap_el is not None:
+                raise ctx.error(c, "only one environment emitter can be specified per scene (as "
+                                   f"Mitsuba requires); another is at line {self.envmap_el.sourceline}")
+            self.envmap_el, self.envmap = c, _envmap(ctx, c)
+            return True
+        if c.tag == "emitter" and kind == "projector":
+            lights.append(_projector(ctx, _Plugin(ctx, c, "emitter")))
+            return True
+        if c.tag == "emitter" and kind == "spot" and any(
+                isinstance(x.tag, str) and (x.tag == "texture" or x.tag == "ref") for x in c):
+            lights.append(_textured_spot(ctx, c))
+            return True
+        if c.tag == "emitter" and kind == "area" and c.get("id") is not None:
+            return True                # a definition, attached to shapes by <ref>
+        if c.tag == "texture" and c.get("id") is not None:
+            _Plugin(ctx, c, "texture")  # a definition, used by <ref>; its type is checked here
+            return True
+        if c.tag == "medium":
+            raise _medium_error(ctx, c)
+        return False
+
+    def finish(self, ctx, environment) -> None:
+        """Checks over the whole scene: at most one environment emitter."""
+        if self.envmap_el is not None and environment is not None:
+            raise ctx.error(self.envmap_el, "only one environment emitter (constant or envmap) can "
+                                            "be specified per scene (as Mitsuba requires)")

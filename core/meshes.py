@@ -24,7 +24,7 @@ import numpy as np
 from .errors import MeshError
 
 __all__ = ["rectangle", "cube", "disk", "cylinder", "SEGMENTS", "load_mesh_file", "load_mesh_uvs",
-           "angle_weighted_normals", "MeshError"]
+           "angle_weighted_normals", "load_serialized", "MeshError"]
 
 
 
@@ -284,6 +284,8 @@ def load_mesh_uvs(path: Path, file_type: str | None = None) -> tuple[np.ndarray,
         uv = getattr(g.get("visual"), "uv", None) if ext == "obj" else None
         gv = np.asarray(g.get("vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
         gf = np.asarray(g.get("faces", np.zeros((0, 3))), dtype=np.int64)
+        if gf.ndim == 2 and len(gf) and gf.shape[1] > 3:
+            gf = _fan(gf)              # polygons (trimesh keeps all-quad files as quads)
         if gf.ndim != 2 or (len(gf) and gf.shape[1] != 3):
             raise MeshError(f"mesh file {path} has non-triangular faces")
         if len(gf) and (gf.min() < 0 or gf.max() >= len(gv)):
@@ -309,3 +311,107 @@ def load_mesh_uvs(path: Path, file_type: str | None = None) -> tuple[np.ndarray,
         raise MeshError(f"mesh file {path} has non-finite vertex normals")
     tex = np.concatenate(uvs) if all(u is not None for u in uvs) else None
     return v, f, normals, tex
+
+
+def _fan(faces: np.ndarray) -> np.ndarray:
+    """Polygons (F, k) as the triangle fan (0, i, i + 1), i = 1..k-2, Mitsuba's
+    triangulation of an OBJ face with more than three corners."""
+    k = faces.shape[1]
+    return np.stack([faces[:, [0, i, i + 1]] for i in range(1, k - 1)], axis=1).reshape(-1, 3)
+
+
+#: Flags of Mitsuba's serialized mesh format (``src/shapes/serialized.cpp``).
+_SER_NORMALS, _SER_UVS, _SER_COLORS, _SER_FACE_NORMALS = 0x0001, 0x0002, 0x0008, 0x0010
+_SER_SINGLE, _SER_DOUBLE = 0x1000, 0x2000
+
+
+def load_serialized(path: Path, shape_index: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Shape ``shape_index`` of a Mitsuba ``.serialized`` file: (vertices, faces,
+    normals or None, uvs or None).
+
+    The format (Mitsuba's documentation of the ``serialized`` shape): each shape is
+    a little-endian ``uint16`` 0x041C and a ``uint16`` version (3 or 4), then a
+    zlib stream holding ``uint32`` flags, (version 4) a NUL-terminated name,
+    ``uint64`` vertex and triangle counts, the positions, the optional normals,
+    texture coordinates and colours (float32 or float64 by flag), and the
+    triangle indices (``uint32``, or ``uint64`` past 2³² vertices).  A file with
+    several shapes ends with their byte offsets (``uint64`` in version 4,
+    ``uint32`` in version 3) and the ``uint32`` shape count.  Texture coordinates
+    are stored as Mitsuba uses them (no flip).  A face-normals flag gives
+    ``normals = None``.
+    """
+    import zlib
+
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise MeshError(f"cannot read mesh file {path}: {exc}") from None
+
+    def bad(why):
+        return MeshError(f"mesh file {path} is not a valid Mitsuba serialized file: {why}")
+
+    if len(data) < 8 or int.from_bytes(data[:2], "little") != 0x041C:
+        raise bad("missing the 0x041C header")
+    version = int.from_bytes(data[2:4], "little")
+    if version not in (3, 4):
+        raise bad(f"unsupported version {version}")
+    count = int.from_bytes(data[-4:], "little")
+    if shape_index < 0:
+        raise MeshError(f"{path}: shape_index must be >= 0, got {shape_index}")
+    osize = 8 if version == 4 else 4
+    if count < 1 or count * osize + 4 > len(data):
+        offsets = [0]
+    else:
+        table = data[-4 - count * osize:-4]
+        offsets = [int.from_bytes(table[i * osize:(i + 1) * osize], "little") for i in range(count)]
+        if any(o < 0 or o + 8 > len(data) or int.from_bytes(data[o:o + 2], "little") != 0x041C
+               for o in offsets):
+            offsets = [0]
+    if shape_index >= len(offsets):
+        raise MeshError(f"{path}: shape_index {shape_index} is out of range (the file has "
+                        f"{len(offsets)} shape{'s' if len(offsets) != 1 else ''})")
+    start = offsets[shape_index]
+    try:
+        raw = zlib.decompressobj().decompress(data[start + 4:])
+    except zlib.error as exc:
+        raise bad(f"zlib: {exc}") from None
+    pos = 0
+
+    def take(n):
+        nonlocal pos
+        if pos + n > len(raw):
+            raise bad("truncated shape data")
+        out = raw[pos:pos + n]
+        pos += n
+        return out
+
+    flags = int.from_bytes(take(4), "little")
+    if version == 4:
+        end = raw.find(b"\0", pos)
+        if end < 0:
+            raise bad("unterminated shape name")
+        pos = end + 1
+    nv = int.from_bytes(take(8), "little")
+    nt = int.from_bytes(take(8), "little")
+    if nv == 0 or nt == 0:
+        raise MeshError(f"mesh file {path}: shape {shape_index} has no triangles")
+    ftype = np.dtype("<f8") if flags & _SER_DOUBLE else np.dtype("<f4")
+
+    def arr(n, dtype):
+        return np.frombuffer(take(n * dtype.itemsize), dtype=dtype).astype(
+            np.float64 if dtype.kind == "f" else np.int64)
+
+    v = arr(3 * nv, ftype).reshape(-1, 3)
+    n = arr(3 * nv, ftype).reshape(-1, 3) if flags & _SER_NORMALS else None
+    uv = arr(2 * nv, ftype).reshape(-1, 2) if flags & _SER_UVS else None
+    if flags & _SER_COLORS:
+        arr(3 * nv, ftype)
+    f = arr(3 * nt, np.dtype("<u8") if nv > 0xFFFFFFFF else np.dtype("<u4")).reshape(-1, 3)
+    if not np.all(np.isfinite(v)):
+        raise MeshError(f"mesh file {path} has non-finite vertex coordinates")
+    if f.min() < 0 or f.max() >= nv:
+        raise MeshError(f"mesh file {path}: a face index is out of range (0..{nv - 1})")
+    if flags & _SER_FACE_NORMALS:
+        n = None
+    return v, f, n, uv

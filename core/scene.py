@@ -10,7 +10,16 @@ Shapes are either analytic spheres or triangle meshes; ``rectangle`` and
 ``cube`` arrive as the triangle meshes Mitsuba itself builds for them,
 ``disk`` and ``cylinder`` as 128-sided tessellations of Mitsuba's analytic
 shapes (:mod:`core.meshes`).  A ``constant`` environment emitter is
-:attr:`Scene.environment`.
+:attr:`Scene.environment`; an ``envmap`` emitter (image-based lighting) is
+:attr:`Scene.envmap`.  ``shapegroup``/``instance`` arrive flattened: each
+instance's shapes in world space, as ordinary shapes.
+
+Parts of the vocabulary that not every algorithm models (``plastic``, an
+``envmap``, a ``projector``, normal and bump maps, textures on parameters other
+than a diffuse reflectance) are named by :func:`scene_features`; an algorithm
+renders a scene only if it models every feature the scene has
+(:class:`core.algorithm.Algorithm` ``models``), so none of them is silently
+rendered as something else.
 """
 
 from __future__ import annotations
@@ -21,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Film", "Camera", "Material", "Shape", "Light", "Scene", "Spectrum", "cie_tables"]
+__all__ = ["Film", "Camera", "Material", "Shape", "Light", "Scene", "Spectrum", "EnvMap", "cie_tables",
+           "scene_features", "FEATURES"]
 
 
 @dataclass(frozen=True)
@@ -168,6 +178,36 @@ class Material:
     params: dict = field(default_factory=dict)
     name: str = ""
     texture: dict | None = None
+    #: Textures on other parameters, name -> texture dict (as ``texture``): a
+    #: plastic's ``diffuse_reflectance``/``specular_reflectance``, a conductor's
+    #: ``specular_reflectance``, a rough BSDF's ``alpha``/``alpha_u``/``alpha_v``, ...
+    textures: dict = field(default_factory=dict)
+    #: A ``normalmap`` or ``bumpmap`` wrapped around the BSDF, or None:
+    #: ``{"type": "normalmap", "texture": tex}`` (tangent-space normals in [0, 1]³,
+    #: Mitsuba's ``normalmap``) or ``{"type": "bumpmap", "texture": tex, "scale": s}``
+    #: (a height field; Mitsuba's ``bumpmap``).  ``kind``/``params`` are the wrapped BSDF's.
+    shading: dict | None = None
+
+
+@dataclass(frozen=True)
+class EnvMap:
+    """Mitsuba's ``envmap`` emitter: radiance from an equirectangular (lat-long) image.
+
+    ``data`` is the (H, W, 3) image in linear RGB (float64), ``scale`` multiplies
+    it, ``to_world`` rotates the map (Mitsuba's convention: a world direction d
+    maps to the local direction to_world⁻¹ d, whose (u, v) are
+    u = (1 + atan2(x, −z)/π)/2, v = acos(y)/π, row 0 the top, +y up; see
+    :mod:`impl.envmap`).
+    """
+
+    data: np.ndarray
+    scale: float = 1.0
+    to_world: np.ndarray = field(default_factory=lambda: np.eye(4))
+    filename: str = ""
+
+    def __repr__(self) -> str:
+        h, w = self.data.shape[:2]
+        return f"EnvMap('{self.filename}', {w}x{h}, scale={self.scale:g})"
 
 
 @dataclass(frozen=True)
@@ -204,7 +244,9 @@ class Shape:
 
 @dataclass(frozen=True)
 class Light:
-    """A delta light: ``point`` (intensity, W/sr), ``spot`` (intensity, cone) or ``directional`` (irradiance)."""
+    """A delta light: ``point`` (intensity, W/sr), ``spot`` (intensity, cone),
+    ``directional`` (irradiance) or ``projector`` (Mitsuba's: a pinhole projecting an
+    irradiance image or constant, ``radiant`` × ``scale``)."""
 
     kind: str
     radiant: np.ndarray                # RGB intensity (point, spot) or irradiance (directional)
@@ -213,6 +255,14 @@ class Light:
     cutoff_angle: float = 20.0         # spot: degrees
     beam_width: float = 15.0           # spot: degrees (Mitsuba default: 3/4 of cutoff)
     name: str = ""
+    #: spot: a texture modulating the beam (Mitsuba's ``texture``); projector: the
+    #: projected ``irradiance`` texture (None: the constant ``radiant``).
+    texture: dict | None = None
+    #: projector (and textured spot): the emitter's to_world (+z forward); projector:
+    #: its horizontal field of view (degrees, Mitsuba's ``parse_fov``) and ``scale``.
+    to_world: np.ndarray | None = None
+    fov_x: float = 0.0
+    scale: float = 1.0
 
 
 @dataclass
@@ -226,6 +276,8 @@ class Scene:
     files: list[Path] = field(default_factory=list)  # files the scene reads (meshes, includes, images)
     # RGB radiance of a ``constant`` environment emitter (uniform from every direction), or None.
     environment: np.ndarray | None = None
+    # An ``envmap`` emitter (image-based lighting), or None.
+    envmap: EnvMap | None = None
 
     @property
     def emitters(self) -> list[Shape]:
@@ -234,3 +286,35 @@ class Scene:
     def __repr__(self) -> str:
         return (f"Scene('{self.path}', {len(self.shapes)} shapes, {len(self.lights)} delta lights, "
                 f"{len(self.emitters)} area emitters, {self.camera!r})")
+
+
+#: The features :func:`scene_features` names: parts of the scene vocabulary an
+#: algorithm must model explicitly (``Algorithm.models``) to render a scene that has them.
+FEATURES = ("envmap", "projector", "spot texture", "plastic", "roughplastic", "normalmap", "bumpmap",
+            "textured parameter")
+
+
+def scene_features(scene: Scene) -> dict[str, str]:
+    """The features of :data:`FEATURES` that ``scene`` uses: feature -> where (for
+    the error message), e.g. ``{"plastic": "shape 'ball'"}``.  Only materials some
+    shape uses count."""
+    found: dict[str, str] = {}
+    if getattr(scene, "envmap", None) is not None:
+        found["envmap"] = f"envmap emitter '{scene.envmap.filename}'"
+    for light in scene.lights:
+        if light.kind == "projector":
+            found.setdefault("projector", f"projector emitter '{light.name}'" if light.name else
+                             "a projector emitter")
+        elif light.texture is not None:
+            found.setdefault("spot texture", f"spot emitter '{light.name}'" if light.name else
+                             "a textured spot emitter")
+    for shape in scene.shapes:
+        m = scene.materials[shape.material]
+        where = f"shape '{shape.name or shape.source}'"
+        if m.kind in ("plastic", "roughplastic"):
+            found.setdefault(m.kind, where)
+        if m.shading is not None:
+            found.setdefault(m.shading["type"], where)
+        for name in m.textures:
+            found.setdefault("textured parameter", f"{where} ('{name}' of its {m.kind} BSDF)")
+    return found

@@ -19,6 +19,12 @@ defaults) into a :class:`MaterialArrays` named tuple, one row per material of
   accepted only when equal.
 
 The microfacet functions these rows feed are in :mod:`impl.microfacet`.
+
+:func:`plastic_arrays` decodes ``plastic`` / ``roughplastic`` materials
+(Mitsuba's defaults, :func:`impl.plastic.plastic_params`) into a
+:class:`PlasticArrays` table for the functions of :mod:`impl.plastic`.
+:func:`material_arrays` refuses both kinds by name until a tracer lists them
+in ``kinds`` (with a material code in ``scene_arrays.MATERIAL_CODES``).
 """
 
 from __future__ import annotations
@@ -33,7 +39,7 @@ from .fresnel import lookup_ior
 from .scene_arrays import MATERIAL_CODES
 from core.errors import SceneError, UnsupportedError
 
-__all__ = ["MaterialArrays", "SpecularArrays", "material_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
+__all__ = ["MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "KIND_CODES",
            "DEFAULT_ALPHA"]
 
@@ -197,3 +203,48 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             alpha[i], visible[i] = _roughness(p, where)
     return MaterialArrays(spec_refl, spec_trans, cond_eta, cond_k, diel_eta, diel_int, diel_ext,
                           kind, alpha, visible)
+
+
+class PlasticArrays(NamedTuple):
+    """Per-material rows of the plastic BSDFs (:mod:`impl.plastic`); rows of other
+    materials hold zeros and ``is_plastic = 0``."""
+
+    is_plastic: np.ndarray      # (M,) int: 0 other, 1 plastic, 2 roughplastic
+    eta: np.ndarray             # (M,) int_ior / ext_ior
+    diffuse: np.ndarray         # (M, 3) diffuse_reflectance (a texture's mean when textured)
+    specular: np.ndarray        # (M, 3) specular_reflectance
+    spec_weight: np.ndarray     # (M,) probability weight of the specular lobe
+    nonlinear: np.ndarray       # (M,) int
+    alpha: np.ndarray           # (M,) Beckmann roughness (roughplastic)
+    visible: np.ndarray         # (M,) int: sample visible normals
+    fdr_int: np.ndarray         # (M,) plastic: inner diffuse Fresnel reflectance
+    ext_t: np.ndarray           # (M, TABLE_RES) roughplastic: coat transmittance over cos θ
+    int_r: np.ndarray           # (M,) roughplastic: internal diffuse reflectance
+
+
+def plastic_arrays(scene: Scene, *, algorithm: str = "plastic") -> PlasticArrays:
+    """:class:`PlasticArrays` for ``scene.materials`` (only plastic kinds are decoded).
+
+    Raises
+    ------
+    UnsupportedError
+        A ``ggx`` roughplastic (Beckmann only, as :func:`material_arrays`).
+    SceneError
+        Malformed parameters (an unknown IOR name, equal indices on a roughplastic).
+    """
+    from .plastic import TABLE_RES, plastic_params
+
+    M = len(scene.materials)
+    out = PlasticArrays(np.zeros(M, dtype=np.int64), np.ones(M), np.zeros((M, 3)), np.zeros((M, 3)),
+                        np.zeros(M), np.zeros(M, dtype=np.int64), np.zeros(M),
+                        np.ones(M, dtype=np.int64), np.zeros(M), np.zeros((M, TABLE_RES)), np.zeros(M))
+    for i, m in enumerate(scene.materials):
+        if m.kind not in ("plastic", "roughplastic"):
+            continue
+        p = plastic_params(m, where=f"{algorithm}: material '{m.name or i}'")
+        out.is_plastic[i] = 1 if m.kind == "plastic" else 2
+        out.eta[i], out.spec_weight[i], out.alpha[i] = p.eta, p.spec_weight, p.alpha
+        out.diffuse[i], out.specular[i] = np.asarray(m.reflectance), p.specular
+        out.nonlinear[i], out.visible[i] = int(p.nonlinear), int(p.visible)
+        out.fdr_int[i], out.ext_t[i], out.int_r[i] = p.fdr_int, p.ext_t, p.int_r
+    return out

@@ -194,7 +194,7 @@ def test_error_in_an_included_file_names_it_and_the_chain(tmp_path):
     ('<shape type="sphere"><path value="."/></shape>', "<path> can only be a child of the root"),
     ('<include/>', "<include> needs a 'filename'"),
     ('<emitter type="envmap"><string name="filename" value="sky.exr"/></emitter>',
-     "unsupported emitter type 'envmap'"),
+     "image file 'sky.exr' not found"),
 ])
 def test_include_path_and_envmap_errors_are_one_line(tmp_path, body, cause):
     p = _scene(tmp_path / "s.xml", f"{CAMERA}\n{body}")
