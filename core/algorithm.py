@@ -68,13 +68,16 @@ class RenderResult:
     ``image`` and ``variance`` are float32 ``(H, W, 3)`` linear radiance and
     the per-pixel variance of the pixel mean (None where the estimator is
     deterministic); ``counters`` count the work done (rays by type, ...);
-    ``aovs`` holds optional extra images (e.g. ``depth``).
+    ``aovs`` holds optional extra images (e.g. ``depth``); ``timings`` the
+    wall-clock seconds of the render's phases (``setup_s``: flattening, ray
+    configuration, allocation; ``trace_s``: the kernel), where measured.
     """
 
     image: np.ndarray
     variance: np.ndarray | None = None
     counters: dict = field(default_factory=dict)
     aovs: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)     # seconds: setup_s (fixed cost), trace_s, ...
 
     def __repr__(self) -> str:
         h, w = self.image.shape[:2]

@@ -12,24 +12,32 @@ tree (thesis 2.2: the shadow rays of a hit point):
   radiance of a ``constant`` environment emitter (0 without one), for the
   tracers' escaping rays;
 * :func:`sample_emitter` — a uniform point on an area emitter, by area;
-* :func:`direct_light_rays` — Phong-model light from every delta light and
-  area emitter, each sample tested with a shadow ray cast with a ray
-  configuration (:class:`impl.rays.RayConfig`: ray–sphere form, intersection
-  precision, offset strategy); :func:`direct_light` is the same with the fixed
-  rule of before (stable form, float64, origin moved SHADOW_EPSILON·(1 + max|p_i|)
-  along the normal).  A ``constant`` environment emitter is sampled there too:
-  ``light_samples`` cosine-weighted directions about the shading normal, each
-  with a shadow ray to infinity; the estimator of the diffuse part is
-  L_env ρ V(ω) per sample (f cos / pdf = (ρ/π) cos / (cos/π) = ρ), the Phong
-  highlight adds L_env k_s (R·V)^n π / cos.
+* :func:`light_slot` — one light sample of the Phong model (thesis 1.4.1–1.4.2):
+  a delta light (point, spot, directional), a uniform-by-area point of an
+  area emitter, or a cosine-weighted direction towards a ``constant``
+  environment emitter, with its radiance contribution and the shadow ray
+  that decides it (cast with a ray configuration, :class:`impl.rays.RayConfig`:
+  ray–sphere form, intersection precision, offset strategy).  For the
+  environment the diffuse estimator is L_env ρ V(ω) per sample
+  (f cos / pdf = (ρ/π) cos / (cos/π) = ρ), the Phong highlight adds
+  L_env k_s (R·V)^n π / cos;
+* :func:`direct_light_rays` — the sum of every light slot at one point, shadow
+  rays traced one at a time; :func:`direct_light` is the same with the fixed
+  offset rule of :func:`impl.rays.legacy_config` (stable form, float64, origin
+  moved SHADOW_EPSILON·(1 + max|p_i|) along the normal);
+* :func:`direct_batch` — the same over a batch of shading points, each slot's
+  shadow rays traced together (:func:`impl.tracer.occluded_batch`), with the
+  parameters in one :class:`LocalModel`.
 
-They take the flattened scene (:class:`impl.scene_arrays.SceneArrays`) and
-return plain scalars, so a caller's pixel kernel stays free of allocation.
+They take the flattened scene (:class:`impl.scene_arrays.SceneArrays`); the
+single-point helpers return plain scalars, so a caller's kernel stays free of
+allocation.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -39,9 +47,11 @@ from .phong import attenuation, phong_brdf_cos
 from .rng import uniform
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays
 from .textures import bitmap, checkerboard
+from .tracer import occluded_batch
 
 __all__ = ["SHADOW_EPSILON", "surface", "diffuse_albedo", "sample_emitter", "direct_light",
-           "direct_light_rays", "environment_radiance", "sample_cosine_hemisphere"]
+           "direct_light_rays", "light_slot", "slot_count", "direct_batch", "LocalModel",
+           "local_model", "environment_radiance", "sample_cosine_hemisphere"]
 
 #: Shadow-ray origins move off the surface by this much times (1 + |p|_max).
 SHADOW_EPSILON = 1e-7
@@ -106,16 +116,6 @@ def sample_emitter(e, u1, u2, em_offset, em_tri, em_cdf, tri_v):
 
 
 @njit(inline="always", cache=True)
-def _blocked_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz, yx, yy, yz, shrink):
-    """Shadow ray from the surface point p (geometric normal g) to the point y, seen along
-    the unit direction l: it leaves p on the side of l and is aimed from its offset origin."""
-    side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
-    ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
-    hx, hy, hz, hd = _towards(ox, oy, oz, yx, yy, yz)
-    return occluded(R, ox, oy, oz, hx, hy, hz, t0, hd * (1.0 - shrink))
-
-
-@njit(inline="always", cache=True)
 def _towards(ox, oy, oz, yx, yy, yz):
     """Unit direction from o to y and the distance |y − o| (direction 0 when y = o)."""
     hx, hy, hz = yx - ox, yy - oy, yz - oz
@@ -157,10 +157,8 @@ def local_shading(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, shape, prim, b
 def direct_light(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
             A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
             seed, pixel, sample):
-    """Phong-model direct light from every light at one point: (r, g, b, shadow rays).
-
-    Shadow rays by the rule of before issue 3 (:func:`impl.rays.legacy_config`).
-    """
+    """Phong-model direct light from every light at one point: (r, g, b, shadow rays),
+    shadow rays by the fixed offset rule of :func:`impl.rays.legacy_config`."""
     return direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                              A, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
                              seed, pixel, sample, legacy_config(A, SHADOW_EPSILON))
@@ -170,133 +168,229 @@ def direct_light(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, r
 def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                       A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
                       seed, pixel, sample, R: RayConfig):
-    """:func:`direct_light` with shadow rays cast by the ray configuration ``R``.
-
-    A shadow ray leaves p on the side of the geometric normal that faces the
-    light (:func:`impl.rays.leave`) and is aimed from its *offset origin* o at
-    the light point y, ending at |y − o|·(1 − shrink).  (Aiming it along the
-    direction from p, as the rule before did, shifts the segment sideways by
-    the offset: where it meets an area emitter at a grazing angle it then hits
-    the emitter itself before t_max — measured on ``mirror_sphere``, ~100
-    pixels of ground wrongly in shadow with the 1e-7·(1 + max|p_i|) offset.)
-    """
+    """:func:`direct_light` with shadow rays cast by the ray configuration ``R``: the
+    sum over :func:`light_slot` of every slot whose shadow ray is unoccluded."""
     r = g = b = 0.0
     nshadow = 0
-    ns = A.sph_radius.shape[0]
-    # Delta lights: point, spot, directional (thesis 1.4.1).
-    for li in range(A.light_kind.shape[0]):
+    for j in range(slot_count(A, light_samples)):
+        st, ox, oy, oz, dx, dy, dz, t0, t1, cr, cg, cb = light_slot(
+            j, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, A, R, ks,
+            shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, sample)
+        if st == SLOT_NONE:
+            continue
+        if st == SLOT_SHADOW:
+            nshadow += 1
+            if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
+                continue
+        r += cr
+        g += cg
+        b += cb
+    return r, g, b, nshadow
+
+
+#: :func:`light_slot` outcomes: nothing, light without a shadow test, light if unoccluded.
+SLOT_NONE, SLOT_LIT, SLOT_SHADOW = 0, 1, 2
+
+
+@njit(inline="always", cache=True)
+def slot_count(A: SceneArrays, light_samples):
+    """Light samples of one shading point: one per delta light, ``light_samples`` per area
+    emitter and for a constant environment (none of these with ``light_samples = 0``)."""
+    n = A.light_kind.shape[0]
+    if light_samples > 0:
+        n += light_samples * (A.em_area.shape[0] + (1 if A.env_radiance.shape[0] > 0 else 0))
+    return n
+
+
+@njit(inline="always", cache=True)
+def _shadow_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz, yx, yy, yz, shrink):
+    """Shadow ray from the surface point p (geometric normal g) to the point y, seen along
+    the unit direction l: it leaves p on the side of l and is aimed from its offset origin
+    at y, ending at |y − o|·(1 − shrink).  (Aimed along l from p instead, the segment
+    shifts sideways by the offset and can meet a grazing area emitter before t_max.)"""
+    side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
+    ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+    hx, hy, hz, hd = _towards(ox, oy, oz, yx, yy, yz)
+    return ox, oy, oz, hx, hy, hz, t0, hd * (1.0 - shrink)
+
+
+@njit(inline="always", cache=True)
+def _shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz):
+    """Shadow ray from p towards infinity along the unit direction l."""
+    side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
+    ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+    return ox, oy, oz, lx, ly, lz, t0, np.inf
+
+
+@njit(inline="always", cache=True)
+def light_slot(j, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
+               A: SceneArrays, R: RayConfig, ks, shininess, c1, c2, c3, fclamp, shadows,
+               light_samples, seed, pixel, sample):
+    """Light sample ``j`` (0 ≤ j < :func:`slot_count`) at a surface point p (geometric
+    normal g, shading normal s, towards the viewer v, diffuse reflectance ρ), Phong model
+    (thesis 1.4.1–1.4.2).
+
+    Returns ``(status, ox, oy, oz, dx, dy, dz, tmin, tmax, r, g, b)``: the radiance
+    contribution ``(r, g, b)``, counted when ``status`` is ``SLOT_LIT`` or when it is
+    ``SLOT_SHADOW`` and the shadow ray ``o + t d``, t ∈ (tmin, tmax), is unoccluded.
+
+    Slots: delta lights first (point, spot, directional), then ``light_samples`` per
+    area emitter, uniform by area (estimator L_e A cos θ_y f_att(d) · bracket / N,
+    stratified when N is a square), then ``light_samples`` cosine-weighted directions
+    for a constant environment (estimator L_env · bracket · π / cos θ / N).
+    """
+    z = 0.0
+    nl = A.light_kind.shape[0]
+    st = SLOT_SHADOW if shadows else SLOT_LIT
+    if j < nl:
+        # Delta lights: point, spot, directional (thesis 1.4.1).
+        li = j
         kind = A.light_kind[li]
         if kind == LIGHT_DIRECTIONAL:
             lx, ly, lz = -A.light_dir[li, 0], -A.light_dir[li, 1], -A.light_dir[li, 2]
-            dist = np.inf
-            fatt = 1.0
-            falloff = 1.0
+            w = 1.0
         else:
             lx = A.light_pos[li, 0] - px
             ly = A.light_pos[li, 1] - py
             lz = A.light_pos[li, 2] - pz
             dist = math.sqrt(lx * lx + ly * ly + lz * lz)
             lx, ly, lz = lx / dist, ly / dist, lz / dist
-            fatt = attenuation(dist, c1, c2, c3, fclamp)
-            falloff = 1.0
+            w = attenuation(dist, c1, c2, c3, fclamp)
             if kind == LIGHT_SPOT:
                 # Mitsuba's spot: 1 inside beam_width, linear in angle to 0 at cutoff_angle.
                 cos_t = -(lx * A.light_dir[li, 0] + ly * A.light_dir[li, 1] + lz * A.light_dir[li, 2])
                 if cos_t <= A.light_cos_cutoff[li]:
-                    continue
+                    return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
                 if cos_t < A.light_cos_beam[li]:
-                    falloff = (A.light_cutoff[li] - math.acos(min(cos_t, 1.0))) * A.light_inv_tw[li]
+                    w *= (A.light_cutoff[li] - math.acos(min(cos_t, 1.0))) * A.light_inv_tw[li]
         kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
         if kd == 0.0 and spec == 0.0:
-            continue
-        if shadows:
-            nshadow += 1
-            if kind == LIGHT_DIRECTIONAL:
-                side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
-                ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
-                if occluded(R, ox, oy, oz, lx, ly, lz, t0, np.inf):
-                    continue
-            elif _blocked_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz, A.light_pos[li, 0],
-                                  A.light_pos[li, 1], A.light_pos[li, 2], R.shrink_point):
-                continue
-        w = fatt * falloff
-        r += w * A.light_rad[li, 0] * (kd * rho_r + spec)
-        g += w * A.light_rad[li, 1] * (kd * rho_g + spec)
-        b += w * A.light_rad[li, 2] * (kd * rho_b + spec)
-    # Area lights (thesis 1.4.1): uniform area sampling, estimator L_e A cosθ_y f_att(d) · bracket.
+            return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
+        if kind == LIGHT_DIRECTIONAL:
+            ox, oy, oz, dx, dy, dz, t0, t1 = _shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz)
+        else:
+            ox, oy, oz, dx, dy, dz, t0, t1 = _shadow_towards(
+                R, px, py, pz, gx, gy, gz, lx, ly, lz, A.light_pos[li, 0], A.light_pos[li, 1],
+                A.light_pos[li, 2], R.shrink_point)
+        return (st, ox, oy, oz, dx, dy, dz, t0, t1, w * A.light_rad[li, 0] * (kd * rho_r + spec),
+                w * A.light_rad[li, 1] * (kd * rho_g + spec), w * A.light_rad[li, 2] * (kd * rho_b + spec))
+    q = int(math.sqrt(light_samples) + 0.5)
+    stratified = q * q == light_samples
+    k = (j - nl) % light_samples
+    e = (j - nl) // light_samples
+    dim = 2 + 2 * (j - nl)
+    u1 = uniform(seed, pixel, sample, dim)
+    u2 = uniform(seed, pixel, sample, dim + 1)
+    if stratified:
+        u1 = (k % q + u1) / q
+        u2 = (k // q + u2) / q
     n_em = A.em_area.shape[0]
-    if n_em > 0 and light_samples > 0:
-        q = int(math.sqrt(light_samples) + 0.5)
-        stratified = q * q == light_samples
-        for e in range(n_em):
-            sh = A.em_shape[e]
-            flip = A.shape_flip[sh]
-            er = eg = eb = 0.0
-            for k in range(light_samples):
-                dim = 2 + 2 * (e * light_samples + k)
-                u1 = uniform(seed, pixel, sample, dim)
-                u2 = uniform(seed, pixel, sample, dim + 1)
-                if stratified:
-                    u1 = (k % q + u1) / q
-                    u2 = (k // q + u2) / q
-                yx, yy, yz, tri = sample_emitter(e, u1, u2, A.em_offset, A.em_tri, A.em_cdf, A.tri_v)
-                lx, ly, lz = yx - px, yy - py, yz - pz
-                dist = math.sqrt(lx * lx + ly * ly + lz * lz)
-                if dist == 0.0:
-                    continue
-                lx, ly, lz = lx / dist, ly / dist, lz / dist
-                nyx, nyy, nyz, _a, _b, _c = surface(ns + tri, 0.0, 0.0, yx, yy, yz, ns, A.sph_center,
-                                                     A.sph_radius, A.tri_v, A.tri_n, A.tri_has_n, flip)
-                cos_y = -(nyx * lx + nyy * ly + nyz * lz)
-                if cos_y <= 0.0:        # area emitters radiate from their front side only
-                    continue
-                kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
-                if kd == 0.0 and spec == 0.0:
-                    continue
-                if shadows:
-                    nshadow += 1
-                    if _blocked_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz, yx, yy, yz, R.shrink_area):
-                        continue
-                w = cos_y * attenuation(dist, c1, c2, c3, fclamp)
-                er += w * (kd * rho_r + spec)
-                eg += w * (kd * rho_g + spec)
-                eb += w * (kd * rho_b + spec)
-            scale = A.em_area[e] / light_samples
-            r += scale * er * A.shape_emit[sh, 0]
-            g += scale * eg * A.shape_emit[sh, 1]
-            b += scale * eb * A.shape_emit[sh, 2]
+    if e < n_em:
+        # Area lights (thesis 1.4.1): uniform area sampling.
+        sh = A.em_shape[e]
+        yx, yy, yz, tri = sample_emitter(e, u1, u2, A.em_offset, A.em_tri, A.em_cdf, A.tri_v)
+        lx, ly, lz = yx - px, yy - py, yz - pz
+        dist = math.sqrt(lx * lx + ly * ly + lz * lz)
+        if dist == 0.0:
+            return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
+        lx, ly, lz = lx / dist, ly / dist, lz / dist
+        ns = A.sph_radius.shape[0]
+        nyx, nyy, nyz, _a, _b, _c = surface(ns + tri, 0.0, 0.0, yx, yy, yz, ns, A.sph_center,
+                                             A.sph_radius, A.tri_v, A.tri_n, A.tri_has_n,
+                                             A.shape_flip[sh])
+        cos_y = -(nyx * lx + nyy * ly + nyz * lz)
+        if cos_y <= 0.0:            # area emitters radiate from their front side only
+            return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
+        kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
+        if kd == 0.0 and spec == 0.0:
+            return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
+        ox, oy, oz, dx, dy, dz, t0, t1 = _shadow_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz,
+                                                         yx, yy, yz, R.shrink_area)
+        w = cos_y * attenuation(dist, c1, c2, c3, fclamp) * A.em_area[e] / light_samples
+        return (st, ox, oy, oz, dx, dy, dz, t0, t1, w * (kd * rho_r + spec) * A.shape_emit[sh, 0],
+                w * (kd * rho_g + spec) * A.shape_emit[sh, 1], w * (kd * rho_b + spec) * A.shape_emit[sh, 2])
     # Constant environment: cosine-weighted directions about the shading normal.
-    if A.env_radiance.shape[0] > 0 and light_samples > 0:
-        q = int(math.sqrt(light_samples) + 0.5)
-        stratified = q * q == light_samples
-        er = eg = eb = 0.0
-        for k in range(light_samples):
-            dim = 2 + 2 * (n_em * light_samples + k)
-            u1 = uniform(seed, pixel, sample, dim)
-            u2 = uniform(seed, pixel, sample, dim + 1)
-            if stratified:
-                u1 = (k % q + u1) / q
-                u2 = (k // q + u2) / q
-            lx, ly, lz, cos_l = sample_cosine_hemisphere(u1, u2, sx, sy, sz)
-            if cos_l <= 0.0:
+    lx, ly, lz, cos_l = sample_cosine_hemisphere(u1, u2, sx, sy, sz)
+    if cos_l <= 0.0:
+        return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
+    kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
+    if kd == 0.0 and spec == 0.0:
+        return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
+    ox, oy, oz, dx, dy, dz, t0, t1 = _shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz)
+    w = math.pi / cos_l / light_samples          # 1 / (pdf N), pdf = cos / π
+    return (st, ox, oy, oz, dx, dy, dz, t0, t1, w * (kd * rho_r + spec) * A.env_radiance[0, 0],
+            w * (kd * rho_g + spec) * A.env_radiance[0, 1], w * (kd * rho_b + spec) * A.env_radiance[0, 2])
+
+
+class LocalModel(NamedTuple):
+    """The local-illumination parameters (thesis 1.4.2) as one kernel argument."""
+
+    ka: float                   # ambient coefficient k_a
+    ambient: float              # ambient intensity I_a
+    ks: float                   # specular coefficient k_s
+    shininess: float            # Phong exponent n
+    c1: float                   # f_att = 1 / (c1 + c2 d + c3 d²)
+    c2: float
+    c3: float
+    fclamp: bool                # clamp f_att to 1
+    shadows: bool               # cast shadow rays
+    light_samples: int          # samples per area emitter / environment
+
+
+def local_model(params: dict) -> LocalModel:
+    """The :class:`LocalModel` of an algorithm's parsed parameters."""
+    return LocalModel(float(params["ka"]), float(params["ambient"]), float(params["ks"]),
+                      float(params["shininess"]), float(params["c1"]), float(params["c2"]),
+                      float(params["c3"]), bool(params["fatt_clamp"]), bool(params["shadows"]),
+                      int(params["light_samples"]))
+
+
+#: Rows of a batch of shading points (:func:`direct_batch`).
+SP_P, SP_G, SP_S, SP_V, SP_RHO = 0, 3, 6, 9, 12
+
+
+@njit(cache=True)
+def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, nshadow):
+    """:func:`direct_light_rays` over a batch of shading points (an
+    :class:`impl.tracer.Batch` ``T``), light slot by light slot: each slot's shadow rays
+    (of the points where it has one) are traced together by
+    :func:`impl.tracer.occluded_batch`.
+
+    Reads the points ``T.pts`` (rows p, g, s, v, ρ: ``SP_*``) where ``T.active``;
+    adds their light to ``T.L`` and their shadow rays to ``nshadow`` (n,).
+    """
+    pts, L, rays, contrib, idx = T.pts, T.L, T.sh, T.sh_w, T.sh_i
+    for j in range(slot_count(A, M.light_samples)):
+        m = 0
+        for i in range(T.n):
+            if not T.active[i]:
                 continue
-            kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
-            if kd == 0.0 and spec == 0.0:
-                continue
-            if shadows:
-                nshadow += 1
-                side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
-                ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
-                if occluded(R, ox, oy, oz, lx, ly, lz, t0, np.inf):
-                    continue
-            w = math.pi / cos_l          # 1 / pdf, pdf = cos / π
-            er += w * (kd * rho_r + spec)
-            eg += w * (kd * rho_g + spec)
-            eb += w * (kd * rho_b + spec)
-        r += er * A.env_radiance[0, 0] / light_samples
-        g += eg * A.env_radiance[0, 1] / light_samples
-        b += eb * A.env_radiance[0, 2] / light_samples
-    return r, g, b, nshadow
+            st, ox, oy, oz, dx, dy, dz, t0, t1, cr, cg, cb = light_slot(
+                j, pts[0, i], pts[1, i], pts[2, i], pts[3, i], pts[4, i], pts[5, i], pts[6, i],
+                pts[7, i], pts[8, i], pts[9, i], pts[10, i], pts[11, i], pts[12, i], pts[13, i],
+                pts[14, i], A, R, M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows,
+                M.light_samples, seed, T.pixel[i], sample)
+            if st == SLOT_LIT:
+                L[0, i] += cr
+                L[1, i] += cg
+                L[2, i] += cb
+            elif st == SLOT_SHADOW:
+                rays[0, m], rays[1, m], rays[2, m] = ox, oy, oz
+                rays[3, m], rays[4, m], rays[5, m] = dx, dy, dz
+                rays[6, m], rays[7, m] = t0, t1
+                contrib[0, m], contrib[1, m], contrib[2, m] = cr, cg, cb
+                idx[m] = i
+                m += 1
+        if m == 0:
+            continue
+        occluded_batch(R, rays, m, T.blocked, T.q)
+        for k in range(m):
+            i = idx[k]
+            nshadow[i] += 1
+            if not T.blocked[k]:
+                L[0, i] += contrib[0, k]
+                L[1, i] += contrib[1, k]
+                L[2, i] += contrib[2, k]
 
 
 @njit(inline="always", cache=True)
@@ -325,7 +419,7 @@ def environment_radiance(A: SceneArrays, dx, dy, dz):
     return A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
 
 
-@njit(cache=True)
+@njit(inline="always", cache=True)
 def diffuse_albedo(A: SceneArrays, mat, prim, b1, b2):
     """Diffuse reflectance ρ (r, g, b) of material ``mat`` at a hit (primitive, barycentrics).
 

@@ -53,7 +53,8 @@ against Mitsuba's ``llvm_ad_spectral`` on ``suites/cornell/cornell_spectral.xml`
 and, for dispersion (which Mitsuba cannot render), against a prism's
 analytic deviation angles.
 
-Deliberately biased variants (``debug_bias``) exist only to show that the
+Deliberately biased variants (the ``debug_bias`` keyword of :func:`render`, not
+a parameter of the table) exist only to show that the
 Z-test against Mitsuba has the power to reject a biased estimator:
 ``rr_no_reweight`` (Russian roulette without the 1/q weight) and
 ``mis_unnormalised`` (the light sample's power-heuristic weight computed
@@ -84,26 +85,24 @@ max_depth   int    -1       Mitsuba's meaning (1 = emitters only, 2 =
 rr_depth    int    5        Russian roulette from this depth on
 mis         bool   true     MIS (power heuristic) of light and BSDF samples
 spectral    bool   false    hero-wavelength spectral rendering (impl.spectral)
-debug_bias  str    none     none | rr_no_reweight | mis_unnormalised
 (rays)                      intersect, precision, offset, epsilon, accel,
                             slab_normals (:mod:`impl.rays`)
 packets     bool   false    trace the eye rays of 8×8 pixel tiles as
                             coherent packets (:mod:`impl.accel.packets`)
 ==========  =====  =======  ===============================================
 
-Packets (thesis 2.6): with ``packets=true`` the kernel runs over 8×8 pixel
-tiles and, for each sample index, traces the tile's eye rays (the same rays
-as the per-pixel kernel) as one packet through the tree; each path then
-continues from its precomputed first hit, its bounce and shadow rays
-single-ray (incoherent: packets of them are out of scope).  Same image and
-counters bit for bit, plus ``packet_nodes`` / ``packet_tests``; needs a tree
+Structure: the tracer core of :mod:`impl.tracer` renders tile by tile and
+traces each sample index's eye rays of a tile as one batch (with
+``packets=true`` as packets through the tree, :mod:`impl.accel.packets`);
+each path (:func:`_path`) then continues from its first hit, its bounce and
+shadow rays one at a time.  Same image and counters with and without
+packets, plus ``packet_nodes`` / ``packet_tests``; packets need a tree
 (``accel=auto`` then means ``bvh-sah``).
 
 Example::
 
-    from gibench import registry
     from core.loader import load_scene
-    algo = registry.get("path")
+    from impl.path import ALGORITHM as algo
     res = algo.render(load_scene("suites/cornell/cornell_box.xml"),
                       algo.parse_params({"spp": 64, "max_depth": 8}), seed=0)
 """
@@ -111,6 +110,8 @@ Example::
 from __future__ import annotations
 
 import math
+import time
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -121,17 +122,18 @@ from core.scene import Scene
 from .bsdf import bsdf_arrays, bsdf_eval, bsdf_pdf, bsdf_sample, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
 from .materials import MaterialArrays
-from .accel.packets import NOT_TRACED, packet_buffers, tile_count, tile_eye_packet, tile_rect
-from .camera import camera_params, eye_ray
+from .accel.packets import NOT_TRACED
+from .camera import camera_params
 from .light_sampling import LightArrays, emitter_pdf, flatten_with_lights, sample_light
 from .lighting import diffuse_albedo, environment_radiance, surface
 from .rays import PARAMS as RAY_PARAMS
-from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
+from .rays import RayConfig, hit, leave, occluded, refine, round_ray
 from .rng import uniform
-from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add, welford_row
-from .scene_arrays import SceneArrays
+from .sampling import check_spp
+from .scene_arrays import SceneArrays, scene_memo
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
+from .tracer import Film, accumulate, eye_batch, film_counters, new_batch, new_film, ray_config_cached, store
 from core.errors import ParamError, UnsupportedError
 
 __all__ = ["render", "COUNTERS", "DEBUG_BIAS", "ALGORITHM"]
@@ -324,95 +326,46 @@ def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B:
     return r, g, b
 
 
-@njit(cache=True)
-def _pixel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
-           spectral, x, y, spp, max_depth, rr_depth, mis, bias, seed, mean, var, counts):
-    """One pixel: its paths, Welford mean and variance of the mean, counters (thread-private)."""
-    W = int(cam[14])
-    pixel = y * W + x
-    k = strata(spp)
-    cnt = np.zeros(len(COUNTERS), dtype=np.int64)
-    m0 = m1 = m2 = 0.0
-    q0 = q1 = q2 = 0.0
-    for s in range(spp):
-        fx, fy = pixel_sample(spp, k, s, seed, pixel)
-        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-        w0 = w1 = w2 = 0.0
-        if spectral:
-            w0, w1, w2 = sample_wavelengths(uniform(seed, pixel, s, _DIM_WAVELENGTH))
-        r, g, b = _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A, L, B, R, S, spectral, w0, w1, w2,
-                        max_depth, rr_depth, mis, bias, seed, pixel, s, cnt, 0.0, np.int64(NOT_TRACED), 0.0,
-                        0.0)
-        if spectral:
-            r, g, b = to_linear_srgb(S, r, g, b, w0, w1, w2)
-        m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
-    _store_pixel(x, y, W, spp, m0, m1, m2, q0, q1, q2, cnt, mean, var, counts)
+class PathConfig(NamedTuple):
+    """The path tracer's parameters as one kernel argument."""
 
-
-@njit(inline="always", cache=True)
-def _store_pixel(x, y, W, spp, m0, m1, m2, q0, q1, q2, cnt, mean, var, counts):
-    """Write pixel (x, y)'s mean, variance of the mean and counters."""
-    mean[y, x, 0] = m0
-    mean[y, x, 1] = m1
-    mean[y, x, 2] = m2
-    var[y, x, 0] = variance_of_mean(q0, spp)
-    var[y, x, 1] = variance_of_mean(q1, spp)
-    var[y, x, 2] = variance_of_mean(q2, spp)
-    for i in range(cnt.shape[0]):
-        counts[y * W + x, i] = cnt[i]
+    spectral: bool              # hero wavelengths instead of RGB
+    max_depth: int              # Mitsuba's max_depth (-1 unbounded)
+    rr_depth: int               # Russian roulette from this depth on
+    mis: bool                   # power-heuristic MIS of light and BSDF samples
+    bias: int                   # DEBUG_BIAS code
 
 
 @njit(cache=True)
 def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
-          spectral, tile, spp, max_depth, rr_depth, mis, bias, seed, mean, var, counts, packet_counts):
-    """One 8×8 tile: per sample index, the eye rays of :func:`_pixel` traced as one
-    packet, then each pixel's path from its first hit.  The per-pixel Welford state
-    and counters live here, private to the thread running the tile."""
-    W, H = int(cam[14]), int(cam[15])
-    x0, y0, nx, ny = tile_rect(tile, W, H)
-    P = nx * ny
-    k = strata(spp)
-    cnt = np.zeros((P, len(COUNTERS)), dtype=np.int64)
-    acc = np.zeros((P, 6))                  # Welford m0, m1, m2, q0, q1, q2 per pixel
-    rays, hit_t, hit_p, hit_b = packet_buffers(P)
+          P: PathConfig, film: Film, tile, spp, seed):
+    """One tile (:mod:`impl.tracer`): per sample index, the eye rays and their hits, then
+    each pixel's path from its first hit."""
+    T = new_batch(film, R, tile)
     for s in range(spp):
-        tile_eye_packet(R, cam, x0, nx, y0, P, spp, k, s, seed, rays, hit_t, hit_p, hit_b,
-                        packet_counts)
-        for i in range(P):
-            pixel = (y0 + i // nx) * W + x0 + i % nx
+        eye_batch(cam, R, T, s, spp, seed, film.packets)
+        ray = T.ray
+        for i in range(T.n):
+            pixel = T.pixel[i]
             w0 = w1 = w2 = 0.0
-            if spectral:
+            if P.spectral:
                 w0, w1, w2 = sample_wavelengths(uniform(seed, pixel, s, _DIM_WAVELENGTH))
-            r, g, b = _path(rays[i, 0], rays[i, 1], rays[i, 2], rays[i, 3], rays[i, 4], rays[i, 5],
-                            rays[i, 6], rays[i, 7], A, L, B, R, S, spectral, w0, w1, w2, max_depth,
-                            rr_depth, mis, bias, seed, pixel, s, cnt[i], hit_t[i], hit_p[i],
-                            hit_b[i, 0], hit_b[i, 1])
-            if spectral:
+            r, g, b = _path(ray[0, i], ray[1, i], ray[2, i], ray[3, i], ray[4, i], ray[5, i],
+                            ray[6, i], ray[7, i], A, L, B, R, S, P.spectral, w0, w1, w2,
+                            P.max_depth, P.rr_depth, P.mis, P.bias, seed, pixel, s, T.cnt[i],
+                            T.t[i], T.prim[i], T.b[0, i], T.b[1, i])
+            if P.spectral:
                 r, g, b = to_linear_srgb(S, r, g, b, w0, w1, w2)
-            welford_row(acc, i, s, r, g, b)
-    for i in range(P):
-        _store_pixel(x0 + i % nx, y0 + i // nx, W, spp, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
-                     acc[i, 4], acc[i, 5], cnt[i], mean, var, counts)
-
-
-@njit(parallel=True, cache=True)
-def _render_tiles(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
-                  S: SpectralArrays, spectral, spp, max_depth, rr_depth, mis, bias, seed, mean, var,
-                  counts, packet_counts):
-    W, H = int(cam[14]), int(cam[15])
-    for tile in prange(tile_count(W, H)):
-        _tile(cam, A, L, B, R, S, spectral, tile, spp, max_depth, rr_depth, mis, bias, seed, mean,
-              var, counts, packet_counts[tile])
+            T.L[0, i], T.L[1, i], T.L[2, i] = r, g, b
+        accumulate(T, s)
+    store(T, film, spp)
 
 
 @njit(parallel=True, cache=True)
 def _render_kernel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
-                   S: SpectralArrays, spectral, spp, max_depth, rr_depth, mis, bias, seed, mean, var,
-                   counts):
-    W, H = int(cam[14]), int(cam[15])
-    for pixel in prange(W * H):
-        _pixel(cam, A, L, B, R, S, spectral, pixel % W, pixel // W, spp, max_depth, rr_depth, mis,
-               bias, seed, mean, var, counts)
+                   S: SpectralArrays, P: PathConfig, film: Film, spp, seed):
+    for tile in prange(film.packet.shape[0]):
+        _tile(cam, A, L, B, R, S, P, film, tile, spp, seed)
 
 
 # ------------------------------------------------------------- orchestration ---
@@ -426,18 +379,22 @@ def _check(params: dict) -> None:
         raise ParamError(f"path: rr_depth must be >= 1, got {params['rr_depth']}")
 
 
-def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
-    """Render ``scene`` with the path tracer; ``params`` as from ``ALGORITHM.parse_params``."""
+def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none") -> RenderResult:
+    """Render ``scene`` with the path tracer; ``params`` as from ``ALGORITHM.parse_params``.
+
+    ``debug_bias`` (a keyword for tests, not a parameter of the algorithm's table)
+    renders one of the deliberately biased variants of :data:`DEBUG_BIAS`, which
+    exist only to show that the Z-test against Mitsuba rejects them."""
+    if debug_bias not in DEBUG_BIAS:
+        raise ParamError(f"path: debug_bias must be one of {', '.join(DEBUG_BIAS)}, got {debug_bias!r}")
+    t0 = time.perf_counter()
     _check(params)
-    B = bsdf_arrays(scene, algorithm="path")
-    A, L = flatten_with_lights(scene)
+    B = scene_memo(scene, "path.bsdf", lambda: bsdf_arrays(scene, algorithm="path"))
+    A, L = scene_memo(scene, "path.lights", lambda: flatten_with_lights(scene))
     cam = camera_params(scene.camera)
     H, W = scene.camera.film.height, scene.camera.film.width
     spp = params["spp"]
-    mean = np.zeros((H, W, 3))
-    var = np.zeros((H, W, 3))
-    counts = np.zeros((H * W, len(COUNTERS)), dtype=np.int64)
-    R = ray_config(A, params, algorithm="path")
+    R = ray_config_cached(scene, A, params, algorithm="path")
     spectral = bool(params["spectral"])
     if spectral and scene.environment is not None:
         raise UnsupportedError("path: spectral=true does not model the constant environment "
@@ -449,22 +406,19 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
         A = A._replace(light_rad=np.ones_like(A.light_rad))
     else:
         S = rgb_arrays_placeholder()
-    args = (cam, A, L, B, R, S, spectral, spp, int(params["max_depth"]), int(params["rr_depth"]),
-            bool(params["mis"]), DEBUG_BIAS.index(params["debug_bias"]), seed, mean, var, counts)
-    packets = bool(params.get("packets", False))
-    if packets:
-        packet_counts = np.zeros((tile_count(W, H), 2), dtype=np.int64)
-        _render_tiles(*args, packet_counts)
-    else:
-        _render_kernel(*args)
-    totals = counts.sum(axis=0)
-    counters = {name: int(v) for name, v in zip(COUNTERS, totals)}
-    if packets:
-        counters["packet_nodes"], counters["packet_tests"] = (int(v) for v in packet_counts.sum(axis=0))
+    P = PathConfig(spectral, int(params["max_depth"]), int(params["rr_depth"]), bool(params["mis"]),
+                   DEBUG_BIAS.index(debug_bias))
+    film = new_film(W, H, len(COUNTERS), bool(params.get("packets", False)))
+    t1 = time.perf_counter()
+    _render_kernel(cam, A, L, B, R, S, P, film, spp, seed)
+    t2 = time.perf_counter()
+    counters = film_counters(film, COUNTERS)
     counters["mean_path_length"] = counters["segments"] / max(1, counters["paths"])
-    return RenderResult(image=mean.astype(np.float32),
-                        variance=var.astype(np.float32) if spp > 1 else None,
-                        counters=counters)
+    return RenderResult(image=film.mean.astype(np.float32),
+                        variance=film.var.astype(np.float32) if spp > 1 else None,
+                        counters=counters,
+                        timings={"setup_s": t1 - t0, "trace_s": t2 - t1,
+                                 "finish_s": time.perf_counter() - t2})
 
 
 ALGORITHM = Algorithm(
@@ -482,8 +436,6 @@ ALGORITHM = Algorithm(
               "BSDF samples; false = plain next-event estimation"),
         Param("spectral", bool, False, "spectral rendering: three hero-rotated wavelengths per "
               "path, scene spectra, CIE 1931 to linear sRGB (impl.spectral)"),
-        Param("debug_bias", str, "none", "deliberately biased variant, for the Z-test's power "
-              "only", choices=DEBUG_BIAS),
         *RAY_PARAMS,
     ),
     render=render,

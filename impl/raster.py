@@ -66,6 +66,7 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
+from core.errors import ParamError
 
 __all__ = ["SUBPIXEL_BITS", "TRAVERSALS", "TRAVERSAL_EDGE", "TRAVERSAL_INCREMENTAL", "OP_COUNTERS", "DEPTH_MODES", "DEPTH_FLOAT32", "DEPTH_FIXED24", "DEPTH_FIXED16", "DEPTH_NONE",
            "VisibilityBuffer", "rasterize", "coverage"]
@@ -315,7 +316,7 @@ def rasterize(xy: np.ndarray, zc: np.ndarray, width: int, height: int, *, depth_
     _setup_kernel(xy, width, height, ix, iy, bbox)
     vb = VisibilityBuffer(width, height)
     if traversal not in (TRAVERSAL_EDGE, TRAVERSAL_INCREMENTAL):
-        raise ValueError(f"rasterize: traversal must be one of {sorted(TRAVERSALS.values())}, got {traversal!r}")
+        raise ParamError(f"rasterize: traversal must be one of {sorted(TRAVERSALS.values())}, got {traversal!r}")
     counts = np.zeros((min(N_BANDS, max(height, 1)), 2 + len(OP_COUNTERS)), np.int64)
     _raster_kernel(order, xy, zc, ix, iy, bbox, depth_mode, float(near), float(far),
                    vb.id, vb.b, vb.invz, vb.zbuf, counts, int(traversal))

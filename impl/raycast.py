@@ -53,15 +53,25 @@ packets        bool    false    eye rays of 8×8 tiles as coherent packets
 =============  ======  =======  ==============================================
 
 The last seven are the ray configuration of :mod:`impl.rays` (shared with
-``whitted``, which documents them in full).  With ``packets=true`` the kernel
-runs over 8×8 pixel tiles and traces each sample's 64 eye rays as one packet
-(:mod:`impl.accel.packets`); shading and shadow rays go on per pixel, single
-ray, and the image and counters are those of ``packets=false`` bit for bit,
-plus the counters ``packet_nodes`` and ``packet_tests``.  Before they existed shadow rays
-left the surface p + 1e-7·(1 + max|p_i|)·n.
+``whitted``, which documents them in full).
+
+Structure: the tracer core of :mod:`impl.tracer` renders tile by tile, each
+sample index's eye rays as one batch; this module is the shading step
+(:func:`_shade`): the hit's surface, emission and ambient term, then the
+direct light of :func:`impl.lighting.direct_batch`, whose shadow rays are
+traced a light sample at a time over the whole batch.  With ``packets=true``
+the eye rays of 8×8 tiles go through the tree as packets
+(:mod:`impl.accel.packets`); the image and counters are those of
+``packets=false`` bit for bit, plus the counters ``packet_nodes`` and
+``packet_tests``.  ``RenderResult.timings`` splits the render's wall time into
+``setup_s`` (flattened scene and ray configuration — both remembered per scene,
+:func:`impl.scene_arrays.scene_memo` —, camera, output arrays), ``trace_s``
+(the kernel) and ``finish_s`` (counters, output conversion).
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 from numba import njit, prange
@@ -69,129 +79,87 @@ from numba import njit, prange
 from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
 
-from .accel.packets import NOT_TRACED, packet_buffers, tile_count, tile_eye_packet, tile_rect
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
-from .lighting import environment_radiance, local_shading, surface
-from .rays import PARAMS as RAY_PARAMS
-from .rays import RayConfig, hit, ray_config, refine, round_ray
+from .lighting import (SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo, direct_batch,
+                       environment_radiance, local_model, surface)
 from .phong import PHONG_PARAMS
-from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add, welford_row
-from .scene_arrays import SceneArrays, flatten
+from .rays import PARAMS as RAY_PARAMS
+from .rays import RayConfig, refine
+from .sampling import check_spp
+from .scene_arrays import SceneArrays, flatten_cached
+from .tracer import (DX, DY, DZ, OX, OY, OZ, Batch, Film, accumulate, eye_batch, film_counters,
+                     new_batch, new_film, ray_config_cached, store)
 from core.errors import ParamError, UnsupportedError
 
 __all__ = ["render", "cast_primary", "ALGORITHM"]
 
+#: Per-pixel counters of the tile kernel.
+COUNTERS = ("shadow_rays",)
+
 
 @njit(cache=True)
-def _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, R: RayConfig, ka, ambient, ks,
-              shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, sample, pre_t,
-              pre_prim, pre_b1, pre_b2):
-    """Radiance along one eye ray: emitted + ambient + Phong direct; (r, g, b, shadow rays).
-
-    ``pre_*``: the eye ray's closest hit as :func:`impl.rays.hit` returns it, traced
-    in a packet; ``pre_prim = NOT_TRACED`` traces it here.
-    """
-    ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
-    if pre_prim == NOT_TRACED:
-        t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
-    else:
-        t, prim, b1, b2 = pre_t, pre_prim, pre_b1, pre_b2
-    if prim < 0:                        # escaped: a constant environment, if any
-        er, eg, eb = environment_radiance(A, dx, dy, dz)
-        return er, eg, eb, 0
+def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed):
+    """Radiance of the batch's eye rays from their closest hits into ``T.L``: a constant
+    environment for escaped rays; L_e (front side) + ambient I_a k_a ρ + the Phong
+    direct light of every light (:func:`impl.lighting.direct_batch`) at a hit.  A
+    one-sided surface seen from behind gets nothing; a two-sided one is shaded on the
+    side it is seen from."""
+    pts, active = T.pts, T.active
     ns = A.sph_radius.shape[0]
-    shape = A.prim_shape[prim]
-    px, py, pz = refine(R, prim, b1, b2, ox + t * dx, oy + t * dy, oz + t * dz)
-    gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
-                                      A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
-    return local_shading(px, py, pz, gx, gy, gz, sx, sy, sz, -dx, -dy, -dz, shape, prim, b1, b2, A, R,
-                         ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                         seed, pixel, sample)
+    amb = M.ambient * M.ka
+    for i in range(T.n):
+        active[i] = False
+        dx, dy, dz = T.ray[DX, i], T.ray[DY, i], T.ray[DZ, i]
+        prim = T.prim[i]
+        if prim < 0:                    # escaped: a constant environment, if any
+            T.L[0, i], T.L[1, i], T.L[2, i] = environment_radiance(A, dx, dy, dz)
+            continue
+        t, b1, b2 = T.t[i], T.b[0, i], T.b[1, i]
+        shape = A.prim_shape[prim]
+        px, py, pz = refine(R, prim, b1, b2, T.ray[OX, i] + t * dx, T.ray[OY, i] + t * dy,
+                            T.ray[OZ, i] + t * dz)
+        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
+                                          A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+        vx, vy, vz = -dx, -dy, -dz
+        r = g = b = 0.0
+        cos_v = sx * vx + sy * vy + sz * vz
+        if cos_v > 0.0:                 # emitted radiance L_e, front side only
+            r, g, b = A.shape_emit[shape, 0], A.shape_emit[shape, 1], A.shape_emit[shape, 2]
+        mat = A.shape_material[shape]
+        if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+            cos_v = -cos_v
+        if cos_v > 0.0:
+            rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+            r += amb * rho_r
+            g += amb * rho_g
+            b += amb * rho_b
+            pts[SP_P, i], pts[SP_P + 1, i], pts[SP_P + 2, i] = px, py, pz
+            pts[SP_G, i], pts[SP_G + 1, i], pts[SP_G + 2, i] = gx, gy, gz
+            pts[SP_S, i], pts[SP_S + 1, i], pts[SP_S + 2, i] = sx, sy, sz
+            pts[SP_V, i], pts[SP_V + 1, i], pts[SP_V + 2, i] = vx, vy, vz
+            pts[SP_RHO, i], pts[SP_RHO + 1, i], pts[SP_RHO + 2, i] = rho_r, rho_g, rho_b
+            active[i] = True
+        T.L[0, i], T.L[1, i], T.L[2, i] = r, g, b
+    direct_batch(A, R, M, T, s, seed, T.cnt[:, 0])
 
 
 @njit(cache=True)
-def _pixel(cam, A: SceneArrays, R: RayConfig, x, y, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-           light_samples, seed):
-    """Mean and variance of the mean of one pixel's samples, and its shadow-ray count.
-
-    A function of its own so that every accumulator is private to the thread
-    that runs the pixel (a prange body's locals can be hoisted and shared).
-    """
-    pixel = y * int(cam[14]) + x
-    k = strata(spp)
-    m0 = m1 = m2 = 0.0
-    q0 = q1 = q2 = 0.0
-    nsh = 0
+def _tile(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, tile, spp, seed):
+    """One tile: per sample index, eye rays and hits, shading, accumulation."""
+    T = new_batch(film, R, tile)
     for s in range(spp):
-        fx, fy = pixel_sample(spp, k, s, seed, pixel)
-        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-        r, g, b, n = _radiance(ox, oy, oz, dx, dy, dz, tmin, tmax, A, R, ka, ambient, ks, shininess,
-                               c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, s, 0.0,
-                               np.int64(NOT_TRACED), 0.0, 0.0)
-        nsh += n
-        m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
-    return (m0, m1, m2, variance_of_mean(q0, spp), variance_of_mean(q1, spp),
-            variance_of_mean(q2, spp), nsh)
-
-
-@njit(cache=True)
-def _tile(cam, A: SceneArrays, R: RayConfig, tile, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
-          shadows, light_samples, seed, mean, var, shadow_count, packet_counts):
-    """One 8×8 tile: per sample index, its eye rays (those of :func:`_pixel`) traced as
-    one packet, then each pixel's sample shaded from its hit.  The per-pixel Welford
-    state lives here, private to the thread running the tile."""
-    W, H = int(cam[14]), int(cam[15])
-    x0, y0, nx, ny = tile_rect(tile, W, H)
-    P = nx * ny
-    k = strata(spp)
-    rays, hit_t, hit_p, hit_b = packet_buffers(P)
-    acc = np.zeros((P, 6))                  # Welford m0, m1, m2, q0, q1, q2 per pixel
-    nsh = np.zeros(P, dtype=np.int64)
-    for s in range(spp):
-        tile_eye_packet(R, cam, x0, nx, y0, P, spp, k, s, seed, rays, hit_t, hit_p, hit_b,
-                        packet_counts)
-        for i in range(P):
-            x, y = x0 + i % nx, y0 + i // nx
-            r, g, b, n = _radiance(rays[i, 0], rays[i, 1], rays[i, 2], rays[i, 3], rays[i, 4],
-                                   rays[i, 5], rays[i, 6], rays[i, 7], A, R, ka, ambient, ks,
-                                   shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-                                   y * W + x, s, hit_t[i], hit_p[i], hit_b[i, 0], hit_b[i, 1])
-            nsh[i] += n
-            welford_row(acc, i, s, r, g, b)
-    for i in range(P):
-        x, y = x0 + i % nx, y0 + i // nx
-        for c in range(3):
-            mean[y, x, c] = acc[i, c]
-            var[y, x, c] = variance_of_mean(acc[i, 3 + c], spp)
-        shadow_count[y, x] = nsh[i]
+        eye_batch(cam, R, T, s, spp, seed, film.packets)
+        _shade(A, R, M, T, s, seed)
+        accumulate(T, s)
+    store(T, film, spp)
 
 
 @njit(parallel=True, cache=True)
-def _render_tiles(cam, A: SceneArrays, R: RayConfig, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
-                  shadows, light_samples, seed, mean, var, shadow_count, packet_counts):
-    W, H = int(cam[14]), int(cam[15])
-    for tile in prange(tile_count(W, H)):
-        _tile(cam, A, R, tile, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-              light_samples, seed, mean, var, shadow_count, packet_counts[tile])
-
-
-@njit(parallel=True, cache=True)
-def _render_kernel(cam, A: SceneArrays, R: RayConfig, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-                   light_samples, seed, mean, var, shadow_count):
-    W, H = int(cam[14]), int(cam[15])
-    for pixel in prange(W * H):
-        x = pixel % W
-        y = pixel // W
-        out = _pixel(cam, A, R, x, y, spp, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-                     light_samples, seed)
-        mean[y, x, 0] = out[0]
-        mean[y, x, 1] = out[1]
-        mean[y, x, 2] = out[2]
-        var[y, x, 0] = out[3]
-        var[y, x, 1] = out[4]
-        var[y, x, 2] = out[5]
-        shadow_count[y, x] = out[6]
+def _render_kernel(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, spp, seed):
+    for tile in prange(film.packet.shape[0]):
+        _tile(cam, A, R, M, film, tile, spp, seed)
 
 
 @njit(parallel=True, cache=True)
@@ -222,37 +190,32 @@ def cast_primary(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     H, W = scene.camera.film.height, scene.camera.film.width
     depth = np.full((H, W), np.inf)
     shape_id = np.full((H, W), -1, dtype=np.int64)
-    _primary_kernel(cam, flatten(scene), depth, shape_id)
+    _primary_kernel(cam, flatten_cached(scene), depth, shape_id)
     return depth, shape_id
 
 
 def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
+    t0 = time.perf_counter()
     spp = params["spp"]
     check_spp(spp, "raycast")
     if params["light_samples"] < 0:
         raise ParamError("raycast: light_samples must be >= 0")
     _check_materials(scene)
-    A = flatten(scene)
+    A = flatten_cached(scene)
+    R = ray_config_cached(scene, A, params, algorithm="raycast")
     cam = camera_params(scene.camera)
     H, W = scene.camera.film.height, scene.camera.film.width
-    mean = np.zeros((H, W, 3))
-    var = np.zeros((H, W, 3))
-    shadow = np.zeros((H, W), dtype=np.int64)
-    R = ray_config(A, params, algorithm="raycast")
-    args = (cam, A, R, spp, params["ka"], params["ambient"], params["ks"], params["shininess"],
-            params["c1"], params["c2"], params["c3"], params["fatt_clamp"], params["shadows"],
-            params["light_samples"], seed, mean, var, shadow)
-    if params.get("packets", False):
-        packet_counts = np.zeros((tile_count(W, H), 2), dtype=np.int64)
-        _render_tiles(*args, packet_counts)
-    else:
-        _render_kernel(*args)
-    counters = {"camera_rays": int(W * H * spp), "shadow_rays": int(shadow.sum())}
-    if params.get("packets", False):
-        counters["packet_nodes"], counters["packet_tests"] = (int(v) for v in packet_counts.sum(axis=0))
-    return RenderResult(image=mean.astype(np.float32),
-                        variance=var.astype(np.float32) if spp > 1 else None,
-                        counters=counters)
+    packets = bool(params.get("packets", False))
+    film = new_film(W, H, len(COUNTERS), packets)
+    t1 = time.perf_counter()
+    _render_kernel(cam, A, R, local_model(params), film, spp, seed)
+    t2 = time.perf_counter()
+    counters = {"camera_rays": int(W * H * spp), **film_counters(film, COUNTERS)}
+    return RenderResult(image=film.mean.astype(np.float32),
+                        variance=film.var.astype(np.float32) if spp > 1 else None,
+                        counters=counters,
+                        timings={"setup_s": t1 - t0, "trace_s": t2 - t1,
+                                 "finish_s": time.perf_counter() - t2})
 
 
 ALGORITHM = Algorithm(

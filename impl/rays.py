@@ -43,19 +43,12 @@ the same structure (``tests/test_packets.py``); the tracers add the counters
 ``packet_nodes`` and ``packet_tests`` (nodes opened by packets, primitive
 tests of packet rays).  Packets need a tree: ``accel=auto`` then always
 chooses :data:`AUTO_ACCEL` (whatever the scene size and sphere form), and an
-explicit non-tree structure is refused.  The default stays ``false``:
-measured in ``benchmarks/bench_packets.py`` (256×192, spp 4, BVH-SAH; 2-core
-VM shared with other work; single / packets render time, medians of 7
-alternated renders, two runs), packets gain 1.03–1.15× on 10⁴ spheres and
-0.98–1.13× on a 10⁵-triangle mesh for raycast, whitted and path — within the
-spread of the machine (the same cases measured 0.88–1.23× from the
-unalternated medians).  Per
-pixel-centre eye ray a packet opens 1.4 nodes (spheres) / 1.07 (mesh) against
-26.5 / 10.1 for single rays, but tests slightly more primitives (1.50 vs 1.46,
-1.82 vs 1.71): scalar numba loops over the packet's rays at every node, so
-the saved node fetches buy little, and eye rays are a small part of a render.
+explicit non-tree structure is refused.  The default stays ``false``: eye
+rays are a small part of a render and scalar numba loops over the packet's
+rays at every node, so the saved node fetches buy little
+(``benchmarks/bench_packets.py`` measures it).
 
-Except where the sphere test itself is wrong: far from a sphere the
+Structures and brute force agree except where the sphere test itself is wrong: far from a sphere the
 algebraic and geometric forms in float32 report hits that lie nowhere near
 it (thesis 2.3.3: the cancelled discriminant; ``test_whitted``'s distant
 sphere: the geometric form "hits" all 1024 pixels).  A bounding volume culls
@@ -94,20 +87,15 @@ stop at ``|y − o|·(1 − s)`` (``s`` = 1e-9 for point/spot lights and 1e-7 fo
 area emitters in float64, 1e-4 in float32, where the emitter's own ``t``
 carries a relative error of several float32 ulps).
 
-Before issue 3 the ray tracers used a fixed rule: origin
-``p + 1e-7·(1 + max|p_i|)·n`` (:func:`impl.offset.offset_scaled`), stable
-form, float64, no refinement — still the offset rule of
-:func:`impl.lighting.direct_light` for its other callers
-(:func:`legacy_config`), whose shadow rays are now also aimed from the offset
-origin.
+:func:`legacy_config` is the fixed rule of the ray tracers' first version,
+still the offset rule of :func:`impl.lighting.direct_light` for its other
+callers: stable form, float64, no refinement, origin
+``p + 1e-7·(1 + max|p_i|)·n`` (:func:`impl.offset.offset_scaled`), shadow rays
+aimed from the offset origin.
 
-Performance: the precision is the dtype of :class:`RayConfig`'s primitive
-arrays, so each precision is its own compiled specialisation (a run-time
-precision branch made the default 1.6× slower; so did a separate call path
-for the stable form).  Measured on ``suites/spheres/glass_sphere.xml`` at
-16 spp (2-core shared VM, medians of 9 renders, old and new alternated):
-wall time 0.21–0.26 s before and after; single-thread CPU time 0.37 s before,
-0.40 s after (+6 %: the refinement and the offsets' extra arithmetic).
+The precision is the dtype of :class:`RayConfig`'s primitive arrays, so each
+precision is its own compiled specialisation (the form and offset strategy
+are run-time codes).
 """
 
 from __future__ import annotations
@@ -226,7 +214,7 @@ def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
 
 @njit(cache=True)
 def legacy_config(A, eps):
-    """The rule before issue 3: stable form, float64, origin p + eps·(1 + max|p_i|)·n."""
+    """The fixed rule: stable form, float64, origin p + eps·(1 + max|p_i|)·n."""
     z2 = np.empty((0, 3))
     zi = np.empty(0, dtype=np.int64)
     return RayConfig(2, _SCALED, eps, 1e-9, 1e-7, A.sph_center, A.sph_radius, A.tri_v,

@@ -15,7 +15,9 @@ environment emitter is ``env_radiance`` (one row, or none).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import weakref
+from collections import OrderedDict
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -27,7 +29,7 @@ from core.errors import UnsupportedError
 WRAP_CODES = {"repeat": WRAP_REPEAT, "clamp": WRAP_CLAMP, "mirror": WRAP_MIRROR}
 FILTER_CODES = {"bilinear": FILTER_BILINEAR, "nearest": FILTER_NEAREST}
 
-__all__ = ["SceneArrays", "flatten", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
+__all__ = ["SceneArrays", "flatten", "flatten_cached", "scene_memo", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
            "TEX_NONE", "TEX_CHECKERBOARD", "TEX_BITMAP", "MATERIAL_CODES"]
 
 LIGHT_POINT, LIGHT_DIRECTIONAL, LIGHT_SPOT = 0, 1, 2
@@ -194,3 +196,42 @@ def flatten(scene: Scene) -> SceneArrays:
         mat_tex_filter=np.asarray(tex_filter, dtype=np.int64),
         env_radiance=f64([] if scene.environment is None else [scene.environment], (-1, 3)),
     )
+
+
+#: Per-scene memo of :func:`scene_memo`: id(scene) -> (weak reference, content key, {key: value}).
+_MEMO: OrderedDict = OrderedDict()
+#: Scenes kept in the memo at once (least recently used dropped first).
+MEMO_SCENES = 8
+
+
+def _content_key(scene: Scene) -> tuple:
+    """What the flattened arrays depend on, cheap to compute: the identities of the
+    (immutable) shapes, materials and lights in order, and the environment radiance."""
+    env = None if scene.environment is None else tuple(np.asarray(scene.environment).ravel())
+    return (tuple(map(id, scene.shapes)), tuple(map(id, scene.materials)),
+            tuple(map(id, scene.lights)), env)
+
+
+def scene_memo(scene: Scene, key, build: Callable):
+    """``build()``, remembered per scene object and ``key`` while the scene lives and its
+    shapes, materials, lights and environment are the same objects; a render of the same
+    scene reuses its flattened arrays and ray configurations instead of rebuilding them.
+    Shapes, materials and lights are frozen; changing a mesh's arrays in place is not seen."""
+    sid = id(scene)
+    content = _content_key(scene)
+    entry = _MEMO.get(sid)
+    if entry is None or entry[0]() is not scene or entry[1] != content:
+        entry = (weakref.ref(scene, lambda _ref, sid=sid: _MEMO.pop(sid, None)), content, {})
+        _MEMO[sid] = entry
+        while len(_MEMO) > MEMO_SCENES:
+            _MEMO.popitem(last=False)
+    _MEMO.move_to_end(sid)
+    values = entry[2]
+    if key not in values:
+        values[key] = build()
+    return values[key]
+
+
+def flatten_cached(scene: Scene) -> SceneArrays:
+    """:func:`flatten`, computed once per scene (:func:`scene_memo`)."""
+    return scene_memo(scene, "flatten", lambda: flatten(scene))

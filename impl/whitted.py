@@ -49,12 +49,8 @@ weight — the product of the Fresnel/reflectance weights along its branch —
 has every RGB channel below ``hall_threshold`` is cut (Hall's criterion);
 ``hall_threshold = 0`` follows every branch with a non-zero weight.  The
 default 1e-5 keeps the cut-off bias (≤ 1e-5 × the radiance of a cut ray) below
-the Z-test's noise floor against Mitsuba: measured, 1e-5 and 0 give the same
-Z-test fractions on the whitted scenes of ``suites/``, while 1e-4 already
-loses pixels of ~1e-5 lit only through three internal reflections
-(``glass_sphere`` at 36 spp: 0.99943 → 0.99875 of the entries consistent);
-1e-5 cuts the secondary rays of ``nested_glass`` from 400k to 135k.  The tree
-is walked depth-first with an explicit per-pixel stack of pending rays
+the Z-test's noise floor against Mitsuba on the whitted scenes of ``suites/``.
+The tree is walked depth-first with an explicit stack of pending rays
 (origin, direction, RGB weight, depth, ray type, IOR of the medium it travels
 in), never by recursion.
 
@@ -101,14 +97,6 @@ spawned ray leaves its surface (:mod:`impl.rays`, shared with ``raycast``):
   to a few ulps of p, below the robust offset.  Shadow rays are aimed from
   the offset origin at the light point.
 
-Before these parameters existed, secondary and shadow rays left the surface
-at p + 1e-7·(1 + max|p_i|)·n (stable form, float64, no refinement).  The new
-default (stable, float64, robust) differs from it by less than 1e-4 in every
-pixel of the six whitted suite scenes at 16 spp, except ~100 pixels of
-``mirror_sphere``: there the old shadow rays, aimed from p but started
-1e-7·(1 + |p|) above it, met the area emitter at a grazing angle before their
-t_max and left ground seen in the mirror wrongly in shadow.
-
 Pixel sampling as in ``raycast``: ``spp = 1`` traces the pixel centre,
 ``spp = k²`` a k×k jittered grid (box filter), returning the variance of the
 pixel mean.
@@ -151,25 +139,25 @@ packets         bool    false    trace the eye rays of 8×8 pixel tiles as
                                  coherent packets (:mod:`impl.accel.packets`)
 ==============  ======  =======  =============================================
 
-Packets (thesis 2.6, tracing several rays together): with ``packets=true`` the
-kernel runs over 8×8 pixel tiles; for each sample index the tile's eye rays —
-the same rays, samples and rounding as the per-pixel kernel — are traced as
-one packet through the tree, and each pixel's ray tree then starts from its
-precomputed eye hit.  Reflection, transmission and shadow rays stay
-single-ray: they are incoherent, and packets of them are out of scope.  Same
-image and counters as ``packets=false`` bit for bit, plus ``packet_nodes`` and
-``packet_tests``; needs a tree (``accel=auto`` then means ``bvh-sah``).
+Structure: the tracer core of :mod:`impl.tracer` renders tile by tile and
+traces each sample index's eye rays of a tile as one batch (with
+``packets=true`` as packets through the tree, :mod:`impl.accel.packets`);
+each pixel's ray tree (:func:`_tree`) then starts from its eye hit.
+Reflection, transmission and shadow rays are traced one at a time.  Same
+image and counters with and without packets, plus ``packet_nodes`` and
+``packet_tests``; packets need a tree (``accel=auto`` then means ``bvh-sah``).
 
 Example::
 
-    from gibench import registry
     from core.loader import load_scene
-    algo = registry.get("whitted")
+    from impl.whitted import ALGORITHM as algo
     res = algo.render(load_scene("suites/spheres/whitted_classic.xml"),
                       algo.parse_params({"spp": 16}), seed=0)
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 from numba import njit, prange
@@ -177,16 +165,18 @@ from numba import njit, prange
 from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
 
-from .accel.packets import NOT_TRACED, packet_buffers, tile_count, tile_eye_packet, tile_rect
-from .camera import camera_params, eye_ray
+from .accel.packets import NOT_TRACED
+from .camera import camera_params
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, surface
+from .lighting import (LocalModel, diffuse_albedo, direct_light_rays, environment_radiance,
+                       local_model, surface)
 from .materials import SpecularArrays, material_arrays
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
-from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add, welford_row
-from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten
+from .sampling import check_spp
+from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten, flatten_cached, scene_memo
+from .tracer import Film, accumulate, eye_batch, film_counters, new_batch, new_film, ray_config_cached, store
 from core.errors import ParamError
 
 __all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "ALGORITHM"]
@@ -249,10 +239,8 @@ def _admit(wr, wg, wb, depth, max_depth, hall_threshold, counts, cut_w):
 
 @njit(cache=True)
 def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: SpecularArrays, R: RayConfig,
-          max_depth,
-          hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-          seed, pixel, sample, spp, stack_f, stack_i, counts, hist, cut_w, pre_t, pre_prim, pre_b1,
-          pre_b2):
+          max_depth, hall_threshold, M: LocalModel, seed, pixel, sample, spp, stack_f, stack_i,
+          counts, hist, cut_w, pre_t, pre_prim, pre_b1, pre_b2):
     """Radiance (r, g, b) of one eye ray by walking its ray tree with an explicit stack.
 
     ``pre_*``: the eye ray's closest hit as :func:`impl.rays.hit` returns it, traced
@@ -376,12 +364,12 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: SpecularArrays,
 
         # Diffuse: direct light from every emitter, and the branch ends (thesis 2.2).
         rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
-        amb = ambient * ka
+        amb = M.ambient * M.ka
         # Leaf k of sample s draws the light samples of "sample" s + k·spp: leaf 0
         # uses raycast's numbers, the others are independent of them.
         lr, lg, lb, nsh = direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
-                                            rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3,
-                                            fclamp, shadows, light_samples, seed, pixel,
+                                            rho_r, rho_g, rho_b, A, M.ks, M.shininess, M.c1, M.c2,
+                                            M.c3, M.fclamp, M.shadows, M.light_samples, seed, pixel,
                                             sample + leaf * spp, R)
         leaf += 1
         counts[_C_SHADOW] += nsh
@@ -394,121 +382,49 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: SpecularArrays,
 
 
 @njit(cache=True)
-def _pixel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, x, y, spp, max_depth, hall_threshold, ka,
-           ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-           mean, var, counts, hist, cut):
-    """One pixel: its samples' ray trees, Welford mean and variance of the mean, counters.
-
-    A function of its own so that the stack and every accumulator are private
-    to the thread that runs the pixel (a prange body's locals can be hoisted
-    and shared).  Writes row ``pixel`` of the per-pixel outputs.
-    """
-    W = int(cam[14])
-    pixel = y * W + x
-    k = strata(spp)
+def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
+          hall_threshold, film: Film, tile, spp, seed, cut):
+    """One tile (:mod:`impl.tracer`): per sample index, the eye rays and their hits, then
+    each pixel's ray tree from its eye hit.  Per-pixel counters: :data:`COUNTERS`, then
+    the tree-depth histogram (``max_depth + 1`` columns); cut weights go to ``cut``."""
+    T = new_batch(film, R, tile)
     # Depth-first: below the popped ray of depth d wait at most one sibling per
     # level 2..d, plus its two children, so max_depth + 1 slots suffice.
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
-    cnt = np.zeros(len(COUNTERS), dtype=np.int64)
-    hst = np.zeros(max_depth + 1, dtype=np.int64)
-    cut_w = np.zeros(2)
-    m0 = m1 = m2 = 0.0
-    q0 = q1 = q2 = 0.0
+    cut_w = np.zeros((T.n, 2))
+    nc = len(COUNTERS)
     for s in range(spp):
-        fx, fy = pixel_sample(spp, k, s, seed, pixel)
-        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-        r, g, b = _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, R, max_depth, hall_threshold,
-                        ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                        seed, pixel, s, spp, stack_f, stack_i, cnt, hst, cut_w, 0.0, np.int64(NOT_TRACED),
-                        0.0, 0.0)
-        m0, m1, m2, q0, q1, q2 = welford_add(s, r, g, b, m0, m1, m2, q0, q1, q2)
-    _store_pixel(x, y, W, spp, m0, m1, m2, q0, q1, q2, cnt, hst, cut_w, mean, var, counts, hist, cut)
-
-
-@njit(inline="always", cache=True)
-def _store_pixel(x, y, W, spp, m0, m1, m2, q0, q1, q2, cnt, hst, cut_w, mean, var, counts, hist, cut):
-    """Write pixel (x, y)'s mean, variance of the mean, counters and cut weights."""
-    pixel = y * W + x
-    mean[y, x, 0] = m0
-    mean[y, x, 1] = m1
-    mean[y, x, 2] = m2
-    var[y, x, 0] = variance_of_mean(q0, spp)
-    var[y, x, 1] = variance_of_mean(q1, spp)
-    var[y, x, 2] = variance_of_mean(q2, spp)
-    for i in range(cnt.shape[0]):
-        counts[pixel, i] = cnt[i]
-    for i in range(hst.shape[0]):
-        hist[pixel, i] = hst[i]
-    cut[y, x, 0] = cut_w[0] / spp
-    cut[y, x, 1] = cut_w[1] / spp
-
-
-@njit(cache=True)
-def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, tile, spp, max_depth, hall_threshold,
-          ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-          mean, var, counts, hist, cut, packet_counts):
-    """One 8×8 tile: per sample index, the eye rays of :func:`_pixel` traced as one
-    packet, then each pixel's ray tree from its eye hit.  The per-pixel Welford
-    state, counters and stack live here, private to the thread running the tile."""
-    W, H = int(cam[14]), int(cam[15])
-    x0, y0, nx, ny = tile_rect(tile, W, H)
-    P = nx * ny
-    k = strata(spp)
-    stack_f = np.empty((max_depth + 2, 11))
-    stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
-    cnt = np.zeros((P, len(COUNTERS)), dtype=np.int64)
-    hst = np.zeros((P, max_depth + 1), dtype=np.int64)
-    cut_w = np.zeros((P, 2))
-    acc = np.zeros((P, 6))                  # Welford m0, m1, m2, q0, q1, q2 per pixel
-    rays, hit_t, hit_p, hit_b = packet_buffers(P)
-    for s in range(spp):
-        tile_eye_packet(R, cam, x0, nx, y0, P, spp, k, s, seed, rays, hit_t, hit_p, hit_b,
-                        packet_counts)
-        for i in range(P):
-            x, y = x0 + i % nx, y0 + i // nx
-            r, g, b = _tree(rays[i, 0], rays[i, 1], rays[i, 2], rays[i, 3], rays[i, 4], rays[i, 5],
-                            rays[i, 6], rays[i, 7], A, S, R, max_depth, hall_threshold, ka, ambient,
-                            ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-                            y * W + x, s, spp, stack_f, stack_i, cnt[i], hst[i], cut_w[i],
-                            hit_t[i], hit_p[i], hit_b[i, 0], hit_b[i, 1])
-            welford_row(acc, i, s, r, g, b)
-    for i in range(P):
-        _store_pixel(x0 + i % nx, y0 + i // nx, W, spp, acc[i, 0], acc[i, 1], acc[i, 2], acc[i, 3],
-                     acc[i, 4], acc[i, 5], cnt[i], hst[i], cut_w[i], mean, var, counts, hist, cut)
+        eye_batch(cam, R, T, s, spp, seed, film.packets)
+        for i in range(T.n):
+            ray = T.ray
+            T.L[0, i], T.L[1, i], T.L[2, i] = _tree(
+                ray[0, i], ray[1, i], ray[2, i], ray[3, i], ray[4, i], ray[5, i], ray[6, i],
+                ray[7, i], A, S, R, max_depth, hall_threshold, M, seed, T.pixel[i], s, spp,
+                stack_f, stack_i, T.cnt[i, :nc], T.cnt[i, nc:], cut_w[i], T.t[i], T.prim[i],
+                T.b[0, i], T.b[1, i])
+        accumulate(T, s)
+    store(T, film, spp)
+    for i in range(T.n):
+        x, y = T.x0 + i % T.nx, T.y0 + i // T.nx
+        cut[y, x, 0] = cut_w[i, 0] / spp
+        cut[y, x, 1] = cut_w[i, 1] / spp
 
 
 @njit(parallel=True, cache=True)
-def _render_tiles(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, spp, max_depth, hall_threshold,
-                  ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-                  mean, var, counts, hist, cut, packet_counts):
-    W, H = int(cam[14]), int(cam[15])
-    for tile in prange(tile_count(W, H)):
-        _tile(cam, A, S, R, tile, spp, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2,
-              c3, fclamp, shadows, light_samples, seed, mean, var, counts, hist, cut,
-              packet_counts[tile])
-
-
-@njit(parallel=True, cache=True)
-def _render_kernel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, spp, max_depth, hall_threshold, ka,
-                   ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-                   mean, var, counts, hist, cut):
-    W, H = int(cam[14]), int(cam[15])
-    for pixel in prange(W * H):
-        _pixel(cam, A, S, R, pixel % W, pixel // W, spp, max_depth, hall_threshold, ka, ambient, ks,
-               shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, mean, var, counts,
-               hist, cut)
+def _render_kernel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
+                   hall_threshold, film: Film, spp, seed, cut):
+    for tile in prange(film.packet.shape[0]):
+        _tile(cam, A, S, R, M, max_depth, hall_threshold, film, tile, spp, seed, cut)
 
 
 @njit(cache=True)
 def _trace_one(ox, oy, oz, dx, dy, dz, A: SceneArrays, S: SpecularArrays, R: RayConfig, max_depth,
-               hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-               light_samples, seed, counts, hist, cut_w):
+               hall_threshold, M: LocalModel, seed, counts, hist, cut_w):
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
-    return _tree(ox, oy, oz, dx, dy, dz, 0.0, np.inf, A, S, R, max_depth, hall_threshold, ka,
-                 ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, 0, 0, 1,
-                 stack_f, stack_i, counts, hist, cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
+    return _tree(ox, oy, oz, dx, dy, dz, 0.0, np.inf, A, S, R, max_depth, hall_threshold, M, seed,
+                 0, 0, 1, stack_f, stack_i, counts, hist, cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
 
 
 # ------------------------------------------------------------- orchestration ---
@@ -523,43 +439,32 @@ def _check(params: dict) -> None:
         raise ParamError("whitted: light_samples must be >= 0")
 
 
-def _local_args(p: dict) -> tuple:
-    return (p["ka"], p["ambient"], p["ks"], p["shininess"], p["c1"], p["c2"], p["c3"],
-            p["fatt_clamp"], p["shadows"], p["light_samples"])
-
-
 def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     """Render ``scene`` with the Whitted ray tracer; ``params`` as from ``ALGORITHM.parse_params``."""
+    t0 = time.perf_counter()
     _check(params)
-    S = material_arrays(scene)
-    A = flatten(scene)
+    S = scene_memo(scene, "whitted.materials", lambda: material_arrays(scene))
+    A = flatten_cached(scene)
+    R = ray_config_cached(scene, A, params, algorithm="whitted")
     cam = camera_params(scene.camera)
     H, W = scene.camera.film.height, scene.camera.film.width
     spp, max_depth = params["spp"], params["max_depth"]
-    mean = np.zeros((H, W, 3))
-    var = np.zeros((H, W, 3))
-    counts = np.zeros((H * W, len(COUNTERS)), dtype=np.int64)
-    hist = np.zeros((H * W, max_depth + 1), dtype=np.int64)
+    film = new_film(W, H, len(COUNTERS) + max_depth + 1, bool(params.get("packets", False)))
     cut = np.zeros((H, W, 2))
-    R = ray_config(A, params, algorithm="whitted")
-    args = (cam, A, S, R, spp, max_depth, float(params["hall_threshold"]), *_local_args(params),
-            seed, mean, var, counts, hist, cut)
-    packets = bool(params.get("packets", False))
-    if packets:
-        packet_counts = np.zeros((tile_count(W, H), 2), dtype=np.int64)
-        _render_tiles(*args, packet_counts)
-    else:
-        _render_kernel(*args)
-    totals = counts.sum(axis=0)
-    counters = {name: int(v) for name, v in zip(COUNTERS, totals)}
-    if packets:
-        counters["packet_nodes"], counters["packet_tests"] = (int(v) for v in packet_counts.sum(axis=0))
-    counters["tree_depth_histogram"] = [int(v) for v in hist.sum(axis=0)]
-    return RenderResult(image=mean.astype(np.float32),
-                        variance=var.astype(np.float32) if spp > 1 else None,
+    t1 = time.perf_counter()
+    _render_kernel(cam, A, S, R, local_model(params), max_depth, float(params["hall_threshold"]),
+                   film, spp, seed, cut)
+    t2 = time.perf_counter()
+    counters = film_counters(film, COUNTERS)
+    hist = film.cnt[..., len(COUNTERS):].reshape(-1, max_depth + 1).sum(axis=0)
+    counters["tree_depth_histogram"] = [int(v) for v in hist]
+    return RenderResult(image=film.mean.astype(np.float32),
+                        variance=film.var.astype(np.float32) if spp > 1 else None,
                         counters=counters,
                         aovs={"hall_cut_weight": cut[..., 0].astype(np.float32),
-                              "depth_cut_weight": cut[..., 1].astype(np.float32)})
+                              "depth_cut_weight": cut[..., 1].astype(np.float32)},
+                        timings={"setup_s": t1 - t0, "trace_s": t2 - t1,
+                                 "finish_s": time.perf_counter() - t2})
 
 
 def trace(scene: Scene, origin, direction, params: dict | None = None, *, seed: int = 0):
@@ -580,7 +485,7 @@ def trace(scene: Scene, origin, direction, params: dict | None = None, *, seed: 
     cut_w = np.zeros(2)
     R = ray_config(A, p, algorithm="whitted")
     rgb = _trace_one(o[0], o[1], o[2], d[0], d[1], d[2], A, S, R, p["max_depth"],
-                     float(p["hall_threshold"]), *_local_args(p), seed, counts, hist, cut_w)
+                     float(p["hall_threshold"]), local_model(p), seed, counts, hist, cut_w)
     counters = {name: int(v) for name, v in zip(COUNTERS, counts)}
     counters["tree_depth_histogram"] = [int(v) for v in hist]
     counters["hall_cut_weight"] = float(cut_w[0])

@@ -7,8 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gibench import registry
+import impl.path as PATH_MODULE  # debug_bias: the biased variants for the Z-test's power
 from core.loader import load_scene
+from gibench import registry
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"
 PATH = registry.get("path")
@@ -24,6 +25,7 @@ def test_registered_with_parameter_table():
               "offset", "epsilon"):
         assert n in names
     assert PATH.transport == "full"
+    assert "debug_bias" not in names          # a test hook, not a parameter users see
 
 
 @pytest.mark.parametrize("params,match", [({"max_depth": 0}, "max_depth"),
@@ -175,8 +177,9 @@ def test_ztest_has_the_power_to_reject_biased_variants(bias, params):
     MIS weights that do not sum to one (the light sample's power heuristic with its
     pdfs swapped) fail too."""
     ref = _reference("cornell/cornell_box.xml")
-    res = render(SUITES / "cornell" / "cornell_box.xml", spp=16, max_depth=8, debug_bias=bias,
-                 seed=2, **params)
+    res = PATH_MODULE.render(load_scene(SUITES / "cornell" / "cornell_box.xml"),
+                             PATH.parse_params(dict(spp=16, max_depth=8, **params)), seed=2,
+                             debug_bias=bias)
     z = _ztest(ref, res)
     print(f"{bias}: {z}")
     assert z.passed == (bias == "none"), f"{bias}: {z}"
