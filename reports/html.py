@@ -281,7 +281,8 @@ def _time_table(r: Record) -> str:
     times_s = ", ".join(fmt(x) for x in times) if isinstance(times, list) and times else DASH
     return _kv_table([
         ("own median", fmt(t.get("own_median_s"), "s")), ("own repeats", times_s + (" s" if times_s != DASH else "")),
-        ("compile", fmt(t.get("compile_s"), "s")), ("Mitsuba median", fmt(t.get("mitsuba_median_s"), "s")),
+        ("compile", fmt(t.get("compile_s"), "s")),
+        ("setup (fixed cost)", fmt(t.get("own_setup_s"), "s")), ("trace", fmt(t.get("own_trace_s"), "s")), ("Mitsuba median", fmt(t.get("mitsuba_median_s"), "s")),
         ("Mitsuba spp", fmt(t.get("mitsuba_spp"))), ("ratio own/Mitsuba", fmt(t.get("ratio")))])
 
 
