@@ -40,7 +40,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
-from gibench.loader import load_scene
+from core.loader import load_scene
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"
 ROUNDS = 7

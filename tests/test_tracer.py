@@ -13,7 +13,7 @@ import pytest
 from numba import njit
 
 from gibench import registry
-from gibench.loader import load_scene
+from core.loader import load_scene
 from impl import tracer
 from impl.intersect import any_hit_form, closest_hit_form
 from impl.scene_arrays import flatten_cached
