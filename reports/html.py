@@ -595,7 +595,6 @@ def _speed_vs_error(records: list[Record], metric: str = "relmse") -> str:
                     f"({_e(best['equal_error_label'])}); equal-time error ratio "
                     f"<b>{_fmt_ratio(best['equal_time_error_ratio'], best['equal_time_extrapolated'])}</b> ({_e(best['equal_time_label'])}).</p>"
                     if best else "<p class='small'>No own configuration falls inside Mitsuba's ladder.</p>")
-        probe = next((p for p in g["mitsuba"] if p.get("sampler")), None)
         floors_html = _floors(g["own"])
         out.append(f"<h3 id='{_slug('sve-' + scene + '-' + str(transport))}'>{_e(scene)} vs Mitsuba {_e(transport)}</h3>"
                    + _pareto_plot(scene, transport, g, metric) + best_txt
@@ -630,7 +629,10 @@ def render_report(records: list[Record], *, root, title: str = "gibench report")
     """
     from reports.pareto import primary_records
 
-    records = [r for r in records if isinstance(r, Record)]
+    records = list(records)
+    bad = sorted({type(r).__name__ for r in records if not isinstance(r, Record)})
+    if bad:
+        raise TypeError(f"render_report takes core.records.Record items, got {', '.join(bad)}")
     studies = [r for r in records if r.kind == "study"]
     headline = _headline(records)
     pareto = _speed_vs_error(records)

@@ -123,9 +123,8 @@ def _viewer_records(tmp_path):
     own[10, 20] = [4.0, 0.0, 0.0]                  # one wrong pixel: large relative error
     write_exr(tmp_path / "ref.exr", ref)
     write_exr(tmp_path / "own.exr", own)
-    rec = {"run_id": "r1", "scene": "synthetic/ramp", "kind": "case", "algorithm": "algo",
-           "label": "ramp", "image": "own.exr", "reference": {"image": "ref.exr"},
-           "metrics": {}, "time": {}, "error": None}
+    rec = Record(run_id="r1", scene="synthetic/ramp", kind="case", algorithm="algo",
+                 label="ramp", image="own.exr", reference={"image": "ref.exr"})
     return [rec], ref, own
 
 

@@ -110,7 +110,6 @@ def test_constant_map_is_the_constant_emitter():
         assert np.allclose(envmap_eval(T, *d), L, rtol=1e-12)
     n = 200_000
     u = rng.random((n, 2))
-    normal = np.array([0.0, 0.0, 1.0])
     est = np.zeros((n, 3))
     for k in range(n):
         dx, dy, dz, pdf, rad = envmap_sample(T, u[k, 0], u[k, 1])
