@@ -133,6 +133,7 @@ from numba import njit, prange
 
 from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
+from core.errors import ParamError, UnsupportedError
 
 from .accel.packets import NOT_TRACED, packet_buffers, packet_hits, tile_count, tile_rect
 from .camera import camera_params, eye_ray_lens
@@ -150,7 +151,6 @@ from .samplers import (adaptive_children, adaptive_disagree, gaussian_jitter_pat
                        poisson_disk_pattern, random_pattern, statistical_done, uniform_pattern)
 from .scene_arrays import LIGHT_DIRECTIONAL, SceneArrays, flatten
 from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit, _push
-from core.errors import ParamError, UnsupportedError
 
 __all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS", "Motion", "motion_arrays"]
 

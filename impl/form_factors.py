@@ -82,10 +82,11 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from core.errors import ParamError
+
 from .patches import PatchMesh, closest_face, locate, occluded
 from .raster import DEPTH_FLOAT32, rasterize
 from .rng import uniform
-from core.errors import ParamError
 
 __all__ = ["METHODS", "HEMICUBE_NEAR", "FormFactors", "form_factors", "contour_point_polygon",
            "point_form_factor", "hemicube_table", "hemicube_face_weights", "patch_triangles", "quadrature_1d", "patch_quadrature", "Z99"]

@@ -34,10 +34,10 @@ from typing import NamedTuple
 import numpy as np
 
 from core.scene import Scene
+from core.errors import SceneError, UnsupportedError
 
 from .fresnel import lookup_ior
 from .scene_arrays import MATERIAL_CODES
-from core.errors import SceneError, UnsupportedError
 
 __all__ = ["MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "KIND_CODES",

@@ -118,6 +118,7 @@ from numba import njit, prange
 
 from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
+from core.errors import ParamError, UnsupportedError
 
 from .bsdf import bsdf_arrays, bsdf_eval, bsdf_pdf, bsdf_sample, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
@@ -133,8 +134,8 @@ from .sampling import check_spp
 from .scene_arrays import SceneArrays, scene_memo
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
-from .tracer import Film, accumulate, eye_batch, film_counters, new_batch, new_film, ray_config_cached, store
-from core.errors import ParamError, UnsupportedError
+from .tracer import (accumulate, eye_batch, Film, film_counters, film_result, new_batch, new_film,
+                     ray_config_cached, store)
 
 __all__ = ["render", "COUNTERS", "DEBUG_BIAS", "ALGORITHM"]
 
@@ -414,11 +415,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
     t2 = time.perf_counter()
     counters = film_counters(film, COUNTERS)
     counters["mean_path_length"] = counters["segments"] / max(1, counters["paths"])
-    return RenderResult(image=film.mean.astype(np.float32),
-                        variance=film.var.astype(np.float32) if spp > 1 else None,
-                        counters=counters,
-                        timings={"setup_s": t1 - t0, "trace_s": t2 - t1,
-                                 "finish_s": time.perf_counter() - t2})
+    return film_result(film, spp, counters, t0, t1, t2)
 
 
 ALGORITHM = Algorithm(

@@ -46,9 +46,9 @@ import numpy as np
 from numba import njit, prange
 
 from core.scene import Camera
+from core.errors import UnsupportedError
 
 from .tessellate import TriangleSoup
-from core.errors import UnsupportedError
 
 __all__ = ["GUARD", "ScreenTriangles", "camera_frame", "to_camera", "frustum_planes", "clip_planes",
            "geometry_stage", "project", "bounding_volume_visible"]

@@ -93,6 +93,7 @@ from numba import njit, prange
 
 from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
+from core.errors import ParamError, UnsupportedError
 
 from .camera import camera_params, eye_ray
 from .form_factors import METHODS, FormFactors, _eps, form_factors
@@ -101,7 +102,6 @@ from .rng import uniform
 from .patches import PatchMesh, closest_face, locate, mesh_scene, vertex_radiosity
 from .radiosity_solvers import SOLVERS, SolveResult, neumann, residual, solve
 from .sampling import check_spp, pixel_sample, strata, variance_of_mean, welford_add
-from core.errors import ParamError, UnsupportedError
 
 __all__ = ["render", "solve_scene", "display", "Solution", "clear_cache", "ALGORITHM",
            "DISPLAYS", "environment_fraction"]

@@ -78,6 +78,7 @@ from numba import njit, prange
 
 from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
+from core.errors import ParamError, UnsupportedError
 
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
@@ -88,9 +89,8 @@ from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, refine
 from .sampling import check_spp
 from .scene_arrays import SceneArrays, flatten_cached
-from .tracer import (DX, DY, DZ, OX, OY, OZ, Batch, Film, accumulate, eye_batch, film_counters,
-                     new_batch, new_film, ray_config_cached, store)
-from core.errors import ParamError, UnsupportedError
+from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
+                     new_batch, new_film, OX, OY, OZ, ray_config_cached, store)
 
 __all__ = ["render", "cast_primary", "ALGORITHM"]
 
@@ -211,11 +211,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     _render_kernel(cam, A, R, local_model(params), film, spp, seed)
     t2 = time.perf_counter()
     counters = {"camera_rays": int(W * H * spp), **film_counters(film, COUNTERS)}
-    return RenderResult(image=film.mean.astype(np.float32),
-                        variance=film.var.astype(np.float32) if spp > 1 else None,
-                        counters=counters,
-                        timings={"setup_s": t1 - t0, "trace_s": t2 - t1,
-                                 "finish_s": time.perf_counter() - t2})
+    return film_result(film, spp, counters, t0, t1, t2)
 
 
 ALGORITHM = Algorithm(

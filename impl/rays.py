@@ -107,11 +107,11 @@ import numpy as np
 from numba import njit
 
 from core.algorithm import Param
+from core.errors import ParamError
 
 from . import accel as _accel
 from .intersect import SPHERE_FORMS, any_hit_form, closest_hit_form, like
 from .offset import STRATEGIES, spawn
-from core.errors import ParamError
 
 __all__ = ["RayConfig", "ray_config", "legacy_config", "PARAMS", "INTERSECT", "PRECISIONS",
            "OFFSETS", "PACKET_ACCELS", "hit", "refine", "occluded", "leave", "round_ray"]

@@ -12,8 +12,9 @@ import math
 
 from numba import njit
 
-from .rng import uniform
 from core.errors import ParamError
+
+from .rng import uniform
 
 __all__ = ["check_spp", "strata", "pixel_sample", "welford_add", "variance_of_mean"]
 

@@ -22,9 +22,9 @@ from typing import Callable, NamedTuple
 import numpy as np
 
 from core.scene import Scene
+from core.errors import UnsupportedError
 
 from .textures import FILTER_BILINEAR, FILTER_NEAREST, WRAP_CLAMP, WRAP_MIRROR, WRAP_REPEAT
-from core.errors import UnsupportedError
 
 WRAP_CODES = {"repeat": WRAP_REPEAT, "clamp": WRAP_CLAMP, "mirror": WRAP_MIRROR}
 FILTER_CODES = {"bilinear": FILTER_BILINEAR, "nearest": FILTER_NEAREST}

@@ -41,10 +41,13 @@ batch kernels can be dispatched in :func:`closest_batch` /
 from __future__ import annotations
 
 import math
+import time
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
+
+from core.algorithm import RenderResult
 
 from .accel.packets import TILE, packet_hits
 from .camera import eye_ray
@@ -53,7 +56,7 @@ from .rays import RayConfig, hit, occluded, ray_config
 from .sampling import pixel_sample, strata, variance_of_mean
 from .scene_arrays import scene_memo
 
-__all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "new_batch",
+__all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "film_result", "new_batch",
            "ray_config_cached", "eye_batch", "closest_batch", "occluded_batch", "accumulate",
            "store", "OX", "OY", "OZ", "DX", "DY", "DZ", "TMIN", "TMAX"]
 
@@ -126,6 +129,20 @@ def new_film(W: int, H: int, counters: int, packets: bool) -> Film:
     tiles = ((W + ts - 1) // ts) * ((H + ts - 1) // ts)
     return Film(np.zeros((H, W, 3)), np.zeros((H, W, 3)), np.zeros((H, W, counters), np.int64),
                 np.zeros((tiles, 2), np.int64), bool(packets), ts)
+
+
+def film_result(film: Film, spp: int, counters: dict, t0: float, t1: float, t2: float, *,
+                aovs: dict | None = None) -> RenderResult:
+    """The render's result from its film: float32 mean, the variance of the mean (none
+    for one sample per pixel, which has no sample variance), ``counters`` and the
+    wall-clock phases: ``setup_s`` (``t0`` to ``t1``: the fixed cost of flattening,
+    configuration and allocation), ``trace_s`` (``t1`` to ``t2``, the kernel) and
+    ``finish_s`` (from ``t2`` to now)."""
+    image = film.mean.astype(np.float32)
+    variance = film.var.astype(np.float32) if spp > 1 else None
+    return RenderResult(image=image, variance=variance, counters=counters, aovs=aovs or {},
+                        timings={"setup_s": t1 - t0, "trace_s": t2 - t1,
+                                 "finish_s": time.perf_counter() - t2})
 
 
 def film_counters(film: Film, names) -> dict:

@@ -164,6 +164,7 @@ from numba import njit, prange
 
 from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
+from core.errors import ParamError
 
 from .accel.packets import NOT_TRACED
 from .camera import camera_params
@@ -176,8 +177,8 @@ from .rays import RayConfig, hit, leave, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
 from .sampling import check_spp
 from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten, flatten_cached, scene_memo
-from .tracer import Film, accumulate, eye_batch, film_counters, new_batch, new_film, ray_config_cached, store
-from core.errors import ParamError
+from .tracer import (accumulate, eye_batch, Film, film_counters, film_result, new_batch, new_film,
+                     ray_config_cached, store)
 
 __all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "ALGORITHM"]
 
@@ -458,13 +459,9 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     counters = film_counters(film, COUNTERS)
     hist = film.cnt[..., len(COUNTERS):].reshape(-1, max_depth + 1).sum(axis=0)
     counters["tree_depth_histogram"] = [int(v) for v in hist]
-    return RenderResult(image=film.mean.astype(np.float32),
-                        variance=film.var.astype(np.float32) if spp > 1 else None,
-                        counters=counters,
-                        aovs={"hall_cut_weight": cut[..., 0].astype(np.float32),
-                              "depth_cut_weight": cut[..., 1].astype(np.float32)},
-                        timings={"setup_s": t1 - t0, "trace_s": t2 - t1,
-                                 "finish_s": time.perf_counter() - t2})
+    return film_result(film, spp, counters, t0, t1, t2,
+                       aovs={"hall_cut_weight": cut[..., 0].astype(np.float32),
+                             "depth_cut_weight": cut[..., 1].astype(np.float32)})
 
 
 def trace(scene: Scene, origin, direction, params: dict | None = None, *, seed: int = 0):

@@ -59,6 +59,7 @@ import numpy as np
 
 from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
+from core.errors import ParamError, UnsupportedError
 
 from .pipeline import ScreenTriangles, camera_frame, geometry_stage
 from .raster import DEPTH_MODES, TRAVERSALS, VisibilityBuffer, rasterize
@@ -67,7 +68,6 @@ from .sampling import check_spp
 from .scene_arrays import flatten
 from .shading import SHADING_MODES, PhongParams, resolve
 from .tessellate import TriangleSoup, scene_triangles
-from core.errors import ParamError, UnsupportedError
 
 __all__ = ["render", "render_polygons", "pixel_centre_aovs", "zbuffer_visibility", "PARAMS", "ALGORITHM"]
 

@@ -37,6 +37,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
+from core.errors import ParamError
+
 from ..intersect import any_hit_form, closest_hit_form, like as _cast
 from .bounding_volumes import BOX, SPHERE, bv_any, bv_closest, build_objects
 from .bvh import build_bvh
@@ -46,7 +48,6 @@ from .octree import build_octree
 from .primitives import prim_bounds
 from .slabs import SLAB_COUNTS, build_slabs, slabs_any, slabs_closest
 from .tree import STACK, tree_any, tree_closest, tree_depth
-from core.errors import ParamError
 from .wide import WIDTH, collapse, wide_any, wide_closest, wide_depth
 
 __all__ = ["ACCELS", "KIND", "Accel", "build", "empty", "closest", "any_hit", "trace_batch",

@@ -43,12 +43,13 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from core.errors import ParamError
+
 from ..camera import eye_ray
 from ..intersect import like
 from ..sampling import pixel_sample
 from .primitives import box_enter, closer, prim_test, ulp_above
 from .tree import STACK, tree_closest
-from core.errors import ParamError
 from .wide import wide_closest, wide_packet_closest
 from . import WIDE as _WIDE
 

@@ -33,8 +33,9 @@ import math
 import numpy as np
 from numba import njit
 
-from ..intersect import like, ray_sphere_form, ray_triangle
 from core.errors import ParamError
+
+from ..intersect import like, ray_sphere_form, ray_triangle
 
 __all__ = ["prim_bounds", "pad_of", "prim_test", "closer", "box_enter", "ulp_above"]
 

@@ -32,10 +32,11 @@ import math
 import numpy as np
 from numba import njit
 
+from core.errors import ParamError
+
 from ..intersect import like
 from .bounding_volumes import group_objects
 from .primitives import _slab64, closer, pad_of, prim_test, ulp_above
-from core.errors import ParamError
 
 __all__ = ["slab_normals", "build_slabs", "slabs_closest", "slabs_any", "SLAB_COUNTS"]
 
