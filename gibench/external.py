@@ -56,7 +56,6 @@ reference does apply them): a run with ``-D`` refuses command renderers.
 from __future__ import annotations
 
 import json
-import os
 import re
 import shlex
 import subprocess

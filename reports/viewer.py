@@ -26,7 +26,6 @@ the page: :func:`wrap` only adds a data block and a class.
 from __future__ import annotations
 
 import base64
-import html
 import json
 
 import numpy as np
