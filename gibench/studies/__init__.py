@@ -25,7 +25,8 @@ from typing import Callable
 
 from core.errors import SuiteError
 
-__all__ = ["StudyInfo", "STUDY_SETS", "load_study_set", "read_config", "run_registered"]
+__all__ = ["StudyInfo", "STUDY_SETS", "load_study_set", "read_config", "as_config",
+           "table_titles", "run_registered"]
 
 #: Study sets by the name a suite manifest gives (``study_set = NAME``).
 STUDY_SETS = {
@@ -67,6 +68,19 @@ def read_config(path, default) -> dict:
         raise SuiteError(f"{path}: {exc}") from None
     cfg["_path"] = str(path)
     return cfg
+
+
+def as_config(config, default) -> dict:
+    """A study set's configuration: ``config`` itself when it is a dict, else the TOML
+    file it names (``default`` when it is None), read by :func:`read_config`."""
+    if config is None or isinstance(config, (str, Path)):
+        return read_config(config, default)
+    return config
+
+
+def table_titles(studies: dict) -> dict:
+    """``{name: (title, description)}`` of the tables a set's :class:`StudyInfo` entries return."""
+    return {name: (info.title, info.description) for name, info in studies.items()}
 
 
 def run_registered(studies: dict, config: dict, *, only=None) -> dict[str, list[dict]]:

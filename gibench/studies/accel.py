@@ -52,7 +52,7 @@ from core.provenance import REPO_ROOT
 from core.scene import Camera, Film, Light, Material, Scene, Shape
 from core.transforms import look_at
 
-from . import StudyInfo, read_config, run_registered
+from . import StudyInfo, as_config, read_config, run_registered, table_titles
 
 __all__ = ["STUDIES", "TABLES", "DEFAULT_CONFIG", "load_config", "run_studies", "scaling",
            "fit_exponents", "node_cost", "shuffle_node_groups", "sphere_field", "mesh_field", "camera_rays", "bounce_rays"]
@@ -426,7 +426,7 @@ STUDIES = {s.name: s for s in (
               "(tree in cache) and for the same tree with its nodes shuffled in memory.", node_cost),
 )}
 
-TABLES = {name: (s.title, s.description) for name, s in STUDIES.items()}
+TABLES = table_titles(STUDIES)
 TABLES["scaling_fit"] = (
     "Acceleration structures: fitted exponent of trace time vs N",
     "Least-squares slope of log trace time (and of log tests per ray) against log N per structure and "
@@ -445,8 +445,7 @@ def load_config(path=None) -> dict:
 
 def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[str, list[dict]]:
     """Run the studies named in ``config``; adds ``scaling_fit`` when ``scaling`` ran."""
-    if config is None or isinstance(config, (str, Path)):
-        config = load_config(config)
+    config = as_config(config, DEFAULT_CONFIG)
     cfg = dict(config)
     fit_min = cfg.pop("fit_n_min", 100)
     out = run_registered(STUDIES, cfg, only=only)

@@ -48,7 +48,7 @@ from core.errors import SuiteError
 from core.provenance import REPO_ROOT
 from core.transforms import look_at, rotate
 
-from . import StudyInfo, read_config, run_registered
+from . import StudyInfo, as_config, read_config, run_registered, table_titles
 
 __all__ = ["StudyInfo", "STUDIES", "TABLES", "PRECISIONS", "DEFAULT_CONFIG", "load_config", "run_studies",
            "unit_roundoff", "distant_sphere", "self_intersection", "grazing_sphere", "grazing_plane"]
@@ -744,7 +744,7 @@ STUDIES = {s.name: s for s in (
 
 
 #: Title and description of every table :func:`run_studies` can return.
-TABLES = {name: (info.title, info.description) for name, info in STUDIES.items()}
+TABLES = table_titles(STUDIES)
 TABLES["distant_sphere_mitsuba"] = (
     "Distant sphere silhouette in Mitsuba 3",
     "The distant-sphere camera and sphere rendered by Mitsuba 3 (scalar_rgb, llvm_ad_rgb; float32 scene "
@@ -769,8 +769,7 @@ def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[
     table from :func:`mitsuba_distant_sphere`.  Titles and
     descriptions of the tables are in :data:`TABLES`.
     """
-    if config is None or isinstance(config, (str, Path)):
-        config = load_config(config)
+    config = as_config(config, DEFAULT_CONFIG)
     out = run_registered(STUDIES, config, only=only)
     mi_cfg = dict(config.get("distant_sphere_mitsuba", {}))
     enabled = mi_cfg.pop("enabled", False)

@@ -43,7 +43,7 @@ import numpy as np
 
 from core.provenance import REPO_ROOT
 
-from . import StudyInfo, read_config, run_registered
+from . import StudyInfo, as_config, read_config, run_registered, table_titles
 
 __all__ = ["STUDIES", "TABLES", "DEFAULT_CONFIG", "load_config", "run_studies", "error_vs_patches",
            "adjacent_patches", "hemicube_aliasing", "thin_gap", "view_independence", "camera_views"]
@@ -359,7 +359,7 @@ STUDIES = {s.name: s for s in (
               view_independence),
 )}
 
-TABLES = {name: (info.title, info.description) for name, info in STUDIES.items()}
+TABLES = table_titles(STUDIES)
 TABLES["error_vs_time"] = (
     "Radiosity and Mitsuba: error vs time",
     "relMSE against the 1024-spp full-transport reference vs wall time, for every radiosity "
@@ -380,8 +380,7 @@ def load_config(path=None) -> dict:
 def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[str, list[dict]]:
     """Run the studies named in ``config`` (as :func:`gibench.studies.run_studies`);
     ``mitsuba_ladder`` comes from :func:`gibench.ladder.mitsuba_ladder`."""
-    if config is None or isinstance(config, (str, Path)):
-        config = load_config(config)
+    config = as_config(config, DEFAULT_CONFIG)
     out = run_registered(STUDIES, config, only=only)
     lad = dict(config.get("mitsuba_ladder", {}))
     enabled = lad.pop("enabled", False) if mitsuba is None else mitsuba

@@ -34,14 +34,13 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from pathlib import Path
 
 import numpy as np
 
 from core.errors import SuiteError
 from core.provenance import REPO_ROOT
 
-from . import StudyInfo, read_config, run_registered
+from . import StudyInfo, as_config, read_config, run_registered, table_titles
 
 __all__ = ["STUDIES", "TABLES", "DEFAULT_CONFIG", "load_config", "run_studies", "convergence",
            "fit_slopes", "reference_image"]
@@ -187,7 +186,7 @@ STUDIES = {s.name: s for s in (
               "and over edge pixels, render time, mean spp actually spent.", convergence),
 )}
 
-TABLES = {name: (info.title, info.description) for name, info in STUDIES.items()}
+TABLES = table_titles(STUDIES)
 TABLES["convergence_slopes"] = (
     "Sampler convergence: fitted log-log slopes",
     "Least-squares slope of log MSE against log spp (and log time) per scene, sampler and pixel set; "
@@ -201,8 +200,7 @@ def load_config(path=None) -> dict:
 
 def run_studies(config=None, *, only=None, mitsuba: bool | None = None) -> dict[str, list[dict]]:
     """Run the studies named in ``config``; adds ``convergence_slopes`` from ``convergence``."""
-    if config is None or isinstance(config, (str, Path)):
-        config = load_config(config)
+    config = as_config(config, DEFAULT_CONFIG)
     out = run_registered(STUDIES, config, only=only)
     if "convergence" in out:
         out["convergence_slopes"] = fit_slopes(out["convergence"])
