@@ -411,8 +411,10 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
     :func:`impl.tracer.occluded_batch`.  Same samples, same order, same light as
     :func:`direct_light_rays` at every point.
 
-    Reads the points ``T.pts`` (rows p, g, s, v, ρ: ``SP_*``) where ``T.active``;
-    adds their light to ``T.L`` and their shadow rays to ``nshadow`` (n,).
+    Reads the points ``T.pts`` (rows p, g, s, v, ρ: ``SP_*``) where ``T.active``,
+    point i's random numbers those of pixel ``T.pixel[i]`` and pixel sample
+    ``sample[i]``; adds their light to ``T.L`` and their shadow rays to
+    ``nshadow`` (n,).
     """
     P, L, active, pixel = T.pts, T.L, T.active, T.pixel
     sh, sh_w, sh_i = T.sh, T.sh_w, T.sh_i
@@ -466,7 +468,8 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
             for i in range(T.n):
                 if not active[i]:
                     continue
-                u1, u2 = light_uv(seed, pixel[i], sample, e * light_samples + k, k, q, stratified)
+                u1, u2 = light_uv(seed, pixel[i], sample[i], e * light_samples + k, k, q,
+                                  stratified)
                 ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
                     e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, P[0, i],
                     P[1, i], P[2, i], P[6, i], P[7, i], P[8, i], P[9, i], P[10, i], P[11, i],
@@ -489,7 +492,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
             for i in range(T.n):
                 if not active[i]:
                     continue
-                u1, u2 = light_uv(seed, pixel[i], sample, n_em * light_samples + k, k, q,
+                u1, u2 = light_uv(seed, pixel[i], sample[i], n_em * light_samples + k, k, q,
                                   stratified)
                 ok, lx, ly, lz, cr, cg, cb = environment_sample(
                     u1, u2, er, eg, eb, light_samples, P[6, i], P[7, i], P[8, i], P[9, i],

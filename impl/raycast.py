@@ -99,12 +99,12 @@ COUNTERS = ("shadow_rays",)
 
 
 @njit(cache=True)
-def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed):
+def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx):
     """Radiance of the batch's eye rays from their closest hits into ``T.L``: a constant
     environment for escaped rays; L_e (front side) + ambient I_a k_a ρ + the Phong
     direct light of every light (:func:`impl.lighting.direct_batch`) at a hit.  A
     one-sided surface seen from behind gets nothing; a two-sided one is shaded on the
-    side it is seen from."""
+    side it is seen from.  ``sidx`` (n,) is scratch for the points' sample index."""
     pts, active = T.pts, T.active
     ns = A.sph_radius.shape[0]
     amb = M.ambient * M.ka
@@ -142,16 +142,18 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed):
             pts[SP_RHO, i], pts[SP_RHO + 1, i], pts[SP_RHO + 2, i] = rho_r, rho_g, rho_b
             active[i] = True
         T.L[0, i], T.L[1, i], T.L[2, i] = r, g, b
-    direct_batch(A, R, M, T, s, seed, T.cnt[:, 0])
+    sidx[:] = s
+    direct_batch(A, R, M, T, sidx, seed, T.cnt[:, 0])
 
 
 @njit(cache=True)
 def _tile(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, tile, spp, seed):
     """One tile: per sample index, eye rays and hits, shading, accumulation."""
     T = new_batch(film, R, tile)
+    sidx = np.empty(T.n, np.int64)
     for s in range(spp):
         eye_batch(cam, R, T, s, spp, seed, film.packets)
-        _shade(A, R, M, T, s, seed)
+        _shade(A, R, M, T, s, seed, sidx)
         accumulate(T, s)
     store(T, film, spp)
 

@@ -57,6 +57,7 @@ from .sampling import pixel_sample, strata, variance_of_mean
 from .scene_arrays import scene_memo
 
 __all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "film_result", "new_batch",
+           "new_points",
            "ray_config_cached", "eye_batch", "closest_batch", "occluded_batch", "accumulate",
            "store", "OX", "OY", "OZ", "DX", "DY", "DZ", "TMIN", "TMAX"]
 
@@ -173,6 +174,21 @@ def new_batch(film: Film, R: RayConfig, tile):
     return Batch(x0, y0, nx, n, np.empty((8, n)), np.empty(n), np.empty(n, np.int64),
                  np.empty((2, n)), np.zeros((3, n)), np.zeros((6, n)), np.zeros((n, C), np.int64),
                  film.packet[tile], np.empty((P, 8)), np.empty((P, 2)), pixel,
+                 np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
+                 np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
+                 np.empty((3, n), F), np.empty(n, np.int32))
+
+
+@njit(cache=True)
+def new_points(n, R: RayConfig, counters=0):
+    """A batch of ``n`` rays or shading points not tied to a tile (columns 0..n-1, none
+    active, ``counters`` zeroed counts each): for the points a tracer collects along its
+    rays and lights together with :func:`impl.lighting.direct_batch`, or a few rays of
+    its own."""
+    F = R.sph_radius.dtype
+    return Batch(0, 0, n, n, np.empty((8, n)), np.empty(n), np.empty(n, np.int64),
+                 np.empty((2, n)), np.zeros((3, n)), np.zeros((6, n)), np.zeros((n, counters), np.int64),
+                 np.zeros(2, np.int64), np.empty((0, 8)), np.empty((0, 2)), np.zeros(n, np.int64),
                  np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32))

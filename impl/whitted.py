@@ -142,10 +142,14 @@ packets         bool    false    trace the eye rays of 8×8 pixel tiles as
 Structure: the tracer core of :mod:`impl.tracer` renders tile by tile and
 traces each sample index's eye rays of a tile as one batch (with
 ``packets=true`` as packets through the tree, :mod:`impl.accel.packets`);
-each pixel's ray tree (:func:`_tree`) then starts from its eye hit.
-Reflection, transmission and shadow rays are traced one at a time.  Same
-image and counters with and without packets, plus ``packet_nodes`` and
-``packet_tests``; packets need a tree (``accel=auto`` then means ``bvh-sah``).
+each pixel's ray tree (:func:`_trees`) then starts from its eye hit.
+Reflection and transmission rays are traced one at a time; the diffuse
+leaves of the trees are collected and lit together
+(:func:`impl.lighting.direct_batch`, the shadow rays of one light sample as
+one batch), with the random numbers each leaf would draw on its own (leaf k
+of sample s those of "sample" s + k·spp).  Same image and counters with and
+without packets, plus ``packet_nodes`` and ``packet_tests``; packets need a
+tree (``accel=auto`` then means ``bvh-sah``).
 
 Example::
 
@@ -169,16 +173,17 @@ from core.errors import ParamError
 from .accel.packets import NOT_TRACED
 from .camera import camera_params
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import (LocalModel, diffuse_albedo, direct_light_rays, environment_radiance,
-                       local_model, surface)
+from .lighting import (SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo, direct_batch,
+                       direct_light_rays, environment_radiance, local_model, surface)
 from .materials import SpecularArrays, material_arrays
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
 from .sampling import check_spp
 from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten, flatten_cached, scene_memo
-from .tracer import (accumulate, eye_batch, Film, film_counters, film_result, new_batch, new_film,
-                     ray_config_cached, store)
+from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
+                     new_batch, new_film, new_points, OX, OY, OZ, ray_config_cached, store, TMAX,
+                     TMIN)
 
 __all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "ALGORITHM"]
 
@@ -195,6 +200,12 @@ _C_EYE, _C_SHADOW, _C_REFL, _C_TRANS, _C_HALL, _C_DEPTH, _C_TIR, _C_IOR, _C_DIFF
 
 #: Two IORs closer than this count as the same medium (Mitsuba stores them as float32).
 IOR_TOLERANCE = 1e-5
+
+#: Diffuse leaves lit together (one batch of shadow rays per light sample); the batch is
+#: lit before the next tree once fewer than LEAF_MARGIN columns are free, and a tree that
+#: still fills it lights its further leaves on the spot.
+LEAF_BATCH = 512
+LEAF_MARGIN = 64
 
 
 # ------------------------------------------------------------------ kernels ---
@@ -239,177 +250,240 @@ def _admit(wr, wg, wb, depth, max_depth, hall_threshold, counts, cut_w):
 
 
 @njit(cache=True)
-def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: SpecularArrays, R: RayConfig,
-          max_depth, hall_threshold, M: LocalModel, seed, pixel, sample, spp, stack_f, stack_i,
-          counts, hist, cut_w, pre_t, pre_prim, pre_b1, pre_b2):
-    """Radiance (r, g, b) of one eye ray by walking its ray tree with an explicit stack.
+def _trees(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
+           hall_threshold, seed, sample, spp, T: Batch, traced, stack_f, stack_i, cut_w, P: Batch,
+           lw, lcol, lsample, nshadow, lcount):
+    """The radiance ``T.L`` of the batch's eye rays (``T.ray``), each by walking its ray
+    tree depth-first with an explicit stack (``stack_f``, ``stack_i``); per-ray counters
+    into ``T.cnt`` (:data:`COUNTERS`, then the tree-depth histogram), cut weights into
+    ``cut_w``.  With ``traced`` the eye rays' closest hits are ``T.t``, ``T.prim``,
+    ``T.b`` (:func:`impl.tracer.eye_batch`), else they are traced here like every other
+    ray.
 
-    ``pre_*``: the eye ray's closest hit as :func:`impl.rays.hit` returns it, traced
-    in a packet; ``pre_prim = NOT_TRACED`` traces it here like every other ray.
+    Diffuse leaves are deferred: a leaf's shading point goes to the next free column of
+    the point batch ``P`` (rows :data:`impl.lighting.SP_P` …) with its branch weight
+    ``lw``, its eye ray's column ``lcol`` and its sample index ``lsample``, and
+    :func:`_light_leaves` adds weight × its direct light to the eye ray's radiance: before
+    the next tree once fewer than ``LEAF_MARGIN`` columns are free, and after the last.
+    A tree that fills the batch lights its further leaves on the spot, one shadow ray at
+    a time (:func:`impl.lighting.direct_light_rays`: the same light).
     """
     ns = A.sph_radius.shape[0]
-    r = g = b = 0.0
-    sp = 0
-    # The eye ray: unit weight, depth 1, medium unknown (0).
-    stack_f[0, 0] = ox
-    stack_f[0, 1] = oy
-    stack_f[0, 2] = oz
-    stack_f[0, 3] = dx
-    stack_f[0, 4] = dy
-    stack_f[0, 5] = dz
-    stack_f[0, 6] = 1.0
-    stack_f[0, 7] = 1.0
-    stack_f[0, 8] = 1.0
-    stack_f[0, 9] = 0.0
-    stack_f[0, 10] = tmin
-    stack_i[0, 0] = 1
-    stack_i[0, 1] = RAY_EYE
-    sp = 1
-    leaf = 0
-    deepest = 0
-    while sp > 0:
-        sp -= 1
-        rox, roy, roz = stack_f[sp, 0], stack_f[sp, 1], stack_f[sp, 2]
-        rdx, rdy, rdz = stack_f[sp, 3], stack_f[sp, 4], stack_f[sp, 5]
-        wr, wg, wb = stack_f[sp, 6], stack_f[sp, 7], stack_f[sp, 8]
-        medium = stack_f[sp, 9]
-        depth = stack_i[sp, 0]
-        kind = stack_i[sp, 1]
-        if kind == RAY_EYE:
-            counts[_C_EYE] += 1
-            t0, t1 = tmin, tmax
-        else:
-            counts[_C_REFL if kind == RAY_REFLECTION else _C_TRANS] += 1
-            t0, t1 = stack_f[sp, 10], np.inf
-        if depth > deepest:
-            deepest = depth
+    nc = len(COUNTERS)
+    pts, lpixel, lactive = P.pts, P.pixel, P.active
+    for col in range(T.n):
+        if lcount[0] > LEAF_BATCH - LEAF_MARGIN:
+            _light_leaves(A, R, M, P, lw, lcol, lsample, nshadow, lcount, T, seed)
+        counts = T.cnt[col, :nc]
+        hist = T.cnt[col, nc:]
+        cut = cut_w[col]
+        ox, oy, oz = T.ray[OX, col], T.ray[OY, col], T.ray[OZ, col]
+        dx, dy, dz = T.ray[DX, col], T.ray[DY, col], T.ray[DZ, col]
+        tmin, tmax = T.ray[TMIN, col], T.ray[TMAX, col]
+        pre_t, pre_prim, pre_b1, pre_b2 = T.t[col], T.prim[col], T.b[0, col], T.b[1, col]
+        pixel = T.pixel[col]
+        r = g = b = 0.0
+        sp = 0
+        # The eye ray: unit weight, depth 1, medium unknown (0).
+        stack_f[0, 0] = ox
+        stack_f[0, 1] = oy
+        stack_f[0, 2] = oz
+        stack_f[0, 3] = dx
+        stack_f[0, 4] = dy
+        stack_f[0, 5] = dz
+        stack_f[0, 6] = 1.0
+        stack_f[0, 7] = 1.0
+        stack_f[0, 8] = 1.0
+        stack_f[0, 9] = 0.0
+        stack_f[0, 10] = tmin
+        stack_i[0, 0] = 1
+        stack_i[0, 1] = RAY_EYE
+        sp = 1
+        leaf = 0
+        deepest = 0
+        while sp > 0:
+            sp -= 1
+            rox, roy, roz = stack_f[sp, 0], stack_f[sp, 1], stack_f[sp, 2]
+            rdx, rdy, rdz = stack_f[sp, 3], stack_f[sp, 4], stack_f[sp, 5]
+            wr, wg, wb = stack_f[sp, 6], stack_f[sp, 7], stack_f[sp, 8]
+            medium = stack_f[sp, 9]
+            depth = stack_i[sp, 0]
+            kind = stack_i[sp, 1]
+            if kind == RAY_EYE:
+                counts[_C_EYE] += 1
+                t0, t1 = tmin, tmax
+            else:
+                counts[_C_REFL if kind == RAY_REFLECTION else _C_TRANS] += 1
+                t0, t1 = stack_f[sp, 10], np.inf
+            if depth > deepest:
+                deepest = depth
 
-        # Intersect (and shade) the ray as rounded to the intersection precision.
-        rox, roy, roz, rdx, rdy, rdz = round_ray(R, rox, roy, roz, rdx, rdy, rdz)
-        if kind == RAY_EYE and pre_prim != NOT_TRACED:
-            t, prim, b1, b2 = pre_t, pre_prim, pre_b1, pre_b2
-        else:
-            t, prim, b1, b2 = hit(R, rox, roy, roz, rdx, rdy, rdz, t0, t1)
-        if prim < 0:                     # escaped: a constant environment, if any, else black
-            er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
-            r += wr * er
-            g += wg * eg
-            b += wb * eb
-            continue
-        shape = A.prim_shape[prim]
-        px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
-        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
-                                         A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
-        vx, vy, vz = -rdx, -rdy, -rdz
-        cos_v = sx * vx + sy * vy + sz * vz
-        # Emitted radiance L_e of an area emitter (front side only).
-        if cos_v > 0.0:
-            r += wr * A.shape_emit[shape, 0]
-            g += wg * A.shape_emit[shape, 1]
-            b += wb * A.shape_emit[shape, 2]
-        mat = A.shape_material[shape]
-        mkind = A.mat_kind[mat]
+            # Intersect (and shade) the ray as rounded to the intersection precision.
+            rox, roy, roz, rdx, rdy, rdz = round_ray(R, rox, roy, roz, rdx, rdy, rdz)
+            if kind == RAY_EYE and traced:
+                t, prim, b1, b2 = pre_t, pre_prim, pre_b1, pre_b2
+            else:
+                t, prim, b1, b2 = hit(R, rox, roy, roz, rdx, rdy, rdz, t0, t1)
+            if prim < 0:                     # escaped: a constant environment, if any, else black
+                er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
+                r += wr * er
+                g += wg * eg
+                b += wb * eb
+                continue
+            shape = A.prim_shape[prim]
+            px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
+            gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
+                                             A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+            vx, vy, vz = -rdx, -rdy, -rdz
+            cos_v = sx * vx + sy * vy + sz * vz
+            # Emitted radiance L_e of an area emitter (front side only).
+            if cos_v > 0.0:
+                r += wr * A.shape_emit[shape, 0]
+                g += wg * A.shape_emit[shape, 1]
+                b += wb * A.shape_emit[shape, 2]
+            mat = A.shape_material[shape]
+            mkind = A.mat_kind[mat]
 
-        if mkind == MAT_DIELECTRIC:
-            # Fresnel split at a smooth interface (thesis 2.4.4), Mitsuba's sign conventions.
-            eta = S.diel_eta[mat]
-            if medium > 0.0:
-                expected = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-                if abs(medium - expected) > IOR_TOLERANCE:
-                    counts[_C_IOR] += 1
-            F, cos_t, eta_it, eta_ti = fresnel_dielectric(cos_v, eta)
-            if F == 1.0 and cos_t == 0.0:
-                counts[_C_TIR] += 1
-            here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-            there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
-            # Transmitted branch: (1 − F) T_s η_ti² (radiance scaling), pushed first so the
-            # reflected branch is walked first.
-            if F < 1.0:
-                scale = (1.0 - F) * eta_ti * eta_ti
-                twr = wr * scale * S.spec_trans[mat, 0]
-                twg = wg * scale * S.spec_trans[mat, 1]
-                twb = wb * scale * S.spec_trans[mat, 2]
-                if _admit(twr, twg, twb, depth + 1, max_depth, hall_threshold, counts, cut_w):
-                    tx, ty, tz = refract(rdx, rdy, rdz, sx, sy, sz, cos_v, cos_t, eta_ti)
-                    sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, tx, ty, tz,
-                               twr, twg, twb, depth + 1, RAY_TRANSMISSION, there)
-            rwr = wr * F * S.spec_refl[mat, 0]
-            rwg = wg * F * S.spec_refl[mat, 1]
-            rwb = wb * F * S.spec_refl[mat, 2]
-            if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
-                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
-                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
-                           rwr, rwg, rwb, depth + 1, RAY_REFLECTION, here)
-            continue
+            if mkind == MAT_DIELECTRIC:
+                # Fresnel split at a smooth interface (thesis 2.4.4), Mitsuba's sign conventions.
+                eta = S.diel_eta[mat]
+                if medium > 0.0:
+                    expected = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+                    if abs(medium - expected) > IOR_TOLERANCE:
+                        counts[_C_IOR] += 1
+                F, cos_t, eta_it, eta_ti = fresnel_dielectric(cos_v, eta)
+                if F == 1.0 and cos_t == 0.0:
+                    counts[_C_TIR] += 1
+                here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+                there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
+                # Transmitted branch: (1 − F) T_s η_ti² (radiance scaling), pushed first so the
+                # reflected branch is walked first.
+                if F < 1.0:
+                    scale = (1.0 - F) * eta_ti * eta_ti
+                    twr = wr * scale * S.spec_trans[mat, 0]
+                    twg = wg * scale * S.spec_trans[mat, 1]
+                    twb = wb * scale * S.spec_trans[mat, 2]
+                    if _admit(twr, twg, twb, depth + 1, max_depth, hall_threshold, counts, cut):
+                        tx, ty, tz = refract(rdx, rdy, rdz, sx, sy, sz, cos_v, cos_t, eta_ti)
+                        sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, tx, ty, tz,
+                                   twr, twg, twb, depth + 1, RAY_TRANSMISSION, there)
+                rwr = wr * F * S.spec_refl[mat, 0]
+                rwg = wg * F * S.spec_refl[mat, 1]
+                rwb = wb * F * S.spec_refl[mat, 2]
+                if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut):
+                    qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
+                    sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
+                               rwr, rwg, rwb, depth + 1, RAY_REFLECTION, here)
+                continue
 
-        # Opaque one-sided BSDFs: a two-sided one is seen from the front on both sides.
-        if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
-            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-            cos_v = -cos_v
-        if cos_v <= 0.0:
-            continue
+            # Opaque one-sided BSDFs: a two-sided one is seen from the front on both sides.
+            if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+                gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+                cos_v = -cos_v
+            if cos_v <= 0.0:
+                continue
 
-        if mkind == MAT_CONDUCTOR:
-            # Mirror reflection R = I − 2(N·I)N weighted by specular_reflectance × F_conductor.
-            fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
-            fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
-            fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
-            rwr = wr * fr * S.spec_refl[mat, 0]
-            rwg = wg * fg * S.spec_refl[mat, 1]
-            rwb = wb * fb * S.spec_refl[mat, 2]
-            if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
-                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
-                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
-                           rwr, rwg, rwb, depth + 1, RAY_REFLECTION, medium)
-            continue
+            if mkind == MAT_CONDUCTOR:
+                # Mirror reflection R = I − 2(N·I)N weighted by specular_reflectance × F_conductor.
+                fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
+                fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
+                fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
+                rwr = wr * fr * S.spec_refl[mat, 0]
+                rwg = wg * fg * S.spec_refl[mat, 1]
+                rwb = wb * fb * S.spec_refl[mat, 2]
+                if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut):
+                    qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
+                    sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
+                               rwr, rwg, rwb, depth + 1, RAY_REFLECTION, medium)
+                continue
 
-        # Diffuse: direct light from every emitter, and the branch ends (thesis 2.2).
-        rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
-        amb = M.ambient * M.ka
-        # Leaf k of sample s draws the light samples of "sample" s + k·spp: leaf 0
-        # uses raycast's numbers, the others are independent of them.
-        lr, lg, lb, nsh = direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
-                                            rho_r, rho_g, rho_b, A, M.ks, M.shininess, M.c1, M.c2,
-                                            M.c3, M.fclamp, M.shadows, M.light_samples, seed, pixel,
-                                            sample + leaf * spp, R)
-        leaf += 1
-        counts[_C_SHADOW] += nsh
-        counts[_C_DIFFUSE] += 1
-        r += wr * (amb * rho_r + lr)
-        g += wg * (amb * rho_g + lg)
-        b += wb * (amb * rho_b + lb)
-    hist[deepest] += 1
-    return r, g, b
+            # Diffuse: direct light from every emitter, and the branch ends (thesis 2.2).
+            rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+            amb = M.ambient * M.ka
+            # Leaf k of sample s draws the light samples of "sample" s + k·spp: leaf 0
+            # uses raycast's numbers, the others are independent of them.
+            k = lcount[0]
+            if k < lactive.shape[0]:
+                pts[SP_P, k], pts[SP_P + 1, k], pts[SP_P + 2, k] = px, py, pz
+                pts[SP_G, k], pts[SP_G + 1, k], pts[SP_G + 2, k] = gx, gy, gz
+                pts[SP_S, k], pts[SP_S + 1, k], pts[SP_S + 2, k] = sx, sy, sz
+                pts[SP_V, k], pts[SP_V + 1, k], pts[SP_V + 2, k] = vx, vy, vz
+                pts[SP_RHO, k], pts[SP_RHO + 1, k], pts[SP_RHO + 2, k] = rho_r, rho_g, rho_b
+                lw[0, k], lw[1, k], lw[2, k] = wr, wg, wb
+                lcol[k], lsample[k], lpixel[k] = col, sample + leaf * spp, pixel
+                lactive[k] = True
+                lcount[0] = k + 1
+                lr = lg = lb = 0.0
+            else:
+                lr, lg, lb, nsh = direct_light_rays(
+                    px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, A, M.ks,
+                    M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows, M.light_samples, seed, pixel,
+                    sample + leaf * spp, R)
+                counts[_C_SHADOW] += nsh
+            leaf += 1
+            counts[_C_DIFFUSE] += 1
+            r += wr * (amb * rho_r + lr)
+            g += wg * (amb * rho_g + lg)
+            b += wb * (amb * rho_b + lb)
+        hist[deepest] += 1
+        T.L[0, col], T.L[1, col], T.L[2, col] = r, g, b
+    _light_leaves(A, R, M, P, lw, lcol, lsample, nshadow, lcount, T, seed)
 
 
 @njit(cache=True)
 def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
           hall_threshold, film: Film, tile, spp, seed, cut):
     """One tile (:mod:`impl.tracer`): per sample index, the eye rays and their hits, then
-    each pixel's ray tree from its eye hit.  Per-pixel counters: :data:`COUNTERS`, then
-    the tree-depth histogram (``max_depth + 1`` columns); cut weights go to ``cut``."""
+    each pixel's ray tree from its eye hit (:func:`_trees`).  Per-pixel counters:
+    :data:`COUNTERS`, then the tree-depth histogram (``max_depth + 1`` columns); cut
+    weights go to ``cut``."""
     T = new_batch(film, R, tile)
-    # Depth-first: below the popped ray of depth d wait at most one sibling per
-    # level 2..d, plus its two children, so max_depth + 1 slots suffice.
-    stack_f = np.empty((max_depth + 2, 11))
-    stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
-    cut_w = np.zeros((T.n, 2))
-    nc = len(COUNTERS)
+    work = _scratch(T.n, max_depth, R)
     for s in range(spp):
         eye_batch(cam, R, T, s, spp, seed, film.packets)
-        for i in range(T.n):
-            ray = T.ray
-            T.L[0, i], T.L[1, i], T.L[2, i] = _tree(
-                ray[0, i], ray[1, i], ray[2, i], ray[3, i], ray[4, i], ray[5, i], ray[6, i],
-                ray[7, i], A, S, R, max_depth, hall_threshold, M, seed, T.pixel[i], s, spp,
-                stack_f, stack_i, T.cnt[i, :nc], T.cnt[i, nc:], cut_w[i], T.t[i], T.prim[i],
-                T.b[0, i], T.b[1, i])
+        _trees(A, S, R, M, max_depth, hall_threshold, seed, s, spp, T, True, *work)
         accumulate(T, s)
     store(T, film, spp)
+    cut_w = work[2]
     for i in range(T.n):
         x, y = T.x0 + i % T.nx, T.y0 + i // T.nx
         cut[y, x, 0] = cut_w[i, 0] / spp
         cut[y, x, 1] = cut_w[i, 1] / spp
+
+
+@njit(cache=True)
+def _scratch(n, max_depth, R: RayConfig):
+    """The working arrays of :func:`_trees` for batches of ``n`` eye rays: the tree stack
+    (depth-first: below the popped ray of depth d wait at most one sibling per level
+    2..d, plus its two children, so max_depth + 1 slots suffice), the cut weights and
+    the batch of deferred diffuse leaves."""
+    return (np.empty((max_depth + 2, 11)), np.empty((max_depth + 2, 2), dtype=np.int64),
+            np.zeros((n, 2)), new_points(LEAF_BATCH, R), np.empty((3, LEAF_BATCH)),
+            np.empty(LEAF_BATCH, np.int64), np.empty(LEAF_BATCH, np.int64),
+            np.zeros(LEAF_BATCH, np.int64), np.zeros(1, np.int64))
+
+
+@njit(cache=True)
+def _light_leaves(A: SceneArrays, R: RayConfig, M: LocalModel, P: Batch, lw, lcol, lsample,
+                  nshadow, lcount, T: Batch, seed):
+    """Light the ``lcount[0]`` collected diffuse leaves together
+    (:func:`impl.lighting.direct_batch`: each light sample's shadow rays as one batch) and
+    add each one's weighted light to its eye ray's radiance and shadow-ray count."""
+    m = lcount[0]
+    if m == 0:
+        return
+    for k in range(m):
+        P.L[0, k] = P.L[1, k] = P.L[2, k] = 0.0
+        nshadow[k] = 0
+    direct_batch(A, R, M, P, lsample, seed, nshadow)
+    for k in range(m):
+        i = lcol[k]
+        T.L[0, i] += lw[0, k] * P.L[0, k]
+        T.L[1, i] += lw[1, k] * P.L[1, k]
+        T.L[2, i] += lw[2, k] * P.L[2, k]
+        T.cnt[i, _C_SHADOW] += nshadow[k]
+        P.active[k] = False
+    lcount[0] = 0
 
 
 @njit(parallel=True, cache=True)
@@ -421,11 +495,16 @@ def _render_kernel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: Loca
 
 @njit(cache=True)
 def _trace_one(ox, oy, oz, dx, dy, dz, A: SceneArrays, S: SpecularArrays, R: RayConfig, max_depth,
-               hall_threshold, M: LocalModel, seed, counts, hist, cut_w):
-    stack_f = np.empty((max_depth + 2, 11))
-    stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
-    return _tree(ox, oy, oz, dx, dy, dz, 0.0, np.inf, A, S, R, max_depth, hall_threshold, M, seed,
-                 0, 0, 1, stack_f, stack_i, counts, hist, cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
+               hall_threshold, M: LocalModel, seed):
+    """:func:`_trees` of a batch of one ray (tmin = 0): its radiance, per-ray counters
+    and cut weights."""
+    T = new_points(1, R, len(COUNTERS) + max_depth + 1)
+    T.ray[OX, 0], T.ray[OY, 0], T.ray[OZ, 0] = ox, oy, oz
+    T.ray[DX, 0], T.ray[DY, 0], T.ray[DZ, 0] = dx, dy, dz
+    T.ray[TMIN, 0], T.ray[TMAX, 0] = 0.0, np.inf
+    work = _scratch(1, max_depth, R)
+    _trees(A, S, R, M, max_depth, hall_threshold, seed, 0, 1, T, False, *work)
+    return T.L[:, 0].copy(), T.cnt[0].copy(), work[2][0].copy()
 
 
 # ------------------------------------------------------------- orchestration ---
@@ -477,12 +556,10 @@ def trace(scene: Scene, origin, direction, params: dict | None = None, *, seed: 
     o = np.asarray(origin, dtype=np.float64)
     d = np.asarray(direction, dtype=np.float64)
     d = d / np.linalg.norm(d)
-    counts = np.zeros(len(COUNTERS), dtype=np.int64)
-    hist = np.zeros(p["max_depth"] + 1, dtype=np.int64)
-    cut_w = np.zeros(2)
     R = ray_config(A, p, algorithm="whitted")
-    rgb = _trace_one(o[0], o[1], o[2], d[0], d[1], d[2], A, S, R, p["max_depth"],
-                     float(p["hall_threshold"]), local_model(p), seed, counts, hist, cut_w)
+    rgb, cnt, cut_w = _trace_one(o[0], o[1], o[2], d[0], d[1], d[2], A, S, R, p["max_depth"],
+                                 float(p["hall_threshold"]), local_model(p), seed)
+    counts, hist = cnt[:len(COUNTERS)], cnt[len(COUNTERS):]
     counters = {name: int(v) for name, v in zip(COUNTERS, counts)}
     counters["tree_depth_histogram"] = [int(v) for v in hist]
     counters["hall_cut_weight"] = float(cut_w[0])
