@@ -32,10 +32,11 @@ few operations costs about as much per ray on scenes of tens of triangles.  They
 :func:`impl.intersect.closest_hit_form` / ``any_hit_form`` compute for each
 ray (same arithmetic, same tie rule: the first primitive of smallest ``t``),
 so the image does not depend on the path taken.  The algebraic and geometric
-forms and every acceleration structure go ray by ray through
-:func:`impl.rays.hit` / :func:`impl.rays.occluded`; a structure that offers
-batch kernels can be dispatched in :func:`closest_batch` /
-:func:`occluded_batch` on ``R.accel``.
+forms and every acceleration structure go to :func:`impl.accel.closest_rays` /
+:func:`impl.accel.occluded_rays`: one call per batch that binds R's arrays
+once and loops over the rays (the wide BVH's and the binary trees' traversals
+inlined in that loop), with the answers of :func:`impl.rays.hit` /
+:func:`impl.rays.occluded` ray for ray.
 """
 
 from __future__ import annotations
@@ -49,10 +50,11 @@ from numba import njit
 
 from core.algorithm import RenderResult
 
+from .accel import closest_rays, occluded_rays
 from .accel.packets import TILE, packet_hits
 from .camera import eye_ray
 from .intersect import like
-from .rays import RayConfig, hit, occluded, ray_config
+from .rays import RayConfig, ray_config
 from .sampling import pixel_sample, strata, variance_of_mean
 from .scene_arrays import scene_memo
 
@@ -228,9 +230,8 @@ def closest_batch(R: RayConfig, ray, n, t, prim, b, q, qt, qp):
     if R.accel == 0 and R.form == 2:
         _closest_brute(R, ray, n, t, prim, b, q, qt, qp)
         return
-    for i in range(n):
-        t[i], prim[i], b[0, i], b[1, i] = hit(R, ray[OX, i], ray[OY, i], ray[OZ, i], ray[DX, i],
-                                              ray[DY, i], ray[DZ, i], ray[TMIN, i], ray[TMAX, i])
+    closest_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
+                 ray[TMIN, :n], ray[TMAX, :n], t[:n], prim[:n], b[0, :n], b[1, :n])
 
 
 @njit(cache=True, error_model="numpy")
@@ -241,9 +242,8 @@ def occluded_batch(R: RayConfig, ray, n, blocked, q):
     if R.accel == 0 and R.form == 2:
         _occluded_brute(R, ray, n, blocked, q)
         return
-    for i in range(n):
-        blocked[i] = occluded(R, ray[OX, i], ray[OY, i], ray[OZ, i], ray[DX, i], ray[DY, i],
-                              ray[DZ, i], ray[TMIN, i], ray[TMAX, i])
+    occluded_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
+                  ray[TMIN, :n], ray[TMAX, :n], blocked[:n])
 
 
 @njit(inline="always", cache=True, error_model="numpy")

@@ -47,10 +47,13 @@ from .grid import build_grid, grid_any, grid_closest
 from .octree import build_octree
 from .primitives import prim_bounds
 from .slabs import SLAB_COUNTS, build_slabs, slabs_any, slabs_closest
-from .tree import STACK, tree_any, tree_closest, tree_depth
-from .wide import WIDTH, collapse, wide_any, wide_closest, wide_depth
+from .tree import (STACK, tree_any, tree_closest, tree_closest_rays, tree_depth,
+                   tree_occluded_rays)
+from .wide import (WIDTH, collapse, wide_any, wide_arrays, wide_closest, wide_closest_rays,
+                   wide_depth, wide_occluded_rays)
 
-__all__ = ["ACCELS", "KIND", "Accel", "build", "empty", "closest", "any_hit", "trace_batch",
+__all__ = ["ACCELS", "KIND", "Accel", "build", "empty", "closest", "any_hit", "closest_rays",
+           "occluded_rays", "trace_batch",
            "occluded_batch", "SLAB_COUNTS", "memory_bytes"]
 
 ACCELS = ("none", "bv", "bv-sphere", "slabs", "bvh-median", "bvh-sah", "bvh-gs", "grid", "octree",
@@ -120,8 +123,8 @@ def build(name: str, sph_center, sph_radius, tri_v, prim_shape=None, *, slab_nor
         if need > STACK:
             raise RuntimeError(f"accel {name}: the tree needs a traversal stack of {need} "
                                f"(> {STACK}); the scene is too degenerate for it")
-        return Accel(WIDE, nlo[:1].copy(), nhi[:1].copy(), slot_a, slot_b, idx,
-                     box32.reshape(-1).view(np.float64), np.array([WIDTH], dtype=np.int64))
+        acc_f, acc_i = wide_arrays(box32, slot_a, slot_b, idx, sph_radius, tri_v)
+        return Accel(WIDE, nlo[:1].copy(), nhi[:1].copy(), slot_a, slot_b, idx, acc_f, acc_i)
     if name == "bvh-median":
         arrays = build_bvh(lo, hi, "median")
     elif name == "bvh-sah":
@@ -174,6 +177,58 @@ def any_hit(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     if k == BV:
         return bv_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
     return slabs_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(cache=True, error_model="numpy")
+def closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2):
+    """Closest hits of the N rays given as float64 arrays (N,), one after the other, in
+    R's form, precision and structure (what :func:`impl.rays.hit` returns for each):
+    ``out_t`` (tmax on a miss), ``out_b1``, ``out_b2`` float64 (N,), ``out_prim``
+    int64 (N,) (-1 on a miss).  The wide BVH and the binary trees run batch loops
+    that bind R's arrays once; brute force binds them too; the grid, bounding
+    volumes and slabs go ray by ray through :func:`closest`."""
+    k = R.accel
+    if k == WIDE:
+        wide_closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2)
+        return
+    if k == TREE:
+        tree_closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2)
+        return
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    g = sr
+    for i in range(ox.shape[0]):
+        a = (_cast(g, ox[i]), _cast(g, oy[i]), _cast(g, oz[i]), _cast(g, dx[i]), _cast(g, dy[i]),
+             _cast(g, dz[i]), _cast(g, tmin[i]), _cast(g, tmax[i]))
+        if k == NONE:
+            t, p, b1, b2 = closest_hit_form(form, a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7],
+                                            sc, sr, tv)
+        else:
+            t, p, b1, b2, _, _ = closest(R, a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7])
+        out_t[i], out_prim[i], out_b1[i], out_b2[i] = float(t), p, float(b1), float(b2)
+
+
+@njit(cache=True, error_model="numpy")
+def occluded_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
+    """Any-hit of the N rays (float64 arrays (N,)) within (tmin[i], tmax[i]), one after
+    the other, in R's form, precision and structure (:func:`impl.rays.occluded` of
+    each): ``out_hit`` bool (N,).  Dispatch as :func:`closest_rays`."""
+    k = R.accel
+    if k == WIDE:
+        wide_occluded_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit)
+        return
+    if k == TREE:
+        tree_occluded_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit)
+        return
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    g = sr
+    for i in range(ox.shape[0]):
+        a = (_cast(g, ox[i]), _cast(g, oy[i]), _cast(g, oz[i]), _cast(g, dx[i]), _cast(g, dy[i]),
+             _cast(g, dz[i]), _cast(g, tmin[i]), _cast(g, tmax[i]))
+        if k == NONE:
+            out_hit[i] = any_hit_form(form, a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7],
+                                      sc, sr, tv)
+        else:
+            out_hit[i] = any_hit(R, a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7])[0]
 
 
 @njit(cache=True)

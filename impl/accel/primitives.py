@@ -37,7 +37,8 @@ from core.errors import ParamError
 
 from ..intersect import like, ray_sphere_form, ray_triangle
 
-__all__ = ["prim_bounds", "pad_of", "prim_test", "closer", "box_enter", "ulp_above"]
+__all__ = ["prim_bounds", "pad_of", "prim_test", "prim_test_arrays", "closer", "box_enter",
+           "ulp_above"]
 
 #: Relative padding of every bound, by precision (times the scene's largest
 #: absolute coordinate + extent).  Float32 intersections carry errors of a few
@@ -86,13 +87,21 @@ def closer(t, p, best_t, best_p):
 def prim_test(R, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Primitive ``p``'s hit ``(t, b1, b2)`` in R's form and precision (arguments in
     R's precision), ``t = -1`` on a miss — exactly the brute-force test."""
-    ns = R.sph_radius.shape[0]
+    return prim_test_arrays(R.form, R.sph_center, R.sph_radius, R.tri_v, p, ox, oy, oz, dx, dy,
+                            dz, tmin, tmax)
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def prim_test_arrays(form, sc, sr, tv, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """:func:`prim_test` on the configuration's arrays, bound by the caller once per
+    batch of rays (binding the whole configuration per ray increments and
+    decrements the reference count of each of its arrays)."""
+    ns = sr.shape[0]
     if p < ns:
-        c = R.sph_center
-        t = ray_sphere_form(R.form, ox, oy, oz, dx, dy, dz, c[p, 0], c[p, 1], c[p, 2],
-                            R.sph_radius[p], tmin, tmax)
+        t = ray_sphere_form(form, ox, oy, oz, dx, dy, dz, sc[p, 0], sc[p, 1], sc[p, 2], sr[p],
+                            tmin, tmax)
         return t, like(t, 0.0), like(t, 0.0)
-    return ray_triangle(ox, oy, oz, dx, dy, dz, R.tri_v[p - ns], tmin, tmax)
+    return ray_triangle(ox, oy, oz, dx, dy, dz, tv[p - ns], tmin, tmax)
 
 
 @njit(inline="always", cache=True, error_model="numpy")

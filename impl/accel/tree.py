@@ -40,9 +40,10 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ..intersect import like
-from .primitives import box_enter, closer, prim_test, ulp_above
+from .primitives import box_enter, closer, prim_test_arrays, ulp_above
 
-__all__ = ["tree_closest", "tree_any", "STACK", "tree_depth"]
+__all__ = ["tree_closest", "tree_any", "tree_closest_rays", "tree_occluded_rays", "STACK",
+           "tree_depth"]
 
 #: Traversal stack entries: a binary tree of depth D needs D + 1, an octree
 #: 7 per level; :func:`impl.accel.build` refuses a tree that needs more.
@@ -81,7 +82,13 @@ def stack_f64():
 def tree_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and
     t in R's precision, prim = -1 on a miss."""
-    lo, hi, na, nb, idx = R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx
+    return _closest(R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx, R.form, R.sph_center,
+                    R.sph_radius, R.tri_v, ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _closest(lo, hi, na, nb, idx, form, sc, sr, tv, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """:func:`tree_closest` on the configuration's arrays."""
     best_t, best_p = tmax, -1
     bb1 = bb2 = like(tmax, 0.0)
     nodes = tests = 0
@@ -107,7 +114,8 @@ def tree_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
             for k in range(na[n], na[n] + b):
                 p = idx[k]
                 tests += 1
-                t, b1, b2 = prim_test(R, p, ox, oy, oz, dx, dy, dz, tmin, ulp_above(best_t))
+                t, b1, b2 = prim_test_arrays(form, sc, sr, tv, p, ox, oy, oz, dx, dy, dz, tmin,
+                                             ulp_above(best_t))
                 if closer(t, p, best_t, best_p):
                     best_t, best_p, bb1, bb2 = t, p, b1, b2
         else:
@@ -131,7 +139,13 @@ def tree_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
 @njit(cache=True, error_model="numpy")
 def tree_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
-    lo, hi, na, nb, idx = R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx
+    return _any(R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx, R.form, R.sph_center,
+                R.sph_radius, R.tri_v, ox, oy, oz, dx, dy, dz, tmin, tmax)
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _any(lo, hi, na, nb, idx, form, sc, sr, tv, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """:func:`tree_any` on the configuration's arrays."""
     nodes = tests = 0
     fox, foy, foz = float(ox), float(oy), float(oz)
     ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
@@ -150,7 +164,8 @@ def tree_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
         if b >= 0:
             for k in range(na[n], na[n] + b):
                 tests += 1
-                t, b1, b2 = prim_test(R, idx[k], ox, oy, oz, dx, dy, dz, tmin, tmax)
+                t, b1, b2 = prim_test_arrays(form, sc, sr, tv, idx[k], ox, oy, oz, dx, dy, dz,
+                                             tmin, tmax)
                 if t > zero:
                     return True, nodes, tests
         else:
@@ -159,6 +174,35 @@ def tree_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
                     stack_n[sp] = c
                     sp += 1
     return False, nodes, tests
+
+
+@njit(cache=True, error_model="numpy")
+def tree_closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2):
+    """Closest hits of the N rays given as float64 arrays (N,), one after the other,
+    the configuration's arrays bound once: each ray rounded to R's precision as
+    :func:`impl.rays.hit` rounds it; ``out_t`` (tmax on a miss), ``out_b1``,
+    ``out_b2`` float64 (N,), ``out_prim`` int64 (N,) (-1 on a miss)."""
+    lo, hi, na, nb, idx = R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    for i in range(ox.shape[0]):
+        t, p, b1, b2, _, _ = _closest(lo, hi, na, nb, idx, form, sc, sr, tv, like(sr, ox[i]),
+                                      like(sr, oy[i]), like(sr, oz[i]), like(sr, dx[i]),
+                                      like(sr, dy[i]), like(sr, dz[i]), like(sr, tmin[i]),
+                                      like(sr, tmax[i]))
+        out_t[i], out_prim[i], out_b1[i], out_b2[i] = float(t), p, float(b1), float(b2)
+
+
+@njit(cache=True, error_model="numpy")
+def tree_occluded_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
+    """Any-hit of the N rays (float64 arrays (N,)) within (tmin[i], tmax[i]), one after
+    the other, the configuration's arrays bound once: ``out_hit`` bool (N,)."""
+    lo, hi, na, nb, idx = R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    for i in range(ox.shape[0]):
+        h, _, _ = _any(lo, hi, na, nb, idx, form, sc, sr, tv, like(sr, ox[i]), like(sr, oy[i]),
+                       like(sr, oz[i]), like(sr, dx[i]), like(sr, dy[i]), like(sr, dz[i]),
+                       like(sr, tmin[i]), like(sr, tmax[i]))
+        out_hit[i] = h
 
 
 @njit(cache=True)

@@ -25,21 +25,35 @@ outward (``lo`` down, ``hi`` up) from the padded float64 bounds of
 test reads them into float64 and computes exactly as
 :func:`.primitives.box_enter` does (same NaN rule for zero direction
 components): a ray enters every box the float64 tree would let it enter,
-and the primitives it reaches are tested by the same kernels, in the
+and the primitives it reaches are tested with the same arithmetic, in the
 configured form and precision, with the same tie rule (:func:`.closer`).
 So the closest hit (primitive id and ``t``) is brute force's.  The float64
 arithmetic is a choice, not a necessity: with W = 4 (AVX2) or 8 (AVX-512)
 lanes a float64 plane costs as many vector instructions as a float32 one,
 and it needs no error bound on the origin's float32 rounding.
 
-Traversal: nearest child first (children sorted by entry ``t`` on the
-stack), popped entries entered beyond the nearest hit skipped; shadow rays
-(:func:`wide_any`) stop at the first hit in (tmin, tmax).
+Leaves.  A leaf's triangles are stored again, structure of arrays, in groups
+of :data:`LANES` (``v0``, ``e1 = v1 − v0``, ``e2 = v2 − v0`` per lane, in the
+configured precision: :func:`_leaf_groups`), and a group is tested in one
+vector Möller–Trumbore (:func:`_tri_lanes`, the operations of
+:func:`impl.intersect.ray_triangle` lane by lane, so each lane's hit is the
+scalar test's bit for bit); the lanes' hits are then kept in the tie rule's
+order.  A leaf's spheres keep the scalar test of the configured form.  All
+of a group is tested against the nearest hit at the leaf's entry; a lane hit
+that a smaller limit would have rejected is not nearer, so
+:func:`.closer` drops it and the result is that of one-by-one tests.
+
+Traversal (:func:`_trace`, one skeleton for both queries): nearest child
+first (children sorted by entry ``t`` on the stack), popped entries entered
+beyond the nearest hit skipped; shadow rays (:func:`wide_any`) push the
+children in slot order and stop at the first hit in (tmin, tmax).
 
 Entry points: :func:`wide_closest` / :func:`wide_any` (one ray, with
 counters: what :func:`impl.accel.closest` dispatches to); over SoA ray
-arrays, in parallel, :func:`wide_closest_batch` / :func:`wide_occluded_batch`
-(single rays, the traversal inlined into the loop) and, for coherent rays,
+arrays, one after the other, :func:`wide_closest_rays` /
+:func:`wide_occluded_rays` (the tracers' batches: the arrays bound once, the
+traversal inlined into the loop), the same in parallel,
+:func:`wide_closest_batch` / :func:`wide_occluded_batch`, and, for coherent rays,
 :func:`wide_closest_packets` / :func:`wide_occluded_packets`: groups of
 consecutive rays traversed as packets (Wald, Slusallek, Benthin, Wagner
 2001) — each child box tested against the packet's active rays in one
@@ -58,17 +72,22 @@ node_a     (M·W,) i64         slot ``n·W + k``: child node (interior) or
 node_b     (M·W,) i64         ``-1`` interior, ``c ≥ 0`` leaf of c
                               primitives (0: empty slot, empty box)
 prim_idx   (P,) i64           the leaves' primitive ids
-acc_f      (M·6·W/2,) f64     the float32 boxes, node by node
+acc_f      (K,) f64           the float32 boxes, node by node
                               ``[lo_x, lo_y, lo_z, hi_x, hi_y, hi_z]×W``,
                               stored two per float64 word (read through
-                              ``acc_f.view(np.float32)``)
-acc_i      (1,) i64           W
+                              ``acc_f.view(np.float32)``), then the leaves'
+                              triangle groups (G, 9, LANES) in the
+                              configured precision (:func:`wide_arrays`)
+acc_i      (4+M·W+G·LANES,)   ``W``, the groups' first word in that
+           i64                precision, ``S = M·W`` slots, slot s's groups
+                              ``grp[s]:grp[s+1]`` (S+1 entries), the lanes'
+                              primitive ids (-1: padding)
 =========  =================  ===========================================
 
-Leaves out: compressed (quantised) boxes, SIMD primitive tests over a
-leaf's primitives (the primitive kernels are the scalar brute-force ones,
-which is what keeps the hit bit-identical), spatial splits, float32 box
-arithmetic.
+Leaves out: compressed (quantised) boxes, vector tests of a leaf's spheres,
+spatial splits, float32 box arithmetic, 8-lane float32 triangle groups (the
+groups are 4 lanes in both precisions: 256-bit ymm arithmetic in float64,
+128-bit xmm in float32).
 
 References: I. Wald, P. Slusallek, C. Benthin, M. Wagner, "Interactive
 rendering with coherent ray tracing", CGF 20(3), 2001; I. Wald, C. Benthin, S. Boulos, "Getting rid of packets —
@@ -86,10 +105,10 @@ import math
 import numpy as np
 from llvmlite import ir
 from numba import njit, prange, types
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 
-from ..intersect import like, ray_sphere_form, ray_triangle
-from .primitives import box_enter, closer, ulp_above
+from ..intersect import like, ray_sphere_form
+from .primitives import box_enter, closer, prim_test_arrays as _prim, ulp_above
 from .tree import STACK, stack_f64, stack_i64
 
 __all__ = ["WIDTH", "SWITCH", "collapse", "wide_closest", "wide_any", "wide_depth",
@@ -102,6 +121,9 @@ WIDTH = 4
 #: leaf (the builder keeps a subtree's primitives consecutive in ``prim_idx``).
 LEAF_MAX = 4
 _PLANES = 6 * WIDTH                 # float32 words of one node's boxes
+#: Triangles per vector test of a leaf (:func:`_tri_lanes`).
+LANES = 4
+_TRI_WORDS = 9 * LANES              # words of one leaf group: v0, e1, e2 (SoA)
 
 
 @njit(inline="always", cache=True)
@@ -204,6 +226,62 @@ def collapse(nlo, nhi, na, nb, width: int = WIDTH):
 
 
 @njit(cache=True)
+def _leaf_groups(slot_a, slot_b, idx, ns, tri_v):
+    """The leaves' triangles in groups of :data:`LANES`, structure of arrays:
+    ``(grp (S+1,), data (G, 9, LANES), ids (G·LANES,))`` — slot s's triangles are
+    groups ``grp[s]:grp[s+1]``; a group's rows are v0x v0y v0z, e1 = v1 − v0,
+    e2 = v2 − v0 (in tri_v's precision, as :func:`impl.intersect.ray_triangle`
+    computes them), ``ids`` the lanes' primitive ids (-1: padding, a zero
+    triangle)."""
+    S = slot_a.shape[0]
+    grp = np.zeros(S + 1, dtype=np.int64)
+    for s in range(S):
+        c = 0
+        if slot_b[s] > 0:
+            for k in range(slot_a[s], slot_a[s] + slot_b[s]):
+                c += idx[k] >= ns
+        grp[s + 1] = grp[s] + (c + LANES - 1) // LANES
+    G = grp[S]
+    data = np.zeros((G, 9, LANES), dtype=tri_v.dtype)
+    ids = np.full(G * LANES, -1, dtype=np.int64)
+    for s in range(S):
+        if slot_b[s] <= 0:
+            continue
+        j = grp[s] * LANES
+        for k in range(slot_a[s], slot_a[s] + slot_b[s]):
+            p = idx[k]
+            if p < ns:
+                continue
+            g, ln = j // LANES, j % LANES
+            v = tri_v[p - ns]
+            for a in range(3):
+                data[g, a, ln] = v[0, a]
+                data[g, 3 + a, ln] = v[1, a] - v[0, a]
+                data[g, 6 + a, ln] = v[2, a] - v[0, a]
+            ids[j] = p
+            j += 1
+    return grp, data, ids
+
+
+def wide_arrays(box32, slot_a, slot_b, idx, sph_radius, tri_v):
+    """The ``(acc_f, acc_i)`` of a wide BVH: the float32 boxes followed by the leaves'
+    triangle groups (:func:`_leaf_groups`) in the precision of ``tri_v``, and
+    ``[W, word offset of the groups in that precision, S slots, grp (S+1), ids]``."""
+    F = np.asarray(sph_radius).dtype            # the kernels' precision (impl.rays.RayConfig)
+    tri_v = np.ascontiguousarray(tri_v, dtype=F).reshape(-1, 3, 3)
+    grp, data, ids = _leaf_groups(slot_a, slot_b, idx, len(sph_radius), tri_v)
+    boxes = box32.reshape(-1)
+    if F == np.float32:
+        acc_f = np.concatenate([boxes, data.reshape(-1)]).view(np.float64)
+        off = boxes.size
+    else:
+        acc_f = np.concatenate([boxes.view(np.float64), data.reshape(-1).astype(np.float64)])
+        off = boxes.size // 2
+    head = np.array([box32.shape[2], off, len(slot_a)], dtype=np.int64)
+    return acc_f, np.concatenate([head, grp, ids])
+
+
+@njit(cache=True)
 def wide_depth(slot_a, slot_b, W):
     """Largest traversal stack the wide tree can need (children − 1 summed along a
     path, + 1, counting leaves as stack entries)."""
@@ -277,18 +355,88 @@ def _enter_all(typingctx, box, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy,
     return sig, codegen
 
 
-@njit(inline="always", cache=True, error_model="numpy")
-def _prim(form, sc, sr, tv, p, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """:func:`.primitives.prim_test` on the configuration's arrays, unpacked once per
-    ray: binding the whole configuration per test would increment and decrement
-    the reference count of each of its arrays, atomic operations that the
-    threads tracing in parallel contend for."""
-    ns = sr.shape[0]
-    if p < ns:
-        t = ray_sphere_form(form, ox, oy, oz, dx, dy, dz, sc[p, 0], sc[p, 1], sc[p, 2], sr[p],
-                            tmin, tmax)
-        return t, like(t, 0.0), like(t, 0.0)
-    return ray_triangle(ox, oy, oz, dx, dy, dz, tv[p - ns], tmin, tmax)
+@intrinsic
+def _tri_lanes(typingctx, data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out):
+    """Möller–Trumbore for the :data:`LANES` triangles of one leaf group in one vector
+    operation per step: ``data`` (R's precision) holds the group's rows ``v0x v0y v0z
+    e1x e1y e1z e2x e2y e2z`` (:data:`LANES` words each) from word ``base``; the ray
+    and limits are in R's precision.  Lane k's ``t``, ``b1``, ``b2`` go to ``out[k]``,
+    ``out[LANES + k]``, ``out[2·LANES + k]`` (float64, exact); returns the mask of the
+    lanes hit with ``t > 0``.
+
+    The operations, their order and their precision are those of
+    :func:`impl.intersect.ray_triangle` (``e1 = v1 − v0`` and ``e2`` precomputed in
+    the same precision give the same values; no fused multiply-add), and a lane is
+    a miss exactly when its early returns would fire (ordered comparisons), so a
+    lane's hit is the scalar test's, bit for bit.  Padding lanes hold a degenerate
+    triangle (det = 0: a miss)."""
+    F = data.dtype
+    sig = types.int64(data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out)
+
+    def codegen(context, builder, sig, args):
+        ft = context.get_value_type(F)
+        vt = ir.VectorType(ft, LANES)
+        dv = ir.VectorType(ir.DoubleType(), LANES)
+        d_ptr = context.make_array(sig.args[0])(context, builder, args[0]).data
+        o_ptr = context.make_array(sig.args[10])(context, builder, args[10]).data
+        base = context.cast(builder, args[1], sig.args[1], types.int64)
+        s = [context.cast(builder, a, t, F) for a, t in zip(args[2:10], sig.args[2:10])]
+
+        def splat(x):
+            v = ir.Constant(vt, ir.Undefined)
+            for k in range(LANES):
+                v = builder.insert_element(v, x, ir.Constant(ir.IntType(32), k))
+            return v
+
+        def row(r):
+            p = builder.gep(d_ptr, [builder.add(base, ir.Constant(ir.IntType(64), r * LANES))])
+            return builder.load(builder.bitcast(p, vt.as_pointer()), align=F.bitwidth // 8)
+
+        ox, oy, oz, dx, dy, dz, t_lo, t_hi = (splat(x) for x in s)
+        v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z = (row(r) for r in range(9))
+        mul, sub, add = builder.fmul, builder.fsub, builder.fadd
+        zero = ir.Constant(vt, [0.0] * LANES)
+        one = ir.Constant(vt, [1.0] * LANES)
+
+        def dot(ax, ay, az, bx, by, bz):
+            return add(add(mul(ax, bx), mul(ay, by)), mul(az, bz))
+
+        px, py, pz = (sub(mul(dy, e2z), mul(dz, e2y)), sub(mul(dz, e2x), mul(dx, e2z)),
+                      sub(mul(dx, e2y), mul(dy, e2x)))
+        det = dot(e1x, e1y, e1z, px, py, pz)
+        inv = builder.fdiv(one, det)
+        sx, sy, sz = sub(ox, v0x), sub(oy, v0y), sub(oz, v0z)
+        b1 = mul(dot(sx, sy, sz, px, py, pz), inv)
+        qx, qy, qz = (sub(mul(sy, e1z), mul(sz, e1y)), sub(mul(sz, e1x), mul(sx, e1z)),
+                      sub(mul(sx, e1y), mul(sy, e1x)))
+        b2 = mul(dot(dx, dy, dz, qx, qy, qz), inv)
+        t = mul(dot(e2x, e2y, e2z, qx, qy, qz), inv)
+        cmp = builder.fcmp_ordered
+        miss = builder.or_(cmp("==", det, zero), cmp("<", b1, zero))
+        miss = builder.or_(miss, cmp(">", b1, one))
+        miss = builder.or_(miss, cmp("<", b2, zero))
+        miss = builder.or_(miss, cmp(">", add(b1, b2), one))
+        miss = builder.or_(miss, cmp("<=", t, t_lo))
+        miss = builder.or_(miss, cmp(">=", t, t_hi))
+        hit = builder.and_(builder.not_(miss), cmp(">", t, zero))
+        for k, v in enumerate((t, b1, b2)):
+            w = v if F == types.float64 else builder.fpext(v, dv)
+            p = builder.gep(o_ptr, [ir.Constant(ir.IntType(64), k * LANES)])
+            builder.store(w, builder.bitcast(p, dv.as_pointer()), align=8)
+        return builder.zext(builder.bitcast(hit, ir.IntType(LANES)), ir.IntType(64))
+
+    return sig, codegen
+
+
+def _as_precision(a, g):
+    """``a`` (float64 words) viewed in the dtype of ``g``'s elements."""
+
+
+@overload(_as_precision, inline="always")
+def _as_precision_impl(a, g):
+    if g.dtype == types.float32:
+        return lambda a, g: a.view(np.float32)
+    return lambda a, g: a
 
 
 @njit(inline="always", cache=True)
@@ -301,53 +449,67 @@ def _planes(ix, iy, iz):
 
 
 @njit(inline="always", cache=True, error_model="numpy")
-def _closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and t in
-    R's precision, prim = -1 on a miss (nodes counts the wide nodes and leaves opened)."""
-    ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
-    t_root = box_enter(R.node_lo, R.node_hi, 0, float(ox), float(oy), float(oz), ix, iy, iz,
-                       float(tmin), float(tmax))
-    zero = like(tmax, 0.0)
-    if t_root == math.inf:
-        return tmax, -1, zero, zero, 1, 0
-    return _walk(R, 0, t_root, ox, oy, oz, dx, dy, dz, tmin, tmax, -1, zero, zero)
+def _trace(na, nb, idx, box, tri, tri_off, grp, ids, form, sc, sr, tv, ref0, t0,
+           ox, oy, oz, dx, dy, dz, tmin, tmax, best_t, best_p, bb1, bb2, any_hit):
+    """The traversal of both queries, from subtree ``ref0`` (a node, or ``-s - 1`` for
+    the leaf of slot s) entered at ``t0``: ``(t, prim, b1, b2, nodes_visited,
+    prim_tests)``.
 
-
-@njit(inline="always", cache=True, error_model="numpy")
-def _walk(R, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_p, bb1, bb2):
-    """Closest-hit traversal of the subtree ``ref0`` (a node, or ``-s - 1`` for the leaf
-    of slot s) entered at ``t0``, from the hit so far ``(best_t, best_p, bb1, bb2)``:
-    ``(t, prim, b1, b2, nodes_visited, prim_tests)``."""
-    na, nb, idx = R.node_a, R.node_b, R.prim_idx
-    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
-    box = R.acc_f.view(np.float32)
+    Closest hit (``any_hit`` False): from the hit so far ``(best_t, best_p, bb1,
+    bb2)``, children pushed nearest first, entries beyond the nearest hit skipped,
+    primitives tested with the tie-inclusive limit ``ulp_above(best_t)`` and kept
+    by :func:`.primitives.closer`.  Any hit (``any_hit`` True, a constant the
+    compiler folds): children in slot order, primitives tested within (tmin,
+    tmax), stops at the first hit (prim ≥ 0 then says "hit").  Arrays: the
+    :class:`impl.accel.Accel` fields and their views (:func:`_bind`); the ray in
+    R's precision."""
     nodes = tests = 0
     fox, foy, foz = float(ox), float(oy), float(oz)
     ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
     ftmin = float(tmin)
+    ns = sr.shape[0]
     nx, ny, nz, fx, fy, fz = _planes(ix, iy, iz)
     stack_n = stack_i64()
     stack_t = stack_f64()
     tn = stack_f64()
     stack_n[0], stack_t[0] = ref0, t0
     sp = 1
+    zero = like(tmax, 0.0)
     while sp > 0:
         sp -= 1
         ref = stack_n[sp]
-        if stack_t[sp] > float(best_t):          # entered beyond the nearest hit: skip
+        if not any_hit and stack_t[sp] > float(best_t):  # entered beyond the nearest hit
             continue
         nodes += 1
         if ref < 0:
-            # Leaf: the brute-force test of each primitive, tie-inclusive tmax.
             s = -ref - 1
-            for k in range(na[s], na[s] + nb[s]):
-                p = idx[k]
-                tests += 1
-                t, b1, b2 = _prim(form, sc, sr, tv, p, ox, oy, oz, dx, dy, dz, tmin, ulp_above(best_t))
-                if closer(t, p, best_t, best_p):
-                    best_t, best_p, bb1, bb2 = t, p, b1, b2
+            lim = tmax if any_hit else ulp_above(best_t)
+            if ns > 0:                           # spheres: the scalar brute-force test
+                for k in range(na[s], na[s] + nb[s]):
+                    p = idx[k]
+                    if p < ns:
+                        tests += 1
+                        t = ray_sphere_form(form, ox, oy, oz, dx, dy, dz, sc[p, 0], sc[p, 1],
+                                            sc[p, 2], sr[p], tmin, lim)
+                        if any_hit:
+                            if t > zero:
+                                return t, p, zero, zero, nodes, tests
+                        elif closer(t, p, best_t, best_p):
+                            best_t, best_p, bb1, bb2 = t, p, zero, zero
+            for g in range(grp[s], grp[s + 1]):  # triangles: LANES at a time
+                m = _tri_lanes(tri, tri_off + g * _TRI_WORDS, ox, oy, oz, dx, dy, dz, tmin, lim, tn)
+                for k in range(LANES):
+                    tests += ids[g * LANES + k] >= 0
+                    if m & (1 << k):
+                        p = ids[g * LANES + k]
+                        t = like(tmax, tn[k])
+                        if any_hit:
+                            return t, p, zero, zero, nodes, tests
+                        if closer(t, p, best_t, best_p):
+                            best_t, best_p = t, p
+                            bb1, bb2 = like(tmax, tn[LANES + k]), like(tmax, tn[2 * LANES + k])
             continue
-        # Interior: all W boxes in one loop, then push the entered ones nearest on top.
+        # Interior: all W boxes in one vector test, then push the entered ones.
         mask = _enter_all(box, ref * _PLANES, nx, ny, nz, fx, fy, fz, fox, foy, foz, ix, iy, iz,
                           ftmin, float(best_t), tn)
         sp0 = sp
@@ -357,106 +519,139 @@ def _walk(R, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_p, bb1, bb2):
                 s = ref * WIDTH + k
                 c = na[s] if nb[s] < 0 else -s - 1
                 j = sp
-                while j > sp0 and stack_t[j - 1] < tc:
-                    stack_t[j] = stack_t[j - 1]
-                    stack_n[j] = stack_n[j - 1]
-                    j -= 1
+                if not any_hit:                  # nearest on top
+                    while j > sp0 and stack_t[j - 1] < tc:
+                        stack_t[j] = stack_t[j - 1]
+                        stack_n[j] = stack_n[j - 1]
+                        j -= 1
                 stack_t[j] = tc
                 stack_n[j] = c
                 sp += 1
     return best_t, best_p, bb1, bb2, nodes, tests
 
 
+@njit(inline="always", cache=True)
+def _bind(R):
+    """R's wide-BVH arrays and views, bound once per batch: ``(lo, hi, na, nb, idx, box,
+    tri, tri_off, grp, ids)`` (binding the whole configuration per ray would
+    increment and decrement the reference count of each of its arrays, atomic
+    operations that the threads tracing in parallel contend for)."""
+    ai = R.acc_i
+    S = ai[2]
+    return (R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx, R.acc_f.view(np.float32),
+            _as_precision(R.acc_f, R.sph_radius), ai[1], ai[3:4 + S], ai[4 + S:])
+
+
 @njit(inline="always", cache=True, error_model="numpy")
-def _any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
-    ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
-    if box_enter(R.node_lo, R.node_hi, 0, float(ox), float(oy), float(oz), ix, iy, iz,
-                 float(tmin), float(tmax)) == math.inf:
-        return False, 1, 0
-    return _any_from(R, 0, ox, oy, oz, dx, dy, dz, tmin, tmax)
+def _query(lo, hi, na, nb, idx, box, tri, tri_off, grp, ids, form, sc, sr, tv,
+           ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
+    """One ray from the root (root box test, then :func:`_trace`)."""
+    zero = like(tmax, 0.0)
+    t_root = box_enter(lo, hi, 0, float(ox), float(oy), float(oz), 1.0 / float(dx),
+                       1.0 / float(dy), 1.0 / float(dz), float(tmin), float(tmax))
+    if t_root == math.inf:
+        return tmax, -1, zero, zero, 1, 0
+    return _trace(na, nb, idx, box, tri, tri_off, grp, ids, form, sc, sr, tv, 0, t_root,
+                  ox, oy, oz, dx, dy, dz, tmin, tmax, tmax, -1, zero, zero, any_hit)
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _walk(R, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_p, bb1, bb2):
+    """Closest-hit traversal of the subtree ``ref0`` entered at ``t0`` from the hit so
+    far (the packets' single-ray continuation): see :func:`_trace`."""
+    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
+    return _trace(na, nb, idx, box, tri, tri_off, grp, ids, R.form, R.sph_center, R.sph_radius,
+                  R.tri_v, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_t, best_p,
+                  bb1, bb2, False)
 
 
 @njit(inline="always", cache=True, error_model="numpy")
 def _any_from(R, ref0, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Any-hit traversal of the subtree ``ref0`` (see :func:`_walk`)."""
-    na, nb, idx = R.node_a, R.node_b, R.prim_idx
-    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
-    box = R.acc_f.view(np.float32)
-    nodes = tests = 0
-    fox, foy, foz = float(ox), float(oy), float(oz)
-    ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
-    ftmin, ftmax = float(tmin), float(tmax)
-    nx, ny, nz, fx, fy, fz = _planes(ix, iy, iz)
-    stack_n = stack_i64()
-    tn = stack_f64()
-    stack_n[0] = ref0
-    sp = 1
+    """Any-hit traversal of the subtree ``ref0``: ``(hit, nodes_visited, prim_tests)``."""
+    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
     zero = like(tmax, 0.0)
-    while sp > 0:
-        sp -= 1
-        ref = stack_n[sp]
-        nodes += 1
-        if ref < 0:
-            s = -ref - 1
-            for k in range(na[s], na[s] + nb[s]):
-                tests += 1
-                t, b1, b2 = _prim(form, sc, sr, tv, idx[k], ox, oy, oz, dx, dy, dz, tmin, tmax)
-                if t > zero:
-                    return True, nodes, tests
-            continue
-        mask = _enter_all(box, ref * _PLANES, nx, ny, nz, fx, fy, fz, fox, foy, foz, ix, iy, iz,
-                          ftmin, ftmax, tn)
-        for k in range(WIDTH):
-            if mask & (1 << k):
-                s = ref * WIDTH + k
-                stack_n[sp] = na[s] if nb[s] < 0 else -s - 1
-                sp += 1
-    return False, nodes, tests
+    _, p, _, _, nodes, tests = _trace(na, nb, idx, box, tri, tri_off, grp, ids, R.form,
+                                      R.sph_center, R.sph_radius, R.tri_v, ref0, -math.inf,
+                                      ox, oy, oz, dx, dy, dz, tmin, tmax, tmax, -1, zero, zero,
+                                      True)
+    return p >= 0, nodes, tests
 
 
 @njit(cache=True, error_model="numpy")
 def wide_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and t in
     R's precision, prim = -1 on a miss (nodes: wide nodes and leaves opened)."""
-    return _closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
+    return _query(lo, hi, na, nb, idx, box, tri, tri_off, grp, ids, R.form, R.sph_center,
+                  R.sph_radius, R.tri_v, ox, oy, oz, dx, dy, dz, tmin, tmax, False)
 
 
 @njit(cache=True, error_model="numpy")
 def wide_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
-    return _any(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
+    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
+    _, p, _, _, nodes, tests = _query(lo, hi, na, nb, idx, box, tri, tri_off, grp, ids, R.form,
+                                      R.sph_center, R.sph_radius, R.tri_v, ox, oy, oz, dx, dy,
+                                      dz, tmin, tmax, True)
+    return p >= 0, nodes, tests
 
 
 # ------------------------------------------------------------------ batches ---
-# The traversal is inlined into the parallel loop: the configuration's arrays are
-# then bound once per thread, not once per ray (each binding is an atomic
-# reference-count update the threads contend for).
+# A batch binds the configuration's arrays once and runs the traversal inlined
+# in its loop over the rays.
+
+@njit(cache=True, error_model="numpy")
+def wide_closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2):
+    """Closest hits of the N rays given as float64 arrays (N,), one after the other
+    (the tracers' batches, inside their own parallel loop): each ray rounded to R's
+    precision as :func:`impl.rays.hit` rounds it; ``out_t`` (tmax on a miss),
+    ``out_b1``, ``out_b2`` float64 (N,), ``out_prim`` int64 (N,) (-1 on a miss)."""
+    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    for i in range(ox.shape[0]):
+        t, p, b1, b2, _, _ = _query(lo, hi, na, nb, idx, box, tri, tri_off, grp, ids, form,
+                                    sc, sr, tv, like(sr, ox[i]), like(sr, oy[i]),
+                                    like(sr, oz[i]), like(sr, dx[i]), like(sr, dy[i]),
+                                    like(sr, dz[i]), like(sr, tmin[i]), like(sr, tmax[i]), False)
+        out_t[i], out_prim[i], out_b1[i], out_b2[i] = float(t), p, float(b1), float(b2)
+
+
+@njit(cache=True, error_model="numpy")
+def wide_occluded_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
+    """Any-hit of the N rays (float64 arrays (N,)) within (tmin[i], tmax[i]), one after
+    the other: ``out_hit`` bool (N,)."""
+    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
+    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    for i in range(ox.shape[0]):
+        _, p, _, _, _, _ = _query(lo, hi, na, nb, idx, box, tri, tri_off, grp, ids, form,
+                                  sc, sr, tv, like(sr, ox[i]), like(sr, oy[i]),
+                                  like(sr, oz[i]), like(sr, dx[i]), like(sr, dy[i]),
+                                  like(sr, dz[i]), like(sr, tmin[i]), like(sr, tmax[i]), True)
+        out_hit[i] = p >= 0
+
+
+#: Rays per parallel task of the batch entry points.
+CHUNK = 256
+
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def wide_closest_batch(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2):
-    """Closest hits of the N rays given as SoA float64 arrays (N,), in parallel, through
-    R's wide BVH (``R.accel`` = WIDE): each ray rounded to R's precision as
-    :func:`impl.rays.hit` rounds it; ``out_t`` (tmax on a miss), ``out_b1``,
-    ``out_b2`` float64 (N,), ``out_prim`` int64 (N,) (-1 on a miss)."""
-    g = R.sph_radius
-    for i in prange(ox.shape[0]):
-        t, p, b1, b2, _, _ = _closest(R, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
-                                      like(g, dx[i]), like(g, dy[i]), like(g, dz[i]),
-                                      like(g, tmin[i]), like(g, tmax[i]))
-        out_t[i], out_prim[i], out_b1[i], out_b2[i] = float(t), p, float(b1), float(b2)
+    """:func:`wide_closest_rays` in parallel (chunks of :data:`CHUNK` rays)."""
+    n = ox.shape[0]
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        a, e = c * CHUNK, min(n, (c + 1) * CHUNK)
+        wide_closest_rays(R, ox[a:e], oy[a:e], oz[a:e], dx[a:e], dy[a:e], dz[a:e], tmin[a:e],
+                          tmax[a:e], out_t[a:e], out_prim[a:e], out_b1[a:e], out_b2[a:e])
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def wide_occluded_batch(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
-    """Any-hit of the N rays (SoA float64 arrays (N,)) within (tmin[i], tmax[i]) through
-    R's wide BVH, in parallel: ``out_hit`` bool (N,)."""
-    g = R.sph_radius
-    for i in prange(ox.shape[0]):
-        h, _, _ = _any(R, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
-                       like(g, dx[i]), like(g, dy[i]), like(g, dz[i]),
-                       like(g, tmin[i]), like(g, tmax[i]))
-        out_hit[i] = h
+    """:func:`wide_occluded_rays` in parallel (chunks of :data:`CHUNK` rays)."""
+    n = ox.shape[0]
+    for c in prange((n + CHUNK - 1) // CHUNK):
+        a, e = c * CHUNK, min(n, (c + 1) * CHUNK)
+        wide_occluded_rays(R, ox[a:e], oy[a:e], oz[a:e], dx[a:e], dy[a:e], dz[a:e], tmin[a:e],
+                           tmax[a:e], out_hit[a:e])
 
 
 # ------------------------------------------------------------------ packets ---
