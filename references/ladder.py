@@ -7,7 +7,9 @@ integrator, box filter) and one of Mitsuba's samplers (:data:`SAMPLERS`:
 jittered strata; ``ldsampler``, a scrambled (0, 2)-sequence), with seeds
 from :data:`LADDER_SEED` on — independent of every reference pass seed (those
 are derived by hashing), so ladder and reference noise are independent.
-Times: one untimed warm-up render per spp (kernel compilation), then
+Times: two untimed warm-up renders per spp with different seeds (kernel
+compilation, and the recompilation Dr.Jit may do when a baked-in seed
+changes, which would otherwise land in the first timed render), then
 ``repeats`` renders with the seeds ``LADDER_SEED + 1 .. LADDER_SEED +
 repeats`` (the render time does not depend on the seed, so the timed renders
 also give ``repeats`` independent images for the error's mean and spread),
@@ -28,9 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["render_ladder", "prepare_ladder", "Rung", "LADDER_SEED", "SAMPLERS", "sampler_spec"]
+__all__ = ["render_ladder", "prepare_ladder", "Rung", "LADDER_SEED", "WARMUP_SEEDS", "SAMPLERS",
+           "sampler_spec"]
 
 LADDER_SEED = 987654
+#: Seeds of a rung's two untimed warm-up renders (apart from the timed ones).
+WARMUP_SEEDS = (LADDER_SEED, LADDER_SEED - 1)
 #: Mitsuba's samplers a ladder may use.  ``stratified`` and ``multijitter`` round the
 #: sample count up to a square, ``ldsampler`` to a square power of two above 1: a ladder
 #: of powers of 4 from 4 on renders exactly its spp with all four.
@@ -72,9 +77,9 @@ class Rung:
 
 def prepare_ladder(scene_path, *, transport: str, spps=(1, 4, 16, 64), defines: dict | None = None,
                    sampler: str = "independent") -> list[Rung]:
-    """The rungs of ``spps`` with ``sampler``, each loaded and rendered once untimed (the
-    warm-up: kernel compilation), ready for timed renders in any order; a rung whose
-    rendered count equals an earlier one's is dropped."""
+    """The rungs of ``spps`` with ``sampler``, each loaded and rendered twice untimed
+    (:data:`WARMUP_SEEDS`; ``warmup_s`` their total), ready for timed renders in any
+    order; a rung whose rendered count equals an earlier one's is dropped."""
     import drjit as dr
 
     from .mitsuba_env import load_mitsuba
@@ -96,7 +101,10 @@ def prepare_ladder(scene_path, *, transport: str, spps=(1, 4, 16, 64), defines: 
         if any(r.spp == actual for r in out):
             continue
         rung = Rung(mi, dr, scene, spp=actual, requested_spp=spp, sampler=sampler, warmup_s=0.0)
-        rung.warmup_s = rung.render(LADDER_SEED)[1]
+        # Two warm-up renders with different seeds: Dr.Jit compiles the kernel on the
+        # first, and may compile it once more when a scalar it baked in (the seed)
+        # changes; both compilations must happen before the timed renders.
+        rung.warmup_s = sum(rung.render(s)[1] for s in WARMUP_SEEDS)
         out.append(rung)
     return out
 

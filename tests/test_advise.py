@@ -146,8 +146,11 @@ def test_choose_sampler_picks_the_most_efficient_and_caches(tmp_path, monkeypatc
     c = gl.choose_sampler("scene.xml", transport="full", reference=Ref(), cache=cache, repeats=2)
     # relMSE ~ noise^2: multijitter 0.01 x 1.5 beats ldsampler 0.0225 x 1.0.
     assert c["sampler"] == "multijitter" and not c["cached"] and len(calls) == 8
-    # The probe's seeds are apart from the ladder's (LADDER_SEED + 1 .. + repeats).
+    # The probe's seeds are apart from the ladder's (LADDER_SEED + 1 .. + repeats), and
+    # so are a rung's two warm-up seeds.
     assert {s for _, _, s in calls} == {LADDER_SEED + gl.PROBE_SEED_OFFSET + k for k in range(2)}
+    from references.ladder import WARMUP_SEEDS
+    assert len(set(WARMUP_SEEDS)) == 2 and not set(WARMUP_SEEDS) & set(range(LADDER_SEED + 1, LADDER_SEED + 100))
     assert set(json.loads(cache.read_text())["key"]["candidates"]) == set(noise)
     c = gl.choose_sampler("scene.xml", transport="full", reference=Ref(), cache=cache)
     assert c["cached"] and c["sampler"] == "multijitter" and len(calls) == 8
