@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import statistics
 import sys
 import time
 import tomllib
@@ -343,92 +344,343 @@ def _checks(case: Case, metrics: dict) -> list[dict]:
     return checks
 
 
-def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_timing: bool,
-             timing_cache: dict, reference_store=None, log=print,
-             defines: dict | None = None, seed: int = 0, repeats: int | None = None,
-             judge: bool = True) -> Record:
-    """Run one case and return its result record (never raises for a bad case:
-    the record's ``error`` names the cause).  ``defines`` overrides the scene's
-    ``<default>`` values in both the own render and the reference (``-D``);
-    ``seed`` is the own render's seed; ``repeats`` the timed renders after a
-    warm-up (default ``suite.repeats``; 0: one render without warm-up, whose
-    time may include compilation); ``judge=False`` records the metrics without the
-    case's checks (a finite image is still required)."""
-    from references.motion_blur import has_motion
-    from references.reference import DEFAULT_STORE, get_reference, time_mitsuba
-    from reports.metrics import compare
+class _CaseRun:
+    """One case's steps, so that its timed renders can be interleaved with Mitsuba's:
+    :meth:`setup` (algorithm, parameters, scene, reference), :meth:`render` (one
+    render, timed), :meth:`finish` (images, metrics, timing, checks).  A
+    :class:`core.errors.GibenchError` or ``OSError`` in any step becomes the
+    record's ``error`` (:meth:`fail`)."""
 
-    record = Record(run_id=run_id, suite=suite.name, scene=case.scene_id,
-                    scene_file=_rel(case.scene), algorithm=case.algorithm, label=case.label,
-                    params=dict(case.params), defines=dict(defines or {}), seed=seed,
-                    transport=case.transport, expect=case.expect,
-                    model_error=case.expect == "model-error", versions=versions(),
-                    commit=git_commit(), machine=machine(), created=utc_now())
-    try:
-        algo = registry.get(case.algorithm)
-        params = algo.parse_params(case.params)
-        record.params = params
-        record.external = registry.provenance(case.algorithm, params, defines=defines)
-        scene = load_scene(case.scene, defines=defines)
-        ref = get_reference(case.scene, transport=case.transport, spp=suite.reference_spp,
-                            passes=suite.reference_passes, store=reference_store or DEFAULT_STORE,
-                            defines=defines)
+    def __init__(self, case: Case, suite: Suite, *, run_id: str, out_dir: Path, reference_store=None,
+                 defines: dict | None = None, seed: int = 0):
+        self.case, self.suite, self.out_dir, self.seed = case, suite, out_dir, seed
+        self.defines, self.reference_store = defines, reference_store
+        self.record = Record(run_id=run_id, suite=suite.name, scene=case.scene_id,
+                             scene_file=_rel(case.scene), algorithm=case.algorithm, label=case.label,
+                             params=dict(case.params), defines=dict(defines or {}), seed=seed,
+                             transport=case.transport, expect=case.expect,
+                             model_error=case.expect == "model-error", versions=versions(),
+                             commit=git_commit(), machine=machine(), created=utc_now())
+        self.algo = self.params = self.scene = self.ref = None
+
+    def setup(self) -> None:
+        from references.reference import DEFAULT_STORE, get_reference
+
+        case, record = self.case, self.record
+        self.algo = registry.get(case.algorithm)
+        self.params = self.algo.parse_params(case.params)
+        record.params = self.params
+        record.external = registry.provenance(case.algorithm, self.params, defines=self.defines)
+        self.scene = load_scene(case.scene, defines=self.defines)
+        self.ref = ref = get_reference(case.scene, transport=case.transport, spp=self.suite.reference_spp,
+                                       passes=self.suite.reference_passes,
+                                       store=self.reference_store or DEFAULT_STORE, defines=self.defines)
         record.reference = {"key": ref.key, "dir": _rel(ref.directory),
-                               "image": _rel(ref.directory / "image.exr"),
-                               "variance": _rel(ref.directory / "variance.exr"),
-                               "spp": ref.manifest.get("spp"), "variant": ref.manifest.get("variant"),
-                               "integrator": case.transport}
-        if repeats == 0:                 # an extra seed: one render, for its error only
-            t0 = time.perf_counter()
-            result = algo.render(scene, params, seed=seed)
-            t = time.perf_counter() - t0
-            timing = {"own_median_s": t, "own_times_s": [t], "repeats": 1, "warmup": False}
-        else:
-            result, timing = render_timed(algo, scene, params, seed=seed,
-                                          repeats=repeats or suite.repeats)
-        suffix = f".seed{seed}" if seed else ""
-        image_path = out_dir / f"{case.name}{suffix}.exr"
+                            "image": _rel(ref.directory / "image.exr"),
+                            "variance": _rel(ref.directory / "variance.exr"),
+                            "spp": ref.manifest.get("spp"), "variant": ref.manifest.get("variant"),
+                            "integrator": case.transport}
+
+    @property
+    def spp(self) -> int:
+        """The case's samples per pixel (1 for an algorithm without an spp parameter)."""
+        return self.params.get(self.algo.spp_param, 1) if self.algo.spp_param else 1
+
+    def render(self):
+        """One render with the case's seed: ``(result, seconds)``."""
+        t0 = time.perf_counter()
+        result = self.algo.render(self.scene, self.params, seed=self.seed)
+        return result, time.perf_counter() - t0
+
+    def finish(self, result, timing: dict, *, judge: bool = True) -> Record:
+        from reports.metrics import compare
+
+        case, record, ref = self.case, self.record, self.ref
+        suffix = f".seed{self.seed}" if self.seed else ""
+        image_path = self.out_dir / f"{case.name}{suffix}.exr"
         write_exr(image_path, result.image)
         record.image = _rel(image_path)
         record.variance = None
         if result.variance is not None:
-            var_path = out_dir / f"{case.name}{suffix}.var.exr"
+            var_path = self.out_dir / f"{case.name}{suffix}.var.exr"
             write_exr(var_path, result.variance)
             record.variance = _rel(var_path)
         record.counters = result.counters
         record.metrics = compare(ref.image, result.image, reference_variance=ref.variance,
-                                    test_variance=result.variance, allow_nonfinite=True)
+                                 test_variance=result.variance, allow_nonfinite=True)
         if ref.variance is not None:
             from reports.pareto import noise_floor_relmse
 
             record.metrics["noise_floor_relmse"] = noise_floor_relmse(ref.image, ref.variance)
-        if mitsuba_timing and has_motion(case.scene):
-            timing["mitsuba_skipped"] = ("moving spheres: Mitsuba 3 cannot move shapes, so it "
-                                         "has no equal-work render to time")
-        elif mitsuba_timing:
-            spp = params.get(algo.spp_param, 1) if algo.spp_param else 1
-            key = (str(case.scene), case.transport, spp)
-            if key not in timing_cache:
-                timing_cache[key] = time_mitsuba(case.scene, transport=case.transport, spp=spp,
-                                                 repeats=suite.repeats, defines=defines)
-            mt = timing_cache[key]
-            timing.update(mitsuba_median_s=mt["median_s"], mitsuba_spp=mt["spp"],
-                          mitsuba_variant=mt.get("variant"),
-                          ratio=timing["own_median_s"] / mt["median_s"] if mt["median_s"] > 0 else None)
         record.time = timing
         m = record.metrics
         if m["nan_count"] or m["inf_count"]:
             record.checks = [{"name": "finite image", "expected": "pass", "passed": False,
-                                 "detail": f"{m['nan_count']} NaN, {m['inf_count']} Inf"}]
+                              "detail": f"{m['nan_count']} NaN, {m['inf_count']} Inf"}]
         else:
             record.checks = [] if case.expect == "model-error" or not judge else _checks(case, m)
-    except (GibenchError, OSError) as exc:
-        record.error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        return record
+
+    def fail(self, exc, log=None) -> Record:
+        self.record.error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
         if log:
-            log(f"  error: {record.error}")
+            log(f"  error: {self.record.error}")
             if "GIBENCH_TRACEBACK" in __import__("os").environ:
                 traceback.print_exc(file=sys.stderr)
-    return record
+        return self.record
+
+
+_MOTION_SKIP = "moving spheres: Mitsuba 3 cannot move shapes, so it has no equal-work render to time"
+
+
+def run_case(case: Case, suite: Suite, *, run_id: str, out_dir: Path, mitsuba_timing: bool,
+             timing_cache: dict, reference_store=None, log=print,
+             defines: dict | None = None, seed: int = 0, repeats: int | None = None,
+             judge: bool = True) -> Record:
+    """Run one case on its own and return its result record (never raises for a bad
+    case: the record's ``error`` names the cause).  ``defines`` overrides the scene's
+    ``<default>`` values in both the own render and the reference (``-D``);
+    ``seed`` is the own render's seed; ``repeats`` the timed renders after a
+    warm-up (default ``suite.repeats``; 0: one render without warm-up, whose
+    time may include compilation); ``judge=False`` records the metrics without the
+    case's checks (a finite image is still required).  Mitsuba's equal-spp
+    timing (``mitsuba_timing``) runs after the own renders: :func:`run_scene`
+    interleaves the two instead."""
+    from references.motion_blur import has_motion
+    from references.reference import time_mitsuba
+
+    run = _CaseRun(case, suite, run_id=run_id, out_dir=out_dir, reference_store=reference_store,
+                   defines=defines, seed=seed)
+    try:
+        run.setup()
+        if repeats == 0:                 # an extra seed: one render, for its error only
+            result, t = run.render()
+            timing = {"own_median_s": t, "own_times_s": [t], "repeats": 1, "warmup": False}
+        else:
+            result, timing = render_timed(run.algo, run.scene, run.params, seed=seed,
+                                          repeats=repeats or suite.repeats)
+            timing.update(own_min_s=min(timing["own_times_s"]), own_max_s=max(timing["own_times_s"]))
+        if mitsuba_timing and has_motion(case.scene):
+            timing["mitsuba_skipped"] = _MOTION_SKIP
+        elif mitsuba_timing:
+            key = (str(case.scene), case.transport, run.spp)
+            if key not in timing_cache:
+                timing_cache[key] = time_mitsuba(case.scene, transport=case.transport, spp=run.spp,
+                                                 repeats=suite.repeats, defines=defines)
+            mt = timing_cache[key]
+            timing.update(mitsuba_median_s=mt["median_s"], mitsuba_times_s=mt["times_s"],
+                          mitsuba_min_s=min(mt["times_s"]), mitsuba_max_s=max(mt["times_s"]),
+                          mitsuba_spp=mt["spp"], mitsuba_variant=mt.get("variant"),
+                          interleaved=False,
+                          ratio=timing["own_median_s"] / mt["median_s"] if mt["median_s"] > 0 else None)
+        return run.finish(result, timing, judge=judge)
+    except (GibenchError, OSError) as exc:
+        return run.fail(exc, log)
+
+
+def _ladder_base(suite, scene, scene_id, transport, run_id, defines) -> dict:
+    return dict(run_id=run_id, suite=suite.name, kind="ladder", scene=scene_id,
+                scene_file=_rel(scene), algorithm="mitsuba", transport=transport,
+                defines=dict(defines or {}), versions=versions(), commit=git_commit(),
+                machine=machine(), created=utc_now())
+
+
+def _log_choice(log, scene_id, transport, choice) -> None:
+    if not (log and choice["candidates"]):
+        return
+    for spp, table in (choice.get("probes") or {str(choice["probe_spp"]): choice["candidates"]}).items():
+        log(f"  ladder {scene_id} ({transport}): probe at {spp} spp: "
+            + ", ".join(f"{k} relMSE {v['relmse']:.3g} in {v['median_s'] * 1e3:.0f} ms"
+                        for k, v in table.items())
+            + f" -> {(choice.get('best_by_spp') or {}).get(spp, choice['sampler'])}")
+    log(f"  ladder {scene_id} ({transport}): sampler {choice['sampler']} (best at "
+        f"{choice['probe_spp']} spp{'; cached' if choice['cached'] else ''})")
+
+
+def _ladder_record(base, ref, choice, pt, repeats) -> Record:
+    from reports.pareto import noise_floor_relmse
+
+    if ref.variance is not None:
+        pt["metrics"]["noise_floor_relmse"] = noise_floor_relmse(ref.image, ref.variance)
+    params = {"spp": pt["spp"], "sampler": choice["sampler"]}
+    if choice["candidates"]:
+        params.update(sampler_probe=choice["candidates"], probe_spp=choice["probe_spp"])
+        if choice.get("best_by_spp"):
+            params["sampler_best_by_spp"] = choice["best_by_spp"]
+    times = pt["times_s"]
+    timing = {"own_median_s": pt["median_s"], "own_times_s": times, "own_min_s": min(times),
+              "own_max_s": max(times), "repeats": repeats, "variant": pt["variant"],
+              "sampler": pt["sampler"]}
+    timing.update(pt.get("timing") or {})
+    return Record(**base, label=f"Mitsuba {base['transport']} {pt['spp']} spp",
+                  params=params, metrics=pt["metrics"], time=timing,
+                  reference={"key": ref.key, "dir": _rel(ref.directory),
+                             "spp": ref.manifest.get("spp")},
+                  ladder_spp=pt["spp"], mitsuba=pt["mitsuba"])
+
+
+def run_scene(cases: list[Case], suite: Suite, *, run_id: str, out_dir: Path, mitsuba_timing: bool,
+              ladder: bool, reference_store=None, log=print, defines: dict | None = None,
+              seed: int = 0, sampler_cache=None, group: str = "") -> list[Record]:
+    """The cases of one scene and that scene's Mitsuba timings, timed side by side.
+
+    Every case (seed ``seed``), Mitsuba's equal-spp render of each (transport,
+    spp) when ``mitsuba_timing``, and each rung of Mitsuba's spp ladder of each
+    transport when ``ladder`` (the sampler: :func:`gibench.ladder.choose_sampler`
+    probed at :func:`gibench.ladder.probe_spps` of the ladder) is set up and
+    rendered once untimed (warm-up), then all are timed in ``suite.repeats``
+    rounds in which own and Mitsuba renders alternate
+    (:func:`gibench.interleave.run_rounds`): both sides are timed under the
+    same machine load.  Each record's ``time`` keeps the per-round times, their
+    min / median / max, ``interleaved``, ``timing_group`` (shared by the
+    records timed together) and the load average before and after; a case's
+    equal-spp ``ratio`` is the ratio of the medians, ``ratio_rounds`` the paired
+    per-round ratios.  Then the extra seeds ``seed + 1 .. seed + suite.seeds - 1``
+    render once each (error spread, untimed).  Returns the case records in
+    ``cases`` order, then the extra seeds', then the ladder records.
+    """
+    from references.ladder import LADDER_SEED, prepare_ladder
+    from references.motion_blur import has_motion
+    from references.reference import DEFAULT_STORE, get_reference, prepare_timing
+
+    from .interleave import Timed, paired_ratios, run_rounds
+    from .ladder import SAMPLER_CACHE, choose_sampler, probe_spps, rung_metrics
+
+    tasks: list[Timed] = []
+    runs, results, failed = [], {}, []
+    # Own cases: set up and warm up (JIT compile or cache load).
+    for n, case in enumerate(cases):
+        run = _CaseRun(case, suite, run_id=run_id, out_dir=out_dir, reference_store=reference_store,
+                       defines=defines, seed=seed)
+        run.index = n
+        try:
+            run.setup()
+            t0 = time.perf_counter()
+            results[id(run)] = run.render()[0]
+            run.warmup_s = time.perf_counter() - t0
+            run.phases = {}
+        except (GibenchError, OSError) as exc:
+            failed.append((n, run.fail(exc, log)))
+            continue
+        runs.append(run)
+
+        def own(k, run=run):
+            result, dt = run.render()
+            results[id(run)] = result
+            for p, v in (result.timings or {}).items():
+                run.phases.setdefault(p, []).append(float(v))
+            return dt
+        tasks.append(Timed(f"{case.label} ({case.transport})", "own", own))
+    # Mitsuba at the cases' spp (the equal-spp ratio).
+    equal_spp: dict = {}
+    mi_errors: dict = {}
+    if mitsuba_timing:
+        for run in runs:
+            key = (run.case.transport, run.spp)
+            if has_motion(run.case.scene) or key in equal_spp or key in mi_errors:
+                continue
+            try:
+                render, info = prepare_timing(run.case.scene, transport=key[0], spp=key[1],
+                                              defines=defines)
+            except (GibenchError, OSError) as exc:
+                mi_errors[key] = exc
+                continue
+            equal_spp[key] = info
+            tasks.append(Timed(f"Mitsuba {key[0]} {key[1]} spp", "mitsuba", lambda k, r=render: r()))
+    # Mitsuba's ladder of each transport, with its best sampler.
+    ladders, ladder_recs = [], []
+    if ladder and suite.ladder:
+        scene = cases[0].scene
+        for transport in dict.fromkeys(c.transport for c in cases):
+            base = _ladder_base(suite, scene, cases[0].scene_id, transport, run_id, defines)
+            try:
+                if has_motion(scene):
+                    raise UnsupportedError("moving spheres: Mitsuba 3 cannot move shapes, so it has "
+                                           "no spp ladder for this scene")
+                ref = get_reference(scene, transport=transport, spp=suite.reference_spp,
+                                    passes=suite.reference_passes,
+                                    store=reference_store or DEFAULT_STORE, defines=defines)
+                choice = choose_sampler(scene, transport=transport, reference=ref,
+                                        candidates=suite.ladder_samplers,
+                                        probe_spp=probe_spps(suite.ladder), defines=defines,
+                                        cache=sampler_cache if sampler_cache is not None else SAMPLER_CACHE)
+                _log_choice(log, cases[0].scene_id, transport, choice)
+                rungs = prepare_ladder(scene, transport=transport, spps=suite.ladder, defines=defines,
+                                       sampler=choice["sampler"])
+            except (GibenchError, OSError) as exc:
+                msg = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+                if log:
+                    log(f"  ladder {cases[0].scene_id} ({transport}): error: {msg}")
+                ladder_recs.append(Record(**base, label=f"Mitsuba {transport}", error=msg))
+                continue
+            for rung in rungs:
+                images: list = []
+
+                def mi_rung(k, rung=rung, images=images):
+                    img, dt = rung.render(LADDER_SEED + 1 + k)
+                    images.append(img)
+                    return dt
+                ladders.append((base, ref, choice, rung, images, len(tasks)))
+                tasks.append(Timed(f"Mitsuba {transport} {rung.spp} spp ({rung.sampler})", "mitsuba",
+                                   mi_rung))
+    # The timed rounds: own and Mitsuba renders alternate.
+    timed = run_rounds(tasks, suite.repeats) if tasks else {"times": [], "order": [], "load": []}
+    group_info = {"interleaved": True, "timing_group": group, "timing_order": timed["order"],
+                  "load_1min": timed["load"]}
+    times = timed["times"]
+    out = []
+    mi_times = {}
+    k = len(runs)
+    for key in equal_spp:
+        mi_times[key] = times[k]
+        k += 1
+    for i, run in enumerate(runs):
+        own_t = times[i]
+        timing = {"own_median_s": statistics.median(own_t), "own_times_s": own_t,
+                  "own_min_s": min(own_t), "own_max_s": max(own_t), "warmup_s": run.warmup_s,
+                  "compile_s": max(run.warmup_s - statistics.median(own_t), 0.0),
+                  "repeats": suite.repeats}
+        timing.update({f"own_{p}": statistics.median(v) for p, v in run.phases.items()})
+        timing.update(group_info)
+        key = (run.case.transport, run.spp)
+        try:
+            if mitsuba_timing and has_motion(run.case.scene):
+                timing["mitsuba_skipped"] = _MOTION_SKIP
+            elif key in mi_errors:
+                raise mi_errors[key]
+            elif key in mi_times:
+                mt, info = mi_times[key], equal_spp[key]
+                med = statistics.median(mt)
+                rr = paired_ratios(own_t, mt)
+                timing.update(mitsuba_median_s=med, mitsuba_times_s=mt, mitsuba_min_s=min(mt),
+                              mitsuba_max_s=max(mt), mitsuba_spp=info["spp"],
+                              mitsuba_variant=info.get("variant"),
+                              ratio=timing["own_median_s"] / med if med > 0 else None,
+                              ratio_rounds=rr, ratio_min=min(rr) if rr else None,
+                              ratio_max=max(rr) if rr else None)
+            out.append((run.index, run.finish(results[id(run)], timing)))
+        except (GibenchError, OSError) as exc:
+            out.append((run.index, run.fail(exc, log)))
+    # The cases in the given order (failed ones included).
+    out = [rec for _, rec in sorted(out + failed, key=lambda x: x[0])]
+    # Extra seeds: the error's spread (untimed, unjudged).
+    for case in cases:
+        for j in range(1, suite.seeds):
+            out.append(run_case(case, suite, run_id=run_id, out_dir=out_dir, mitsuba_timing=False,
+                                timing_cache={}, reference_store=reference_store, log=log,
+                                defines=defines, seed=seed + j, repeats=0, judge=False))
+    # The ladder's records, from the rounds' renders.
+    for base, ref, choice, rung, images, idx in ladders:
+        pt = {"spp": rung.spp, "median_s": statistics.median(times[idx]), "times_s": times[idx],
+              "variant": rung.variant, "mitsuba": rung.mitsuba, "sampler": rung.sampler,
+              "metrics": rung_metrics(ref, images), "timing": dict(group_info, warmup_s=rung.warmup_s)}
+        rec = _ladder_record(base, ref, choice, pt, suite.repeats)
+        ladder_recs.append(rec)
+        if log:
+            log(f"  ladder {base['scene']} ({base['transport']}, {rung.sampler}) {rung.spp} spp: relMSE "
+                f"{pt['metrics']['relmse']:.3g}, {pt['median_s'] * 1e3:.1f} ms "
+                f"({min(times[idx]) * 1e3:.1f}-{max(times[idx]) * 1e3:.1f})")
+    return out + ladder_recs
 
 
 def run_studies(suite: Suite, *, run_id: str, log=print) -> list[Record]:
@@ -497,27 +749,27 @@ def _progress(total: int, desc: str, enabled):
 
 def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=print,
                 defines: dict | None = None, sampler_cache=None) -> list[Record]:
-    """Mitsuba's spp ladder (``suite.ladder``) for every (scene, transport) of ``cases``:
-    one record (``kind = "ladder"``) per spp with Mitsuba's time and error, measured
-    in this run for the speed-vs-error plots.
+    """Mitsuba's spp ladder (``suite.ladder``) for every (scene, transport) of ``cases``,
+    rung after rung: one record (``kind = "ladder"``) per spp with Mitsuba's time
+    and error.  What a run with a parallel executor does after its cases (whose
+    renders run concurrently, so no interleaving could make the timings comparable;
+    the records say ``interleaved: false``); a serial run times each scene's ladder
+    with its own cases instead (:func:`run_scene`).
 
     The ladder's sampler is Mitsuba's most efficient of ``suite.ladder_samplers``
-    on the scene (:func:`gibench.ladder.choose_sampler`; ``sampler_cache``: its
-    JSON cache, default :data:`gibench.ladder.SAMPLER_CACHE`); each record's
-    ``params`` name it (``sampler``) with the probe's figures
+    on the scene at the ladder's top rung (:func:`gibench.ladder.choose_sampler`;
+    ``sampler_cache``: its JSON cache, default :data:`gibench.ladder.SAMPLER_CACHE`);
+    each record's ``params`` name it (``sampler``) with the probe's figures
     (``sampler_probe``).  The error is the mean over the ``suite.repeats``
     timed renders, each with its own seed (``metrics["relmse_seeds"]``)."""
-    from .ladder import SAMPLER_CACHE, choose_sampler, ladder_points
+    from .ladder import SAMPLER_CACHE, choose_sampler, ladder_points, probe_spps
     from references.motion_blur import has_motion
     from references.reference import DEFAULT_STORE, get_reference
 
     records = []
     pairs = list(dict.fromkeys((c.scene, c.scene_id, c.transport) for c in cases))
     for scene, scene_id, transport in pairs:
-        base = dict(run_id=run_id, suite=suite.name, kind="ladder", scene=scene_id,
-                    scene_file=_rel(scene), algorithm="mitsuba", transport=transport,
-                    defines=dict(defines or {}), versions=versions(), commit=git_commit(),
-                    machine=machine(), created=utc_now())
+        base = _ladder_base(suite, scene, scene_id, transport, run_id, defines)
         try:
             if has_motion(scene):
                 raise UnsupportedError("moving spheres: Mitsuba 3 cannot move shapes, so it has no "
@@ -526,13 +778,10 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
                                 passes=suite.reference_passes,
                                 store=reference_store or DEFAULT_STORE, defines=defines)
             choice = choose_sampler(scene, transport=transport, reference=ref,
-                                    candidates=suite.ladder_samplers, defines=defines,
+                                    candidates=suite.ladder_samplers,
+                                    probe_spp=probe_spps(suite.ladder), defines=defines,
                                     cache=sampler_cache if sampler_cache is not None else SAMPLER_CACHE)
-            if log and choice["candidates"]:
-                log(f"  ladder {scene_id} ({transport}): sampler {choice['sampler']} ("
-                    + ", ".join(f"{k} relMSE {v['relmse']:.3g} in {v['median_s'] * 1e3:.0f} ms"
-                                for k, v in choice["candidates"].items())
-                    + f" at {choice['probe_spp']} spp{'; cached' if choice['cached'] else ''})")
+            _log_choice(log, scene_id, transport, choice)
             points = ladder_points(scene, transport=transport, spps=suite.ladder, reference=ref,
                                    repeats=suite.repeats, defines=defines, sampler=choice["sampler"])
         except (GibenchError, OSError) as exc:
@@ -541,22 +790,9 @@ def run_ladders(suite: Suite, cases, *, run_id: str, reference_store=None, log=p
                 log(f"  ladder {scene_id} ({transport}): error: {msg}")
             records.append(Record(**base, label=f"Mitsuba {transport}", error=msg))
             continue
-        from reports.pareto import noise_floor_relmse
-
         for pt in points:
-            if ref.variance is not None:
-                pt["metrics"]["noise_floor_relmse"] = noise_floor_relmse(ref.image, ref.variance)
-            params = {"spp": pt["spp"], "sampler": choice["sampler"]}
-            if choice["candidates"]:
-                params.update(sampler_probe=choice["candidates"], probe_spp=choice["probe_spp"])
-            records.append(Record(**base, label=f"Mitsuba {transport} {pt['spp']} spp",
-                                  params=params, metrics=pt["metrics"],
-                                  time={"own_median_s": pt["median_s"], "own_times_s": pt["times_s"],
-                                        "repeats": suite.repeats, "variant": pt["variant"],
-                                        "sampler": pt["sampler"]},
-                                  reference={"key": ref.key, "dir": _rel(ref.directory),
-                                             "spp": ref.manifest.get("spp")},
-                                  ladder_spp=pt["spp"], mitsuba=pt["mitsuba"]))
+            pt["timing"] = {"interleaved": False}
+            records.append(_ladder_record(base, ref, choice, pt, suite.repeats))
             if log:
                 log(f"  ladder {scene_id} ({transport}, {pt['sampler']}) {pt['spp']} spp: relMSE "
                     f"{pt['metrics']['relmse']:.3g}, {pt['median_s'] * 1e3:.1f} ms")
@@ -569,10 +805,15 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
               progress=None, ladder: bool | None = None) -> list[Record]:
     """Run every case, appending each record to ``store`` as it completes.
 
-    ``history``: an open :func:`gibench.history.connect` connection (or None)
+    A serial run (the default) goes scene by scene (:func:`run_scene`): a
+    scene's cases, Mitsuba's equal-spp renders and its spp ladder are timed in
+    interleaved rounds, so own and Mitsuba times come from the same minutes of
+    machine load.  ``history``: an open :func:`gibench.history.connect` connection (or None)
     that receives every record too, one transaction each.  ``jobs`` /
-    ``executor``: where cases execute (:mod:`gibench.executor`); records
-    always flow back to this process, which alone writes the stores.
+    ``executor``: where cases execute (:mod:`gibench.executor`; the cases run
+    concurrently there, the ladders after them, and the records say
+    ``interleaved: false``); records always flow back to this process, which
+    alone writes the stores.
     ``progress``: a tqdm bar on stderr (None: only on a terminal).
     ``ladder``: time Mitsuba's spp ladder (default: when ``suite.ladder``
     is set).  ``seed``: the first own-render seed; with ``suite.seeds`` = K
@@ -595,6 +836,7 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
 
     seed_jobs = _seed_jobs(suite, seed)
     n = len(seed_jobs)
+    ladder_done = False
     bar = _progress(n, f"{suite.name}", progress)
     # Lines go above the bar while it is shown; nothing is printed with log=None.
     say = ((bar.write if not bar.disable else log) if log else (lambda s: None))
@@ -605,18 +847,29 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
 
     try:
         if kind == "serial":
-            timing_cache: dict = {}
-            for k, (i, case, opts) in enumerate(seed_jobs):
-                say(f"[{k + 1}/{n}] {head(case, opts)}")
-                opts = dict(opts)
-                rec = run_case(case, suite, run_id=run_id, out_dir=out_dir,
-                               mitsuba_timing=opts.pop("mitsuba_timing", mitsuba_timing),
-                               timing_cache=timing_cache, reference_store=reference_store,
-                               log=log, defines=defines, **opts)
-                keep(rec)
-                bar.update(1)
-                if rec.ok:
-                    say(_summary_line(rec))
+            # Scene by scene: its cases, its Mitsuba equal-spp renders and ladders,
+            # timed in interleaved rounds (run_scene).
+            by_scene: dict = {}
+            for case in suite.cases:
+                by_scene.setdefault(case.scene, []).append(case)
+            do_ladder = bool((suite.ladder if ladder is None else ladder) and suite.ladder)
+            k = 0
+            for g, (scene, cases) in enumerate(by_scene.items()):
+                say(f"[{k + 1}/{n}] {cases[0].scene_id}: {len(cases)} configuration"
+                    f"{'s' if len(cases) > 1 else ''} and Mitsuba, interleaved"
+                    + (f", {suite.seeds} seeds" if suite.seeds > 1 else ""))
+                for rec in run_scene(cases, suite, run_id=run_id, out_dir=out_dir,
+                                     mitsuba_timing=mitsuba_timing, ladder=do_ladder,
+                                     reference_store=reference_store, log=log, defines=defines,
+                                     seed=seed, group=f"{run_id}/{g}"):
+                    keep(rec)
+                    if rec.kind == "case":
+                        k += 1
+                        bar.update(1)
+                        if rec.ok and rec.seed == seed:
+                            say(f"  {rec.label} vs {rec.transport}:")
+                            say(_summary_line(rec))
+            ladder_done = True
         else:
             say(f"running {n} cases on {kind} ({detail})")
             jobs_ = []
@@ -634,7 +887,7 @@ def run_suite(suite: Suite, store, *, run_id: str, out_root: Path, mitsuba_timin
                 say(f"[{done}/{n}] {head(c, opts)}\n{_summary_line(rec)}")
     finally:
         bar.close()
-    if (suite.ladder if ladder is None else ladder) and suite.ladder:
+    if (suite.ladder if ladder is None else ladder) and suite.ladder and not ladder_done:
         for rec in run_ladders(suite, suite.cases, run_id=run_id, reference_store=reference_store,
                                log=log, defines=defines):
             keep(rec)

@@ -88,7 +88,7 @@ def sweep_suite(scene, algo: Algorithm, grid: dict[str, list], *, transport: str
 def sweep_table(records: list[Record], *, metric: str = "relmse") -> str:
     """A text table of a sweep: configuration, error, time, efficiency, and the
     equal-error / equal-time ratios against Mitsuba's ladder (:mod:`reports.pareto`)."""
-    from reports.pareto import summarize_points, points_from_records
+    from reports.pareto import points_from_records, summarize_points, top_rung_race
 
     groups = points_from_records(records, metric=metric)
     lines = []
@@ -123,6 +123,15 @@ def sweep_table(records: list[Record], *, metric: str = "relmse") -> str:
                          f"({best['equal_error_label']}), equal-time error ratio "
                          f"{x2}{best['equal_time_error_ratio']:.3g} ({best['equal_time_label']}); "
                          "< 1 means the own configuration wins; ~ extrapolated beyond Mitsuba's ladder")
+        race = top_rung_race(pts["own"], pts["mitsuba"])
+        if race and math.isfinite(race["ratio"]):
+            rng = (f" (range {race['ratio_min']:.3g}-{race['ratio_max']:.3g} over "
+                   + (f"{len(race['ratio_rounds'])} paired rounds)" if race["spread"] == "paired"
+                      else "fastest vs slowest renders)") if race["spread"] else "")
+            lines.append(f"  to Mitsuba's {race['spp']}-spp error ({race['sampler'] or 'independent'}, "
+                         f"{race['error']:.3g}): own {race['own_time'] * 1e3:.1f} ms vs "
+                         f"{race['time'] * 1e3:.1f} ms, ratio {'~' if race['extrapolated'] else ''}"
+                         f"{race['ratio']:.3g}{rng}")
         lines.append("")
     return "\n".join(lines) if lines else ("no speed-vs-error table: no finished configuration "
                                             "with a Mitsuba ladder point (--ladder)")

@@ -1,11 +1,23 @@
 """Pixel sampling shared by the ray-traced renderers (raycast, whitted, radiosity's view).
 
 ``spp = 1`` traces the pixel centre (the thesis's one ray per pixel, 1.3.3);
-``spp = k²`` traces a k×k grid of jittered strata and averages it — a box
-filter over the pixel, the same pixel integral a box-filtered Mitsuba
-reference estimates.  The per-pixel variance of that mean comes from the
-sample variance, accumulated with Welford's update (an over-estimate for
-stratified samples, so Z-tests stay conservative).
+``spp = k²`` averages ``spp`` samples over the pixel — a box filter over the
+pixel, the same pixel integral a box-filtered Mitsuba reference estimates —
+placed by one of two samplers (:func:`pixel_sample`'s ``sampler`` code):
+
+* :data:`PIXEL_JITTER` (the default): a k×k grid of jittered strata, one
+  uniform point per stratum (thesis 2.5.3);
+* :data:`PIXEL_SOBOL`: the first ``spp`` points of an Owen-scrambled Sobol
+  (0, 2)-sequence (:func:`impl.lowdiscrepancy.sample_2d`, dimension pair 0),
+  scrambled per pixel by :func:`impl.lowdiscrepancy.pixel_seed`.  When ``spp``
+  is a power of two they form a (0, m, 2)-net: one point in every elementary
+  interval of area 1/spp (k×k strata and every other aspect ratio), and the
+  scrambling makes each point uniform on the pixel, so the estimate stays
+  unbiased (Owen 1995; Burley 2020).
+
+The per-pixel variance of that mean comes from the sample variance,
+accumulated with Welford's update (an over-estimate for stratified and
+low-discrepancy samples, so Z-tests stay conservative).
 """
 
 import math
@@ -14,9 +26,18 @@ from numba import njit
 
 from core.errors import ParamError
 
+from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform
 
-__all__ = ["check_spp", "strata", "pixel_sample", "welford_add", "variance_of_mean"]
+__all__ = ["check_spp", "strata", "pixel_sample", "welford_add", "variance_of_mean",
+           "PIXEL_JITTER", "PIXEL_SOBOL", "PIXEL_SAMPLERS"]
+
+#: :func:`pixel_sample` sampler codes, and their names (index = code).
+PIXEL_JITTER = 0
+PIXEL_SOBOL = 1
+PIXEL_SAMPLERS = ("jitter", "sobol")
+#: The Sobol dimension pair of the pixel position (other pairs are free for lens, time, light).
+PIXEL_PAIR = 0
 
 
 def check_spp(spp: int, algorithm: str) -> int:
@@ -33,10 +54,19 @@ def strata(spp):
 
 
 @njit(inline="always", cache=True)
-def pixel_sample(spp, k, s, seed, pixel):
-    """Offset (fx, fy) in [0, 1)² of sample ``s`` inside the pixel: centre or jittered stratum."""
+def pixel_sample(spp, k, s, seed, pixel, sampler=PIXEL_JITTER, x=0, y=0):
+    """Offset (fx, fy) in [0, 1)² of sample ``s`` (0 .. spp-1) inside the pixel.
+
+    ``spp = 1``: the pixel centre, whatever the sampler.  :data:`PIXEL_JITTER`:
+    a uniform point in stratum ``s`` of the k×k grid (``k`` = :func:`strata`),
+    drawn from ``(seed, pixel, s)``.  :data:`PIXEL_SOBOL`: Owen-scrambled Sobol
+    point ``s`` of the pixel ``(x, y)`` (its column and row: the scramble seed is
+    ``pixel_seed(x, y, seed)``; ``k`` and ``pixel`` are unused).
+    """
     if spp == 1:
         return 0.5, 0.5
+    if sampler == PIXEL_SOBOL:
+        return sample_2d(PIXEL_PAIR, s, pixel_seed(x, y, seed))
     return (s % k + uniform(seed, pixel, s, 0)) / k, (s // k + uniform(seed, pixel, s, 1)) / k
 
 

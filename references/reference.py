@@ -88,6 +88,7 @@ __all__ = [
     "prepare_scene_xml",
     "load_scene",
     "time_mitsuba",
+    "prepare_timing",
     "render_depth",
 ]
 
@@ -896,26 +897,20 @@ def _motion(scene: Path, *, transport, spp, seed, rfilter, store, render_missing
 # ---------------------------------------------------------------------------
 
 
-def time_mitsuba(scene_path, *, transport: str, spp: int, seed: int = 0, repeats: int = 3,
-                 rfilter: str = "box", defines: dict | None = None,
-                 max_depth: int | None = None) -> dict:
-    """Time Mitsuba rendering a scene with the reference overrides.
+def prepare_timing(scene_path, *, transport: str, spp: int, seed: int = 0, rfilter: str = "box",
+                   defines: dict | None = None, max_depth: int | None = None):
+    """Mitsuba's render of a scene with the reference overrides, loaded and warmed up.
 
-    The scene is loaded once; one untimed warm-up render (JIT compilation)
-    is followed by ``repeats`` timed renders of ``spp`` samples per pixel in
-    one ``mi.render`` call each, the clock (``time.perf_counter``) stopped
-    after ``dr.sync_thread()``.
-
-    Returns
-    -------
-    dict
-        ``median_s``, ``times_s``, ``spp``, ``variant``, ``warmup_s`` (plus
-        ``transport``, ``width``, ``height``, ``scene``).
+    Returns ``(render, info)``: ``render()`` renders ``spp`` samples per pixel
+    in one ``mi.render`` call and returns its wall time (``time.perf_counter``,
+    the clock stopped after ``dr.sync_thread()``); ``info`` holds ``spp``,
+    ``variant``, ``warmup_s`` (the untimed first render: JIT compilation),
+    ``transport``, ``width``, ``height``, ``scene``.
     """
     if transport not in TRANSPORTS and not is_phong_transport(transport):
         raise ValueError(f"transport must be one of {TRANSPORTS}, got {transport!r}")
-    if repeats < 1 or spp < 1:
-        raise ValueError(f"repeats and spp must be >= 1, got {repeats}, {spp}")
+    if spp < 1:
+        raise ValueError(f"spp must be >= 1, got {spp}")
     scene = _scene_file(scene_path)
     mi = load_mitsuba()
     import drjit as dr
@@ -923,20 +918,41 @@ def time_mitsuba(scene_path, *, transport: str, spp: int, seed: int = 0, repeats
     xml, _, _ = prepare_scene_xml(scene, transport=transport, spp_per_pass=spp, seed=seed,
                                   rfilter=rfilter, defines=defines, max_depth=max_depth)
     mscene = load_scene(mi, scene, xml)
-    t0 = time.perf_counter()
-    dr.eval(mi.render(mscene, spp=spp, seed=seed))
-    _sync(dr)
-    warmup = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
+
+    def render() -> float:
         t0 = time.perf_counter()
         dr.eval(mi.render(mscene, spp=spp, seed=seed))
         _sync(dr)
-        times.append(time.perf_counter() - t0)
+        return time.perf_counter() - t0
+
+    warmup = render()
     width, height = (int(v) for v in mscene.sensors()[0].film().crop_size())
-    return {"median_s": statistics.median(times), "times_s": times, "spp": spp,
-            "variant": mi.variant(), "warmup_s": warmup, "transport": transport,
-            "width": width, "height": height, "scene": _display_path(scene)}
+    return render, {"spp": spp, "variant": mi.variant(), "warmup_s": warmup,
+                    "transport": transport, "width": width, "height": height,
+                    "scene": _display_path(scene)}
+
+
+def time_mitsuba(scene_path, *, transport: str, spp: int, seed: int = 0, repeats: int = 3,
+                 rfilter: str = "box", defines: dict | None = None,
+                 max_depth: int | None = None) -> dict:
+    """Time Mitsuba rendering a scene with the reference overrides.
+
+    The scene is loaded once; one untimed warm-up render (JIT compilation)
+    is followed by ``repeats`` timed renders of ``spp`` samples per pixel in
+    one ``mi.render`` call each (:func:`prepare_timing`).
+
+    Returns
+    -------
+    dict
+        ``median_s``, ``times_s``, ``spp``, ``variant``, ``warmup_s`` (plus
+        ``transport``, ``width``, ``height``, ``scene``).
+    """
+    if repeats < 1 or spp < 1:
+        raise ValueError(f"repeats and spp must be >= 1, got {repeats}, {spp}")
+    render, info = prepare_timing(scene_path, transport=transport, spp=spp, seed=seed,
+                                  rfilter=rfilter, defines=defines, max_depth=max_depth)
+    times = [render() for _ in range(repeats)]
+    return dict(info, median_s=statistics.median(times), times_s=times)
 
 
 def render_depth(scene_path, defines: dict | None = None) -> np.ndarray:

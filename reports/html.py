@@ -325,8 +325,19 @@ def _rays_per_s(r: dict):
     return rays / t if rays and t else None
 
 
+def _range(t: dict, side: str) -> str:
+    """`` (min–max)`` of a timing side (``own``, ``mitsuba``: seconds; ``ratio``)."""
+    lo, hi = (t.get("ratio_min"), t.get("ratio_max")) if side == "ratio" else (
+        t.get(f"{side}_min_s"), t.get(f"{side}_max_s"))
+    if not (isinstance(lo, (int, float)) and isinstance(hi, (int, float))):
+        return ""
+    unit = "" if side == "ratio" else "s"
+    return f" <span class='small'>({fmt(lo, unit)}–{fmt(hi, unit)})</span>"
+
+
 def _timing(records: list[Record]) -> str:
     rows, repeats = [], Counter()
+    interleaved, loads = 0, []
     for r in sorted(records, key=lambda r: (_scene(r), str(r.transport))):
         t = _d(r.time)
         if t.get("own_median_s") is None and t.get("mitsuba_median_s") is None:
@@ -334,10 +345,12 @@ def _timing(records: list[Record]) -> str:
         if isinstance(t.get("own_times_s"), list):
             repeats[len(t["own_times_s"])] += 1
         spp = f" ({fmt(t.get('mitsuba_spp'))} spp)" if t.get("mitsuba_spp") is not None else ""
+        interleaved += bool(t.get("interleaved"))
+        loads += [x for x in (t.get("load_1min") or []) if isinstance(x, (int, float))]
         rows.append(f"<tr><td>{_e(_scene(r))}</td><td>{_e(r.transport)}</td><td>{_e(_label(r))}</td>"
-                    f'<td class="n">{fmt(t.get("own_median_s"), "s")}</td>'
-                    f'<td class="n">{fmt(t.get("mitsuba_median_s"), "s")}{spp}</td>'
-                    f'<td class="n">{fmt(t.get("ratio"))}</td>'
+                    f'<td class="n">{fmt(t.get("own_median_s"), "s")}{_range(t, "own")}</td>'
+                    f'<td class="n">{fmt(t.get("mitsuba_median_s"), "s")}{spp}{_range(t, "mitsuba")}</td>'
+                    f'<td class="n">{fmt(t.get("ratio"))}{_range(t, "ratio")}</td>'
                     f'<td class="n">{fmt(_rays_per_s(r))}</td></tr>')
     if not rows:
         return "<p>No timings recorded.</p>"
@@ -346,8 +359,13 @@ def _timing(records: list[Record]) -> str:
     return ("<table><tr><th>Scene</th><th>Transport</th><th>Algorithm</th><th>Own median</th>"
             "<th>Mitsuba median</th><th>Ratio own/Mitsuba</th><th>Own rays/s</th></tr>"
             + "".join(rows) + "</table>"
-            f"<p class='small'>{TIMING_NOTE.format(n=n)}. Own and Mitsuba medians were timed in the same run "
-            "on the same scene and transport.</p>")
+            f"<p class='small'>{TIMING_NOTE.format(n=n)}; in brackets the range of the timed renders "
+            "(for the ratio: of the per-round ratios). Own and Mitsuba medians were timed in the same run "
+            "on the same scene and transport"
+            + (f"; {interleaved} of {len(rows)} rows in interleaved rounds (own and Mitsuba renders "
+               "of a scene alternating)" if interleaved else "; not interleaved")
+            + (f"; 1-minute load average {fmt(min(loads))}–{fmt(max(loads))} during the timings"
+               if loads else "") + ".</p>")
 
 
 def _header(records: list[Record], title: str) -> str:
@@ -516,10 +534,31 @@ def _pareto_plot(scene, transport, g: dict, metric: str) -> str:
     return f"<img class='pareto' alt='speed vs error {_e(scene)}' src='{src}'>"
 
 
+def _race_cell(race: dict | None) -> str:
+    """A race to a Mitsuba rung's error: the ratio of medians, its spread, the rung."""
+    if not race or not math.isfinite(race["ratio"]):
+        return DASH
+    win = race["ratio"] < 1
+    spread = ""
+    if race.get("spread") and math.isfinite(race["ratio_min"]):
+        how = (f"{len(race['ratio_rounds'])} paired rounds" if race["spread"] == "paired"
+               else "fastest vs slowest renders")
+        spread = f" ({fmt(race['ratio_min'])}–{fmt(race['ratio_max'])}, {how})"
+    warn = ""
+    if not race.get("same_run"):
+        warn = " <span class='fail'>points from different runs</span>"
+    elif not race.get("interleaved"):
+        warn = " <span class='small'>(not interleaved)</span>"
+    return (f"{'<b>' if win else ''}{_fmt_ratio(race['ratio'], race['extrapolated'])}{'</b>' if win else ''}"
+            f"<span class='small'>{spread}: {fmt(race['own_time'] * 1e3)} vs {fmt(race['time'] * 1e3)} ms "
+            f"to {fmt(race['error'])}, Mitsuba {race['spp']} spp {_e(race.get('sampler') or '')}</span>{warn}")
+
+
 def _headline(records: list[Record], metric: str = "relmse") -> str:
     """The report's leading table: per scene and transport with a Mitsuba ladder, the
-    own side's best equal-error time ratio and equal-time error ratio, and the
-    race to Mitsuba's most expensive ladder error (own time / Mitsuba time)."""
+    race to Mitsuba's most expensive ladder error (own time / Mitsuba time, ratio of
+    median times measured in the same interleaved rounds, with its spread), and the
+    own side's best equal-error time ratio and equal-time error ratio."""
     from reports.pareto import points_from_records, summarize_points, top_rung_race
 
     groups = points_from_records(records, metric=metric)
@@ -532,34 +571,59 @@ def _headline(records: list[Record], metric: str = "relmse") -> str:
         race = top_rung_race(g["own"], g["mitsuba"])
         seeds = sorted({p["seeds"] for p in g["own"]})
         mseeds = sorted({p["seeds"] for p in g["mitsuba"]})
-        probe = next((p for p in g["mitsuba"]), {})
-        race_txt = (f"{_fmt_ratio(race['ratio'], race['extrapolated'])} "
-                    f"<span class='small'>({fmt(race['own_time'] * 1e3)} vs {fmt(race['time'] * 1e3)} ms "
-                    f"to {fmt(race['error'])}, Mitsuba {race['spp']} spp)</span>"
-                    if race and math.isfinite(race["ratio"]) else DASH)
-        win = race and math.isfinite(race["ratio"]) and race["ratio"] < 1
         rows.append(
             f"<tr><td><a href='#{_slug('sve-' + scene + '-' + str(transport))}'>{_e(scene)}</a></td>"
             f"<td>{_e(transport)}</td><td>{_e(g.get('sampler') or 'independent')}</td>"
+            f"<td class='n'>{_race_cell(race)}</td>"
             f"<td class='n'>{_fmt_ratio(best.get('equal_error_time_ratio', math.nan), best.get('equal_error_extrapolated', False))}</td>"
             f"<td class='small'>{_e(best.get('equal_error_label', DASH))}</td>"
             f"<td class='n'>{_fmt_ratio(best.get('equal_time_error_ratio', math.nan), best.get('equal_time_extrapolated', False))}</td>"
-            f"<td class='n'>{'<b>' if win else ''}{race_txt}{'</b>' if win else ''}</td>"
             f"<td class='n'>{'/'.join(map(str, seeds))} / {'/'.join(map(str, mseeds))}</td></tr>")
-        del probe
     return ("<h2 id='speed-vs-error-summary'>Speed against error</h2>"
             "<p class='small'>Each row: the own configurations on one scene against Mitsuba's "
             "spp ladder measured in the same run, with Mitsuba's most efficient sampler on that "
-            "scene (probed per scene; column <i>sampler</i>). Equal-error ratio = own time / "
-            "Mitsuba's time for the same error; equal-time ratio = own error / Mitsuba's error in "
-            "the same time (best own configuration of each; &lt; 1: the own side wins; ~ power-law "
-            "extrapolation beyond the ladder). <i>To Mitsuba's top error</i>: the time the own "
-            "Pareto front needs for the error of Mitsuba's most expensive rung, over Mitsuba's time "
-            f"for it. Errors ({_e(METRIC_NAMES.get(metric, metric))}) are means over the seeds "
+            "scene at the ladder's top rung (probed per scene; column <i>sampler</i>). "
+            "<i>Equal error at Mitsuba's top rung</i>: the time the own Pareto front needs for "
+            "the error of Mitsuba's most expensive rung (log–log interpolation between the own "
+            "configurations' median times; ~ power-law extrapolation beyond them), over Mitsuba's "
+            "median time for that rung; in brackets the range of the same ratio over the timing "
+            "rounds, in which own and Mitsuba renders of the scene alternate (paired: each "
+            "round's own and Mitsuba times were measured seconds apart). "
+            "Best equal-error ratio = own time / Mitsuba's (interpolated) time for the same error; "
+            "equal-time ratio = own error / Mitsuba's error in the same time (best own "
+            "configuration of each; &lt; 1: the own side wins). "
+            f"Errors ({_e(METRIC_NAMES.get(metric, metric))}) are means over the seeds "
             "(own / Mitsuba counts in the last column); times are medians with warm-up excluded."
             "</p><table class='data'><tr><th>scene</th><th>vs Mitsuba</th><th>sampler</th>"
-            "<th>equal-error t/t<sub>Mi</sub></th><th>(own config)</th><th>equal-time e/e<sub>Mi</sub></th>"
-            "<th>to Mitsuba's top error</th><th>seeds</th></tr>" + "".join(rows) + "</table>")
+            "<th>equal error at Mitsuba's top rung: t/t<sub>Mi</sub></th>"
+            "<th>best equal-error t/t<sub>Mi</sub></th><th>(own config)</th><th>equal-time e/e<sub>Mi</sub></th>"
+            "<th>seeds</th></tr>" + "".join(rows) + "</table>")
+
+
+def _ms(p: dict) -> str:
+    """Median time in ms with the range of the timed renders."""
+    lo, hi = p.get("min_s"), p.get("max_s")
+    rng = (f" <span class='small'>({fmt(lo * 1e3)}–{fmt(hi * 1e3)})</span>"
+           if isinstance(lo, float) and isinstance(hi, float) and hi > lo else "")
+    return fmt(p["time"] * 1e3) + rng
+
+
+def _rung_races(g: dict) -> str:
+    """The race to each rung's error (:func:`reports.pareto.rung_race`)."""
+    from reports.pareto import rung_race
+
+    rows = []
+    for m in g["mitsuba"]:
+        race = rung_race(g["own"], g["mitsuba"], spp=m.get("spp"))
+        if race:
+            rows.append(f"<tr><td class='n'>{m.get('spp')}</td><td class='n'>{fmt(m['error'])}</td>"
+                        f"<td class='n'>{_race_cell(race)}</td><td class='small'>{_e(race['label'])}</td></tr>")
+    if not rows:
+        return ""
+    return ("<p class='small'>Own time to reach the error of each Mitsuba rung over Mitsuba's time "
+            "for it (ratio of medians; range over the paired timing rounds).</p>"
+            "<table class='data'><tr><th>Mitsuba spp</th><th>error</th><th>t<sub>own</sub>/t<sub>Mi</sub></th>"
+            "<th>nearest own configuration</th></tr>" + "".join(rows) + "</table>")
 
 
 def _speed_vs_error(records: list[Record], metric: str = "relmse") -> str:
@@ -583,12 +647,12 @@ def _speed_vs_error(records: list[Record], metric: str = "relmse") -> str:
         s = summarize_points(g["own"], g["mitsuba"])
         rows = "".join(
             f"<tr><td>{_e(r['label'])}</td><td class='n'>{fmt(r['error'])}{_spread(r)}</td>"
-            f"<td class='n'>{fmt(r['time'] * 1e3)}</td><td class='n'>{fmt(r['efficiency'])}</td>"
+            f"<td class='n'>{_ms(r)}</td><td class='n'>{fmt(r['efficiency'])}</td>"
             f"<td>{'★' if r['pareto'] else ''}</td><td class='n'>{_ee_cell(r)}</td>"
             f"<td class='n'>{_fmt_ratio(r['equal_time_error_ratio'], r['equal_time_extrapolated'])}</td></tr>" for r in s["rows"])
         rows += "".join(
             f"<tr class='small'><td>{_e(r['label'])} ({_e(r.get('sampler', 'independent'))})</td><td class='n'>{fmt(r['error'])}{_spread(r)}</td>"
-            f"<td class='n'>{fmt(r['time'] * 1e3)}</td><td class='n'>{fmt(r['efficiency'])}</td>"
+            f"<td class='n'>{_ms(r)}</td><td class='n'>{fmt(r['efficiency'])}</td>"
             f"<td></td><td></td><td></td></tr>" for r in s["mitsuba_rows"])
         best = s["best"]
         best_txt = (f"<p>Own best: equal-error time ratio <b>{_fmt_ratio(best['equal_error_time_ratio'], best['equal_error_extrapolated'])}</b> "
@@ -599,8 +663,9 @@ def _speed_vs_error(records: list[Record], metric: str = "relmse") -> str:
         out.append(f"<h3 id='{_slug('sve-' + scene + '-' + str(transport))}'>{_e(scene)} vs Mitsuba {_e(transport)}</h3>"
                    + _pareto_plot(scene, transport, g, metric) + best_txt
                    + f"<table class='data pareto-table'><tr><th>configuration</th><th>{_e(METRIC_NAMES.get(metric, metric))}</th>"
-                   "<th>time [ms]</th><th>efficiency</th><th>front</th><th>t / t<sub>Mitsuba</sub> at equal error</th>"
-                   f"<th>e / e<sub>Mitsuba</sub> at equal time</th></tr>{rows}</table>" + floors_html)
+                   "<th>time [ms] (range)</th><th>efficiency</th><th>front</th><th>t / t<sub>Mitsuba</sub> at equal error</th>"
+                   f"<th>e / e<sub>Mitsuba</sub> at equal time</th></tr>{rows}</table>" + _rung_races(g)
+                   + floors_html)
     return "".join(out)
 
 

@@ -35,7 +35,7 @@ from core.records import Record
 __all__ = ["pareto_front", "loglog_interp", "time_at_error", "error_at_time",
            "equal_error_time_ratio", "equal_time_error_ratio", "efficiency", "noise_floor_relmse",
            "summarize_points", "points_from_records", "primary_records", "top_rung_race",
-           "model_floors"]
+           "rung_race", "model_floors"]
 
 
 def _points(times, errors):
@@ -252,7 +252,9 @@ def points_from_records(records: list[Record], *, metric: str = "relmse") -> dic
     error is the mean of ``metrics[metric]`` over the seeds (``errors`` the
     values, ``spread`` their sample standard deviation, ``seeds`` how many)
     and whose time is the lowest seed's own median (the one timed with the
-    suite's repeats).  Mitsuba points are the ladder records (error: the mean
+    suite's repeats; ``times`` its timed renders, ``min_s`` / ``max_s`` their
+    range, ``timing_group`` and ``interleaved`` how they were timed,
+    ``run_id``).  Mitsuba points are the ladder records (error: the mean
     over the ladder's seeds when ``metrics[metric + "_seeds"]`` is present);
     ``sampler`` is the ladder's Mitsuba sampler.  The noise floor is the
     record's ``metrics["noise_floor_" + metric]`` (relmse) or
@@ -275,6 +277,7 @@ def points_from_records(records: list[Record], *, metric: str = "relmse") -> dic
             errs = [x for x in (m.get(f"{metric}_seeds") or []) if _num(x) is not None]
             pt = {"label": str(r.label), "algorithm": r.algorithm, "time": tm, "error": err,
                   "model_error": False, "spp": r.ladder_spp, "errors": errs or [err],
+                  **_timing_fields(r),
                   "seeds": max(len(errs), 1),
                   "spread": float(np.std(errs, ddof=1)) if len(errs) > 1 else math.nan,
                   "sampler": r.params.get("sampler", "independent")}
@@ -291,6 +294,7 @@ def points_from_records(records: list[Record], *, metric: str = "relmse") -> dic
         r0 = runs[0][3]
         groups[key[:2]]["own"].append(
             {"label": str(r0.label), "algorithm": r0.algorithm, "time": runs[0][2],
+             **_timing_fields(r0),
              "error": float(np.mean(errs)), "errors": errs, "seeds": len(errs),
              "spread": float(np.std(errs, ddof=1)) if len(errs) > 1 else math.nan,
              "model_error": bool(r0.model_error), "params": dict(r0.params)})
@@ -299,31 +303,93 @@ def points_from_records(records: list[Record], *, metric: str = "relmse") -> dic
     return {k: v for k, v in groups.items() if v["mitsuba"]}
 
 
-def top_rung_race(own: list[dict], mitsuba: list[dict], *, extrapolate: bool = True) -> dict | None:
-    """Whether the own configurations reach Mitsuba's most expensive ladder error faster.
+def _timing_fields(r: Record) -> dict:
+    """A record's timed renders and how they were timed (:func:`points_from_records`)."""
+    t = r.time or {}
+    times = [float(x) for x in (t.get("own_times_s") or []) if _num(x) is not None]
+    tm = _num(t.get("own_median_s"))
+    return {"times": times, "min_s": _num(t.get("own_min_s")) or (min(times) if times else tm),
+            "max_s": _num(t.get("own_max_s")) or (max(times) if times else tm),
+            "timing_group": t.get("timing_group") or None, "interleaved": bool(t.get("interleaved")),
+            "run_id": r.run_id}
 
-    ``spp``, ``error`` and ``time`` of Mitsuba's top rung; ``own_time`` the time
-    the own Pareto front (all own points, log–log interpolated, extrapolated as
-    a power law beyond its cheapest-error end when ``extrapolate``) needs for
-    that error; ``ratio = own_time / time`` (< 1: the own side is faster);
-    ``extrapolated`` whether the front had to be extended; ``label`` the own
-    configuration nearest that error on the front.  None without points.
+
+def _own_time_at(own: list[dict], times: list[float], error: float, extrapolate: bool):
+    """The time the own front ``(times, own errors)`` needs for ``error``: interpolated,
+    else (``extrapolate``) the power-law extension, else the fastest own point at or
+    below the error.  Returns ``(time, extrapolated)``."""
+    e = [p["error"] for p in own]
+    inside = time_at_error(times, e, error)
+    if math.isfinite(inside):
+        return inside, False
+    ot = time_at_error(times, e, error, extrapolate=extrapolate)
+    if math.isfinite(ot):
+        return ot, True
+    below = [t for t, p in zip(times, own) if p["error"] <= error]
+    return (min(below), False) if below else (math.nan, False)
+
+
+def rung_race(own: list[dict], mitsuba: list[dict], *, spp=None, extrapolate: bool = True) -> dict | None:
+    """Whether the own configurations reach the error of Mitsuba's ladder rung ``spp``
+    (default: the most expensive rung) faster than Mitsuba does.
+
+    ``spp``, ``error``, ``time`` and ``sampler`` of the rung; ``own_time`` the time the
+    own Pareto front (all own points, log–log interpolated, extrapolated as a power
+    law beyond its lowest-error end when ``extrapolate``) needs for that error, from
+    the points' median times; ``ratio = own_time / time`` (< 1: the own side is
+    faster); ``extrapolated`` whether the front had to be extended; ``label`` the own
+    configuration nearest that error.
+
+    The spread: when every own point and the rung were timed in the same interleaved
+    rounds (one ``timing_group``, ``times`` of equal length), ``ratio_rounds`` holds
+    the ratio of each round (own times and Mitsuba's time of that round, measured
+    under the same load), ``ratio_min`` / ``ratio_max`` their range and ``spread``
+    is ``"paired"``; otherwise the range uses the fastest own times against Mitsuba's
+    slowest and the reverse (``spread = "min-max"``).  ``same_run``: all points from
+    one run; ``interleaved``: all timed in interleaved rounds.  None without points
+    or without the rung.
     """
     if not own or not mitsuba:
         return None
-    top = max(mitsuba, key=lambda p: (p.get("spp") or 0, p["time"]))
-    t = [p["time"] for p in own]
-    e = [p["error"] for p in own]
-    inside = time_at_error(t, e, top["error"])
-    ext = math.isnan(inside)
-    ot = time_at_error(t, e, top["error"], extrapolate=extrapolate) if ext else inside
-    if math.isnan(ot) and min(e) <= top["error"]:
-        # Every own point at or below the error: the fastest of them bounds the time.
-        ot, ext = min(p["time"] for p in own if p["error"] <= top["error"]), False
-    near = min(own, key=lambda p: abs(math.log(max(p["error"], 1e-300) / top["error"])))
-    return {"spp": top.get("spp"), "error": top["error"], "time": top["time"], "own_time": ot,
-            "ratio": ot / top["time"] if math.isfinite(ot) and top["time"] > 0 else math.nan,
-            "extrapolated": bool(ext and math.isfinite(ot)), "label": near["label"]}
+    if spp is None:
+        rung = max(mitsuba, key=lambda p: (p.get("spp") or 0, p["time"]))
+    else:
+        rung = next((p for p in mitsuba if p.get("spp") == spp), None)
+        if rung is None:
+            return None
+    err = rung["error"]
+    ot, ext = _own_time_at(own, [p["time"] for p in own], err, extrapolate)
+    near = min(own, key=lambda p: abs(math.log(max(p["error"], 1e-300) / err)))
+    ratio = ot / rung["time"] if math.isfinite(ot) and rung["time"] > 0 else math.nan
+    pts = own + [rung]
+    groups = {p.get("timing_group") for p in pts}
+    n = {len(p.get("times") or []) for p in pts}
+    rounds, kind = [], None
+    if len(groups) == 1 and None not in groups and len(n) == 1 and n != {0}:
+        for k in range(n.pop()):
+            tk, _ = _own_time_at(own, [p["times"][k] for p in own], err, extrapolate)
+            if math.isfinite(tk) and rung["times"][k] > 0:
+                rounds.append(tk / rung["times"][k])
+        kind = "paired" if rounds else None
+    lo = hi = math.nan
+    if rounds:
+        lo, hi = min(rounds), max(rounds)
+    elif math.isfinite(ratio):
+        fast, _ = _own_time_at(own, [p.get("min_s") or p["time"] for p in own], err, extrapolate)
+        slow, _ = _own_time_at(own, [p.get("max_s") or p["time"] for p in own], err, extrapolate)
+        mmax, mmin = rung.get("max_s") or rung["time"], rung.get("min_s") or rung["time"]
+        if math.isfinite(fast) and math.isfinite(slow) and mmin > 0:
+            lo, hi, kind = fast / mmax, slow / mmin, "min-max"
+    return {"spp": rung.get("spp"), "sampler": rung.get("sampler"), "error": err,
+            "time": rung["time"], "own_time": ot, "ratio": ratio, "extrapolated": bool(ext),
+            "label": near["label"], "ratio_rounds": rounds, "ratio_min": lo, "ratio_max": hi,
+            "spread": kind, "same_run": len({p.get("run_id") for p in pts}) == 1,
+            "interleaved": all(p.get("interleaved") for p in pts)}
+
+
+def top_rung_race(own: list[dict], mitsuba: list[dict], *, extrapolate: bool = True) -> dict | None:
+    """:func:`rung_race` at Mitsuba's most expensive ladder rung."""
+    return rung_race(own, mitsuba, extrapolate=extrapolate)
 
 
 def model_floors(own: list[dict]) -> dict:

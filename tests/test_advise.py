@@ -104,36 +104,86 @@ def test_default_suite_has_a_ladder_for_every_case():
     assert set(s.ladder_samplers) >= {"independent", "multijitter", "ldsampler"}
 
 
-def test_choose_sampler_picks_the_most_efficient_and_caches(tmp_path, monkeypatch):
+def _fake_rungs(monkeypatch, noise_by_spp, times, calls):
+    """references.ladder.prepare_ladder replaced by rungs whose images are the
+    reference plus Gaussian noise of a given size per (spp, sampler)."""
     import references.ladder as rl
-    from gibench import ladder as gl
 
     rng = np.random.default_rng(0)
     ref = np.ones((8, 8, 3), np.float32)
+
+    class FakeRung:
+        def __init__(self, spp, sampler):
+            self.spp, self.requested_spp, self.sampler = spp, spp, sampler
+
+        def render(self, seed):
+            calls.append((self.spp, self.sampler, seed))
+            noise = noise_by_spp[self.spp][self.sampler]
+            return ref + noise * rng.standard_normal(ref.shape).astype(np.float32), times[self.sampler]
+
+    def fake(scene, *, transport, spps, defines, sampler):
+        return [FakeRung(int(spps[0]), sampler)]
+
+    monkeypatch.setattr(rl, "prepare_ladder", fake)
+    return ref
+
+
+def test_choose_sampler_picks_the_most_efficient_and_caches(tmp_path, monkeypatch):
+    from references.ladder import LADDER_SEED
+    from gibench import ladder as gl
+
     noise = {"independent": 0.3, "stratified": 0.2, "multijitter": 0.1, "ldsampler": 0.15}
     times = {"independent": 1.0, "stratified": 1.0, "multijitter": 1.5, "ldsampler": 1.0}
     calls = []
-
-    def fake(scene, *, transport, spps, repeats, defines, sampler):
-        calls.append(sampler)
-        img = ref + noise[sampler] * rng.standard_normal(ref.shape).astype(np.float32)
-        return [{"spp": spps[0], "image": img, "median_s": times[sampler]}]
+    ref = _fake_rungs(monkeypatch, {16: noise}, times, calls)
 
     class Ref:
-        key, image, variance = "k" * 64, ref, None
+        key, variance = "k" * 64, None
+        image = ref
 
-    monkeypatch.setattr(rl, "render_ladder", fake)
     monkeypatch.setattr(gl, "_cache_key", lambda *a: "key")
     cache = tmp_path / "c.json"
-    c = gl.choose_sampler("scene.xml", transport="full", reference=Ref(), cache=cache)
+    c = gl.choose_sampler("scene.xml", transport="full", reference=Ref(), cache=cache, repeats=2)
     # relMSE ~ noise^2: multijitter 0.01 x 1.5 beats ldsampler 0.0225 x 1.0.
-    assert c["sampler"] == "multijitter" and not c["cached"] and len(calls) == 4
+    assert c["sampler"] == "multijitter" and not c["cached"] and len(calls) == 8
+    # The probe's seeds are apart from the ladder's (LADDER_SEED + 1 .. + repeats), and
+    # so are a rung's two warm-up seeds.
+    assert {s for _, _, s in calls} == {LADDER_SEED + gl.PROBE_SEED_OFFSET + k for k in range(2)}
+    from references.ladder import WARMUP_SEEDS
+    assert len(set(WARMUP_SEEDS)) == 2 and not set(WARMUP_SEEDS) & set(range(LADDER_SEED + 1, LADDER_SEED + 100))
     assert set(json.loads(cache.read_text())["key"]["candidates"]) == set(noise)
     c = gl.choose_sampler("scene.xml", transport="full", reference=Ref(), cache=cache)
-    assert c["cached"] and c["sampler"] == "multijitter" and len(calls) == 4
+    assert c["cached"] and c["sampler"] == "multijitter" and len(calls) == 8
     with pytest.raises(ValueError, match="sampler"):
         gl.choose_sampler("scene.xml", transport="full", reference=Ref(), candidates=["sobol"])
+    import references.ladder as rl
     assert rl.sampler_spec("ldsampler", 16)["type"] == "ldsampler"
+
+
+def test_choose_sampler_decides_at_the_top_rung(tmp_path, monkeypatch):
+    """At 16 spp ldsampler is the most efficient, at the top rung (64) stratified: the
+    ladder uses the top rung's, where the equal-error race is read."""
+    from gibench import ladder as gl
+
+    noise = {16: {"independent": 0.3, "stratified": 0.2, "ldsampler": 0.1},
+             64: {"independent": 0.15, "stratified": 0.03, "ldsampler": 0.06}}
+    times = {"independent": 1.0, "stratified": 1.0, "ldsampler": 1.0}
+    calls = []
+    ref = _fake_rungs(monkeypatch, noise, times, calls)
+
+    class Ref:
+        key, variance = "k" * 64, None
+        image = ref
+
+    assert gl.probe_spps((1, 4, 16, 64)) == (16, 64) and gl.probe_spps((1, 4)) == (4,)
+    c = gl.choose_sampler("scene.xml", transport="full", reference=Ref(), cache=None,
+                          candidates=list(times), probe_spp=gl.probe_spps((1, 4, 16, 64)))
+    assert c["best_by_spp"] == {"16": "ldsampler", "64": "stratified"}
+    assert c["sampler"] == "stratified" and c["probe_spp"] == 64
+    assert c["candidates"] is c["probes"]["64"] and {s for s, _, _ in calls} == {16, 64}
+    # One candidate: nothing to probe.
+    assert gl.choose_sampler("s.xml", transport="full", reference=Ref(), cache=None,
+                             candidates=["ldsampler"])["sampler"] == "ldsampler"
 
 
 def test_mitsuba_ladder_samplers_seeds_and_rounding(mitsuba):

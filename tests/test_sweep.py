@@ -45,7 +45,10 @@ def test_sweep_cli_writes_table_report_and_ladder(tmp_path, capsys, mitsuba):
     out = capsys.readouterr().out
     assert "spp=1" in out and "spp=16" in out and "Mitsuba direct 64 spp" in out
     assert "own best: equal-error time ratio" in out
+    # The race to Mitsuba's top rung, its cases and ladder timed in the same rounds.
+    assert "to Mitsuba's 64-spp error" in out and "paired rounds" in out
     recs = ResultStore(results).load()
+    assert len({r.time["timing_group"] for r in recs}) == 1
     cases = [r for r in recs if r.kind == "case"]
     ladder = [r for r in recs if r.kind == "ladder"]
     assert len(cases) == 3 and [r.ladder_spp for r in ladder] == [1, 4, 16, 64]
