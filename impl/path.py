@@ -134,8 +134,8 @@ from .sampling import check_spp
 from .scene_arrays import SceneArrays, scene_memo
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
-from .tracer import (accumulate, eye_batch, Film, film_counters, film_result, new_batch, new_film,
-                     ray_config_cached, store)
+from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
+                     new_batch, new_film, OX, OY, OZ, ray_config_cached, store, TMAX, TMIN)
 
 __all__ = ["render", "COUNTERS", "DEBUG_BIAS", "ALGORITHM"]
 
@@ -161,172 +161,6 @@ def _power(a, b):
     return a2 / s if s > 0.0 and math.isfinite(s) else (1.0 if math.isinf(a) else 0.0)
 
 
-@njit(cache=True)
-def _path(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, L: LightArrays, B: MaterialArrays,
-          R: RayConfig, S: SpectralArrays, spectral, w0, w1, w2, max_depth, rr_depth, mis, bias,
-          seed, pixel, sample, counts, pre_t, pre_prim, pre_b1, pre_b2):
-    """Radiance carried to the eye along one sampled path: (r, g, b), or in spectral
-    mode the radiance at the three wavelengths of grid positions (w0, w1, w2).
-
-    ``pre_*``: the eye ray's closest hit as :func:`impl.rays.hit` returns it, traced
-    in a packet; ``pre_prim = NOT_TRACED`` traces it here like every other segment.
-    """
-    ns = A.sph_radius.shape[0]
-    r = g = b = 0.0
-    tr = tg = tb = 1.0               # path throughput
-    eta = 1.0                        # product of the relative IORs crossed
-    depth = 0
-    prev_pdf = 1.0
-    prev_delta = True                # the eye ray counts as a delta "bounce" for MIS
-    ppx, ppy, ppz = ox, oy, oz       # previous vertex (for the light pdf of an emitter hit)
-    single = False                   # secondary wavelengths dropped (after dispersion)
-    t0, t1 = tmin, tmax
-    counts[_C_PATH] += 1
-    while True:
-        counts[_C_SEG] += 1
-        ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
-        if pre_prim != NOT_TRACED:   # the eye ray's hit, traced in a packet
-            t, prim, b1, b2 = pre_t, pre_prim, pre_b1, pre_b2
-            pre_prim = NOT_TRACED
-        else:
-            t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, t0, t1)
-        if prim < 0:                 # left the scene: the environment (BSDF-sampled only)
-            er, eg, eb = environment_radiance(A, dx, dy, dz)
-            r += tr * er
-            g += tg * eg
-            b += tb * eb
-            break
-        shape = A.prim_shape[prim]
-        px, py, pz = refine(R, prim, b1, b2, ox + t * dx, oy + t * dy, oz + t * dz)
-        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
-                                         A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
-        vx, vy, vz = -dx, -dy, -dz
-        cos_v = sx * vx + sy * vy + sz * vz
-
-        # Emitted radiance (front side), MIS-weighted after a non-delta bounce.
-        if cos_v > 0.0 and (L.shape_emit[shape, 0] > 0.0 or L.shape_emit[shape, 1] > 0.0
-                            or L.shape_emit[shape, 2] > 0.0):
-            w = 1.0
-            if not prev_delta:
-                if mis:
-                    cos_y = abs(gx * vx + gy * vy + gz * vz)
-                    w = _power(prev_pdf, emitter_pdf(A, L, shape, ppx, ppy, ppz, t, cos_y))
-                else:
-                    w = 0.0          # plain NEE: the light sample already counted this
-            if spectral:
-                er = spectrum_at(S.emit_spec[shape], w0)
-                eg = spectrum_at(S.emit_spec[shape], w1)
-                eb = spectrum_at(S.emit_spec[shape], w2)
-            else:
-                er, eg, eb = L.shape_emit[shape, 0], L.shape_emit[shape, 1], L.shape_emit[shape, 2]
-            r += tr * w * er
-            g += tg * w * eg
-            b += tb * w * eb
-
-        if max_depth >= 0 and depth + 1 >= max_depth:
-            counts[_C_DEPTH] += 1
-            break
-        mat = A.shape_material[shape]
-        delta = is_delta(B, mat)
-        # A two-sided opaque BSDF is seen from the front on both sides.
-        if not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
-            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-        fx, fy, fz, qx, qy, qz = frame(sx, sy, sz)
-        wix, wiy, wiz = to_local(fx, fy, fz, qx, qy, qz, sx, sy, sz, vx, vy, vz)
-        if spectral:
-            rho_r = spectrum_at(S.mat_spec[mat], w0)
-            rho_g = spectrum_at(S.mat_spec[mat], w1)
-            rho_b = spectrum_at(S.mat_spec[mat], w2)
-        else:
-            rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
-        dim = 2 + _DIMS_PER_VERTEX * depth
-        eta_scale = eta_scale_at(S, mat, w0) if spectral else 1.0
-
-        # Next-event estimation: one light sample, shadow ray, MIS weight.
-        if not delta and L.n_lights > 0:
-            u0 = uniform(seed, pixel, sample, dim)
-            u1 = uniform(seed, pixel, sample, dim + 1)
-            u2 = uniform(seed, pixel, sample, dim + 2)
-            lx, ly, lz, ldist, yx, yy, yz, er, eg, eb, lpdf, ldelta, li = sample_light(
-                A, L, px, py, pz, u0, u1, u2)
-            if spectral:                 # L and A carry unit emission: scale by the spectrum
-                er *= spectrum_at(S.light_spec[li], w0)
-                eg *= spectrum_at(S.light_spec[li], w1)
-                eb *= spectrum_at(S.light_spec[li], w2)
-            if er > 0.0 or eg > 0.0 or eb > 0.0:
-                wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, sx, sy, sz, lx, ly, lz)
-                fr, fg, fb = bsdf_eval(B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox,
-                                       woy, woz)
-                if fr > 0.0 or fg > 0.0 or fb > 0.0:
-                    counts[_C_SHADOW] += 1
-                    side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
-                    sox, soy, soz, st0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
-                    if math.isinf(ldist):
-                        blocked = occluded(R, sox, soy, soz, lx, ly, lz, st0, np.inf)
-                    else:
-                        hx, hy, hz = yx - sox, yy - soy, yz - soz
-                        hd = math.sqrt(hx * hx + hy * hy + hz * hz)
-                        shrink = R.shrink_point if ldelta else R.shrink_area
-                        blocked = hd == 0.0 or occluded(R, sox, soy, soz, hx / hd, hy / hd, hz / hd,
-                                                        st0, hd * (1.0 - shrink))
-                    if not blocked:
-                        w = 1.0
-                        if not ldelta and mis:
-                            bpdf = bsdf_pdf(B, mat, eta_scale, wix, wiy, wiz, wox, woy, woz)
-                            if bias == _BIAS_MIS:   # debug: the classic swapped-argument bug
-                                w = _power(bpdf, lpdf)
-                            else:
-                                w = _power(lpdf, bpdf)
-                        r += tr * w * fr * er
-                        g += tg * w * fg * eg
-                        b += tb * w * fb * eb
-
-        # BSDF sampling: the next direction.
-        u0 = uniform(seed, pixel, sample, dim + 3)
-        u1 = uniform(seed, pixel, sample, dim + 4)
-        u2 = uniform(seed, pixel, sample, dim + 5)
-        wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample(
-            B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
-        if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
-            break
-        tr *= wr
-        tg *= wg
-        tb *= wb
-        eta *= seta
-        if eta_scale != 1.0 and not single:
-            # Dispersion: the direction is the hero wavelength's; drop the others.
-            tr *= 3.0
-            tg = tb = 0.0
-            single = True
-        ndx, ndy, ndz = to_world(fx, fy, fz, qx, qy, qz, sx, sy, sz, wox, woy, woz)
-        inv = 1.0 / math.sqrt(ndx * ndx + ndy * ndy + ndz * ndz)
-        ndx, ndy, ndz = ndx * inv, ndy * inv, ndz * inv
-        side = 1.0 if gx * ndx + gy * ndy + gz * ndz >= 0.0 else -1.0
-        ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
-        dx, dy, dz = ndx, ndy, ndz
-        t1 = np.inf
-        ppx, ppy, ppz = px, py, pz
-        prev_pdf = pdf
-        prev_delta = sdelta
-        counts[_C_BOUNCE] += 1
-
-        # Russian roulette (Mitsuba: after the depth increment, q = min(max(T)·η², 0.95)).
-        depth += 1
-        tmax_ = max(tr, tg, tb)
-        if tmax_ <= 0.0:
-            break
-        if depth >= rr_depth:
-            q = min(tmax_ * eta * eta, 0.95)
-            if uniform(seed, pixel, sample, dim + 6) >= q:
-                counts[_C_RR] += 1
-                break
-            if bias != _BIAS_RR:
-                tr /= q
-                tg /= q
-                tb /= q
-    return r, g, b
-
-
 class PathConfig(NamedTuple):
     """The path tracer's parameters as one kernel argument."""
 
@@ -338,26 +172,195 @@ class PathConfig(NamedTuple):
 
 
 @njit(cache=True)
+def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
+           P: PathConfig, seed, sample, T: Batch):
+    """The radiance ``T.L`` carried to the eye along one sampled path per eye ray of the
+    batch (``T.ray``, closest hits ``T.t``, ``T.prim``, ``T.b`` from
+    :func:`impl.tracer.eye_batch`); in spectral mode the radiance at three hero
+    wavelengths, converted to linear sRGB.  Per-ray counters into ``T.cnt``.
+
+    The loop over the batch's rays lives here, so that the scene's arrays are handed
+    over once per batch, not once per path.
+    """
+    ns = A.sph_radius.shape[0]
+    spectral, max_depth, rr_depth, mis, bias = P.spectral, P.max_depth, P.rr_depth, P.mis, P.bias
+    for col in range(T.n):
+        pixel = T.pixel[col]
+        w0 = w1 = w2 = 0.0
+        if spectral:
+            w0, w1, w2 = sample_wavelengths(uniform(seed, pixel, sample, _DIM_WAVELENGTH))
+        counts = T.cnt[col]
+        ox, oy, oz = T.ray[OX, col], T.ray[OY, col], T.ray[OZ, col]
+        dx, dy, dz = T.ray[DX, col], T.ray[DY, col], T.ray[DZ, col]
+        tmin, tmax = T.ray[TMIN, col], T.ray[TMAX, col]
+        pre_t, pre_prim, pre_b1, pre_b2 = T.t[col], T.prim[col], T.b[0, col], T.b[1, col]
+        r = g = b = 0.0
+        tr = tg = tb = 1.0               # path throughput
+        eta = 1.0                        # product of the relative IORs crossed
+        depth = 0
+        prev_pdf = 1.0
+        prev_delta = True                # the eye ray counts as a delta "bounce" for MIS
+        ppx, ppy, ppz = ox, oy, oz       # previous vertex (for the light pdf of an emitter hit)
+        single = False                   # secondary wavelengths dropped (after dispersion)
+        t0, t1 = tmin, tmax
+        counts[_C_PATH] += 1
+        while True:
+            counts[_C_SEG] += 1
+            ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
+            if pre_prim != NOT_TRACED:   # the eye ray's hit, traced in a packet
+                t, prim, b1, b2 = pre_t, pre_prim, pre_b1, pre_b2
+                pre_prim = NOT_TRACED
+            else:
+                t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, t0, t1)
+            if prim < 0:                 # left the scene: the environment (BSDF-sampled only)
+                er, eg, eb = environment_radiance(A, dx, dy, dz)
+                r += tr * er
+                g += tg * eg
+                b += tb * eb
+                break
+            shape = A.prim_shape[prim]
+            px, py, pz = refine(R, prim, b1, b2, ox + t * dx, oy + t * dy, oz + t * dz)
+            gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
+                                             A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+            vx, vy, vz = -dx, -dy, -dz
+            cos_v = sx * vx + sy * vy + sz * vz
+
+            # Emitted radiance (front side), MIS-weighted after a non-delta bounce.
+            if cos_v > 0.0 and (L.shape_emit[shape, 0] > 0.0 or L.shape_emit[shape, 1] > 0.0
+                                or L.shape_emit[shape, 2] > 0.0):
+                w = 1.0
+                if not prev_delta:
+                    if mis:
+                        cos_y = abs(gx * vx + gy * vy + gz * vz)
+                        w = _power(prev_pdf, emitter_pdf(A, L, shape, ppx, ppy, ppz, t, cos_y))
+                    else:
+                        w = 0.0          # plain NEE: the light sample already counted this
+                if spectral:
+                    er = spectrum_at(S.emit_spec[shape], w0)
+                    eg = spectrum_at(S.emit_spec[shape], w1)
+                    eb = spectrum_at(S.emit_spec[shape], w2)
+                else:
+                    er, eg, eb = L.shape_emit[shape, 0], L.shape_emit[shape, 1], L.shape_emit[shape, 2]
+                r += tr * w * er
+                g += tg * w * eg
+                b += tb * w * eb
+
+            if max_depth >= 0 and depth + 1 >= max_depth:
+                counts[_C_DEPTH] += 1
+                break
+            mat = A.shape_material[shape]
+            delta = is_delta(B, mat)
+            # A two-sided opaque BSDF is seen from the front on both sides.
+            if not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+                gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+            fx, fy, fz, qx, qy, qz = frame(sx, sy, sz)
+            wix, wiy, wiz = to_local(fx, fy, fz, qx, qy, qz, sx, sy, sz, vx, vy, vz)
+            if spectral:
+                rho_r = spectrum_at(S.mat_spec[mat], w0)
+                rho_g = spectrum_at(S.mat_spec[mat], w1)
+                rho_b = spectrum_at(S.mat_spec[mat], w2)
+            else:
+                rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+            dim = 2 + _DIMS_PER_VERTEX * depth
+            eta_scale = eta_scale_at(S, mat, w0) if spectral else 1.0
+
+            # Next-event estimation: one light sample, shadow ray, MIS weight.
+            if not delta and L.n_lights > 0:
+                u0 = uniform(seed, pixel, sample, dim)
+                u1 = uniform(seed, pixel, sample, dim + 1)
+                u2 = uniform(seed, pixel, sample, dim + 2)
+                lx, ly, lz, ldist, yx, yy, yz, er, eg, eb, lpdf, ldelta, li = sample_light(
+                    A, L, px, py, pz, u0, u1, u2)
+                if spectral:                 # L and A carry unit emission: scale by the spectrum
+                    er *= spectrum_at(S.light_spec[li], w0)
+                    eg *= spectrum_at(S.light_spec[li], w1)
+                    eb *= spectrum_at(S.light_spec[li], w2)
+                if er > 0.0 or eg > 0.0 or eb > 0.0:
+                    wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, sx, sy, sz, lx, ly, lz)
+                    fr, fg, fb = bsdf_eval(B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox,
+                                           woy, woz)
+                    if fr > 0.0 or fg > 0.0 or fb > 0.0:
+                        counts[_C_SHADOW] += 1
+                        side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
+                        sox, soy, soz, st0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+                        if math.isinf(ldist):
+                            blocked = occluded(R, sox, soy, soz, lx, ly, lz, st0, np.inf)
+                        else:
+                            hx, hy, hz = yx - sox, yy - soy, yz - soz
+                            hd = math.sqrt(hx * hx + hy * hy + hz * hz)
+                            shrink = R.shrink_point if ldelta else R.shrink_area
+                            blocked = hd == 0.0 or occluded(R, sox, soy, soz, hx / hd, hy / hd, hz / hd,
+                                                            st0, hd * (1.0 - shrink))
+                        if not blocked:
+                            w = 1.0
+                            if not ldelta and mis:
+                                bpdf = bsdf_pdf(B, mat, eta_scale, wix, wiy, wiz, wox, woy, woz)
+                                if bias == _BIAS_MIS:   # debug: the classic swapped-argument bug
+                                    w = _power(bpdf, lpdf)
+                                else:
+                                    w = _power(lpdf, bpdf)
+                            r += tr * w * fr * er
+                            g += tg * w * fg * eg
+                            b += tb * w * fb * eb
+
+            # BSDF sampling: the next direction.
+            u0 = uniform(seed, pixel, sample, dim + 3)
+            u1 = uniform(seed, pixel, sample, dim + 4)
+            u2 = uniform(seed, pixel, sample, dim + 5)
+            wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample(
+                B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+            if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
+                break
+            tr *= wr
+            tg *= wg
+            tb *= wb
+            eta *= seta
+            if eta_scale != 1.0 and not single:
+                # Dispersion: the direction is the hero wavelength's; drop the others.
+                tr *= 3.0
+                tg = tb = 0.0
+                single = True
+            ndx, ndy, ndz = to_world(fx, fy, fz, qx, qy, qz, sx, sy, sz, wox, woy, woz)
+            inv = 1.0 / math.sqrt(ndx * ndx + ndy * ndy + ndz * ndz)
+            ndx, ndy, ndz = ndx * inv, ndy * inv, ndz * inv
+            side = 1.0 if gx * ndx + gy * ndy + gz * ndz >= 0.0 else -1.0
+            ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+            dx, dy, dz = ndx, ndy, ndz
+            t1 = np.inf
+            ppx, ppy, ppz = px, py, pz
+            prev_pdf = pdf
+            prev_delta = sdelta
+            counts[_C_BOUNCE] += 1
+
+            # Russian roulette (Mitsuba: after the depth increment, q = min(max(T)·η², 0.95)).
+            depth += 1
+            tmax_ = max(tr, tg, tb)
+            if tmax_ <= 0.0:
+                break
+            if depth >= rr_depth:
+                q = min(tmax_ * eta * eta, 0.95)
+                if uniform(seed, pixel, sample, dim + 6) >= q:
+                    counts[_C_RR] += 1
+                    break
+                if bias != _BIAS_RR:
+                    tr /= q
+                    tg /= q
+                    tb /= q
+
+        if spectral:
+            r, g, b = to_linear_srgb(S, r, g, b, w0, w1, w2)
+        T.L[0, col], T.L[1, col], T.L[2, col] = r, g, b
+
+
+@njit(cache=True)
 def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
           P: PathConfig, film: Film, tile, spp, seed):
     """One tile (:mod:`impl.tracer`): per sample index, the eye rays and their hits, then
-    each pixel's path from its first hit."""
+    each pixel's path from its first hit (:func:`_paths`)."""
     T = new_batch(film, R, tile)
     for s in range(spp):
         eye_batch(cam, R, T, s, spp, seed, film.packets)
-        ray = T.ray
-        for i in range(T.n):
-            pixel = T.pixel[i]
-            w0 = w1 = w2 = 0.0
-            if P.spectral:
-                w0, w1, w2 = sample_wavelengths(uniform(seed, pixel, s, _DIM_WAVELENGTH))
-            r, g, b = _path(ray[0, i], ray[1, i], ray[2, i], ray[3, i], ray[4, i], ray[5, i],
-                            ray[6, i], ray[7, i], A, L, B, R, S, P.spectral, w0, w1, w2,
-                            P.max_depth, P.rr_depth, P.mis, P.bias, seed, pixel, s, T.cnt[i],
-                            T.t[i], T.prim[i], T.b[0, i], T.b[1, i])
-            if P.spectral:
-                r, g, b = to_linear_srgb(S, r, g, b, w0, w1, w2)
-            T.L[0, i], T.L[1, i], T.L[2, i] = r, g, b
+        _paths(A, L, B, R, S, P, seed, s, T)
         accumulate(T, s)
     store(T, film, spp)
 
