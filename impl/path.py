@@ -130,7 +130,7 @@ from .lighting import diffuse_albedo, environment_radiance, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, occluded, refine, round_ray
 from .rng import uniform
-from .sampling import check_spp
+from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
@@ -359,7 +359,7 @@ def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, 
     each pixel's path from its first hit (:func:`_paths`)."""
     T = new_batch(film, R, tile)
     for s in range(spp):
-        eye_batch(cam, R, T, s, spp, seed, film.packets)
+        eye_batch(cam, R, T, s, spp, seed, film.packets, film.sampler)
         _paths(A, L, B, R, S, P, seed, s, T)
         accumulate(T, s)
     store(T, film, spp)
@@ -412,7 +412,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
         S = rgb_arrays_placeholder()
     P = PathConfig(spectral, int(params["max_depth"]), int(params["rr_depth"]), bool(params["mis"]),
                    DEBUG_BIAS.index(debug_bias))
-    film = new_film(W, H, len(COUNTERS), bool(params.get("packets", False)))
+    film = new_film(W, H, len(COUNTERS), bool(params.get("packets", False)), sampler_code(params))
     t1 = time.perf_counter()
     _render_kernel(cam, A, L, B, R, S, P, film, spp, seed)
     t2 = time.perf_counter()
@@ -429,6 +429,7 @@ ALGORITHM = Algorithm(
     transport="full",
     params=(
         Param("spp", int, 16, "pixel samples: 1 = pixel centre, k² = k×k jittered strata (box filter)"),
+        SAMPLER_PARAM,
         Param("max_depth", int, -1, "Mitsuba's max_depth: 1 = emitters only, 2 = direct light, "
               "-1 = unbounded"),
         Param("rr_depth", int, 5, "Russian roulette from this path depth on (Mitsuba's rule)"),

@@ -87,7 +87,7 @@ from .lighting import (SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albed
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, refine
-from .sampling import check_spp
+from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, flatten_cached
 from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
                      new_batch, new_film, OX, OY, OZ, ray_config_cached, store)
@@ -152,7 +152,7 @@ def _tile(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, tile, sp
     T = new_batch(film, R, tile)
     sidx = np.empty(T.n, np.int64)
     for s in range(spp):
-        eye_batch(cam, R, T, s, spp, seed, film.packets)
+        eye_batch(cam, R, T, s, spp, seed, film.packets, film.sampler)
         _shade(A, R, M, T, s, seed, sidx)
         accumulate(T, s)
     store(T, film, spp)
@@ -208,7 +208,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     cam = camera_params(scene.camera)
     H, W = scene.camera.film.height, scene.camera.film.width
     packets = bool(params.get("packets", False))
-    film = new_film(W, H, len(COUNTERS), packets)
+    film = new_film(W, H, len(COUNTERS), packets, sampler_code(params))
     t1 = time.perf_counter()
     _render_kernel(cam, A, R, local_model(params), film, spp, seed)
     t2 = time.perf_counter()
@@ -223,6 +223,7 @@ ALGORITHM = Algorithm(
     transport="direct",
     params=(
         Param("spp", int, 1, "pixel samples: 1 = pixel centre, k² = k×k jittered strata (box filter)"),
+        SAMPLER_PARAM,
         Param("light_samples", int, 16, "shadow rays per area emitter per pixel sample"),
         *PHONG_PARAMS,
         Param("shadows", bool, True, "cast shadow rays"),

@@ -24,13 +24,15 @@ import math
 
 from numba import njit
 
+from core.algorithm import Param
+
 from core.errors import ParamError
 
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform
 
 __all__ = ["check_spp", "strata", "pixel_sample", "welford_add", "variance_of_mean",
-           "PIXEL_JITTER", "PIXEL_SOBOL", "PIXEL_SAMPLERS"]
+           "PIXEL_JITTER", "PIXEL_SOBOL", "PIXEL_SAMPLERS", "SAMPLER_PARAM", "sampler_code"]
 
 #: :func:`pixel_sample` sampler codes, and their names (index = code).
 PIXEL_JITTER = 0
@@ -38,6 +40,17 @@ PIXEL_SOBOL = 1
 PIXEL_SAMPLERS = ("jitter", "sobol")
 #: The Sobol dimension pair of the pixel position (other pairs are free for lens, time, light).
 PIXEL_PAIR = 0
+
+#: The tracers' ``sampler`` parameter: where a pixel's samples go (:func:`pixel_sample`).
+SAMPLER_PARAM = Param("sampler", str, "jitter",
+                      "pixel samples: jitter (k×k jittered strata) | sobol (Owen-scrambled Sobol "
+                      "points, a (0, m, 2)-net per pixel when spp is a power of two)",
+                      choices=PIXEL_SAMPLERS)
+
+
+def sampler_code(params: dict) -> int:
+    """The :func:`pixel_sample` code of parsed parameters' ``sampler`` (jitter without one)."""
+    return PIXEL_SAMPLERS.index(params.get("sampler", "jitter"))
 
 
 def check_spp(spp: int, algorithm: str) -> int:

@@ -79,6 +79,7 @@ class Film(NamedTuple):
     packet: np.ndarray          # (tiles, 2) packet nodes and tests per tile
     packets: bool               # trace eye rays as packets
     tile: int                   # tile side in pixels
+    sampler: int                # pixel sampler code (impl.sampling.PIXEL_*)
 
 
 class Batch(NamedTuple):
@@ -124,14 +125,15 @@ def ray_config_cached(scene, A, params: dict, *, algorithm: str) -> RayConfig:
     return scene_memo(scene, key, lambda: ray_config(A, params, algorithm=algorithm))
 
 
-def new_film(W: int, H: int, counters: int, packets: bool) -> Film:
-    """The zeroed outputs of a W×H render with ``counters`` per-pixel counts.  Tiles are
+def new_film(W: int, H: int, counters: int, packets: bool, sampler: int = 0) -> Film:
+    """The zeroed outputs of a W×H render with ``counters`` per-pixel counts, pixel
+    samples placed by ``sampler`` (:func:`impl.sampling.pixel_sample`'s code).  Tiles are
     the packets' (``TILE``) with packets, else ``BATCH_TILE`` (fewer, larger batches:
     each batch step has a fixed cost)."""
     ts = TILE if packets else BATCH_TILE
     tiles = ((W + ts - 1) // ts) * ((H + ts - 1) // ts)
     return Film(np.zeros((H, W, 3)), np.zeros((H, W, 3)), np.zeros((H, W, counters), np.int64),
-                np.zeros((tiles, 2), np.int64), bool(packets), ts)
+                np.zeros((tiles, 2), np.int64), bool(packets), ts, int(sampler))
 
 
 def film_result(film: Film, spp: int, counters: dict, t0: float, t1: float, t2: float, *,
@@ -197,16 +199,17 @@ def new_points(n, R: RayConfig, counters=0):
 
 
 @njit(cache=True)
-def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets):
+def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     """Sample ``s`` of the tile's pixels: the eye rays (pixel centre for spp = 1, else
-    jittered stratum ``s``; :func:`impl.sampling.pixel_sample`), rounded to R's
-    precision, and their closest hits into ``T.t`` / ``T.prim`` / ``T.b``."""
+    the sample ``s`` of ``sampler``: jittered stratum or Sobol point,
+    :func:`impl.sampling.pixel_sample`), rounded to R's precision, and their closest
+    hits into ``T.t`` / ``T.prim`` / ``T.b``."""
     k = strata(spp)
     g = R.sph_radius
     ray = T.ray
     for i in range(T.n):
         x, y = T.x0 + i % T.nx, T.y0 + i // T.nx
-        fx, fy = pixel_sample(spp, k, s, seed, T.pixel[i])
+        fx, fy = pixel_sample(spp, k, s, seed, T.pixel[i], sampler, x, y)
         ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
         ray[OX, i], ray[OY, i], ray[OZ, i] = float(like(g, ox)), float(like(g, oy)), float(like(g, oz))
         ray[DX, i], ray[DY, i], ray[DZ, i] = float(like(g, dx)), float(like(g, dy)), float(like(g, dz))

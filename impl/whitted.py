@@ -179,7 +179,7 @@ from .materials import SpecularArrays, material_arrays
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
-from .sampling import check_spp
+from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten, flatten_cached, scene_memo
 from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
                      new_batch, new_film, new_points, OX, OY, OZ, ray_config_cached, store, TMAX,
@@ -440,7 +440,7 @@ def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, m
     T = new_batch(film, R, tile)
     work = _scratch(T.n, max_depth, R)
     for s in range(spp):
-        eye_batch(cam, R, T, s, spp, seed, film.packets)
+        eye_batch(cam, R, T, s, spp, seed, film.packets, film.sampler)
         _trees(A, S, R, M, max_depth, hall_threshold, seed, s, spp, T, True, *work)
         accumulate(T, s)
     store(T, film, spp)
@@ -529,7 +529,8 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     cam = camera_params(scene.camera)
     H, W = scene.camera.film.height, scene.camera.film.width
     spp, max_depth = params["spp"], params["max_depth"]
-    film = new_film(W, H, len(COUNTERS) + max_depth + 1, bool(params.get("packets", False)))
+    film = new_film(W, H, len(COUNTERS) + max_depth + 1, bool(params.get("packets", False)),
+                    sampler_code(params))
     cut = np.zeros((H, W, 2))
     t1 = time.perf_counter()
     _render_kernel(cam, A, S, R, local_model(params), max_depth, float(params["hall_threshold"]),
@@ -575,6 +576,7 @@ ALGORITHM = Algorithm(
     transport="whitted",
     params=(
         Param("spp", int, 1, "pixel samples: 1 = pixel centre, k² = k×k jittered strata (box filter)"),
+        SAMPLER_PARAM,
         Param("max_depth", int, 10, "deepest ray of a tree branch (eye ray = 1; 1 = ray casting)"),
         Param("hall_threshold", float, 1e-5, "cut a branch whose weight (every RGB channel) is below this"),
         Param("light_samples", int, 16, "shadow rays per area emitter per diffuse hit"),
