@@ -52,7 +52,7 @@ from core.algorithm import RenderResult
 from .accel.packets import TILE, packet_hits
 from .camera import eye_ray
 from .intersect import like
-from .rays import RayConfig, hit, occluded, ray_config
+from .rays import PARAMS as RAY_PARAMS, RayConfig, hit, occluded, ray_config
 from .sampling import pixel_sample, strata, variance_of_mean
 from .scene_arrays import scene_memo
 
@@ -109,8 +109,8 @@ class Batch(NamedTuple):
     qp: np.ndarray              # (n,) int32 primitive (int32: the loops then vectorise in float32 too)
 
 
-#: The parameters :func:`impl.rays.ray_config` reads.
-_RAY_KEYS = ("intersect", "precision", "offset", "epsilon", "accel", "slab_normals", "packets")
+#: The parameters :func:`impl.rays.ray_config` reads (its parameter table).
+_RAY_KEYS = tuple(p.name for p in RAY_PARAMS)
 
 
 def ray_config_cached(scene, A, params: dict, *, algorithm: str) -> RayConfig:
