@@ -49,6 +49,9 @@ shape            sphere (center/radius or to_world; gibench's own
                  ``<vector name="gibench_velocity">`` makes it move linearly,
                  centre(τ) = center + velocity·τ over the sensor's shutter — see
                  references/motion_blur.py), rectangle, cube, obj, ply,
+                 (meshes may move rigidly: ``gibench_velocity``,
+                 ``gibench_angular_velocity`` about ``gibench_pivot``, default
+                 the vertices' centroid; so may the sensor, about its origin),
                  disk, cylinder (p0, p1, radius; both tessellated, see
                  :mod:`core.meshes`), serialized (Mitsuba's compressed mesh format,
                  shape_index), flip_normals, face_normals; OBJ polygons are
@@ -137,23 +140,28 @@ _UV_SHAPES = ("rectangle", "obj", "serialized")
 _VALUE_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector",
                "transform")
 
+# gibench-only motion properties (camera, meshes; see _motion).
+_MOTION = ("gibench_velocity", "gibench_angular_velocity")
+_MESH_MOTION = _MOTION + ("gibench_pivot",)
+
 # Properties each plugin accepts: name -> what the own algorithms do with it.
 _PROPS = {
     ("sensor", "perspective"): {"fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance",
-                                "shutter_open", "shutter_close", "focal_length"},
+                                "shutter_open", "shutter_close", "focal_length", *_MOTION},
     ("sensor", "thinlens"): {"fov", "fov_axis", "near_clip", "far_clip", "to_world", "focus_distance",
-                             "aperture_radius", "shutter_open", "shutter_close", "focal_length"},
-    ("sensor", "orthographic"): {"near_clip", "far_clip", "to_world", "shutter_open", "shutter_close"},
+                             "aperture_radius", "shutter_open", "shutter_close", "focal_length", *_MOTION},
+    ("sensor", "orthographic"): {"near_clip", "far_clip", "to_world", "shutter_open", "shutter_close",
+                                 *_MOTION},
     ("film", "hdrfilm"): {"width", "height", "pixel_format", "component_format"},
     ("rfilter", "box"): set(),
     ("rfilter", "gaussian"): {"stddev"},
     ("shape", "sphere"): {"center", "radius", "to_world", "flip_normals", "gibench_velocity"},
-    ("shape", "rectangle"): {"to_world", "flip_normals"},
-    ("shape", "cube"): {"to_world", "flip_normals"},
-    ("shape", "disk"): {"to_world", "flip_normals"},
-    ("shape", "cylinder"): {"to_world", "flip_normals", "p0", "p1", "radius"},
-    ("shape", "obj"): {"filename", "to_world", "flip_normals", "face_normals"},
-    ("shape", "ply"): {"filename", "to_world", "flip_normals", "face_normals"},
+    ("shape", "rectangle"): {"to_world", "flip_normals", *_MESH_MOTION},
+    ("shape", "cube"): {"to_world", "flip_normals", *_MESH_MOTION},
+    ("shape", "disk"): {"to_world", "flip_normals", *_MESH_MOTION},
+    ("shape", "cylinder"): {"to_world", "flip_normals", "p0", "p1", "radius", *_MESH_MOTION},
+    ("shape", "obj"): {"filename", "to_world", "flip_normals", "face_normals", *_MESH_MOTION},
+    ("shape", "ply"): {"filename", "to_world", "flip_normals", "face_normals", *_MESH_MOTION},
     ("bsdf", "diffuse"): {"reflectance"},
     ("bsdf", "twosided"): set(),
     ("bsdf", "conductor"): {"material", "eta", "k", "specular_reflectance"},
@@ -240,7 +248,8 @@ _SCHEMA = {
         "reflectance", "radiance", "intensity", "irradiance", "specular_reflectance",
         "specular_transmittance", "color0", "color1", "eta", "k")},
     **{name: ("vector", None, "") for name in (
-        "center", "position", "direction", "p0", "p1", "gibench_velocity")},
+        "center", "position", "direction", "p0", "p1", "gibench_velocity", "gibench_angular_velocity",
+        "gibench_pivot")},
     **{name: ("transform", None, "") for name in ("to_world", "to_uv")},
     **{name: ("boolean", None, "") for name in (
         "flip_normals", "face_normals", "raw", "sample_visible", "jitter")},
@@ -708,9 +717,37 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
     n_world = None if n is None else tf.transform_normals(m, n)
     if np.linalg.det(m[:3, :3]) < 0:
         f = f[:, ::-1].copy()          # a mirroring transform flips the winding; keep normals outward
+    velocity, omega = _motion(ctx, el, p)
+    pivot = None
+    if omega is not None:
+        pivot = p.get("gibench_pivot")
+        pivot = v_world.mean(axis=0) if pivot is None else np.asarray(pivot, dtype=np.float64).reshape(-1)
+        if pivot.shape != (3,) or not np.all(np.isfinite(pivot)):
+            raise ctx.error(el, f"gibench_pivot must be a finite point, got {pivot.tolist()}")
+    elif p.get("gibench_pivot") is not None:
+        raise ctx.error(el, "gibench_pivot without gibench_angular_velocity (nothing turns about it)")
+    if (velocity is not None or omega is not None) and emit is not None:
+        raise ctx.error(el, "a moving mesh cannot be an emitter (its light samples would stay put)")
     return Shape(kind="mesh", material=mat, name=name, source=p.type, vertices=v_world,
                  faces=f, normals=n_world, flip_normals=flip, emitter_radiance=emit, uvs=uvs,
-                 emitter_spectrum=emit_spectrum)
+                 emitter_spectrum=emit_spectrum, velocity=velocity, angular_velocity=omega,
+                 pivot=pivot)
+
+
+def _motion(ctx, el, p):
+    """``(velocity, angular_velocity)`` of a moving camera or mesh (gibench-only
+    ``<vector name="gibench_velocity">``, world units per unit of shutter time, and
+    ``<vector name="gibench_angular_velocity">``, a rotation vector in radians per unit
+    time), each None when absent; both finite 3-vectors."""
+    out = []
+    for key in _MOTION:
+        v = p.get(key)
+        if v is not None:
+            v = np.asarray(v, dtype=np.float64).reshape(-1)
+            if v.shape != (3,) or not np.all(np.isfinite(v)):
+                raise ctx.error(el, f"{key} must be a finite vector, got {v.tolist()}")
+        out.append(v)
+    return tuple(out)
 
 
 def _analytic_mesh(ctx, p, m):
@@ -827,8 +864,10 @@ def _camera(ctx, el) -> Camera:
     s_open, s_close = float(p.get("shutter_open", 0.0)), float(p.get("shutter_close", 0.0))
     if s_close < s_open:
         raise ctx.error(el, f"shutter_close ({s_close}) must not be before shutter_open ({s_open})")
+    velocity, omega = _motion(ctx, el, p)
     common = dict(to_world=p.get("to_world", np.eye(4)), near_clip=near, far_clip=far, film=film,
-                  sample_count=spp, kind=p.type, shutter_open=s_open, shutter_close=s_close)
+                  sample_count=spp, kind=p.type, shutter_open=s_open, shutter_close=s_close,
+                  velocity=velocity, angular_velocity=omega)
     if p.type == "orthographic":
         return Camera(**common)
     fov, axis = _sensor_fov(ctx, p)
@@ -1212,6 +1251,8 @@ def _transformed(ctx, el, shape: Shape, m: np.ndarray) -> Shape:
             raise ctx.error(el, "a moving sphere cannot be instanced")
         return dataclasses.replace(shape, center=tf.transform_points(m, shape.center),
                                    radius=shape.radius * s)
+    if shape.moves:
+        raise ctx.error(el, "a moving mesh cannot be instanced")
     f = shape.faces[:, ::-1].copy() if np.linalg.det(m[:3, :3]) < 0 else shape.faces
     n = None if shape.normals is None else tf.transform_normals(m, shape.normals)
     return dataclasses.replace(shape, vertices=tf.transform_points(m, shape.vertices), faces=f,

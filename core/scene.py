@@ -126,6 +126,15 @@ class Camera:
     focus_distance: float = 1e4        # thinlens (Mitsuba's default: far_clip)
     shutter_open: float = 0.0
     shutter_close: float = 0.0
+    # gibench-only camera motion over the shutter: the camera at time τ is translated
+    # by velocity·τ and turned by the rotation vector angular_velocity·τ (rad) about its
+    # own origin (None: still).
+    velocity: np.ndarray | None = None
+    angular_velocity: np.ndarray | None = None
+
+    @property
+    def moves(self) -> bool:
+        return self.velocity is not None or self.angular_velocity is not None
 
     @property
     def origin(self) -> np.ndarray:
@@ -228,6 +237,15 @@ class Shape:
     emitter_radiance: np.ndarray | None = None  # RGB radiance of an area emitter, or None
     emitter_spectrum: Spectrum | None = None    # its spectrum, when the file gives one
     velocity: np.ndarray | None = None  # sphere moving linearly: centre(τ) = center + velocity·τ
+    # A mesh's rigid motion: vertex(τ) = pivot + Rot(angular_velocity·τ)(vertex − pivot)
+    # + velocity·τ (rotation vector in rad per unit time; pivot: the world point it
+    # turns about).  None: still.
+    angular_velocity: np.ndarray | None = None
+    pivot: np.ndarray | None = None
+
+    @property
+    def moves(self) -> bool:
+        return self.velocity is not None or self.angular_velocity is not None
 
     @property
     def is_emitter(self) -> bool:
@@ -291,7 +309,7 @@ class Scene:
 #: The features :func:`scene_features` names: parts of the scene vocabulary an
 #: algorithm must model explicitly (``Algorithm.models``) to render a scene that has them.
 FEATURES = ("envmap", "projector", "spot texture", "plastic", "roughplastic", "normalmap", "bumpmap",
-            "textured parameter")
+            "textured parameter", "camera motion", "mesh motion")
 
 
 def scene_features(scene: Scene) -> dict[str, str]:
@@ -308,9 +326,13 @@ def scene_features(scene: Scene) -> dict[str, str]:
         elif light.texture is not None:
             found.setdefault("spot texture", f"spot emitter '{light.name}'" if light.name else
                              "a textured spot emitter")
+    if getattr(scene.camera, "moves", False):
+        found["camera motion"] = "the sensor (gibench_velocity / gibench_angular_velocity)"
     for shape in scene.shapes:
         m = scene.materials[shape.material]
         where = f"shape '{shape.name or shape.source}'"
+        if shape.kind == "mesh" and shape.moves:
+            found.setdefault("mesh motion", where)
         if m.kind in ("plastic", "roughplastic"):
             found.setdefault(m.kind, where)
         if m.shading is not None:

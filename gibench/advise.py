@@ -150,7 +150,7 @@ def scene_features(scene) -> dict:
         "primitives": int(prims),
         "spheres": any(s.kind == "sphere" for s in scene.shapes),
         "dof": cam.kind == "thinlens" and cam.aperture_radius > 0,
-        "motion": any(s.velocity is not None for s in scene.shapes),
+        "motion": any(s.moves for s in scene.shapes) or cam.moves,
     }
 
 

@@ -32,6 +32,27 @@ sampling by default): Mitsuba's microfacet BSDFs of :mod:`impl.microfacet`
 (Walter et al. 2007), with the conductor Fresnel term at the sampled
 microfacet and ``specular_reflectance`` / ``specular_transmittance``.
 
+Thesis chapter 2 models without a Mitsuba plugin (scalar lobes, not yet a
+material kind of :func:`bsdf_sample`; each an eval / pdf / sample triple in the
+same conventions, checked by chi-square and furnace tests in
+``tests/test_cook_torrance.py``):
+
+* :func:`cook_torrance_eval` / :func:`cook_torrance_pdf` /
+  :func:`cook_torrance_sample` — Cook & Torrance's (1982) mixture of a diffuse
+  and a specular lobe, ``f = k_d ρ/π + k_s F(wi·h) D G / (4 cos θ_i cos θ_o)``
+  with ``k_d + k_s ≤ 1`` (the thesis's s + d = 1), the exact dielectric Fresnel
+  F of relative IOR η (2.4.5.2's (g, c) form), the roughness mixture D of
+  :func:`impl.microfacet.mixture_d`, and G Smith or V-cavity.  Sampling picks
+  the specular lobe with probability k_s / (k_d + k_s), else a cosine
+  direction; the pdf is the mixture of both, so the weight eval/pdf is
+  unbiased whichever lobe drew the sample.  One-sided.
+* :func:`diffuse_transmission_eval` / :func:`diffuse_transmission_pdf` /
+  :func:`diffuse_transmission_sample` — a Lambertian reflector and diffuse
+  transmitter (the thesis's diffuse transparency, 2.4.5.3):
+  ``f = ρ/π`` on the side of wi, ``τ/π`` on the other; ρ + τ ≤ 1 per channel
+  conserves energy.  Sampling chooses the side with probability
+  ρ̄/(ρ̄ + τ̄) (channel means), then a cosine direction on it.  Two-sided.
+
 Material rows come from :func:`impl.materials.material_arrays`; kind codes
 are :data:`impl.materials.KIND_CODES`.
 
@@ -55,7 +76,9 @@ from .materials import (KIND_CODES, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, 
 
 __all__ = ["bsdf_arrays", "MODELLED", "frame", "to_local", "to_world", "sample_cosine_hemisphere",
            "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "is_delta",
-           "is_dielectric"]
+           "is_dielectric", "cook_torrance_eval", "cook_torrance_pdf", "cook_torrance_sample",
+           "diffuse_transmission_eval", "diffuse_transmission_pdf", "diffuse_transmission_sample",
+           "check_cook_torrance"]
 
 #: The Mitsuba BSDF plugins the path tracer models.
 MODELLED = tuple(KIND_CODES)
@@ -230,3 +253,141 @@ def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
         return mf.dielectric_pdf(mf.clamp_alpha(B.alpha[mat]), B.visible[mat],
                                  B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz)
     return 0.0
+
+
+# ----------------------------------------- Cook–Torrance diffuse + specular ---
+
+def check_cook_torrance(kd: float, ks: float) -> None:
+    """Refuse lobe weights that create energy: k_d, k_s ≥ 0 and k_d + k_s ≤ 1 (the
+    thesis's s + d = 1; with ρ ≤ 1 the albedo then stays ≤ 1).  Raises ParamError."""
+    from core.errors import ParamError
+
+    if not (kd >= 0.0 and ks >= 0.0 and kd + ks <= 1.0 + 1e-12):
+        raise ParamError(f"cook-torrance: need k_d, k_s >= 0 and k_d + k_s <= 1, got k_d={kd}, k_s={ks}")
+
+
+@njit(cache=True)
+def _ct_half(ix, iy, iz, ox, oy, oz):
+    hx, hy, hz = ix + ox, iy + oy, iz + oz
+    n = math.sqrt(hx * hx + hy * hy + hz * hz)
+    return hx / n, hy / n, hz / n
+
+
+@njit(cache=True)
+def cook_torrance_eval(kd, ks, alphas, weights, gmodel, eta, rho_r, rho_g, rho_b, ix, iy, iz, ox, oy, oz):
+    """f·cos θ_o (r, g, b) of ``k_d ρ/π + k_s F D G / (4 cos θ_i cos θ_o)``; 0 below the surface."""
+    if iz <= 0.0 or oz <= 0.0:
+        return 0.0, 0.0, 0.0
+    diff = kd * oz * INV_PI
+    spec = 0.0
+    if ks > 0.0:
+        hx, hy, hz = _ct_half(ix, iy, iz, ox, oy, oz)
+        d = mf.mixture_d(alphas, weights, hx, hy, hz)
+        if d > 0.0:
+            g = mf.masking(gmodel, alphas[0], ix, iy, iz, ox, oy, oz, hx, hy, hz) if gmodel == mf.G_VCAVITY \
+                else _mixture_smith_g(alphas, weights, ix, iy, iz, ox, oy, oz, hx, hy, hz)
+            F, _, _, _ = fresnel_dielectric(ix * hx + iy * hy + iz * hz, eta)
+            spec = ks * F * d * g / (4.0 * iz)
+    return diff * rho_r + spec, diff * rho_g + spec, diff * rho_b + spec
+
+
+@njit(inline="always", cache=True)
+def _mixture_smith_g(alphas, weights, ix, iy, iz, ox, oy, oz, hx, hy, hz):
+    """Smith G of a roughness mixture, taken per lobe and weighted by each lobe's share
+    of D at h (each lobe is its own microsurface: D G = Σ_k w_k D_k G_k)."""
+    num = den = 0.0
+    for k in range(alphas.shape[0]):
+        if weights[k] > 0.0:
+            dk = weights[k] * mf.beckmann_d(alphas[k], hx, hy, hz)
+            num += dk * mf.smith_g(alphas[k], ix, iy, iz, ox, oy, oz, hx, hy, hz)
+            den += dk
+    return num / den if den > 0.0 else 0.0
+
+
+@njit(cache=True)
+def cook_torrance_pdf(kd, ks, alphas, weights, ix, iy, iz, ox, oy, oz):
+    """Solid-angle density of :func:`cook_torrance_sample`."""
+    if iz <= 0.0 or oz <= 0.0 or kd + ks <= 0.0:
+        return 0.0
+    p_spec = ks / (kd + ks)
+    pdf = (1.0 - p_spec) * oz * INV_PI
+    if p_spec > 0.0:
+        hx, hy, hz = _ct_half(ix, iy, iz, ox, oy, oz)
+        do = ox * hx + oy * hy + oz * hz
+        if do > 0.0:
+            pdf += p_spec * mf.mixture_normal_pdf(alphas, weights, hx, hy, hz) / (4.0 * do)
+    return pdf
+
+
+@njit(cache=True)
+def cook_torrance_sample(kd, ks, alphas, weights, gmodel, eta, rho_r, rho_g, rho_b, ix, iy, iz,
+                         u0, u1, u2):
+    """Sample wo: ``(ox, oy, oz, w_r, w_g, w_b, pdf)``, weight = f cos θ_o / pdf.  ``u0``
+    chooses the lobe and, rescaled, the roughness component; weight = pdf = 0 for an
+    invalid sample (below the surface)."""
+    if iz <= 0.0 or kd + ks <= 0.0:
+        return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0
+    p_spec = ks / (kd + ks)
+    if u0 < p_spec:
+        mx, my, mz, pm = mf.sample_mixture_normal(alphas, weights, u0 / p_spec, u1, u2)
+        dim = ix * mx + iy * my + iz * mz
+        ox, oy, oz = 2.0 * dim * mx - ix, 2.0 * dim * my - iy, 2.0 * dim * mz - iz
+        if pm == 0.0 or dim <= 0.0 or oz <= 0.0:
+            return ox, oy, oz, 0.0, 0.0, 0.0, 0.0
+    else:
+        ox, oy, oz = sample_cosine_hemisphere(u1, u2)
+    pdf = cook_torrance_pdf(kd, ks, alphas, weights, ix, iy, iz, ox, oy, oz)
+    if pdf <= 0.0:
+        return ox, oy, oz, 0.0, 0.0, 0.0, 0.0
+    r, g, b = cook_torrance_eval(kd, ks, alphas, weights, gmodel, eta, rho_r, rho_g, rho_b,
+                                 ix, iy, iz, ox, oy, oz)
+    return ox, oy, oz, r / pdf, g / pdf, b / pdf, pdf
+
+
+# ----------------------------------------------------- diffuse transmission ---
+
+@njit(cache=True)
+def diffuse_transmission_eval(rho_r, rho_g, rho_b, tau_r, tau_g, tau_b, ix, iy, iz, ox, oy, oz):
+    """f·|cos θ_o| (r, g, b): ρ/π on the side of wi, τ/π on the other (0 when either
+    direction lies in the surface)."""
+    if iz == 0.0 or oz == 0.0:
+        return 0.0, 0.0, 0.0
+    c = abs(oz) * INV_PI
+    if iz * oz > 0.0:
+        return rho_r * c, rho_g * c, rho_b * c
+    return tau_r * c, tau_g * c, tau_b * c
+
+
+@njit(inline="always", cache=True)
+def _p_reflect(rho_r, rho_g, rho_b, tau_r, tau_g, tau_b):
+    r = rho_r + rho_g + rho_b
+    t = tau_r + tau_g + tau_b
+    return 0.5 if r + t <= 0.0 else r / (r + t)
+
+
+@njit(cache=True)
+def diffuse_transmission_pdf(rho_r, rho_g, rho_b, tau_r, tau_g, tau_b, ix, iy, iz, ox, oy, oz):
+    """Solid-angle density of :func:`diffuse_transmission_sample` over the sphere."""
+    if iz == 0.0 or oz == 0.0:
+        return 0.0
+    p = _p_reflect(rho_r, rho_g, rho_b, tau_r, tau_g, tau_b)
+    return (p if iz * oz > 0.0 else 1.0 - p) * abs(oz) * INV_PI
+
+
+@njit(cache=True)
+def diffuse_transmission_sample(rho_r, rho_g, rho_b, tau_r, tau_g, tau_b, ix, iy, iz, u0, u1, u2):
+    """Sample wo: ``(ox, oy, oz, w_r, w_g, w_b, pdf)``: the side by ``u0`` (reflection with
+    probability ρ̄/(ρ̄ + τ̄)), a cosine direction on it; weight ρ/p or τ/(1 − p)."""
+    if iz == 0.0:
+        return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0
+    p = _p_reflect(rho_r, rho_g, rho_b, tau_r, tau_g, tau_b)
+    ox, oy, oz = sample_cosine_hemisphere(u1, u2)
+    side = 1.0 if iz > 0.0 else -1.0
+    if u0 >= p:
+        side = -side
+    oz = side * oz
+    pdf = diffuse_transmission_pdf(rho_r, rho_g, rho_b, tau_r, tau_g, tau_b, ix, iy, iz, ox, oy, oz)
+    if pdf <= 0.0:
+        return ox, oy, oz, 0.0, 0.0, 0.0, 0.0
+    r, g, b = diffuse_transmission_eval(rho_r, rho_g, rho_b, tau_r, tau_g, tau_b, ix, iy, iz, ox, oy, oz)
+    return ox, oy, oz, r / pdf, g / pdf, b / pdf, pdf

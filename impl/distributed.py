@@ -34,6 +34,14 @@ plus:
   the sensor's shutter [``shutter_open``, ``shutter_close``]; spheres with a
   ``gibench_velocity`` sit at ``center + velocity·τ`` for that sample's eye
   ray and every ray of its tree, shadow rays included (so shadows blur too);
+  meshes with ``gibench_velocity`` / ``gibench_angular_velocity`` move
+  rigidly, every vertex at ``pivot + Rot(ω τ)(v − pivot) + velocity·τ``
+  (Rodrigues' rotation of the rotation vector ω τ; shading normals turn with
+  them); a moving sensor's eye ray leaves ``c + Rot(ω τ)(o − c) + velocity·τ``
+  along ``Rot(ω τ) d`` (c the camera's origin at τ = 0: it turns about its own
+  centre).  Moving meshes are placed per sample in per-pixel copies of the
+  triangle arrays (cost: the moving triangles, per sample); a moving mesh
+  cannot be an emitter (the loader refuses it: its light samples would stay);
 * the thesis's Cook–Torrance terms with the V-cavity G are an option
   (``g=vcavity``); the difference from Smith (what Mitsuba uses) is a model
   difference, reported, not tested against Mitsuba.
@@ -120,7 +128,8 @@ previous ones, so a tile has no common sample index to batch, and
 (traced by brute force, there is no tree to send packets through).
 
 Leaves out: indirect diffuse light and caustics (as ``whitted``), GGX and
-anisotropic roughness, delta lights on glossy surfaces.
+anisotropic roughness, delta lights on glossy surfaces, moving emitters,
+deforming (non-rigid) meshes, motion other than linear in τ.
 """
 
 from __future__ import annotations
@@ -171,23 +180,89 @@ _D_LENS, _D_TIME, _D_BSDF = 0, 2, 8  # dimensions of the stream: lens (2), time;
 
 
 class Motion(NamedTuple):
-    """Linearly moving spheres (motion blur): centre(τ) = center + velocity·τ."""
+    """What moves over the shutter (motion blur): linearly moving spheres,
+    centre(τ) = center + velocity·τ; rigidly moving mesh triangles; the camera."""
 
     index: np.ndarray       # (K,) sphere index into SceneArrays.sph_*
     center: np.ndarray      # (K, 3) centre at τ = 0
     velocity: np.ndarray    # (K, 3) world units per unit time
     shutter: np.ndarray     # (2,) shutter_open, shutter_close
+    tri_index: np.ndarray   # (T,) moving triangle index into SceneArrays.tri_*
+    tri_rest: np.ndarray    # (T, 3, 3) its vertices at τ = 0
+    tri_nrest: np.ndarray   # (T, 3, 3) its shading normals at τ = 0
+    tri_motion: np.ndarray  # (T, 9) velocity, rotation vector ω (rad per unit time), pivot
+    cam: np.ndarray         # (10,) moving (1/0), origin c at τ = 0, velocity, rotation vector ω
 
 
 def motion_arrays(scene: Scene, A: SceneArrays) -> Motion:
-    """The moving spheres of ``scene`` (``gibench_velocity``) as kernel arrays."""
+    """The moving spheres (``gibench_velocity``), meshes and camera of ``scene`` as
+    kernel arrays."""
     spheres = [s for s in scene.shapes if s.kind == "sphere"]
     moving = [(i, s) for i, s in enumerate(spheres) if s.velocity is not None]
     cam = scene.camera
+    ns = len(A.sph_radius)
+    tri_shape = A.prim_shape[ns:]
+    idx, mot = [], []
+    zero = np.zeros(3)
+    for k, s in enumerate(scene.shapes):
+        if s.kind == "mesh" and s.moves:
+            tris = np.flatnonzero(tri_shape == k)
+            m = np.concatenate([zero if s.velocity is None else s.velocity,
+                                zero if s.angular_velocity is None else s.angular_velocity,
+                                zero if s.pivot is None else s.pivot])
+            idx.append(tris)
+            mot.append(np.broadcast_to(m, (len(tris), 9)))
+    tri_index = np.concatenate(idx).astype(np.int64) if idx else np.zeros(0, np.int64)
+    cam_moves = bool(getattr(cam, "moves", False))
+    cm = np.zeros(10)
+    if cam_moves:
+        cm[0] = 1.0
+        cm[1:4] = cam.origin
+        cm[4:7] = zero if cam.velocity is None else cam.velocity
+        cm[7:10] = zero if cam.angular_velocity is None else cam.angular_velocity
     return Motion(index=np.array([i for i, _ in moving], dtype=np.int64),
                   center=np.array([s.center for _, s in moving], dtype=np.float64).reshape(-1, 3),
                   velocity=np.array([s.velocity for _, s in moving], dtype=np.float64).reshape(-1, 3),
-                  shutter=np.array([cam.shutter_open, cam.shutter_close], dtype=np.float64))
+                  shutter=np.array([cam.shutter_open, cam.shutter_close], dtype=np.float64),
+                  tri_index=tri_index,
+                  tri_rest=np.ascontiguousarray(A.tri_v[tri_index], dtype=np.float64).reshape(-1, 3, 3),
+                  tri_nrest=np.ascontiguousarray(A.tri_n[tri_index], dtype=np.float64).reshape(-1, 3, 3),
+                  tri_motion=np.ascontiguousarray(np.concatenate(mot) if mot else np.zeros((0, 9))),
+                  cam=cm)
+
+
+@njit(inline="always", cache=True)
+def _rotate(wx, wy, wz, tau, x, y, z):
+    """(x, y, z) turned by the rotation vector ω·τ (Rodrigues:
+    v cos θ + (k × v) sin θ + k (k·v)(1 − cos θ), θ = |ω|τ, k = ω/|ω|)."""
+    w = math.sqrt(wx * wx + wy * wy + wz * wz)
+    if w == 0.0:
+        return x, y, z
+    th = w * tau
+    kx, ky, kz = wx / w, wy / w, wz / w
+    c, s = math.cos(th), math.sin(th)
+    kv = (kx * x + ky * y + kz * z) * (1.0 - c)
+    return (x * c + (ky * z - kz * y) * s + kx * kv,
+            y * c + (kz * x - kx * z) * s + ky * kv,
+            z * c + (kx * y - ky * x) * s + kz * kv)
+
+
+@njit(cache=True)
+def _place_triangles(M: Motion, tau, tri, tri64, trin64):
+    """The moving triangles at time τ into ``tri`` (intersection precision), ``tri64``
+    and their shading normals into ``trin64``."""
+    for k in range(M.tri_index.shape[0]):
+        j = M.tri_index[k]
+        m = M.tri_motion[k]
+        for v in range(3):
+            qx, qy, qz = _rotate(m[3], m[4], m[5], tau, M.tri_rest[k, v, 0] - m[6],
+                                 M.tri_rest[k, v, 1] - m[7], M.tri_rest[k, v, 2] - m[8])
+            px, py, pz = m[6] + qx + m[0] * tau, m[7] + qy + m[1] * tau, m[8] + qz + m[2] * tau
+            tri64[j, v, 0], tri64[j, v, 1], tri64[j, v, 2] = px, py, pz
+            tri[j, v, 0], tri[j, v, 1], tri[j, v, 2] = px, py, pz
+            nx, ny, nz = _rotate(m[3], m[4], m[5], tau, M.tri_nrest[k, v, 0], M.tri_nrest[k, v, 1],
+                                 M.tri_nrest[k, v, 2])
+            trin64[j, v, 0], trin64[j, v, 1], trin64[j, v, 2] = nx, ny, nz
 
 
 @njit(inline="always", cache=True)
@@ -270,10 +345,12 @@ def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx
 
 @njit(cache=True)
 def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays, R: RayConfig, sph_c,
-          hall, hall_ks, hall_n, hall_t, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
+          tri64, trin64, hall, hall_ks, hall_n, hall_t, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
           shadows, light_samples, seed, pixel, sample, spp, stack_f, stack_i, counts, cut_w, pre_t,
           pre_prim, pre_b1, pre_b2):
     """Radiance (r, g, b) of one eye ray: whitted's ray tree plus sampled glossy bounces.
+    ``sph_c``, ``tri64``, ``trin64``: sphere centres, triangle vertices and shading
+    normals (float64) at the sample's time, for shading.
 
     ``pre_*``: the eye ray's closest hit as :func:`impl.rays.hit` returns it, traced
     in a packet; ``pre_prim = NOT_TRACED`` traces it here like every other ray.
@@ -329,7 +406,7 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
         shape = A.prim_shape[prim]
         px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
         gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, sph_c, A.sph_radius,
-                                         A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+                                         tri64, trin64, A.tri_has_n, A.shape_flip[shape])
         vx, vy, vz = -rdx, -rdy, -rdz
         cos_v = sx * vx + sy * vy + sz * vz
         if cos_v > 0.0:
@@ -480,21 +557,25 @@ def _eye(cam, seed, pixel, sample, fx, fy):
 
 
 @njit(cache=True)
-def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, fx, fy, sample, spp, gmodel, max_depth,
-              hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-              seed, pixel, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1, pre_b2):
+def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, fy, sample, spp, gmodel,
+              max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+              light_samples, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1,
+              pre_b2):
     """Radiance of the pixel sample number ``sample`` at film position (fx, fy).
 
     The sample's own lens point and shutter time; moving spheres are placed at
     that time in the per-pixel copies ``cen`` (intersection precision) and
-    ``cen64`` (shading) of the sphere centres, and the ray configuration the
-    tree (and its shadow rays) intersects with is rebuilt around them.
+    ``cen64`` (shading) of the sphere centres, moving triangles in ``tri`` /
+    ``tri64`` / ``trin64`` (copies when meshes move, else the scene's own
+    arrays), the ray configuration the tree (and its shadow rays) intersects
+    with is rebuilt around them, and a moving camera's eye ray is moved and
+    turned with the camera.
     ``pre_*``: the eye ray's hit traced in a packet (static scenes only), or
     ``pre_prim = NOT_TRACED``.
     """
     ox, oy, oz, dx, dy, dz, tmin, tmax, _ = _eye(cam, seed, pixel, sample, fx, fy)
     counts[_C_SAMPLES] += 1
-    if M.index.shape[0] > 0:
+    if M.index.shape[0] > 0 or M.tri_index.shape[0] > 0 or M.cam[0] != 0.0:
         tau = M.shutter[0] + (M.shutter[1] - M.shutter[0]) * uniform(seed + _STREAM, pixel, sample,
                                                                      _D_TIME)
         for k in range(M.index.shape[0]):
@@ -503,13 +584,31 @@ def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, fx, fy, sample, spp, gmod
                 p = M.center[k, c] + M.velocity[k, c] * tau
                 cen64[i, c] = p
                 cen[i, c] = p
-    # The structure (if any) is static: render() traces scenes with moving spheres by brute force.
-    Rt = RayConfig(R.form, R.strategy, R.eps, R.shrink_point, R.shrink_area, cen, R.sph_radius, R.tri_v,
+        if M.tri_index.shape[0] > 0:
+            _place_triangles(M, tau, tri, tri64, trin64)
+        if M.cam[0] != 0.0:
+            C = M.cam
+            qx, qy, qz = _rotate(C[7], C[8], C[9], tau, ox - C[1], oy - C[2], oz - C[3])
+            ox, oy, oz = C[1] + qx + C[4] * tau, C[2] + qy + C[5] * tau, C[3] + qz + C[6] * tau
+            dx, dy, dz = _rotate(C[7], C[8], C[9], tau, dx, dy, dz)
+    # The structure (if any) is static: render() traces scenes with moving shapes by brute force.
+    Rt = RayConfig(R.form, R.strategy, R.eps, R.shrink_point, R.shrink_area, cen, R.sph_radius, tri,
                    R.accel, R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx, R.acc_f, R.acc_i)
-    return _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, Rt, cen64, HL[0] > 0.0, HL[1], HL[2], HL[3], gmodel,
+    return _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, Rt, cen64, tri64, trin64, HL[0] > 0.0, HL[1],
+                 HL[2], HL[3], gmodel,
                  max_depth, hall_threshold,
                  ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
                  pixel, sample, spp, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1, pre_b2)
+
+
+@njit(cache=True)
+def _triangle_copies(A, R, M: Motion):
+    """Per-pixel triangle vertices (R's precision, float64) and shading normals that
+    :func:`_place_triangles` may overwrite: copies when meshes move, else the scene's
+    own arrays (nothing is written to them then)."""
+    if M.tri_index.shape[0] > 0:
+        return R.tri_v.copy(), A.tri_v.copy(), A.tri_n.copy()
+    return R.tri_v, A.tri_v, A.tri_n
 
 
 @njit(cache=True)
@@ -534,6 +633,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
     cut_w = np.zeros(2)
     cen = R.sph_center.copy()
     cen64 = A.sph_center.copy()
+    tri, tri64, trin64 = _triangle_copies(A, R, M)
     if sampler == SMP_ADAPTIVE:
         # Whitted's adaptive supersampling: squares of (corner, size, depth, 5 value indices).
         cap = max(spp, 5)
@@ -550,7 +650,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
         pos[3, 0], pos[3, 1] = 1.0, 1.0
         pos[4, 0], pos[4, 1] = 0.5, 0.5
         for i in range(5):
-            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pos[i, 0], y + pos[i, 1], i, cap, gmodel,
+            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pos[i, 0], y + pos[i, 1], i, cap, gmodel,
                                    max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
                                    fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
                                    counts, cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
@@ -570,7 +670,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
                 adaptive_children(x0, y0, size, pts)
                 for q in range(8):
                     pos[n + q, 0], pos[n + q, 1] = pts[q, 0], pts[q, 1]
-                    rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pts[q, 0], y + pts[q, 1], n + q, cap,
+                    rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pts[q, 0], y + pts[q, 1], n + q, cap,
                                            gmodel, max_depth, hall_threshold, ka, ambient, ks,
                                            shininess, c1, c2, c3, fclamp, shadows, light_samples,
                                            seed, pixel, stack_f, stack_i, counts, cut_w, 0.0,
@@ -620,7 +720,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
             else:
                 fx = uniform(seed + _STREAM, pixel, n, 6)
                 fy = uniform(seed + _STREAM, pixel, n, 7)
-            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + fx, y + fy, n, cap, gmodel, max_depth,
+            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + fx, y + fy, n, cap, gmodel, max_depth,
                                    hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
                                    shadows, light_samples, seed, pixel, stack_f, stack_i, counts,
                                    cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
@@ -641,7 +741,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
     pts = np.zeros((spp, 2))
     n = _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts)
     for s in range(n):
-        rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, x + pts[s, 0], y + pts[s, 1], s, n, gmodel, max_depth,
+        rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pts[s, 0], y + pts[s, 1], s, n, gmodel, max_depth,
                                hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
                                shadows, light_samples, seed, pixel, stack_f, stack_i, counts, cut_w,
                                0.0, np.int64(NOT_TRACED), 0.0, 0.0)
@@ -683,6 +783,7 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, spp, jitter_gauss, gamma, sigma, g
     cut_w = np.zeros(2)
     cen = R.sph_center.copy()
     cen64 = A.sph_center.copy()
+    tri, tri64, trin64 = _triangle_copies(A, R, M)
     pts = np.zeros((P, spp, 2))
     npt = np.zeros(P, dtype=np.int64)
     n_max = 0
@@ -710,7 +811,7 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, spp, jitter_gauss, gamma, sigma, g
             x, y = x0 + i % nx, y0 + i // nx
             pixel = y * W + x
             fx, fy = x + pts[i, s, 0], y + pts[i, s, 1]
-            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, fx, fy, s, npt[i], gmodel,
+            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, fx, fy, s, npt[i], gmodel,
                                    max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
                                    fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
                                    counts[pixel], cut_w, hit_t[j], hit_p[j], hit_b[j, 0], hit_b[j, 1])
@@ -802,17 +903,19 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
         raise ParamError(f"distributed: packets=true needs a fixed-count sampler (uniform, random, "
                          f"jitter, poisson); sampler={params['sampler']} chooses each pixel's next "
                          "sample from its previous ones, so a tile has no common sample to batch")
-    if packets and M.index.shape[0] > 0:
-        raise ParamError("distributed: packets=true needs a tree, but this scene has moving spheres "
-                         "(gibench_velocity), which are traced by brute force (accel=none); "
+    moving_shapes = M.index.shape[0] > 0 or M.tri_index.shape[0] > 0
+    if packets and (moving_shapes or M.cam[0] != 0.0):
+        raise ParamError("distributed: packets=true traces a tile's eye rays at one time through a "
+                         "static tree, but this scene moves (moving spheres or meshes are traced by "
+                         "brute force, a moving camera's eye rays differ per sample time); "
                          "render it with packets=false")
-    if M.index.shape[0] > 0:
-        # A structure built over the spheres at one time would miss them at
-        # another: scenes with moving spheres are traced by brute force.
+    if moving_shapes:
+        # A structure built over the primitives at one time would miss them at
+        # another: scenes with moving spheres or meshes are traced by brute force.
         if params["accel"] not in ("auto", "none"):
             raise UnsupportedError(
                 f"distributed: accel={params['accel']} is built over static primitives; a scene "
-                "with moving spheres (gibench_velocity) is traced with accel=none (or auto)")
+                "with moving spheres or meshes is traced with accel=none (or auto)")
         params = {**params, "accel": "none"}
     R = ray_config(A, params, algorithm="distributed")
     z = float(norm.ppf(0.5 * (1.0 + params["confidence"])))
@@ -876,4 +979,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
+    models=frozenset({"camera motion", "mesh motion"}),
 )

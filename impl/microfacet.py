@@ -88,6 +88,17 @@ G1(wi, m) cancels).  Not reproduced: Mitsuba's roughdielectric with
 (Walter's trick) but weights the sample as if unscaled; here the unscaled D is
 sampled and weighted consistently.
 
+Roughness mixture
+-----------------
+Thesis 2.4.5.2: a surface with several degrees of roughness has
+``D = Σ_k w_k D(m_k)``.  :func:`mixture_d` is that sum of Beckmann lobes
+(``alphas`` (K,), ``weights`` (K,) summing to 1, so the mixture stays
+normalised, ∫ D cos θ_m dω = 1); :func:`sample_mixture_normal` /
+:func:`mixture_normal_pdf` draw m ∝ D(m) cos θ_m by picking lobe k with
+probability w_k and sampling its D cos (the pdf is the whole mixture's, so any
+lobe may have produced a given m).  :func:`mixture_arrays` checks and packs
+the two arrays.
+
 Leaves out: GGX (refused in :mod:`impl.materials`), anisotropic roughness.
 """
 
@@ -97,6 +108,8 @@ import math
 
 from numba import njit
 
+from core.errors import ParamError
+
 from .fresnel import fresnel_dielectric
 
 __all__ = ["G_SMITH", "G_VCAVITY", "ALPHA_MIN", "clamp_alpha", "erfinv",
@@ -104,7 +117,8 @@ __all__ = ["G_SMITH", "G_VCAVITY", "ALPHA_MIN", "clamp_alpha", "erfinv",
            "smith_g1", "smith_g1_exact", "smith_g", "vcavity_g", "masking",
            "sample_normal", "normal_pdf", "sample_visible_normal", "visible_normal_pdf",
            "conductor_eval", "conductor_pdf", "conductor_sample",
-           "dielectric_eval", "dielectric_pdf", "dielectric_sample"]
+           "dielectric_eval", "dielectric_pdf", "dielectric_sample",
+           "mixture_arrays", "mixture_d", "mixture_normal_pdf", "sample_mixture_normal"]
 
 G_SMITH, G_VCAVITY = 0, 1
 #: Mitsuba clamps the roughness below at 1e-4 (``MicrofacetDistribution::configure``).
@@ -533,3 +547,58 @@ def dielectric_sample(alpha, gmodel, visible, eta, ix, iy, iz, u0, u1, u2):
     if pdf <= 0.0 or val <= 0.0:
         return ox, oy, oz, 0.0, 0.0, reflect, eti
     return ox, oy, oz, val / pdf, pdf, reflect, eti
+
+
+# ---------------------------------------------------- roughness mixture ---
+
+def mixture_arrays(alphas, weights) -> tuple:
+    """``(alphas, weights)`` as float64 arrays for :func:`mixture_d`: K ≥ 1 lobes,
+    every α > 0 and finite, weights ≥ 0 summing to 1 (to 1e-9; a mixture whose weights
+    sum to more would reflect more light than it receives).  Raises ParamError."""
+    import numpy as np
+
+    a = np.atleast_1d(np.asarray(alphas, dtype=np.float64))
+    w = np.atleast_1d(np.asarray(weights, dtype=np.float64))
+    if a.ndim != 1 or a.shape != w.shape or len(a) == 0:
+        raise ParamError(f"roughness mixture: alphas and weights must be two 1-D lists of the same "
+                         f"length >= 1, got {a.shape} and {w.shape}")
+    if not (np.all(np.isfinite(a)) and np.all(a > 0.0)):
+        raise ParamError(f"roughness mixture: every alpha must be finite and > 0, got {a.tolist()}")
+    if not (np.all(np.isfinite(w)) and np.all(w >= 0.0) and abs(w.sum() - 1.0) <= 1e-9):
+        raise ParamError(f"roughness mixture: weights must be >= 0 and sum to 1, got {w.tolist()} "
+                         f"(sum {w.sum():.6g})")
+    return a, w
+
+
+@njit(cache=True)
+def mixture_d(alphas, weights, mx, my, mz):
+    """Thesis 2.4.5.2's ``D = Σ_k w_k D(m_k)`` with Beckmann lobes of roughness ``alphas``."""
+    d = 0.0
+    for k in range(alphas.shape[0]):
+        if weights[k] > 0.0:
+            d += weights[k] * beckmann_d(alphas[k], mx, my, mz)
+    return d
+
+
+@njit(cache=True)
+def mixture_normal_pdf(alphas, weights, mx, my, mz):
+    """Density of :func:`sample_mixture_normal`: ``D(m) cos θ_m`` of the mixture."""
+    if mz <= 0.0:
+        return 0.0
+    return mixture_d(alphas, weights, mx, my, mz) * mz
+
+
+@njit(cache=True)
+def sample_mixture_normal(alphas, weights, u0, u1, u2):
+    """m ∝ D(m) cos θ_m of the mixture: lobe k with probability w_k (by ``u0``), then
+    :func:`sample_normal` of that lobe.  ``(mx, my, mz, pdf)``, pdf the mixture's."""
+    K = alphas.shape[0]
+    k = K - 1
+    c = 0.0
+    for j in range(K):
+        c += weights[j]
+        if u0 < c:
+            k = j
+            break
+    mx, my, mz, _ = sample_normal(alphas[k], u1, u2)
+    return mx, my, mz, mixture_normal_pdf(alphas, weights, mx, my, mz)

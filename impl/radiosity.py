@@ -245,7 +245,7 @@ def solve_scene(scene: Scene, params: dict, *, seed: int = 0, mesh: PatchMesh | 
                           solver=f"neumann-{params['max_bounces']}")
     else:
         res = solve(ff.F, M.rho, M.emit, M.area, params["solver"], tol=params["tol"],
-                    max_iter=params["max_iter"])
+                    max_iter=params["max_iter"], source=f"formfactor={params['formfactor']}")
     B_disp = res.B + (res.ambient if params["ambient"] else 0.0)
     sol = Solution(mesh=M, ff=ff, result=res, B_display=B_disp, cached=False)
     _remember(_SOLVE_CACHE, solve_key, sol)

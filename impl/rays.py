@@ -20,6 +20,14 @@ accel      auto|none|bv|bv-sphere|     auto     acceleration structure of every
            slabs|bvh-median|bvh-sah|            query (:mod:`impl.accel`, thesis
            bvh-gs|grid|octree|bvh-wide          2.6); none = brute force
 slab_normals  3|7|13                   7        plane normals of ``accel=slabs``
+grid_density  float                    4        ``accel=grid``: voxels per primitive
+                                                (the grid's resolution)
+grid_mailbox  bool                     true     ``accel=grid``: test a primitive once
+                                                per ray (mailboxing)
+grid_current_voxel  bool               true     ``accel=grid``: accept a hit only in
+                                                the voxel being examined; false is
+                                                the ablation of thesis Fig. 2.34
+                                                (nearer objects lost)
 packets    bool                        false    trace the eye rays of 8×8 pixel
                                                 tiles as coherent packets through
                                                 the tree (:mod:`impl.accel.packets`)
@@ -147,6 +155,12 @@ PARAMS = (
           "40 primitives on, none below and with the algebraic/geometric forms", choices=("auto",) + _accel.ACCELS),
     Param("slab_normals", int, 7, "plane normals of accel=slabs (3 axes, 7 = + cube diagonals, "
           "13 = + face diagonals)", choices=_accel.SLAB_COUNTS),
+    Param("grid_density", float, _accel.GRID_DENSITY, "accel=grid: voxels per primitive, the grid's "
+          "resolution (thesis 2.6.2; at most 256 per axis)"),
+    Param("grid_mailbox", bool, True, "accel=grid: mailboxing, a primitive listed in several voxels "
+          "is tested once per ray (false: once per voxel; same hits, more tests)"),
+    Param("grid_current_voxel", bool, True, "accel=grid: accept a hit only inside the voxel being "
+          "examined (false: the ablation of thesis Fig. 2.34, which loses nearer objects)"),
     Param("packets", bool, False, "trace the eye rays of 8x8 pixel tiles as coherent packets "
           "through the tree (thesis 2.6; impl.accel.packets); needs a tree accel (auto = bvh-wide); "
           "secondary and shadow rays stay single-ray; same image as false"),
@@ -205,8 +219,13 @@ def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
         raise ParamError(f"{algorithm}: packets=true needs a tree to traverse the packets through, "
                          f"but accel={name}; valid with packets: auto, {', '.join(PACKET_ACCELS)} "
                          "(or packets=false)")
+    density = float(params.get("grid_density", _accel.GRID_DENSITY))
+    if not (density > 0.0 and np.isfinite(density)):
+        raise ParamError(f"{algorithm}: grid_density must be finite and > 0, got {density}")
     acc = _accel.build(name, sph_center, sph_radius, tri_v, A.prim_shape,
-                       slab_normals=params.get("slab_normals", 7))
+                       slab_normals=params.get("slab_normals", 7), grid_density=density,
+                       grid_mailbox=bool(params.get("grid_mailbox", True)),
+                       grid_current_voxel=bool(params.get("grid_current_voxel", True)))
     return RayConfig(SPHERE_FORMS.index(params["intersect"]), _OFFSET_CODE[params["offset"]], eps,
                      1e-4 if single else 1e-9, 1e-4 if single else 1e-7,
                      sph_center, sph_radius, tri_v, *acc)

@@ -54,7 +54,7 @@ from .accel import closest_rays, occluded_rays
 from .accel.packets import TILE, packet_hits
 from .camera import eye_ray
 from .intersect import like
-from .rays import RayConfig, ray_config
+from .rays import PARAMS as RAY_PARAMS, RayConfig, ray_config
 from .sampling import pixel_sample, strata, variance_of_mean
 from .scene_arrays import scene_memo
 
@@ -113,8 +113,8 @@ class Batch(NamedTuple):
     qp: np.ndarray              # (n,) int32 primitive (int32: the loops then vectorise in float32 too)
 
 
-#: The parameters :func:`impl.rays.ray_config` reads.
-_RAY_KEYS = ("intersect", "precision", "offset", "epsilon", "accel", "slab_normals", "packets")
+#: The parameters :func:`impl.rays.ray_config` reads (its parameter table).
+_RAY_KEYS = tuple(p.name for p in RAY_PARAMS)
 
 
 def ray_config_cached(scene, A, params: dict, *, algorithm: str) -> RayConfig:

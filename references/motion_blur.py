@@ -59,14 +59,16 @@ TIMES = 64
 
 
 def has_motion(scene_path) -> bool:
-    """Whether the scene file gives any shape a ``gibench_velocity`` (its reference
-    must then come from :func:`motion_reference`: Mitsuba would refuse the file).
-    A file that is not well-formed XML has none; its loader reports it."""
+    """Whether the scene file gives any shape or the sensor a ``gibench_velocity`` or
+    ``gibench_angular_velocity`` (its reference must then come from
+    :func:`motion_reference`, which refuses all but moving spheres: Mitsuba would
+    refuse the file).  A file that is not well-formed XML has none; its loader
+    reports it."""
     try:
         tree = parse_file(Path(scene_path))
     except SceneError:
         return False
-    return any(c.get("name") == VELOCITY for c in tree.getroot().iter("vector"))
+    return any(c.get("name") in (VELOCITY, "gibench_angular_velocity") for c in tree.getroot().iter("vector"))
 
 
 class MotionReference:
@@ -93,6 +95,13 @@ def scene_at_time(scene_path, tau: float) -> str:
     """The scene file as Mitsuba can read it, every moving sphere placed at time ``tau``."""
     path = Path(scene_path)
     tree = parse_file(path)
+    for el in tree.getroot().iter("vector"):
+        parent = el.getparent()
+        if el.get("name", "").startswith("gibench_") and not (
+                el.get("name") == VELOCITY and parent.tag == "shape" and parent.get("type") == "sphere"):
+            raise SceneError(f"{path}:{el.sourceline}: {el.get('name')} on a {parent.tag} "
+                             f"'{parent.get('type')}': the shutter-averaged Mitsuba reference moves "
+                             "spheres only (camera and mesh motion have no Mitsuba reference here)")
     for shape in tree.getroot().iter("shape"):
         vel = [c for c in shape if c.tag == "vector" and c.get("name") == VELOCITY]
         if not vel:

@@ -261,7 +261,8 @@ def test_grid_lists_every_primitive_in_every_voxel_its_box_overlaps():
     rng = np.random.default_rng(SEED + 13)
     c, r, v, _ = random_scene(rng, 100, 100)
     lo, hi = prim_bounds(c, r, v)
-    glo, ghi, cs, res, off, refs = build_grid(lo, hi)
+    glo, ghi, cs, ints, off, refs = build_grid(lo, hi)
+    res = ints[:3]
     assert res.prod() >= len(lo) and (res >= 1).all()
     for p in rng.choice(len(lo), 40, replace=False):
         i0 = np.clip(np.floor((lo[p] - glo[0]) / cs).astype(int), 0, res - 1)
@@ -464,3 +465,137 @@ def test_shuffled_tree_is_the_same_tree_elsewhere_in_memory():
     assert all(r["ns_per_node"] > 0 and r["rays"] == 32 * 24 for r in rows)
     with pytest.raises(ValueError, match="structure must be a tree"):
         node_cost(sizes=(10,), structure="grid")
+
+
+# ------------------------------------------------------- grid knobs (2.6.2) ---
+
+@pytest.mark.parametrize("density", [0.3, 1.0, 4.0, 20.0])
+def test_grid_knobs_keep_brute_force_hits_and_mailboxing_saves_tests(density):
+    """Every grid resolution, mailbox on or off, answers closest and any-hit queries as
+    brute force; turning the mailbox off only adds tests (a primitive listed in several
+    pierced voxels is tested in each)."""
+    rng = np.random.default_rng(SEED + 31)
+    c, r, v, shape = random_scene(rng, 150, 150)
+    o, d = random_rays(rng, 3000)
+    _, p0, _, _ = accel.trace_batch(config(c, r, v, shape, "none", np.float64), o, d)
+    tests = {}
+    for mailbox in (True, False):
+        R = config(c, r, v, shape, "grid", np.float64, grid_density=density, grid_mailbox=mailbox)
+        _, p, _, counts = accel.trace_batch(R, o, d)
+        np.testing.assert_array_equal(p, p0, err_msg=f"density {density} mailbox={mailbox}")
+        tests[mailbox] = counts[:, 1]
+        tmax = np.full(len(o), 1.5)
+        want, _ = accel.occluded_batch(config(c, r, v, shape, "none", np.float64), o, d, 0.0, tmax)
+        got, _ = accel.occluded_batch(R, o, d, 0.0, tmax)
+        np.testing.assert_array_equal(got, want, err_msg=f"any-hit, density {density} mailbox={mailbox}")
+    assert (tests[False] >= tests[True]).all() and tests[False].sum() > tests[True].sum()
+
+
+def fig_2_34():
+    """Thesis Fig. 2.34 as primitives: a slanted triangle B whose box spans the whole
+    grid, hit by the ray along +x (y = z = 0, from x = −2) at x = 0.7, in the last
+    voxel; a small sphere C at x = 0.3 (hit at x = 0.2), listed in the middle voxels
+    only.  Returns (centres, radii, triangles, ray origin, ray direction)."""
+    c = np.array([[0.3, 0.0, 0.0]])
+    r = np.array([0.1])
+    v = np.array([[[-0.9, -1.0, -1.0], [-0.9, 1.0, -1.0], [0.9, 0.0, 0.125]]])
+    return c, r, v, np.array([[-2.0, 0.0, 0.0]]), np.array([[1.0, 0.0, 0.0]])
+
+
+def test_without_the_current_voxel_rule_the_grid_loses_the_nearer_object():
+    """Fig. 2.34: B is found in the first voxel the ray enters but lies beyond it; C, nearer,
+    waits in the next voxel.  With the rule the grid returns C (brute force's answer);
+    without it the search ends at B.  Mailboxing saves B's second test."""
+    c, r, v, o, d = fig_2_34()
+    shape = np.arange(2)
+    brute = accel.trace_batch(config(c, r, v, shape, "none", np.float64), o, d)
+    assert brute[1][0] == 0 and abs(brute[0][0] - 2.2) < 1e-9            # the sphere, at x = 0.2
+    R = config(c, r, v, shape, "grid", np.float64, grid_density=16.0)
+    assert R.acc_i[0] == 3                                               # voxels x: [-.9,-.3], [-.3,.3], [.3,.9]
+    t, p, _, counts = accel.trace_batch(R, o, d)
+    assert p[0] == 0 and t[0] == brute[0][0] and counts[0, 1] == 2
+    t, p, _, counts_nomb = accel.trace_batch(
+        config(c, r, v, shape, "grid", np.float64, grid_density=16.0, grid_mailbox=False), o, d)
+    assert p[0] == 0 and counts_nomb[0, 1] == 3                          # B tested again in voxel 2
+    t, p, _, _ = accel.trace_batch(
+        config(c, r, v, shape, "grid", np.float64, grid_density=16.0, grid_current_voxel=False), o, d)
+    assert p[0] == 1 and abs(t[0] - 2.7) < 1e-9                          # the triangle, at x = 0.7
+
+
+def _shrunk_boxes(R, f):
+    """R with every tree node box shrunk about its centre to the fraction ``f``."""
+    mid = 0.5 * (R.node_lo + R.node_hi)
+    half = 0.5 * (R.node_hi - R.node_lo) * f
+    return R._replace(node_lo=mid - half, node_hi=mid + half)
+
+
+def test_the_brute_force_check_fails_for_broken_structures():
+    """Negative controls of the brute-force check (thesis 1.2.4, 2.6): the check of
+    ``test_every_structure_returns_the_brute_force_closest_hit`` (same primitive on every
+    ray) rejects a grid without the current-voxel rule and a BVH whose node boxes are 10 %
+    too small, on the same random scenes; and the exact variants pass it."""
+    rng = np.random.default_rng(SEED)
+    c, r, v, shape = random_scene(rng, 150, 150)
+    o, d = random_rays(rng, 4000)
+    _, p0, _, _ = accel.trace_batch(config(c, r, v, shape, "none", np.float64), o, d)
+
+    def mismatches(R):
+        return int((accel.trace_batch(R, o, d)[1] != p0).sum())
+
+    grid = config(c, r, v, shape, "grid", np.float64)
+    bvh = config(c, r, v, shape, "bvh-sah", np.float64)
+    assert mismatches(grid) == 0 and mismatches(bvh) == 0
+    assert mismatches(config(c, r, v, shape, "grid", np.float64, grid_current_voxel=False)) > 0
+    assert mismatches(_shrunk_boxes(bvh, 0.9)) > 0
+
+
+def test_grid_knobs_are_ray_parameters():
+    """The three knobs reach the grid through the ray tracers' parameters, a bad density
+    is refused with one line naming it, and the rule changes a Whitted image."""
+    from gibench.studies.accel import sphere_field
+
+    algo = registry.get("whitted")
+    scene = sphere_field(1000, width=64, height=48)
+    A = flatten(scene)
+    R = ray_config(A, algo.parse_params({"accel": "grid", "grid_density": 0.5, "grid_mailbox": False,
+                                         "grid_current_voxel": False}), algorithm="whitted")
+    assert list(R.acc_i[3:]) == [0, 0] and np.prod(R.acc_i[:3]) <= 0.5 * len(A.sph_radius) + 64
+    with pytest.raises(ValueError, match="grid_density must be finite and > 0, got 0.0"):
+        ray_config(A, algo.parse_params({"accel": "grid", "grid_density": 0.0}), algorithm="whitted")
+    exact = algo.render(scene, algo.parse_params({"accel": "grid"})).image
+    brute = algo.render(scene, algo.parse_params({"accel": "none"})).image
+    broken = algo.render(scene, algo.parse_params({"accel": "grid", "grid_current_voxel": False})).image
+    np.testing.assert_array_equal(exact, brute)
+    assert np.any(broken != exact, axis=-1).sum() > 0
+
+
+def test_grid_knobs_study_shows_wrong_hits_only_without_the_current_voxel_rule():
+    """The grid_knobs study on a 1000-sphere field: zero wrong hits and pixels with the
+    rule (mailbox on or off), some without it; mailboxing lowers the tests per ray; the
+    render phases come from RenderResult.timings."""
+    from gibench.studies.accel import grid_knobs
+
+    rows = grid_knobs(families=("spheres",), sizes={"spheres": 1000}, densities=(1.0, 8.0),
+                      width=64, height=48, repeats=1, log=lambda *_: None)
+    assert len(rows) == 8
+    for row in rows:
+        wrong = row["wrong_hits"] + row["bounce_wrong_hits"]
+        if row["current_voxel"]:
+            assert wrong == 0 and row["wrong_pixels"] == 0, row
+        else:
+            assert wrong > 0, row
+        assert row["trace_s"] > 0 and row["setup_s"] > 0
+    by = {(r["density"], r["mailbox"], r["current_voxel"]): r for r in rows}
+    for dens in (1.0, 8.0):
+        assert by[dens, False, True]["tests_per_ray"] > by[dens, True, True]["tests_per_ray"]
+    assert sum(r["wrong_pixels"] for r in rows if not r["current_voxel"]) > 0
+
+
+def test_scaling_study_reports_the_render_phases():
+    from gibench.studies.accel import scaling
+
+    rows = scaling(families=("spheres",), sizes={"spheres": [10, 100]}, structures=["none", "grid"],
+                   width=16, height=12, repeats=1, log=lambda *_: None)
+    assert len(rows) == 4
+    for row in rows:
+        assert 0 < row["trace_s"] < row["render_s"] and row["setup_s"] > 0 and row["build_s"] > 0

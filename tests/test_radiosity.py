@@ -12,7 +12,8 @@ import impl.radiosity as radiosity  # noqa: F401  (registers 'radiosity')
 from gibench import registry
 from core.loader import load_scene
 from impl.form_factors import form_factors
-from impl.radiosity_solvers import SOLVERS, residual, solve
+from core.errors import ParamError
+from impl.radiosity_solvers import SOLVERS, neumann, residual, solve, spectral_bounds
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_form_factors import closed_box  # noqa: E402
@@ -139,7 +140,8 @@ def test_sphere_is_meshed_into_patches_and_the_furnace_holds(tmp_path, formfacto
     patches (12 segments): hemicube form factors close every row exactly, so every pixel —
     box and sphere — shows L_e / (1 − ρ).  Negative control: the point approximation does
     not close its rows (here Σ_j ρ F_ij > 1 for neighbouring patches, so the iteration
-    diverges), and the furnace check fails with it."""
+    diverges): the solve refuses it with one line naming the spectral radius and the
+    patches, so the furnace check cannot pass with it."""
     p = tmp_path / "furnace_sphere.xml"
     p.write_text(FURNACE_XML.format(rho=0.75).replace("</scene>", FURNACE_SPHERE.format(rho=0.75)))
     scene = load_scene(p)
@@ -148,8 +150,44 @@ def test_sphere_is_meshed_into_patches_and_the_furnace_holds(tmp_path, formfacto
                  solver="gauss-seidel", tol=1e-12)
     assert res.counters["patches"] >= 2 * 12 * 5             # the sphere's 120 triangles at least
     assert np.abs(res.image - expected).max() / expected.max() < 1e-5
-    bad = render(scene, display="flat", patches=100, formfactor="point", vis_rays=4).image
-    assert not (np.abs(bad - expected).max() / expected.max() < 1e-5)          # nan/inf fail too
+    with pytest.raises(ParamError, match=r"formfactor=point.*spectral radius of ρF .* >= 1\.\d+.*patches"):
+        render(scene, display="flat", patches=100, formfactor="point", vis_rays=4)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_divergent_system_is_refused_with_its_cause(solver):
+    """Row sums of ρF above 1 with spectral radius λ > 1: the Neumann series grows without
+    bound (what the iterative solvers would have returned: inf), and every solver refuses
+    the system with one line naming λ's lower bound, the channel and the offending patches.
+    A matrix with a row sum above 1 but λ < 1 is accepted and solved (the check is on λ,
+    not on the row sums alone)."""
+    F = np.array([[0.0, 0.9, 0.6], [0.7, 0.0, 0.6], [0.4, 0.4, 0.0]])
+    rho = np.full((3, 3), 0.9)
+    rho[:, 2] = 0.5                                     # blue: rows of ρF 0.75, 0.65, 0.4: no complaint
+    E = np.ones((3, 3))
+    lam = max(abs(np.linalg.eigvals(rho[:, 0, None] * F)))
+    assert lam > 1.0
+    with np.errstate(over="ignore", invalid="ignore"):
+        assert not np.isfinite(neumann(F, rho, E, 20000)).all()
+    with pytest.raises(ParamError) as err:
+        solve(F, rho, E, np.ones(3), solver)
+    msg = str(err.value)
+    assert "\n" not in msg and "channel R" in msg and "2 of 3 patches (0, 1;" in msg
+    lo = float(msg.split(">= ")[1].split(" ")[0])
+    assert 1.0 <= lo <= lam
+    ok = np.array([[0.0, 1.8, 0.0], [0.05, 0.0, 0.0], [0.0, 0.0, 0.0]])   # λ(ρF) = 0.9·0.3
+    res = solve(ok, rho, E, np.ones(3), solver, tol=1e-12)
+    exact = np.stack([np.linalg.solve(np.eye(3) - rho[:, c, None] * ok, E[:, c]) for c in range(3)], 1)
+    assert res.converged and np.allclose(res.B, exact, rtol=1e-9)
+
+
+def test_spectral_bounds_bracket_the_spectral_radius():
+    rng = np.random.default_rng(SEED)
+    for n in (2, 5, 40):
+        A = rng.uniform(0, 2.0 / n, (n, n)) * (rng.uniform(size=(n, n)) < 0.7)
+        lam = max(abs(np.linalg.eigvals(A)))
+        lo, hi = spectral_bounds(A, rtol=1e-9, iterations=2000)
+        assert lo <= lam * (1 + 1e-12) and hi >= lam * (1 - 1e-12)
 
 
 def test_refuses_non_diffuse(tmp_path):

@@ -14,6 +14,11 @@ study          what it measures
                least-squares fit trace_s ∝ N^k (log–log), next to the
                exponent of log N over the same sizes (what a logarithmic
                structure should not exceed) and of tests per ray
+``grid_knobs`` the uniform grid's knobs of thesis 2.6.2 (resolution,
+               mailboxing, the current-voxel rule): per setting, voxels and
+               primitive tests per ray for camera and bounce rays, hits that
+               differ from brute force, pixels that differ from the exact
+               grid's Whitted image, and the render's phases
 =============  ==============================================================
 
 Scenes are generated in code with a fixed seed (nothing is written to disk):
@@ -28,11 +33,13 @@ Scenes are generated in code with a fixed seed (nothing is written to disk):
 Times are wall-clock on whatever machine runs the study (median of
 ``repeats``), after one untimed warm-up render per structure that compiles
 the kernels.  ``render_s`` is the whole Whitted render (flatten, build,
-trace); ``build_s`` the time of :func:`impl.rays.ray_config` (which builds
-the structure); ``trace_s`` the same render with the flattened scene and
-the ray configuration handed in prebuilt (patched into :mod:`impl.whitted`
-for the measurement; the image is checked identical): the ray tracing
-itself, fitted against N.  ``primary_query_s`` times that pass alone (closest hits of
+trace) of a fresh copy of the scene each time (the tracers remember a
+scene's flattened arrays and ray configuration per scene object, so a copy
+makes each render pay its setup); ``setup_s`` and ``trace_s`` are that
+render's own phases (:attr:`core.algorithm.RenderResult.timings`: flatten,
+configuration and allocation; the ray tracing itself, fitted against N);
+``build_s`` the time of :func:`impl.rays.ray_config` alone (which builds the
+structure).  ``primary_query_s`` times that pass alone (closest hits of
 the pixel-centre camera rays, :func:`impl.accel.trace_batch`); ``tests_per_ray`` and ``nodes_per_ray``
 come from it too: a separate counting pass over the camera's pixel-centre rays
 (:func:`impl.accel.trace_batch`), not from the timed render.  Brute force
@@ -55,7 +62,7 @@ from core.transforms import look_at
 from . import StudyInfo, as_config, read_config, run_registered, table_titles
 
 __all__ = ["STUDIES", "TABLES", "DEFAULT_CONFIG", "load_config", "run_studies", "scaling",
-           "fit_exponents", "node_cost", "shuffle_node_groups", "sphere_field", "mesh_field", "camera_rays", "bounce_rays"]
+           "fit_exponents", "node_cost", "grid_knobs", "shuffle_node_groups", "sphere_field", "mesh_field", "camera_rays", "bounce_rays"]
 
 DEFAULT_CONFIG = REPO_ROOT / "suites" / "scaling" / "studies.toml"
 
@@ -177,6 +184,23 @@ def _median_time(fn, repeats):
     return float(np.median(times)), out
 
 
+def _timed_renders(algo, scene, params, repeats):
+    """``(render_s, result, phases)``: medians over ``repeats`` renders of fresh shallow
+    copies of ``scene`` (so none reuses a remembered setup) of the wall time and of each
+    phase in :attr:`RenderResult.timings`; ``result`` is the last render."""
+    import copy
+
+    walls, phases, res = [], {}, None
+    for _ in range(repeats):
+        fresh = copy.copy(scene)
+        t0 = time.perf_counter()
+        res = algo.render(fresh, params)
+        walls.append(time.perf_counter() - t0)
+        for k, v in res.timings.items():
+            phases.setdefault(k, []).append(v)
+    return float(np.median(walls)), res, {k: float(np.median(v)) for k, v in phases.items()}
+
+
 def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=64, height=48,
             brute_max=20000, repeats=3, max_depth=3, time_limit_s=120.0, log=print) -> list[dict]:
     """Whitted renders of generated scenes of growing size with every structure.
@@ -184,9 +208,6 @@ def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=
     ``sizes``: ``{family: [N, ...]}``; ``structures``: names of :data:`impl.accel.ACCELS`.
     A structure whose render exceeds ``time_limit_s`` is not run at larger N of that
     family (the row says so in ``note``)."""
-    from unittest import mock
-
-    import impl.whitted as whitted
     from impl import accel
     from impl.rays import ray_config
     from impl.scene_arrays import flatten
@@ -226,20 +247,13 @@ def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=
                 reps = repeats if n_prims <= 100000 else 1
                 config_s, R = _median_time(lambda: ray_config(A, params, algorithm="whitted"), reps)
                 acc_arrays = accel.Accel(*R[8:])
-                render_s, res = _median_time(lambda: algo.render(scene, params), reps)
-                # The same render with the flattened scene and the structure prebuilt:
-                # the ray tracing alone.
-                with mock.patch.object(whitted, "flatten", lambda _s: A), \
-                        mock.patch.object(whitted, "ray_config", lambda *_a, **_k: R):
-                    trace_s, res2 = _median_time(lambda: algo.render(scene, params), reps)
-                if not np.array_equal(res2.image, res.image):
-                    raise RuntimeError(f"scaling: {fam} N={N} {name}: the prebuilt render differs")
+                render_s, res, phases = _timed_renders(algo, scene, params, reps)
                 query_s, (_, prim, _, counts) = _median_time(lambda: accel.trace_batch(R, o, d), reps)
                 rays = sum(res.counters.get(k, 0) for k in
                            ("eye_rays", "shadow_rays", "reflection_rays", "transmission_rays"))
                 n_nodes = int(counts[:, 0].sum())
                 row.update(build_s=config_s, render_s=render_s,
-                           trace_s=trace_s, flatten_s=flatten_s,
+                           setup_s=phases["setup_s"], trace_s=phases["trace_s"], flatten_s=flatten_s,
                            primary_query_s=query_s,
                            query_ns_per_ray=query_s / len(o) * 1e9,
                            query_ns_per_node=query_s / n_nodes * 1e9 if n_nodes else float("nan"),
@@ -415,6 +429,85 @@ def fit_exponents(rows: list[dict], *, n_min: int = 100) -> list[dict]:
     return out
 
 
+# ============================================================== grid knobs ===
+
+def grid_knobs(*, families=("spheres", "mesh"), sizes=None, densities=(0.25, 1.0, 4.0, 16.0),
+               width=128, height=96, max_depth=3, repeats=3, brute_max=20000, seed=0,
+               log=print) -> list[dict]:
+    """The uniform grid's three knobs of thesis 2.6.2 on generated scenes: resolution
+    (``grid_density``, voxels per primitive), mailboxing and the current-voxel rule,
+    every combination per density.
+
+    Per row: the grid's voxels and references per primitive, the build time; for the
+    pixel-centre camera rays and for one cosine-distributed bounce ray per camera hit
+    (:func:`bounce_rays`), voxels and primitive tests per ray and the hits whose
+    primitive differs from the reference (brute force up to ``brute_max`` primitives,
+    else the SAH BVH, which the tests hold to brute force's answers); the Whitted
+    render's phases (median ``setup_s``, ``trace_s``, :func:`_timed_renders`) and the
+    pixels whose value differs from the render with both rules on at that density.
+
+    What it shows: with the current-voxel rule the grid answers as brute force at
+    every density, mailbox or not (0 wrong hits); mailboxing only saves tests; without
+    the rule a primitive hit beyond the voxel being examined hides a nearer one listed
+    in the next voxel (Fig. 2.34), so hits and pixels go wrong."""
+    from impl import accel
+    from impl.rays import ray_config
+    from impl.scene_arrays import flatten
+
+    from .. import registry
+
+    algo = registry.get("whitted")
+    sizes = sizes or {"spheres": 1000, "mesh": 10000}
+    unknown = sorted(set(families) - set(FAMILIES))
+    if unknown or not all(d > 0 for d in densities):
+        raise SuiteError(f"grid_knobs: unknown family {', '.join(unknown) or '-'} (families: "
+                         f"{', '.join(FAMILIES)}) or a density <= 0 in {list(densities)}")
+    settings = [(m, v) for v in (True, False) for m in (True, False)]
+    rows = []
+    for fam in families:
+        N = int(sizes[fam])
+        scene = FAMILIES[fam](N, width=width, height=height)
+        A = flatten(scene)
+        n_prims = len(A.sph_radius) + len(A.tri_v)
+        ref_name = "none" if n_prims <= brute_max else "bvh-sah"
+        Rref = ray_config(A, algo.parse_params({"accel": ref_name}), algorithm="grid_knobs")
+        o, d = camera_rays(scene)
+        t0, p0, _, _ = accel.trace_batch(Rref, o, d)
+        ob, db = bounce_rays(A, o, d, t0, p0, seed=seed)
+        _, pb, _, _ = accel.trace_batch(Rref, ob, db)
+        warm = FAMILIES[fam](N, width=8, height=6)
+        for mailbox, rule in settings:                               # compile outside the timings
+            algo.render(warm, algo.parse_params({"accel": "grid", "grid_mailbox": mailbox,
+                                                 "grid_current_voxel": rule, "max_depth": max_depth}))
+        for dens in densities:
+            exact_image = None
+            for mailbox, rule in settings:
+                params = algo.parse_params({"accel": "grid", "grid_density": float(dens),
+                                            "grid_mailbox": mailbox, "grid_current_voxel": rule,
+                                            "max_depth": max_depth})
+                build_s, R = _median_time(lambda: ray_config(A, params, algorithm="grid_knobs"), repeats)
+                _, pc, _, cc = accel.trace_batch(R, o, d)
+                _, pbb, _, cb = accel.trace_batch(R, ob, db)
+                render_s, res, phases = _timed_renders(algo, scene, params, repeats)
+                if mailbox and rule:
+                    exact_image = res.image
+                row = {"family": fam, "N": N, "prims": int(n_prims), "density": float(dens),
+                       "mailbox": mailbox, "current_voxel": rule, "reference": ref_name,
+                       "voxels": int(np.prod(R.acc_i[:3])),
+                       "refs_per_prim": len(R.prim_idx) / n_prims, "build_s": build_s,
+                       "voxels_per_ray": float(cc[:, 0].mean()), "tests_per_ray": float(cc[:, 1].mean()),
+                       "wrong_hits": int((pc != p0).sum()), "rays": len(o),
+                       "bounce_tests_per_ray": float(cb[:, 1].mean()),
+                       "bounce_wrong_hits": int((pbb != pb).sum()), "bounce_rays": len(ob),
+                       "wrong_pixels": int(np.any(res.image != exact_image, axis=-1).sum()),
+                       "render_s": render_s, "setup_s": phases["setup_s"], "trace_s": phases["trace_s"]}
+                rows.append(row)
+                log(f"  grid_knobs {fam} density {dens} mailbox={mailbox} current_voxel={rule}: "
+                    f"tests/ray {row['tests_per_ray']:.1f}, wrong hits {row['wrong_hits']} + "
+                    f"{row['bounce_wrong_hits']}, wrong pixels {row['wrong_pixels']}")
+    return rows
+
+
 STUDIES = {s.name: s for s in (
     StudyInfo("scaling", "Acceleration structures: scaling with scene size",
               "Whitted renders (1 spp, max_depth 3; film size from the config) of N random spheres and of tessellated meshes "
@@ -424,6 +517,13 @@ STUDIES = {s.name: s for s in (
               "Camera-ray closest-hit queries through a tree on sphere fields of growing N (one "
               "thread): ns per node visited for the whole image, for one pixel tile's rays repeated "
               "(tree in cache) and for the same tree with its nodes shuffled in memory.", node_cost),
+    StudyInfo("grid_knobs", "Uniform grid: resolution, mailboxing and the current-voxel rule",
+              "Thesis 2.6.2 on a sphere field and a mesh: per grid density and on/off setting of "
+              "mailboxing and of the current-voxel rule, voxels and primitive tests per camera and "
+              "bounce ray, hits that differ from brute force, pixels that differ from the exact "
+              "grid's Whitted render, and the render's setup and trace times. Without the "
+              "current-voxel rule nearer objects are lost (Fig. 2.34): the negative control.",
+              grid_knobs),
 )}
 
 TABLES = table_titles(STUDIES)

@@ -43,7 +43,7 @@ from ..intersect import any_hit_form, closest_hit_form, like as _cast
 from .bounding_volumes import BOX, SPHERE, bv_any, bv_closest, build_objects
 from .bvh import build_bvh
 from .goldsmith_salmon import build_goldsmith_salmon
-from .grid import build_grid, grid_any, grid_closest
+from .grid import DENSITY as GRID_DENSITY, build_grid, grid_any, grid_closest
 from .octree import build_octree
 from .primitives import prim_bounds
 from .slabs import SLAB_COUNTS, build_slabs, slabs_any, slabs_closest
@@ -53,8 +53,8 @@ from .wide import (WIDTH, collapse, wide_any, wide_arrays, wide_closest, wide_cl
                    wide_depth, wide_occluded_rays)
 
 __all__ = ["ACCELS", "KIND", "Accel", "build", "empty", "closest", "any_hit", "closest_rays",
-           "occluded_rays", "trace_batch",
-           "occluded_batch", "SLAB_COUNTS", "memory_bytes"]
+           "occluded_rays", "trace_batch", "occluded_batch", "SLAB_COUNTS", "GRID_DENSITY",
+           "memory_bytes"]
 
 ACCELS = ("none", "bv", "bv-sphere", "slabs", "bvh-median", "bvh-sah", "bvh-gs", "grid", "octree",
           "bvh-wide")
@@ -90,10 +90,13 @@ def memory_bytes(acc: Accel) -> int:
 
 
 def build(name: str, sph_center, sph_radius, tri_v, prim_shape=None, *, slab_normals: int = 7,
-          grid_density: float | None = None) -> Accel:
+          grid_density: float | None = None, grid_mailbox: bool = True,
+          grid_current_voxel: bool = True) -> Accel:
     """Build structure ``name`` (one of :data:`ACCELS`) over the primitives as the ray
     configuration holds them (its precision); ``prim_shape`` (P,) groups them into
-    objects for ``bv``, ``bv-sphere`` and ``slabs`` (default: one object each)."""
+    objects for ``bv``, ``bv-sphere`` and ``slabs`` (default: one object each).
+    ``grid_*``: the uniform grid's resolution (voxels per primitive; None = its
+    default), mailboxing and current-voxel rule (:mod:`.grid`)."""
     if name not in ACCELS:
         raise ParamError(f"accel: unknown structure {name!r} (valid: {', '.join(ACCELS)})")
     n = len(sph_radius) + len(tri_v)
@@ -114,7 +117,8 @@ def build(name: str, sph_center, sph_radius, tri_v, prim_shape=None, *, slab_nor
         return Accel(SLABS, dn, df, offsets, zi, idx, normals, zi)
     if name == "grid":
         kw = {} if grid_density is None else {"density": grid_density}
-        glo, ghi, cs, res, offsets, refs = build_grid(lo, hi, **kw)
+        glo, ghi, cs, res, offsets, refs = build_grid(lo, hi, mailbox=grid_mailbox,
+                                                      current_voxel=grid_current_voxel, **kw)
         return Accel(GRID, glo, ghi, offsets, zi, refs, cs, res)
     if name == "bvh-wide":
         nlo, nhi, na, nb, idx = build_bvh(lo, hi, "sah")

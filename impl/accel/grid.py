@@ -22,11 +22,28 @@ Two details make it exact and cheap:
   a repeated test.
 
 Resolution: ``λ·P`` voxels in the proportions of the scene box (Cleary &
-Wyvill; λ = ``DENSITY``), at most ``MAX_RES`` per axis.
+Wyvill; λ = ``density``, default :data:`DENSITY`), at most ``MAX_RES`` per axis.
+
+Ablation knobs (thesis 2.6.2), fixed at build time and read by the traversal:
+
+* ``density`` — the grid resolution (voxels per primitive): fewer voxels mean
+  longer voxel lists (more tests per ray), more voxels more steps per ray and
+  more references per primitive;
+* ``mailbox`` — off: a primitive listed in several pierced voxels is tested
+  again in each (the thesis's "object A" of Fig. 2.32); the hits do not change,
+  only the tests per ray;
+* ``current_voxel`` — off: the first voxel holding *any* hit ends the search,
+  even a hit beyond that voxel's exit, so a nearer primitive listed only in the
+  next voxel is missed (Fig. 2.34's object C): wrong hits.  This variant
+  exists to show that failure; it is not a renderer's choice.
+
+The any-hit query (shadow rays) needs no current-voxel rule: any hit in
+(tmin, tmax) answers it wherever it lies.
 
 Layout in the ray configuration: ``node_lo``/``node_hi`` (1, 3) the grid box,
-``acc_f`` the voxel size (3,), ``acc_i`` the resolution (3,), ``node_a``
-(V + 1,) each voxel's first entry of ``prim_idx``.
+``acc_f`` the voxel size (3,), ``acc_i`` (5,) the resolution (3) and the
+mailbox and current-voxel flags (0/1), ``node_a`` (V + 1,) each voxel's first
+entry of ``prim_idx``.
 
 Leaves out: hierarchical or adaptive grids (the octree of
 :mod:`impl.accel.octree` is the non-uniform subdivision), exact
@@ -92,9 +109,10 @@ def _fill(lo, hi, glo, cs, res):
     return offsets, refs
 
 
-def build_grid(lo, hi, *, density=DENSITY):
+def build_grid(lo, hi, *, density=DENSITY, mailbox=True, current_voxel=True):
     """A uniform grid over primitive bounds ``lo``/``hi`` (P, 3): ``(grid_lo (1, 3),
-    grid_hi (1, 3), cell_size (3,), res (3,), offsets (V + 1,), refs)``."""
+    grid_hi (1, 3), cell_size (3,), ints (5,), offsets (V + 1,), refs)``; ``ints`` is the
+    resolution per axis followed by the ``mailbox`` and ``current_voxel`` flags."""
     lo = np.ascontiguousarray(lo, dtype=np.float64)
     hi = np.ascontiguousarray(hi, dtype=np.float64)
     if lo.ndim != 2 or lo.shape[1] != 3 or lo.shape != hi.shape or len(lo) == 0:
@@ -105,7 +123,8 @@ def build_grid(lo, hi, *, density=DENSITY):
     res = grid_resolution(glo, ghi, len(lo), density)
     cs = np.maximum((ghi - glo) / res, 1e-300)
     offsets, refs = _fill(lo, hi, glo, cs, res)
-    return glo[None, :].copy(), ghi[None, :].copy(), cs, res, offsets, refs
+    ints = np.concatenate([res, [int(bool(mailbox)), int(bool(current_voxel))]]).astype(np.int64)
+    return glo[None, :].copy(), ghi[None, :].copy(), cs, ints, offsets, refs
 
 
 @njit(inline="always", cache=True)
@@ -123,8 +142,10 @@ def _start(o, d, inv, t, glo, cs, res):
 @njit(cache=True, error_model="numpy")
 def grid_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2, voxels_visited, prim_tests)`` by 3D-DDA, accepting a
-    hit only within the current voxel; arguments and t in R's precision."""
+    hit only within the current voxel (unless the configuration turns that rule off);
+    arguments and t in R's precision."""
     glo, cs, res = R.node_lo[0], R.acc_f, R.acc_i
+    use_mailbox, voxel_rule = res[3] != 0, res[4] != 0
     off, refs = R.node_a, R.prim_idx
     best_t, best_p = tmax, -1
     bb1 = bb2 = like(tmax, 0.0)
@@ -151,14 +172,14 @@ def grid_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
         for k in range(off[c], off[c + 1]):
             p = refs[k]
             slot = p & (MAILBOX - 1)
-            if mb_id[slot] == p:                       # mailbox: tested on an earlier voxel
+            if use_mailbox and mb_id[slot] == p:       # mailbox: tested on an earlier voxel
                 t, b1, b2 = mb[slot, 0], mb[slot, 1], mb[slot, 2]
             else:
                 tests += 1
                 t, b1, b2 = prim_test(R, p, ox, oy, oz, dx, dy, dz, tmin, t_far)
                 mb_id[slot] = p
                 mb[slot, 0], mb[slot, 1], mb[slot, 2] = t, b1, b2
-            if t > zero and float(t) <= t_exit and closer(t, p, best_t, best_p):
+            if t > zero and (float(t) <= t_exit or not voxel_rule) and closer(t, p, best_t, best_p):
                 best_t, best_p, bb1, bb2 = t, p, b1, b2
         # Stop at the first voxel with an accepted hit, or where the ray ends.
         if best_p >= 0 or t_exit >= ftmax:
@@ -185,8 +206,9 @@ def grid_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
 @njit(cache=True, error_model="numpy")
 def grid_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any hit in (tmin, tmax) by 3D-DDA: ``(hit, voxels_visited, prim_tests)``; the
-    mailbox skips primitives already found to miss."""
+    mailbox (when on) skips primitives already found to miss."""
     glo, cs, res = R.node_lo[0], R.acc_f, R.acc_i
+    use_mailbox = res[3] != 0
     off, refs = R.node_a, R.prim_idx
     zero = like(tmax, 0.0)
     fo = (float(ox), float(oy), float(oz))
@@ -209,7 +231,7 @@ def grid_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
         for k in range(off[c], off[c + 1]):
             p = refs[k]
             slot = p & (MAILBOX - 1)
-            if mb_id[slot] == p:
+            if use_mailbox and mb_id[slot] == p:
                 continue
             tests += 1
             t, b1, b2 = prim_test(R, p, ox, oy, oz, dx, dy, dz, tmin, tmax)
