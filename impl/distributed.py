@@ -876,4 +876,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
+    models=frozenset({"envmap"}),
 )

@@ -9,13 +9,14 @@ tree (thesis 2.2: the shadow rays of a hit point):
   material's colour or its texture (Mitsuba's ``checkerboard`` or ``bitmap``,
   :mod:`impl.textures`);
 * :func:`environment_radiance` — what a ray that escapes the scene sees: the
-  radiance of a ``constant`` environment emitter (0 without one), for the
-  tracers' escaping rays;
+  radiance of a ``constant`` environment emitter or of an ``envmap``
+  (:mod:`impl.envmap`; 0 without either), for the tracers' escaping rays;
 * :func:`sample_emitter` — a uniform point on an area emitter, by area;
 * :func:`light_slot` — one light sample of the Phong model (thesis 1.4.1–1.4.2):
   a delta light (point, spot, directional), a uniform-by-area point of an
   area emitter, or a cosine-weighted direction towards a ``constant``
-  environment emitter, with its radiance contribution and the shadow ray
+  environment emitter (an ``envmap``: a direction importance-sampled by its
+  luminance), with its radiance contribution and the shadow ray
   that decides it (cast with a ray configuration, :class:`impl.rays.RayConfig`:
   ray–sphere form, intersection precision, offset strategy).  For the
   environment the diffuse estimator is L_env ρ V(ω) per sample
@@ -42,6 +43,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .envmap import envmap_draw, envmap_radiance
 from .rays import RayConfig, legacy_config, leave, occluded
 from .phong import attenuation, phong_brdf_cos
 from .rng import uniform
@@ -195,10 +197,11 @@ SLOT_NONE, SLOT_LIT, SLOT_SHADOW = 0, 1, 2
 @njit(inline="always", cache=True)
 def slot_count(A: SceneArrays, light_samples):
     """Light samples of one shading point: one per delta light, ``light_samples`` per area
-    emitter and for a constant environment (none of these with ``light_samples = 0``)."""
+    emitter and for an environment, constant or envmap (none of these with ``light_samples = 0``)."""
     n = A.light_kind.shape[0]
     if light_samples > 0:
-        n += light_samples * (A.em_area.shape[0] + (1 if A.env_radiance.shape[0] > 0 else 0))
+        env = 1 if A.env_radiance.shape[0] + A.env_image.shape[0] > 0 else 0
+        n += light_samples * (A.em_area.shape[0] + env)
     return n
 
 
@@ -237,7 +240,9 @@ def light_slot(j, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, 
     Slots: delta lights first (point, spot, directional), then ``light_samples`` per
     area emitter, uniform by area (estimator L_e A cos θ_y f_att(d) · bracket / N,
     stratified when N is a square), then ``light_samples`` cosine-weighted directions
-    for a constant environment (estimator L_env · bracket · π / cos θ / N).
+    for a constant environment (estimator L_env · bracket · π / cos θ / N), or for an
+    envmap directions drawn by its luminance (estimator L(ω) · bracket / (pdf(ω) N),
+    :func:`impl.envmap.envmap_draw`).
     """
     z = 0.0
     nl = A.light_kind.shape[0]
@@ -309,17 +314,24 @@ def light_slot(j, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, 
         w = cos_y * attenuation(dist, c1, c2, c3, fclamp) * A.em_area[e] / light_samples
         return (st, ox, oy, oz, dx, dy, dz, t0, t1, w * (kd * rho_r + spec) * A.shape_emit[sh, 0],
                 w * (kd * rho_g + spec) * A.shape_emit[sh, 1], w * (kd * rho_b + spec) * A.shape_emit[sh, 2])
-    # Constant environment: cosine-weighted directions about the shading normal.
-    lx, ly, lz, cos_l = sample_cosine_hemisphere(u1, u2, sx, sy, sz)
-    if cos_l <= 0.0:
+    # Constant environment: cosine-weighted directions about the shading normal (pdf cos/π);
+    # an envmap: its luminance importance sampling (pdf from impl.envmap).
+    if A.env_image.shape[0] > 0:
+        lx, ly, lz, pdf, er, eg, eb = envmap_draw(A.env_image, A.env_frame, A.env_pdf, A.env_cdf, u1, u2)
+        inv_pdf = 1.0 / pdf if pdf > 0.0 else 0.0
+    else:
+        lx, ly, lz, cos_l = sample_cosine_hemisphere(u1, u2, sx, sy, sz)
+        inv_pdf = math.pi / cos_l if cos_l > 0.0 else 0.0
+        er, eg, eb = A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
+    if inv_pdf == 0.0:
         return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
     kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
     if kd == 0.0 and spec == 0.0:
         return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
     ox, oy, oz, dx, dy, dz, t0, t1 = _shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz)
-    w = math.pi / cos_l / light_samples          # 1 / (pdf N), pdf = cos / π
-    return (st, ox, oy, oz, dx, dy, dz, t0, t1, w * (kd * rho_r + spec) * A.env_radiance[0, 0],
-            w * (kd * rho_g + spec) * A.env_radiance[0, 1], w * (kd * rho_b + spec) * A.env_radiance[0, 2])
+    w = inv_pdf / light_samples                  # 1 / (pdf N)
+    return (st, ox, oy, oz, dx, dy, dz, t0, t1, w * (kd * rho_r + spec) * er,
+            w * (kd * rho_g + spec) * eg, w * (kd * rho_b + spec) * eb)
 
 
 class LocalModel(NamedTuple):
@@ -413,7 +425,10 @@ def sample_cosine_hemisphere(u1, u2, nx, ny, nz):
 @njit(inline="always", cache=True)
 def environment_radiance(A: SceneArrays, dx, dy, dz):
     """Radiance seen by a ray leaving the scene along (dx, dy, dz): a ``constant``
-    environment emitter's, uniform in direction, or 0 without one."""
+    environment emitter's, uniform in direction, an ``envmap``'s (:mod:`impl.envmap`),
+    or 0 without one."""
+    if A.env_image.shape[0] > 0:
+        return envmap_radiance(A.env_image, A.env_frame, dx, dy, dz)
     if A.env_radiance.shape[0] == 0:
         return 0.0, 0.0, 0.0
     return A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]

@@ -436,4 +436,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
+    models=frozenset({"envmap"}),
 )

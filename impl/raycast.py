@@ -227,4 +227,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
+    models=frozenset({"envmap"}),
 )

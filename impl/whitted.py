@@ -506,4 +506,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
+    models=frozenset({"envmap"}),
 )
