@@ -436,5 +436,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap"}),
+    models=frozenset({"envmap", "plastic", "roughplastic"}),
 )

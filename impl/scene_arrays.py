@@ -4,7 +4,8 @@ Primitives are numbered spheres first, then triangles; ``prim_shape`` maps a
 primitive to its shape (the index used for shape-id images).  Area emitters
 become per-emitter triangle lists with an area CDF for uniform area sampling.
 Light ``kind`` codes: 0 point, 1 directional, 2 spot.  Material ``kind``
-codes: 0 diffuse, 1 conductor, 2 dielectric, 3 roughconductor, 4 roughdielectric; an algorithm
+codes: 0 diffuse, 1 conductor, 2 dielectric, 3 roughconductor, 4 roughdielectric, 5 plastic,
+6 roughplastic; an algorithm
 refuses the kinds it cannot model.  Textured diffuse reflectance: ``mat_tex``
 code 0 none, 1 checkerboard (colours and the 2x3 ``to_uv`` map per material),
 2 bitmap (texels of every image concatenated in ``tex_data``, row-major, with
@@ -91,7 +92,8 @@ class SceneArrays(NamedTuple):
         return len(self.sph_radius)
 
 
-MATERIAL_CODES = {"diffuse": 0, "conductor": 1, "dielectric": 2, "roughconductor": 3, "roughdielectric": 4}
+MATERIAL_CODES = {"diffuse": 0, "conductor": 1, "dielectric": 2, "roughconductor": 3, "roughdielectric": 4,
+                  "plastic": 5, "roughplastic": 6}
 
 
 def flatten(scene: Scene) -> SceneArrays:

@@ -109,6 +109,9 @@ def spectral_arrays(scene: Scene, A, L) -> SpectralArrays:
         if i not in used:
             continue
         where = f"material '{m.name or i}' ({m.kind})"
+        if m.kind in ("plastic", "roughplastic"):
+            raise UnsupportedError(f"path (spectral=true): {where}: plastic BSDFs are not modelled "
+                                   "in spectral mode")
         if m.texture is not None:
             raise UnsupportedError(f"path (spectral=true): {where}: textures are not "
                                       "supported in spectral mode")
