@@ -9,26 +9,38 @@ tree (thesis 2.2: the shadow rays of a hit point):
   material's colour or its texture (Mitsuba's ``checkerboard`` or ``bitmap``,
   :mod:`impl.textures`);
 * :func:`environment_radiance` — what a ray that escapes the scene sees: the
-  radiance of a ``constant`` environment emitter or of an ``envmap``
-  (:mod:`impl.envmap`; 0 without either), for the tracers' escaping rays;
+  radiance of a ``constant`` environment emitter or an ``envmap`` (0 without
+  either), for the
+  tracers' escaping rays;
 * :func:`sample_emitter` — a uniform point on an area emitter, by area;
-* :func:`light_slot` — one light sample of the Phong model (thesis 1.4.1–1.4.2):
-  a delta light (point, spot, directional), a uniform-by-area point of an
-  area emitter, or a cosine-weighted direction towards a ``constant``
-  environment emitter (an ``envmap``: a direction importance-sampled by its
-  luminance), with its radiance contribution and the shadow ray
-  that decides it (cast with a ray configuration, :class:`impl.rays.RayConfig`:
-  ray–sphere form, intersection precision, offset strategy).  For the
-  environment the diffuse estimator is L_env ρ V(ω) per sample
-  (f cos / pdf = (ρ/π) cos / (cos/π) = ρ), the Phong highlight adds
-  L_env k_s (R·V)^n π / cos;
-* :func:`direct_light_rays` — the sum of every light slot at one point, shadow
-  rays traced one at a time; :func:`direct_light` is the same with the fixed
-  offset rule of :func:`impl.rays.legacy_config` (stable form, float64, origin
-  moved SHADOW_EPSILON·(1 + max|p_i|) along the normal);
-* :func:`direct_batch` — the same over a batch of shading points, each slot's
-  shadow rays traced together (:func:`impl.tracer.occluded_batch`), with the
-  parameters in one :class:`LocalModel`.
+* the light samples of the Phong model (thesis 1.4.1–1.4.2), one helper per
+  kind of light, each on plain scalars (and the emitter's arrays): a delta
+  light (point, spot, directional: :func:`delta_sample`), a uniform-by-area
+  point of an area emitter (:func:`area_sample`), a cosine-weighted direction
+  towards a ``constant`` environment emitter, or importance-sampled by an
+  ``envmap``'s luminance (:func:`environment_sample`).
+  Each gives the direction to the light and the radiance contribution that
+  the shadow ray (:func:`shadow_towards`, :func:`shadow_along`, cast with a
+  ray configuration :class:`impl.rays.RayConfig`: ray–sphere form,
+  intersection precision, offset strategy) decides.  For the environment the
+  diffuse estimator is L_env ρ V(ω) per sample (f cos / pdf = (ρ/π) cos /
+  (cos/π) = ρ), the Phong highlight adds L_env k_s (R·V)^n π / cos;
+* :func:`direct_light_rays` — the sum of every light sample at one point,
+  shadow rays traced one at a time; :func:`direct_light` is the same with the
+  fixed offset rule of :func:`impl.rays.legacy_config` (stable form, float64,
+  origin moved SHADOW_EPSILON·(1 + max|p_i|) along the normal);
+* :func:`direct_batch` — the same over a batch of shading points, each light
+  sample's shadow rays traced together (:func:`impl.tracer.occluded_batch`),
+  with the parameters in one :class:`LocalModel`.
+
+Both sums visit the samples in one order — delta lights, then
+``light_samples`` per area emitter, then ``light_samples`` for the
+environment — and draw sample j's two random numbers from dimensions
+2 + 2j', j' = j minus the number of delta lights, so they give the same light
+at the same point.  The loops over lights and points live in those two
+functions and the per-sample helpers take scalars: a helper that took the
+whole flattened scene per sample would copy its tuple of arrays (an atomic
+reference-count update per array) at every call.
 
 They take the flattened scene (:class:`impl.scene_arrays.SceneArrays`); the
 single-point helpers return plain scalars, so a caller's kernel stays free of
@@ -52,8 +64,9 @@ from .textures import bitmap, checkerboard
 from .tracer import occluded_batch
 
 __all__ = ["SHADOW_EPSILON", "surface", "diffuse_albedo", "sample_emitter", "direct_light",
-           "direct_light_rays", "light_slot", "slot_count", "direct_batch", "LocalModel",
-           "local_model", "environment_radiance", "sample_cosine_hemisphere"]
+           "direct_light_rays", "delta_sample", "area_sample", "environment_sample",
+           "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
+           "environment_radiance", "sample_cosine_hemisphere"]
 
 #: Shadow-ray origins move off the surface by this much times (1 + |p|_max).
 SHADOW_EPSILON = 1e-7
@@ -91,7 +104,7 @@ def surface(prim, b1, b2, px, py, pz, ns, sph_center, sph_radius, tri_v, tri_n, 
     return gx, gy, gz, sx, sy, sz
 
 
-@njit(cache=True)
+@njit(inline="always", cache=True)
 def sample_emitter(e, u1, u2, em_offset, em_tri, em_cdf, tri_v):
     """Uniform point on emitter ``e`` by area: (x, y, z, triangle index)."""
     lo, hi = em_offset[e], em_offset[e + 1] - 1
@@ -171,42 +184,193 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
                       A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
                       seed, pixel, sample, R: RayConfig):
     """:func:`direct_light` with shadow rays cast by the ray configuration ``R``: the
-    sum over :func:`light_slot` of every slot whose shadow ray is unoccluded."""
+    sum of every light sample whose shadow ray is unoccluded (all of them with
+    ``shadows`` false); (r, g, b, shadow rays)."""
     r = g = b = 0.0
     nshadow = 0
-    for j in range(slot_count(A, light_samples)):
-        st, ox, oy, oz, dx, dy, dz, t0, t1, cr, cg, cb = light_slot(
-            j, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, A, R, ks,
-            shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, pixel, sample)
-        if st == SLOT_NONE:
+    for li in range(A.light_kind.shape[0]):
+        kind = A.light_kind[li]
+        ok, lx, ly, lz, w, kd, spec = delta_sample(
+            kind, A.light_pos[li, 0], A.light_pos[li, 1], A.light_pos[li, 2], A.light_dir[li, 0],
+            A.light_dir[li, 1], A.light_dir[li, 2], A.light_cos_cutoff[li], A.light_cos_beam[li],
+            A.light_cutoff[li], A.light_inv_tw[li], px, py, pz, sx, sy, sz, vx, vy, vz, ks,
+            shininess, c1, c2, c3, fclamp)
+        if not ok:
             continue
-        if st == SLOT_SHADOW:
+        cr = w * A.light_rad[li, 0] * (kd * rho_r + spec)
+        cg = w * A.light_rad[li, 1] * (kd * rho_g + spec)
+        cb = w * A.light_rad[li, 2] * (kd * rho_b + spec)
+        if shadows:
             nshadow += 1
+            if kind == LIGHT_DIRECTIONAL:
+                ox, oy, oz, dx, dy, dz, t0, t1 = shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz)
+            else:
+                ox, oy, oz, dx, dy, dz, t0, t1 = shadow_towards(
+                    R, px, py, pz, gx, gy, gz, lx, ly, lz, A.light_pos[li, 0], A.light_pos[li, 1],
+                    A.light_pos[li, 2], R.shrink_point)
             if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
                 continue
         r += cr
         g += cg
         b += cb
+    if light_samples <= 0:
+        return r, g, b, nshadow
+    q = int(math.sqrt(light_samples) + 0.5)
+    stratified = q * q == light_samples
+    n_em = A.em_area.shape[0]
+    em_offset, em_tri, em_cdf, tri_v = A.em_offset, A.em_tri, A.em_cdf, A.tri_v
+    for e in range(n_em):
+        sh = A.em_shape[e]
+        flip = A.shape_flip[sh]
+        scale = A.em_area[e] / light_samples
+        er, eg, eb = A.shape_emit[sh, 0], A.shape_emit[sh, 1], A.shape_emit[sh, 2]
+        for k in range(light_samples):
+            u1, u2 = light_uv(seed, pixel, sample, e * light_samples + k, k, q, stratified)
+            ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
+                e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, px, py, pz,
+                sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, ks, shininess, c1, c2, c3, fclamp)
+            if not ok:
+                continue
+            if shadows:
+                nshadow += 1
+                ox, oy, oz, dx, dy, dz, t0, t1 = shadow_towards(R, px, py, pz, gx, gy, gz, lx, ly,
+                                                                lz, yx, yy, yz, R.shrink_area)
+                if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
+                    continue
+            r += cr
+            g += cg
+            b += cb
+    if A.env_radiance.shape[0] + A.env_image.shape[0] > 0:
+        er = eg = eb = 0.0
+        if A.env_radiance.shape[0] > 0:
+            er, eg, eb = A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
+        img, frame, epdf, ecdf = A.env_image, A.env_frame, A.env_pdf, A.env_cdf
+        for k in range(light_samples):
+            u1, u2 = light_uv(seed, pixel, sample, n_em * light_samples + k, k, q, stratified)
+            ok, lx, ly, lz, cr, cg, cb = environment_sample(
+                u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, sx, sy, sz, vx, vy, vz,
+                rho_r, rho_g, rho_b, ks, shininess)
+            if not ok:
+                continue
+            if shadows:
+                nshadow += 1
+                ox, oy, oz, dx, dy, dz, t0, t1 = shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz)
+                if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
+                    continue
+            r += cr
+            g += cg
+            b += cb
     return r, g, b, nshadow
 
 
-#: :func:`light_slot` outcomes: nothing, light without a shadow test, light if unoccluded.
-SLOT_NONE, SLOT_LIT, SLOT_SHADOW = 0, 1, 2
+@njit(inline="always", cache=True)
+def light_uv(seed, pixel, sample, j, k, q, stratified):
+    """The two random numbers of area/environment light sample ``j`` (sample ``k`` of its
+    light): dimensions 2 + 2j and 3 + 2j of :func:`impl.rng.uniform`, moved into stratum
+    k of a q×q grid when the light's sample count is the square q²."""
+    dim = 2 + 2 * j
+    u1 = uniform(seed, pixel, sample, dim)
+    u2 = uniform(seed, pixel, sample, dim + 1)
+    if stratified:
+        u1 = (k % q + u1) / q
+        u2 = (k // q + u2) / q
+    return u1, u2
 
 
 @njit(inline="always", cache=True)
-def slot_count(A: SceneArrays, light_samples):
-    """Light samples of one shading point: one per delta light, ``light_samples`` per area
-    emitter and for an environment, constant or envmap (none of these with ``light_samples = 0``)."""
-    n = A.light_kind.shape[0]
-    if light_samples > 0:
-        env = 1 if A.env_radiance.shape[0] + A.env_image.shape[0] > 0 else 0
-        n += light_samples * (A.em_area.shape[0] + env)
-    return n
+def delta_sample(kind, lpx, lpy, lpz, ldx, ldy, ldz, cos_cutoff, cos_beam, cutoff, inv_tw, px, py,
+                 pz, sx, sy, sz, vx, vy, vz, ks, shininess, c1, c2, c3, fclamp):
+    """A delta light (thesis 1.4.1) at a surface point p (shading normal s, towards the
+    viewer v), Phong model (1.4.2): ``(lit, l, w, kd, spec)``, l the unit direction to
+    the light; the light of radiant intensity I reflected by diffuse reflectance ρ is
+    w I (kd ρ + spec).  Point and spot lights sit at ``lp``, attenuated
+    by f_att(d); a directional light shines along ``ld``.  Mitsuba's spot: 1 inside the
+    beam width, linear in angle to 0 at the cutoff angle (``cutoff`` in radians,
+    ``inv_tw`` = 1 / (cutoff − beam width)).  ``lit`` is false where the light adds
+    nothing (outside the cone, or the bracket is 0)."""
+    z = 0.0
+    if kind == LIGHT_DIRECTIONAL:
+        lx, ly, lz = -ldx, -ldy, -ldz
+        w = 1.0
+    else:
+        lx, ly, lz = lpx - px, lpy - py, lpz - pz
+        dist = math.sqrt(lx * lx + ly * ly + lz * lz)
+        lx, ly, lz = lx / dist, ly / dist, lz / dist
+        w = attenuation(dist, c1, c2, c3, fclamp)
+        if kind == LIGHT_SPOT:
+            cos_t = -(lx * ldx + ly * ldy + lz * ldz)
+            if cos_t <= cos_cutoff:
+                return False, z, z, z, z, z, z
+            if cos_t < cos_beam:
+                w *= (cutoff - math.acos(min(cos_t, 1.0))) * inv_tw
+    kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
+    if kd == 0.0 and spec == 0.0:
+        return False, z, z, z, z, z, z
+    return True, lx, ly, lz, w, kd, spec
 
 
 @njit(inline="always", cache=True)
-def _shadow_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz, yx, yy, yz, shrink):
+def area_sample(e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, px, py, pz,
+                sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, ks, shininess, c1, c2, c3, fclamp):
+    """One uniform-by-area sample y of area emitter ``e`` (radiance ``(er, eg, eb)``,
+    ``scale`` = its area / the sample count N) lit towards p (thesis 1.4.1):
+    ``(lit, l, y, contribution)`` with the estimator L_e A cos θ_y f_att(d) · bracket / N.
+    Area emitters radiate from their front side only (``flip``: the shape's normals are
+    flipped)."""
+    z = 0.0
+    yx, yy, yz, tri = sample_emitter(e, u1, u2, em_offset, em_tri, em_cdf, tri_v)
+    lx, ly, lz = yx - px, yy - py, yz - pz
+    dist = math.sqrt(lx * lx + ly * ly + lz * lz)
+    if dist == 0.0:
+        return False, z, z, z, z, z, z, z, z, z
+    lx, ly, lz = lx / dist, ly / dist, lz / dist
+    # The emitter triangle's geometric normal, as :func:`surface` computes it.
+    v = tri_v[tri]
+    e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
+    e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
+    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+    nx, ny, nz = nx * inv, ny * inv, nz * inv
+    if flip:
+        nx, ny, nz = -nx, -ny, -nz
+    cos_y = -(nx * lx + ny * ly + nz * lz)
+    if cos_y <= 0.0:
+        return False, z, z, z, z, z, z, z, z, z
+    kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
+    if kd == 0.0 and spec == 0.0:
+        return False, z, z, z, z, z, z, z, z, z
+    w = cos_y * attenuation(dist, c1, c2, c3, fclamp) * scale
+    return (True, lx, ly, lz, yx, yy, yz, w * (kd * rho_r + spec) * er,
+            w * (kd * rho_g + spec) * eg, w * (kd * rho_b + spec) * eb)
+
+
+@njit(inline="always", cache=True)
+def environment_sample(u1, u2, er, eg, eb, image, frame, pdf, cdf, n, sx, sy, sz, vx, vy, vz, rho_r,
+                       rho_g, rho_b, ks, shininess):
+    """One of ``n`` cosine-weighted directions l about the shading normal towards a
+    constant environment of radiance ``(er, eg, eb)``: ``(lit, l, contribution)``
+    with the estimator L_env · bracket · π / (cos θ n); with an envmap (``image``
+    has rows; its ``frame``, ``pdf``, ``cdf`` of :mod:`impl.envmap`) a direction
+    drawn by the map's luminance, estimator L(l) · bracket / (pdf(l) n)."""
+    z = 0.0
+    if image.shape[0] > 0:
+        lx, ly, lz, p, er, eg, eb = envmap_draw(image, frame, pdf, cdf, u1, u2)
+        inv_pdf = 1.0 / p if p > 0.0 else 0.0
+    else:
+        lx, ly, lz, cos_l = sample_cosine_hemisphere(u1, u2, sx, sy, sz)
+        inv_pdf = math.pi / cos_l if cos_l > 0.0 else 0.0
+    if inv_pdf == 0.0:
+        return False, z, z, z, z, z, z
+    kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
+    if kd == 0.0 and spec == 0.0:
+        return False, z, z, z, z, z, z
+    w = inv_pdf / n                  # 1 / (pdf n); constant: pdf = cos / π
+    return (True, lx, ly, lz, w * (kd * rho_r + spec) * er, w * (kd * rho_g + spec) * eg,
+            w * (kd * rho_b + spec) * eb)
+
+
+@njit(inline="always", cache=True)
+def shadow_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz, yx, yy, yz, shrink):
     """Shadow ray from the surface point p (geometric normal g) to the point y, seen along
     the unit direction l: it leaves p on the side of l and is aimed from its offset origin
     at y, ending at |y − o|·(1 − shrink).  (Aimed along l from p instead, the segment
@@ -218,120 +382,11 @@ def _shadow_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz, yx, yy, yz, shrink):
 
 
 @njit(inline="always", cache=True)
-def _shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz):
+def shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz):
     """Shadow ray from p towards infinity along the unit direction l."""
     side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
     ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
     return ox, oy, oz, lx, ly, lz, t0, np.inf
-
-
-@njit(inline="always", cache=True)
-def light_slot(j, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
-               A: SceneArrays, R: RayConfig, ks, shininess, c1, c2, c3, fclamp, shadows,
-               light_samples, seed, pixel, sample):
-    """Light sample ``j`` (0 ≤ j < :func:`slot_count`) at a surface point p (geometric
-    normal g, shading normal s, towards the viewer v, diffuse reflectance ρ), Phong model
-    (thesis 1.4.1–1.4.2).
-
-    Returns ``(status, ox, oy, oz, dx, dy, dz, tmin, tmax, r, g, b)``: the radiance
-    contribution ``(r, g, b)``, counted when ``status`` is ``SLOT_LIT`` or when it is
-    ``SLOT_SHADOW`` and the shadow ray ``o + t d``, t ∈ (tmin, tmax), is unoccluded.
-
-    Slots: delta lights first (point, spot, directional), then ``light_samples`` per
-    area emitter, uniform by area (estimator L_e A cos θ_y f_att(d) · bracket / N,
-    stratified when N is a square), then ``light_samples`` cosine-weighted directions
-    for a constant environment (estimator L_env · bracket · π / cos θ / N), or for an
-    envmap directions drawn by its luminance (estimator L(ω) · bracket / (pdf(ω) N),
-    :func:`impl.envmap.envmap_draw`).
-    """
-    z = 0.0
-    nl = A.light_kind.shape[0]
-    st = SLOT_SHADOW if shadows else SLOT_LIT
-    if j < nl:
-        # Delta lights: point, spot, directional (thesis 1.4.1).
-        li = j
-        kind = A.light_kind[li]
-        if kind == LIGHT_DIRECTIONAL:
-            lx, ly, lz = -A.light_dir[li, 0], -A.light_dir[li, 1], -A.light_dir[li, 2]
-            w = 1.0
-        else:
-            lx = A.light_pos[li, 0] - px
-            ly = A.light_pos[li, 1] - py
-            lz = A.light_pos[li, 2] - pz
-            dist = math.sqrt(lx * lx + ly * ly + lz * lz)
-            lx, ly, lz = lx / dist, ly / dist, lz / dist
-            w = attenuation(dist, c1, c2, c3, fclamp)
-            if kind == LIGHT_SPOT:
-                # Mitsuba's spot: 1 inside beam_width, linear in angle to 0 at cutoff_angle.
-                cos_t = -(lx * A.light_dir[li, 0] + ly * A.light_dir[li, 1] + lz * A.light_dir[li, 2])
-                if cos_t <= A.light_cos_cutoff[li]:
-                    return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
-                if cos_t < A.light_cos_beam[li]:
-                    w *= (A.light_cutoff[li] - math.acos(min(cos_t, 1.0))) * A.light_inv_tw[li]
-        kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
-        if kd == 0.0 and spec == 0.0:
-            return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
-        if kind == LIGHT_DIRECTIONAL:
-            ox, oy, oz, dx, dy, dz, t0, t1 = _shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz)
-        else:
-            ox, oy, oz, dx, dy, dz, t0, t1 = _shadow_towards(
-                R, px, py, pz, gx, gy, gz, lx, ly, lz, A.light_pos[li, 0], A.light_pos[li, 1],
-                A.light_pos[li, 2], R.shrink_point)
-        return (st, ox, oy, oz, dx, dy, dz, t0, t1, w * A.light_rad[li, 0] * (kd * rho_r + spec),
-                w * A.light_rad[li, 1] * (kd * rho_g + spec), w * A.light_rad[li, 2] * (kd * rho_b + spec))
-    q = int(math.sqrt(light_samples) + 0.5)
-    stratified = q * q == light_samples
-    k = (j - nl) % light_samples
-    e = (j - nl) // light_samples
-    dim = 2 + 2 * (j - nl)
-    u1 = uniform(seed, pixel, sample, dim)
-    u2 = uniform(seed, pixel, sample, dim + 1)
-    if stratified:
-        u1 = (k % q + u1) / q
-        u2 = (k // q + u2) / q
-    n_em = A.em_area.shape[0]
-    if e < n_em:
-        # Area lights (thesis 1.4.1): uniform area sampling.
-        sh = A.em_shape[e]
-        yx, yy, yz, tri = sample_emitter(e, u1, u2, A.em_offset, A.em_tri, A.em_cdf, A.tri_v)
-        lx, ly, lz = yx - px, yy - py, yz - pz
-        dist = math.sqrt(lx * lx + ly * ly + lz * lz)
-        if dist == 0.0:
-            return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
-        lx, ly, lz = lx / dist, ly / dist, lz / dist
-        ns = A.sph_radius.shape[0]
-        nyx, nyy, nyz, _a, _b, _c = surface(ns + tri, 0.0, 0.0, yx, yy, yz, ns, A.sph_center,
-                                             A.sph_radius, A.tri_v, A.tri_n, A.tri_has_n,
-                                             A.shape_flip[sh])
-        cos_y = -(nyx * lx + nyy * ly + nyz * lz)
-        if cos_y <= 0.0:            # area emitters radiate from their front side only
-            return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
-        kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
-        if kd == 0.0 and spec == 0.0:
-            return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
-        ox, oy, oz, dx, dy, dz, t0, t1 = _shadow_towards(R, px, py, pz, gx, gy, gz, lx, ly, lz,
-                                                         yx, yy, yz, R.shrink_area)
-        w = cos_y * attenuation(dist, c1, c2, c3, fclamp) * A.em_area[e] / light_samples
-        return (st, ox, oy, oz, dx, dy, dz, t0, t1, w * (kd * rho_r + spec) * A.shape_emit[sh, 0],
-                w * (kd * rho_g + spec) * A.shape_emit[sh, 1], w * (kd * rho_b + spec) * A.shape_emit[sh, 2])
-    # Constant environment: cosine-weighted directions about the shading normal (pdf cos/π);
-    # an envmap: its luminance importance sampling (pdf from impl.envmap).
-    if A.env_image.shape[0] > 0:
-        lx, ly, lz, pdf, er, eg, eb = envmap_draw(A.env_image, A.env_frame, A.env_pdf, A.env_cdf, u1, u2)
-        inv_pdf = 1.0 / pdf if pdf > 0.0 else 0.0
-    else:
-        lx, ly, lz, cos_l = sample_cosine_hemisphere(u1, u2, sx, sy, sz)
-        inv_pdf = math.pi / cos_l if cos_l > 0.0 else 0.0
-        er, eg, eb = A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
-    if inv_pdf == 0.0:
-        return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
-    kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
-    if kd == 0.0 and spec == 0.0:
-        return SLOT_NONE, z, z, z, z, z, z, z, z, z, z, z
-    ox, oy, oz, dx, dy, dz, t0, t1 = _shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz)
-    w = inv_pdf / light_samples                  # 1 / (pdf N)
-    return (st, ox, oy, oz, dx, dy, dz, t0, t1, w * (kd * rho_r + spec) * er,
-            w * (kd * rho_g + spec) * eg, w * (kd * rho_b + spec) * eb)
 
 
 class LocalModel(NamedTuple):
@@ -364,45 +419,134 @@ SP_P, SP_G, SP_S, SP_V, SP_RHO = 0, 3, 6, 9, 12
 @njit(cache=True)
 def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, nshadow):
     """:func:`direct_light_rays` over a batch of shading points (an
-    :class:`impl.tracer.Batch` ``T``), light slot by light slot: each slot's shadow rays
-    (of the points where it has one) are traced together by
-    :func:`impl.tracer.occluded_batch`.
+    :class:`impl.tracer.Batch` ``T``), light sample by light sample: each sample's
+    shadow rays (of the points where it has one) are traced together by
+    :func:`impl.tracer.occluded_batch`.  Same samples, same order, same light as
+    :func:`direct_light_rays` at every point.
 
     Reads the points ``T.pts`` (rows p, g, s, v, ρ: ``SP_*``) where ``T.active``;
     adds their light to ``T.L`` and their shadow rays to ``nshadow`` (n,).
     """
-    pts, L, rays, contrib, idx = T.pts, T.L, T.sh, T.sh_w, T.sh_i
-    for j in range(slot_count(A, M.light_samples)):
+    P, L, active, pixel = T.pts, T.L, T.active, T.pixel
+    sh, sh_w, sh_i = T.sh, T.sh_w, T.sh_i
+    ks, shininess, c1, c2, c3, fclamp = M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp
+    shadows, light_samples = M.shadows, M.light_samples
+    for li in range(A.light_kind.shape[0]):
+        kind = A.light_kind[li]
+        lpx, lpy, lpz = A.light_pos[li, 0], A.light_pos[li, 1], A.light_pos[li, 2]
+        ldx, ldy, ldz = A.light_dir[li, 0], A.light_dir[li, 1], A.light_dir[li, 2]
+        rr, rg, rb = A.light_rad[li, 0], A.light_rad[li, 1], A.light_rad[li, 2]
+        cc, cb_, cut, itw = (A.light_cos_cutoff[li], A.light_cos_beam[li], A.light_cutoff[li],
+                             A.light_inv_tw[li])
         m = 0
         for i in range(T.n):
-            if not T.active[i]:
+            if not active[i]:
                 continue
-            st, ox, oy, oz, dx, dy, dz, t0, t1, cr, cg, cb = light_slot(
-                j, pts[0, i], pts[1, i], pts[2, i], pts[3, i], pts[4, i], pts[5, i], pts[6, i],
-                pts[7, i], pts[8, i], pts[9, i], pts[10, i], pts[11, i], pts[12, i], pts[13, i],
-                pts[14, i], A, R, M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows,
-                M.light_samples, seed, T.pixel[i], sample)
-            if st == SLOT_LIT:
+            ok, lx, ly, lz, w, kd, spec = delta_sample(
+                kind, lpx, lpy, lpz, ldx, ldy, ldz, cc, cb_, cut, itw, P[0, i], P[1, i], P[2, i],
+                P[6, i], P[7, i], P[8, i], P[9, i], P[10, i], P[11, i], ks, shininess, c1, c2,
+                c3, fclamp)
+            if not ok:
+                continue
+            cr = w * rr * (kd * P[12, i] + spec)
+            cg = w * rg * (kd * P[13, i] + spec)
+            cb = w * rb * (kd * P[14, i] + spec)
+            if not shadows:
                 L[0, i] += cr
                 L[1, i] += cg
                 L[2, i] += cb
-            elif st == SLOT_SHADOW:
-                rays[0, m], rays[1, m], rays[2, m] = ox, oy, oz
-                rays[3, m], rays[4, m], rays[5, m] = dx, dy, dz
-                rays[6, m], rays[7, m] = t0, t1
-                contrib[0, m], contrib[1, m], contrib[2, m] = cr, cg, cb
-                idx[m] = i
-                m += 1
-        if m == 0:
-            continue
-        occluded_batch(R, rays, m, T.blocked, T.q)
-        for k in range(m):
-            i = idx[k]
-            nshadow[i] += 1
-            if not T.blocked[k]:
-                L[0, i] += contrib[0, k]
-                L[1, i] += contrib[1, k]
-                L[2, i] += contrib[2, k]
+                continue
+            if kind == LIGHT_DIRECTIONAL:
+                ray = shadow_along(R, P[0, i], P[1, i], P[2, i], P[3, i], P[4, i], P[5, i], lx, ly, lz)
+            else:
+                ray = shadow_towards(R, P[0, i], P[1, i], P[2, i], P[3, i], P[4, i], P[5, i], lx,
+                                     ly, lz, lpx, lpy, lpz, R.shrink_point)
+            m = _queue_shadow(sh, sh_w, sh_i, m, i, ray, cr, cg, cb)
+        _light_unoccluded(R, T, m, nshadow)
+    if light_samples <= 0:
+        return
+    q = int(math.sqrt(light_samples) + 0.5)
+    stratified = q * q == light_samples
+    n_em = A.em_area.shape[0]
+    em_offset, em_tri, em_cdf, tri_v = A.em_offset, A.em_tri, A.em_cdf, A.tri_v
+    for e in range(n_em):
+        esh = A.em_shape[e]
+        flip = A.shape_flip[esh]
+        scale = A.em_area[e] / light_samples
+        er, eg, eb = A.shape_emit[esh, 0], A.shape_emit[esh, 1], A.shape_emit[esh, 2]
+        for k in range(light_samples):
+            m = 0
+            for i in range(T.n):
+                if not active[i]:
+                    continue
+                u1, u2 = light_uv(seed, pixel[i], sample, e * light_samples + k, k, q, stratified)
+                ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
+                    e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, P[0, i],
+                    P[1, i], P[2, i], P[6, i], P[7, i], P[8, i], P[9, i], P[10, i], P[11, i],
+                    P[12, i], P[13, i], P[14, i], ks, shininess, c1, c2, c3, fclamp)
+                if not ok:
+                    continue
+                if not shadows:
+                    L[0, i] += cr
+                    L[1, i] += cg
+                    L[2, i] += cb
+                    continue
+                ray = shadow_towards(R, P[0, i], P[1, i], P[2, i], P[3, i], P[4, i], P[5, i], lx,
+                                     ly, lz, yx, yy, yz, R.shrink_area)
+                m = _queue_shadow(sh, sh_w, sh_i, m, i, ray, cr, cg, cb)
+            _light_unoccluded(R, T, m, nshadow)
+    if A.env_radiance.shape[0] + A.env_image.shape[0] > 0:
+        er = eg = eb = 0.0
+        if A.env_radiance.shape[0] > 0:
+            er, eg, eb = A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
+        img, frame, epdf, ecdf = A.env_image, A.env_frame, A.env_pdf, A.env_cdf
+        for k in range(light_samples):
+            m = 0
+            for i in range(T.n):
+                if not active[i]:
+                    continue
+                u1, u2 = light_uv(seed, pixel[i], sample, n_em * light_samples + k, k, q,
+                                  stratified)
+                ok, lx, ly, lz, cr, cg, cb = environment_sample(
+                    u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, P[6, i], P[7, i], P[8, i], P[9, i],
+                    P[10, i], P[11, i], P[12, i], P[13, i], P[14, i], ks, shininess)
+                if not ok:
+                    continue
+                if not shadows:
+                    L[0, i] += cr
+                    L[1, i] += cg
+                    L[2, i] += cb
+                    continue
+                ray = shadow_along(R, P[0, i], P[1, i], P[2, i], P[3, i], P[4, i], P[5, i], lx, ly, lz)
+                m = _queue_shadow(sh, sh_w, sh_i, m, i, ray, cr, cg, cb)
+            _light_unoccluded(R, T, m, nshadow)
+
+
+@njit(inline="always", cache=True)
+def _queue_shadow(sh, sh_w, sh_i, m, i, ray, cr, cg, cb):
+    """Put point i's shadow ray (origin, direction, t range) and the light it decides in
+    column m of a batch's shadow queue (``Batch.sh``, ``sh_w``, ``sh_i``); the queue's
+    new length."""
+    sh[0, m], sh[1, m], sh[2, m], sh[3, m] = ray[0], ray[1], ray[2], ray[3]
+    sh[4, m], sh[5, m], sh[6, m], sh[7, m] = ray[4], ray[5], ray[6], ray[7]
+    sh_w[0, m], sh_w[1, m], sh_w[2, m] = cr, cg, cb
+    sh_i[m] = i
+    return m + 1
+
+
+@njit(inline="always", cache=True)
+def _light_unoccluded(R: RayConfig, T, m, nshadow):
+    """Trace the m queued shadow rays together; add the light of the unoccluded ones."""
+    if m == 0:
+        return
+    occluded_batch(R, T.sh, m, T.blocked, T.q)
+    for k in range(m):
+        i = T.sh_i[k]
+        nshadow[i] += 1
+        if not T.blocked[k]:
+            T.L[0, i] += T.sh_w[0, k]
+            T.L[1, i] += T.sh_w[1, k]
+            T.L[2, i] += T.sh_w[2, k]
 
 
 @njit(inline="always", cache=True)

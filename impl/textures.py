@@ -60,7 +60,7 @@ def wrap_index(i, n, mode):
     return i + n if i < 0 else i
 
 
-@njit(cache=True)
+@njit(inline="always", cache=True)
 def bitmap(data, offset, w, h, wrap, filt, u, v):
     """RGB of a bitmap stored row-major at ``data[offset : offset + w h]`` at (u, v)."""
     if filt == FILTER_NEAREST:

@@ -3,7 +3,7 @@ by a lat-long map, Z-tested against Mitsuba rendering the same XML, and a consta
 against the ``constant`` emitter's stored reference.
 
 ``envmap.xml`` (a sky with a small, bright sun): the direct-light tracers sample the
-map by its luminance (``impl.lighting.light_slot``), so a direct reference matches
+map by its luminance (``impl.lighting.environment_sample``), so a direct reference matches
 them on diffuse surfaces.  ``envmap_path.xml`` (a broad glow instead of the sun): the
 path tracer reaches the environment by BSDF sampling only, which a small sun would
 make heavy-tailed (a per-pixel sample variance that under-estimates the error).
