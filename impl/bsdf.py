@@ -32,6 +32,14 @@ sampling by default): Mitsuba's microfacet BSDFs of :mod:`impl.microfacet`
 (Walter et al. 2007), with the conductor Fresnel term at the sampled
 microfacet and ``specular_reflectance`` / ``specular_transmittance``.
 
+``plastic`` and ``roughplastic``: Mitsuba's diffuse base under a dielectric
+coat, the functions of :mod:`impl.plastic` (``nonlinear`` included); the
+diffuse reflectance is the caller's ρ (the material's, as for ``diffuse``).
+``plastic``'s specular lobe is a delta: a sample of it returns ``delta`` true
+with its discrete probability as ``pdf``, while ``eval``/``pdf`` cover the
+diffuse lobe (the material itself is not delta: it takes light samples).
+Those functions take and return small arrays, so a plastic bounce allocates.
+
 Thesis chapter 2 models without a Mitsuba plugin (scalar lobes, not yet a
 material kind of :func:`bsdf_sample`; each an eval / pdf / sample triple in the
 same conventions, checked by chi-square and furnace tests in
@@ -53,8 +61,9 @@ same conventions, checked by chi-square and furnace tests in
   conserves energy.  Sampling chooses the side with probability
   ρ̄/(ρ̄ + τ̄) (channel means), then a cosine direction on it.  Two-sided.
 
-Material rows come from :func:`impl.materials.material_arrays`; kind codes
-are :data:`impl.materials.KIND_CODES`.
+Material rows come from :func:`bsdf_arrays` (:func:`impl.materials.material_arrays`
+and, for the plastics, :func:`impl.materials.plastic_arrays`, as one
+:class:`BsdfArrays`); kind codes are :data:`impl.materials.KIND_CODES`.
 
 Warps come as ``sample_*(u)`` / ``*_pdf`` pairs (:func:`sample_cosine_hemisphere`,
 :func:`cosine_hemisphere_pdf`), each checked by a chi-square test
@@ -67,14 +76,20 @@ import math
 
 from numba import njit
 
+from typing import NamedTuple
+
+import numpy as np
+
 from core.scene import Scene
 
 from . import microfacet as mf
+from . import plastic as pl
 from .fresnel import fresnel_conductor, fresnel_dielectric
-from .materials import (KIND_CODES, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_ROUGHCONDUCTOR,
-                        MAT_ROUGHDIELECTRIC, MaterialArrays, material_arrays)
+from .materials import (KIND_CODES, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_PLASTIC,
+                        MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MAT_ROUGHPLASTIC, MaterialArrays,
+                        PlasticArrays, material_arrays, plastic_arrays)
 
-__all__ = ["bsdf_arrays", "MODELLED", "frame", "to_local", "to_world", "sample_cosine_hemisphere",
+__all__ = ["bsdf_arrays", "BsdfArrays", "with_plastic", "MODELLED", "frame", "to_local", "to_world", "sample_cosine_hemisphere",
            "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "is_delta",
            "is_dielectric", "cook_torrance_eval", "cook_torrance_pdf", "cook_torrance_sample",
            "diffuse_transmission_eval", "diffuse_transmission_pdf", "diffuse_transmission_sample",
@@ -86,15 +101,54 @@ MODELLED = tuple(KIND_CODES)
 INV_PI = 1.0 / math.pi
 
 
-def bsdf_arrays(scene: Scene, *, algorithm: str = "path") -> MaterialArrays:
-    """:func:`impl.materials.material_arrays` for every BSDF this module models.
+class BsdfArrays(NamedTuple):
+    """:class:`impl.materials.MaterialArrays`'s rows and the plastic rows of
+    :class:`impl.materials.PlasticArrays` (``pl_*``), one row per material."""
+
+    spec_refl: np.ndarray
+    spec_trans: np.ndarray
+    cond_eta: np.ndarray
+    cond_k: np.ndarray
+    diel_eta: np.ndarray
+    diel_int: np.ndarray
+    diel_ext: np.ndarray
+    kind: np.ndarray
+    alpha: np.ndarray
+    visible: np.ndarray
+    pl_eta: np.ndarray          # (M,) int_ior / ext_ior of the coat
+    pl_specular: np.ndarray     # (M, 3) specular_reflectance
+    pl_spec_weight: np.ndarray  # (M,) specular lobe weight s̄ / (d̄ + s̄)
+    pl_nonlinear: np.ndarray    # (M,) int
+    pl_alpha: np.ndarray        # (M,) roughplastic: Beckmann roughness
+    pl_visible: np.ndarray      # (M,) int: roughplastic samples visible normals
+    pl_fdr_int: np.ndarray      # (M,) plastic: inner diffuse Fresnel reflectance
+    pl_ext_t: np.ndarray        # (M, TABLE_RES) roughplastic: coat transmittance over cos θ
+    pl_int_r: np.ndarray        # (M,) roughplastic: internal diffuse reflectance
+
+
+def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None) -> BsdfArrays:
+    """``M``'s rows with ``P``'s plastic rows (none: rows of zeros, no plastic material)."""
+    n = M.kind.shape[0]
+    if P is None:
+        P = PlasticArrays(np.zeros(n, dtype=np.int64), np.ones(n), np.zeros((n, 3)), np.zeros((n, 3)),
+                          np.zeros(n), np.zeros(n, dtype=np.int64), np.zeros(n),
+                          np.ones(n, dtype=np.int64), np.zeros(n), np.zeros((n, pl.TABLE_RES)),
+                          np.zeros(n))
+    return BsdfArrays(*M, P.eta, P.specular, P.spec_weight, P.nonlinear, P.alpha, P.visible,
+                      P.fdr_int, P.ext_t, P.int_r)
+
+
+def bsdf_arrays(scene: Scene, *, algorithm: str = "path") -> BsdfArrays:
+    """:func:`impl.materials.material_arrays` for every BSDF this module models, with
+    the plastic rows of :func:`impl.materials.plastic_arrays`.
 
     Raises
     ------
     NotImplementedError
         A BSDF kind not modelled, naming the shape (and see ``material_arrays``).
     """
-    return material_arrays(scene, algorithm=algorithm, model="the path tracer", kinds=MODELLED)
+    M = material_arrays(scene, algorithm=algorithm, model="the path tracer", kinds=MODELLED)
+    return with_plastic(M, plastic_arrays(scene, algorithm=algorithm))
 
 
 # ------------------------------------------------------------------ frames ---
@@ -180,6 +234,22 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
             return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, False, 1.0
         x, y, z = sample_cosine_hemisphere(u1, u2)
         return x, y, z, rho_r, rho_g, rho_b, cosine_hemisphere_pdf(z), False, 1.0
+    if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
+        wi = np.array((wix, wiy, wiz))
+        rho = np.array((rho_r, rho_g, rho_b))
+        if k == MAT_PLASTIC:
+            wo, pdf, w, delta = pl.plastic_sample(wi, u0, u1, u2, B.pl_eta[mat], rho, B.pl_specular[mat],
+                                                  B.pl_spec_weight[mat], B.pl_fdr_int[mat],
+                                                  B.pl_nonlinear[mat] != 0)
+        else:
+            wo, pdf, w = pl.roughplastic_sample(wi, u0, u1, u2, B.pl_eta[mat], B.pl_alpha[mat],
+                                                B.pl_visible[mat] != 0, rho, B.pl_specular[mat],
+                                                B.pl_spec_weight[mat], B.pl_ext_t[mat],
+                                                B.pl_int_r[mat], B.pl_nonlinear[mat] != 0)
+            delta = False
+        if not pdf > 0.0:
+            return wo[0], wo[1], wo[2], 0.0, 0.0, 0.0, 0.0, False, 1.0
+        return wo[0], wo[1], wo[2], w[0], w[1], w[2], pdf, delta, 1.0
     if k == MAT_CONDUCTOR:
         if wiz <= 0.0:
             return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, True, 1.0
@@ -224,6 +294,16 @@ def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, 
             c = woz * INV_PI
             return rho_r * c, rho_g * c, rho_b * c
         return 0.0, 0.0, 0.0
+    if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
+        wi = np.array((wix, wiy, wiz))
+        wo = np.array((wox, woy, woz))
+        rho = np.array((rho_r, rho_g, rho_b))
+        if k == MAT_PLASTIC:
+            f = pl.plastic_eval(wi, wo, B.pl_eta[mat], rho, B.pl_fdr_int[mat], B.pl_nonlinear[mat] != 0)
+        else:
+            f = pl.roughplastic_eval(wi, wo, B.pl_eta[mat], B.pl_alpha[mat], rho, B.pl_specular[mat],
+                                     B.pl_ext_t[mat], B.pl_int_r[mat], B.pl_nonlinear[mat] != 0)
+        return f[0], f[1], f[2]
     if k == MAT_ROUGHCONDUCTOR:
         v, cos_ih = mf.conductor_eval(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH, wix, wiy, wiz,
                                       wox, woy, woz)
@@ -246,6 +326,13 @@ def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
         return cosine_hemisphere_pdf(woz) if wiz > 0.0 else 0.0
+    if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
+        wi = np.array((wix, wiy, wiz))
+        wo = np.array((wox, woy, woz))
+        if k == MAT_PLASTIC:
+            return pl.plastic_pdf(wi, wo, B.pl_eta[mat], B.pl_spec_weight[mat])
+        return pl.roughplastic_pdf(wi, wo, B.pl_alpha[mat], B.pl_visible[mat] != 0, B.pl_spec_weight[mat],
+                                   B.pl_ext_t[mat])
     if k == MAT_ROUGHCONDUCTOR:
         return mf.conductor_pdf(mf.clamp_alpha(B.alpha[mat]), B.visible[mat], wix, wiy, wiz,
                                 wox, woy, woz)

@@ -979,5 +979,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"camera motion", "mesh motion"}),
+    models=frozenset({"camera motion", "mesh motion", "envmap"}),
 )

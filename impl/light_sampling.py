@@ -30,6 +30,7 @@ from numba import njit
 
 from core.scene import Scene
 
+from .envmap import envmap_direction_pdf, envmap_draw
 from .lighting import sample_emitter
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
 
@@ -72,7 +73,7 @@ def flatten_with_lights(scene: Scene) -> tuple[SceneArrays, LightArrays]:
         if scene.shapes[i].is_emitter:
             shape_sph_em[i] = len(sph_em_prim)
             sph_em_prim.append(prim)
-    n = len(A.light_kind) + len(A.em_area) + len(sph_em_prim)
+    n = len(A.light_kind) + len(A.em_area) + len(sph_em_prim) + (1 if len(A.env_image) else 0)
     return A, LightArrays(shape_emit, shape_tri_em, np.asarray(sph_em_prim, dtype=np.int64),
                           shape_sph_em, int(n))
 
@@ -211,6 +212,14 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
         return (wx, wy, wz, d, yx, yy, yz, L.shape_emit[sh, 0] / pdf, L.shape_emit[sh, 1] / pdf,
                 L.shape_emit[sh, 2] / pdf, pdf, False, i)
     q = i - nd - ne
+    if q == L.sph_em_prim.shape[0]:             # the envmap (last entry): its luminance sampling
+        wx, wy, wz, pdf, er, eg, eb = envmap_draw(A.env_image, A.env_frame, A.env_pdf, A.env_cdf,
+                                                  u1, u2)
+        if not pdf > 0.0:
+            return wx, wy, wz, np.inf, px, py, pz, 0.0, 0.0, 0.0, 0.0, False, i
+        pdf /= n
+        return (wx, wy, wz, np.inf, px + wx, py + wy, pz + wz, er / pdf, eg / pdf, eb / pdf, pdf,
+                False, i)
     prim = L.sph_em_prim[q]
     sh = A.prim_shape[prim]
     cx, cy, cz, r = A.sph_center[prim, 0], A.sph_center[prim, 1], A.sph_center[prim, 2], A.sph_radius[prim]
@@ -259,3 +268,12 @@ def emitter_pdf(A: SceneArrays, L: LightArrays, shape, px, py, pz, dist, cos_y):
             return 0.0
         return dist * dist / (4.0 * math.pi * r * r * cos_y) / n
     return 0.0
+
+
+@njit(inline="always", cache=True)
+def environment_pdf(A: SceneArrays, L: LightArrays, dx, dy, dz):
+    """Solid-angle pdf (incl. selection) with which :func:`sample_light` draws the
+    direction (dx, dy, dz) towards an envmap (0 without one)."""
+    if A.env_image.shape[0] == 0:
+        return 0.0
+    return envmap_direction_pdf(A.env_image, A.env_frame, A.env_pdf, dx, dy, dz) / L.n_lights

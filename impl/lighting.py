@@ -9,14 +9,16 @@ tree (thesis 2.2: the shadow rays of a hit point):
   material's colour or its texture (Mitsuba's ``checkerboard`` or ``bitmap``,
   :mod:`impl.textures`);
 * :func:`environment_radiance` — what a ray that escapes the scene sees: the
-  radiance of a ``constant`` environment emitter (0 without one), for the
+  radiance of a ``constant`` environment emitter or an ``envmap`` (0 without
+  either), for the
   tracers' escaping rays;
 * :func:`sample_emitter` — a uniform point on an area emitter, by area;
 * the light samples of the Phong model (thesis 1.4.1–1.4.2), one helper per
   kind of light, each on plain scalars (and the emitter's arrays): a delta
   light (point, spot, directional: :func:`delta_sample`), a uniform-by-area
   point of an area emitter (:func:`area_sample`), a cosine-weighted direction
-  towards a ``constant`` environment emitter (:func:`environment_sample`).
+  towards a ``constant`` environment emitter, or importance-sampled by an
+  ``envmap``'s luminance (:func:`environment_sample`).
   Each gives the direction to the light and the radiance contribution that
   the shadow ray (:func:`shadow_towards`, :func:`shadow_along`, cast with a
   ray configuration :class:`impl.rays.RayConfig`: ray–sphere form,
@@ -53,6 +55,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from .envmap import envmap_draw, envmap_radiance
 from .rays import RayConfig, legacy_config, leave, occluded
 from .phong import attenuation, phong_brdf_cos
 from .rng import uniform
@@ -237,13 +240,16 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
             r += cr
             g += cg
             b += cb
-    if A.env_radiance.shape[0] > 0:
-        er, eg, eb = A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
+    if A.env_radiance.shape[0] + A.env_image.shape[0] > 0:
+        er = eg = eb = 0.0
+        if A.env_radiance.shape[0] > 0:
+            er, eg, eb = A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
+        img, frame, epdf, ecdf = A.env_image, A.env_frame, A.env_pdf, A.env_cdf
         for k in range(light_samples):
             u1, u2 = light_uv(seed, pixel, sample, n_em * light_samples + k, k, q, stratified)
             ok, lx, ly, lz, cr, cg, cb = environment_sample(
-                u1, u2, er, eg, eb, light_samples, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
-                ks, shininess)
+                u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, sx, sy, sz, vx, vy, vz,
+                rho_r, rho_g, rho_b, ks, shininess)
             if not ok:
                 continue
             if shadows:
@@ -339,19 +345,26 @@ def area_sample(e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg
 
 
 @njit(inline="always", cache=True)
-def environment_sample(u1, u2, er, eg, eb, n, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, ks,
-                       shininess):
+def environment_sample(u1, u2, er, eg, eb, image, frame, pdf, cdf, n, sx, sy, sz, vx, vy, vz, rho_r,
+                       rho_g, rho_b, ks, shininess):
     """One of ``n`` cosine-weighted directions l about the shading normal towards a
     constant environment of radiance ``(er, eg, eb)``: ``(lit, l, contribution)``
-    with the estimator L_env · bracket · π / (cos θ n)."""
+    with the estimator L_env · bracket · π / (cos θ n); with an envmap (``image``
+    has rows; its ``frame``, ``pdf``, ``cdf`` of :mod:`impl.envmap`) a direction
+    drawn by the map's luminance, estimator L(l) · bracket / (pdf(l) n)."""
     z = 0.0
-    lx, ly, lz, cos_l = sample_cosine_hemisphere(u1, u2, sx, sy, sz)
-    if cos_l <= 0.0:
+    if image.shape[0] > 0:
+        lx, ly, lz, p, er, eg, eb = envmap_draw(image, frame, pdf, cdf, u1, u2)
+        inv_pdf = 1.0 / p if p > 0.0 else 0.0
+    else:
+        lx, ly, lz, cos_l = sample_cosine_hemisphere(u1, u2, sx, sy, sz)
+        inv_pdf = math.pi / cos_l if cos_l > 0.0 else 0.0
+    if inv_pdf == 0.0:
         return False, z, z, z, z, z, z
     kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
     if kd == 0.0 and spec == 0.0:
         return False, z, z, z, z, z, z
-    w = math.pi / cos_l / n          # 1 / (pdf n), pdf = cos / π
+    w = inv_pdf / n                  # 1 / (pdf n); constant: pdf = cos / π
     return (True, lx, ly, lz, w * (kd * rho_r + spec) * er, w * (kd * rho_g + spec) * eg,
             w * (kd * rho_b + spec) * eb)
 
@@ -485,8 +498,11 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                                      ly, lz, yx, yy, yz, R.shrink_area)
                 m = _queue_shadow(sh, sh_w, sh_i, m, i, ray, cr, cg, cb)
             _light_unoccluded(R, T, m, nshadow)
-    if A.env_radiance.shape[0] > 0:
-        er, eg, eb = A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
+    if A.env_radiance.shape[0] + A.env_image.shape[0] > 0:
+        er = eg = eb = 0.0
+        if A.env_radiance.shape[0] > 0:
+            er, eg, eb = A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
+        img, frame, epdf, ecdf = A.env_image, A.env_frame, A.env_pdf, A.env_cdf
         for k in range(light_samples):
             m = 0
             for i in range(T.n):
@@ -495,7 +511,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                 u1, u2 = light_uv(seed, pixel[i], sample[i], n_em * light_samples + k, k, q,
                                   stratified)
                 ok, lx, ly, lz, cr, cg, cb = environment_sample(
-                    u1, u2, er, eg, eb, light_samples, P[6, i], P[7, i], P[8, i], P[9, i],
+                    u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, P[6, i], P[7, i], P[8, i], P[9, i],
                     P[10, i], P[11, i], P[12, i], P[13, i], P[14, i], ks, shininess)
                 if not ok:
                     continue
@@ -556,7 +572,10 @@ def sample_cosine_hemisphere(u1, u2, nx, ny, nz):
 @njit(inline="always", cache=True)
 def environment_radiance(A: SceneArrays, dx, dy, dz):
     """Radiance seen by a ray leaving the scene along (dx, dy, dz): a ``constant``
-    environment emitter's, uniform in direction, or 0 without one."""
+    environment emitter's, uniform in direction, an ``envmap``'s (:mod:`impl.envmap`),
+    or 0 without one."""
+    if A.env_image.shape[0] > 0:
+        return envmap_radiance(A.env_image, A.env_frame, dx, dy, dz)
     if A.env_radiance.shape[0] == 0:
         return 0.0, 0.0, 0.0
     return A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]

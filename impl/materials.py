@@ -23,8 +23,9 @@ The microfacet functions these rows feed are in :mod:`impl.microfacet`.
 :func:`plastic_arrays` decodes ``plastic`` / ``roughplastic`` materials
 (Mitsuba's defaults, :func:`impl.plastic.plastic_params`) into a
 :class:`PlasticArrays` table for the functions of :mod:`impl.plastic`.
-:func:`material_arrays` refuses both kinds by name until a tracer lists them
-in ``kinds`` (with a material code in ``scene_arrays.MATERIAL_CODES``).
+:func:`material_arrays` refuses both kinds by name unless the caller lists them
+in ``kinds`` (the path tracer does, :func:`impl.bsdf.bsdf_arrays`); their
+parameters are then :func:`plastic_arrays`'s.
 """
 
 from __future__ import annotations
@@ -40,7 +41,8 @@ from .fresnel import lookup_ior
 from .scene_arrays import MATERIAL_CODES
 
 __all__ = ["MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
-           "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "KIND_CODES",
+           "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "MAT_PLASTIC",
+           "MAT_ROUGHPLASTIC", "KIND_CODES",
            "DEFAULT_ALPHA"]
 
 MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
@@ -48,9 +50,12 @@ MAT_CONDUCTOR = MATERIAL_CODES["conductor"]
 MAT_DIELECTRIC = MATERIAL_CODES["dielectric"]
 MAT_ROUGHCONDUCTOR = MATERIAL_CODES["roughconductor"]
 MAT_ROUGHDIELECTRIC = MATERIAL_CODES["roughdielectric"]
+MAT_PLASTIC = MATERIAL_CODES["plastic"]
+MAT_ROUGHPLASTIC = MATERIAL_CODES["roughplastic"]
 #: Material kind codes of :attr:`MaterialArrays.kind` (those of ``scene_arrays.MATERIAL_CODES``).
 KIND_CODES = {"diffuse": MAT_DIFFUSE, "conductor": MAT_CONDUCTOR, "dielectric": MAT_DIELECTRIC,
-              "roughconductor": MAT_ROUGHCONDUCTOR, "roughdielectric": MAT_ROUGHDIELECTRIC}
+              "roughconductor": MAT_ROUGHCONDUCTOR, "roughdielectric": MAT_ROUGHDIELECTRIC,
+              "plastic": MAT_PLASTIC, "roughplastic": MAT_ROUGHPLASTIC}
 
 #: Mitsuba's default roughness of roughconductor / roughdielectric.
 DEFAULT_ALPHA = 0.1

@@ -36,7 +36,10 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   that leaves the scene adds throughput · L_env with weight 1 (it is never
   light-sampled, so no MIS weight applies; unbiased, and noisier than
   sampling it would be on small-aperture views of the sky).  Without one,
-  rays that leave the scene carry nothing.
+  rays that leave the scene carry nothing.  An ``envmap`` is one more light
+  (:func:`impl.light_sampling.sample_light` draws a direction by the map's
+  luminance) and a ray that leaves the scene after a non-delta bounce is
+  weighted by the power heuristic against it, as Mitsuba's ``path`` does.
 * Materials (:mod:`impl.bsdf`): ``diffuse`` (textures included), smooth
   ``conductor`` and ``dielectric``, ``roughconductor`` and
   ``roughdielectric`` (Beckmann, Smith G; :mod:`impl.microfacet`);
@@ -125,7 +128,8 @@ from .bsdf import to_local, to_world
 from .materials import MaterialArrays
 from .accel.packets import NOT_TRACED
 from .camera import camera_params
-from .light_sampling import LightArrays, emitter_pdf, flatten_with_lights, sample_light
+from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_with_lights,
+                             sample_light)
 from .lighting import diffuse_albedo, environment_radiance, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, occluded, refine, round_ray
@@ -212,8 +216,11 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                 pre_prim = NOT_TRACED
             else:
                 t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, t0, t1)
-            if prim < 0:                 # left the scene: the environment (BSDF-sampled only)
+            if prim < 0:                 # left the scene: the environment
                 er, eg, eb = environment_radiance(A, dx, dy, dz)
+                if not prev_delta and A.env_image.shape[0] > 0:   # an envmap is light-sampled too
+                    w = _power(prev_pdf, environment_pdf(A, L, dx, dy, dz)) if mis else 0.0
+                    er, eg, eb = w * er, w * eg, w * eb
                 r += tr * er
                 g += tg * eg
                 b += tb * eb
@@ -440,4 +447,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
+    models=frozenset({"envmap", "plastic", "roughplastic"}),
 )

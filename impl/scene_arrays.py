@@ -4,13 +4,18 @@ Primitives are numbered spheres first, then triangles; ``prim_shape`` maps a
 primitive to its shape (the index used for shape-id images).  Area emitters
 become per-emitter triangle lists with an area CDF for uniform area sampling.
 Light ``kind`` codes: 0 point, 1 directional, 2 spot.  Material ``kind``
-codes: 0 diffuse, 1 conductor, 2 dielectric, 3 roughconductor, 4 roughdielectric; an algorithm
+codes: 0 diffuse, 1 conductor, 2 dielectric, 3 roughconductor, 4 roughdielectric, 5 plastic,
+6 roughplastic; an algorithm
 refuses the kinds it cannot model.  Textured diffuse reflectance: ``mat_tex``
 code 0 none, 1 checkerboard (colours and the 2x3 ``to_uv`` map per material),
 2 bitmap (texels of every image concatenated in ``tex_data``, row-major, with
 each material's offset, size, wrap and filter codes of :mod:`impl.textures`),
 looked up at the triangle's interpolated ``tri_uv``.  A ``constant``
-environment emitter is ``env_radiance`` (one row, or none).
+environment emitter is ``env_radiance`` (one row, or none); an ``envmap``
+emitter is ``env_image`` (the map times its scale; 0 rows without one) with its
+rotation ``env_frame`` and luminance sampling tables ``env_pdf`` / ``env_cdf``
+(:func:`impl.envmap.envmap_tables`, evaluated and sampled by
+:mod:`impl.envmap`'s inline functions).  The loader keeps at most one of the two.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import numpy as np
 from core.scene import Scene
 from core.errors import UnsupportedError
 
+from .envmap import envmap_tables
 from .textures import FILTER_BILINEAR, FILTER_NEAREST, WRAP_CLAMP, WRAP_MIRROR, WRAP_REPEAT
 
 WRAP_CODES = {"repeat": WRAP_REPEAT, "clamp": WRAP_CLAMP, "mirror": WRAP_MIRROR}
@@ -76,13 +82,18 @@ class SceneArrays(NamedTuple):
     mat_tex_wrap: np.ndarray    # (M,) impl.textures WRAP_* code
     mat_tex_filter: np.ndarray  # (M,) impl.textures FILTER_* code
     env_radiance: np.ndarray    # (1, 3) radiance of a constant environment emitter, or (0, 3)
+    env_image: np.ndarray       # (H, W, 3) envmap radiance (map × scale), or (0, 0, 3) without one
+    env_frame: np.ndarray       # (2, 3, 3) envmap world -> map and map -> world rotations
+    env_pdf: np.ndarray         # (H, W + 1) envmap sampling density at the grid vertices
+    env_cdf: np.ndarray         # ((H - 1) W,) envmap cumulative cell integrals (all 0: black map)
 
     @property
     def n_spheres(self) -> int:
         return len(self.sph_radius)
 
 
-MATERIAL_CODES = {"diffuse": 0, "conductor": 1, "dielectric": 2, "roughconductor": 3, "roughdielectric": 4}
+MATERIAL_CODES = {"diffuse": 0, "conductor": 1, "dielectric": 2, "roughconductor": 3, "roughdielectric": 4,
+                  "plastic": 5, "roughplastic": 6}
 
 
 def flatten(scene: Scene) -> SceneArrays:
@@ -151,6 +162,12 @@ def flatten(scene: Scene) -> SceneArrays:
             tex_filter.append(0)
     mat_tex_uv = [np.asarray(m.texture["to_uv"])[:2] if m.texture else np.eye(3)[:2] for m in mats]
 
+    envmap = getattr(scene, "envmap", None)
+    if envmap is not None:
+        env = envmap_tables(envmap)
+    else:
+        env = (np.zeros((0, 0, 3)), np.stack([np.eye(3), np.eye(3)]), np.zeros((0, 1)), np.zeros(0))
+
     lights = scene.lights
     f64 = lambda x, shape: np.asarray(x, dtype=np.float64).reshape(shape)  # noqa: E731
     kinds = {"point": LIGHT_POINT, "directional": LIGHT_DIRECTIONAL, "spot": LIGHT_SPOT}
@@ -195,6 +212,10 @@ def flatten(scene: Scene) -> SceneArrays:
         mat_tex_wrap=np.asarray(tex_wrap, dtype=np.int64),
         mat_tex_filter=np.asarray(tex_filter, dtype=np.int64),
         env_radiance=f64([] if scene.environment is None else [scene.environment], (-1, 3)),
+        env_image=env[0],
+        env_frame=env[1],
+        env_pdf=env[2],
+        env_cdf=env[3],
     )
 
 
@@ -206,15 +227,16 @@ MEMO_SCENES = 8
 
 def _content_key(scene: Scene) -> tuple:
     """What the flattened arrays depend on, cheap to compute: the identities of the
-    (immutable) shapes, materials and lights in order, and the environment radiance."""
+    (immutable) shapes, materials and lights in order, the environment radiance and the
+    (immutable) envmap."""
     env = None if scene.environment is None else tuple(np.asarray(scene.environment).ravel())
     return (tuple(map(id, scene.shapes)), tuple(map(id, scene.materials)),
-            tuple(map(id, scene.lights)), env)
+            tuple(map(id, scene.lights)), env, id(getattr(scene, "envmap", None)))
 
 
 def scene_memo(scene: Scene, key, build: Callable):
     """``build()``, remembered per scene object and ``key`` while the scene lives and its
-    shapes, materials, lights and environment are the same objects; a render of the same
+    shapes, materials, lights and environment (constant or envmap) are the same; a render of the same
     scene reuses its flattened arrays and ray configurations instead of rebuilding them.
     Shapes, materials and lights are frozen; changing a mesh's arrays in place is not seen."""
     sid = id(scene)

@@ -98,6 +98,9 @@ def spectral_arrays(scene: Scene, A, L) -> SpectralArrays:
     ``A``, ``L``: the flattened scene and lights (:func:`impl.light_sampling.flatten_with_lights`),
     whose light-entry order the ``light_spec`` rows follow.
     """
+    if getattr(scene, "envmap", None) is not None:
+        raise UnsupportedError(f"path (spectral=true): envmap emitter '{scene.envmap.filename}': "
+                               "its image is RGB (no spectral upsampling); render it with spectral=false")
     wl, xyz, d65, M = _grid()
     K = len(wl)
     used = {s.material for s in scene.shapes}
@@ -106,6 +109,9 @@ def spectral_arrays(scene: Scene, A, L) -> SpectralArrays:
         if i not in used:
             continue
         where = f"material '{m.name or i}' ({m.kind})"
+        if m.kind in ("plastic", "roughplastic"):
+            raise UnsupportedError(f"path (spectral=true): {where}: plastic BSDFs are not modelled "
+                                   "in spectral mode")
         if m.texture is not None:
             raise UnsupportedError(f"path (spectral=true): {where}: textures are not "
                                       "supported in spectral mode")

@@ -29,7 +29,8 @@ def test_suite_has_the_promised_scenes():
 def test_scene_loads(path):
     scene = load_scene(path)
     assert scene.shapes, "no shapes"
-    assert scene.lights or scene.emitters or scene.environment is not None, "no light"
+    assert (scene.lights or scene.emitters or scene.environment is not None
+            or scene.envmap is not None), "no light"
 
 
 # --------------------------------------------------------------- transforms ---

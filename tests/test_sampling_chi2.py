@@ -222,8 +222,9 @@ def _rough_materials(kind, alpha, eta=1.5):
 
     code = {"roughconductor": MAT_ROUGHCONDUCTOR, "roughdielectric": MAT_ROUGHDIELECTRIC}[kind]
     o = np.ones((1, 3))
-    return MaterialArrays(o, o, np.zeros((1, 3)), o.copy(), np.array([eta]), np.array([eta]),
-                          np.ones(1), np.array([code]), np.array([alpha]), np.ones(1, np.int64))
+    return bsdf.with_plastic(MaterialArrays(o, o, np.zeros((1, 3)), o.copy(), np.array([eta]),
+                                            np.array([eta]), np.ones(1), np.array([code]),
+                                            np.array([alpha]), np.ones(1, np.int64)))
 
 
 @njit

@@ -6,7 +6,6 @@ and no bad file stops the run."""
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from core.records import Record
@@ -33,12 +32,9 @@ def _scene_dir(d: Path) -> Path:
     _write(d, "a_good.xml", f'<scene version="3.0.0">{CAMERA}{light}{SPHERE.format(bsdf="diffuse")}\n'
                             '<emitter type="constant"><rgb name="radiance" value="0.3"/></emitter></scene>\n')
     _write(d, "b_malformed.xml", f'<scene version="3.0.0">{CAMERA}\n<shape type="sphere">\n</scene>\n')
-    _write(d, "c_envmap.xml", f'<scene version="3.0.0">{CAMERA}{SPHERE.format(bsdf="diffuse")}\n'
-                              '<emitter type="envmap"><string name="filename" value="sky.exr"/></emitter>\n'
-                              '</scene>\n')
-    from core.imageio import write_exr
-
-    write_exr(d / "sky.exr", np.full((4, 8, 3), 0.5, dtype=np.float32))
+    _write(d, "c_projector.xml", f'<scene version="3.0.0">{CAMERA}{SPHERE.format(bsdf="diffuse")}\n'
+                                 '<emitter type="projector"><float name="fov" value="30"/></emitter>\n'
+                                 '</scene>\n')
     _write(d, "d_conductor.xml", f'<scene version="3.0.0">{CAMERA}{light}{SPHERE.format(bsdf="conductor")}'
                                  '</scene>\n')
     _write(d, "e_missing_mesh.xml", f'<scene version="3.0.0">{CAMERA}\n<shape type="obj">'
@@ -62,10 +58,10 @@ def test_directory_run_renders_the_good_file_and_lists_the_others(tmp_path, caps
     assert "1 rendered and compared, 0 failed checks, 4 skipped" in out
     skipped = {line.split(": ", 2)[1]: line.split(": ", 2)[2]
                for line in out.splitlines() if line.startswith("SKIPPED: ")}
-    assert set(skipped) == {"b_malformed.xml", "c_envmap.xml", "d_conductor.xml", "e_missing_mesh.xml"}
+    assert set(skipped) == {"b_malformed.xml", "c_projector.xml", "d_conductor.xml", "e_missing_mesh.xml"}
     assert "b_malformed.xml:" in skipped["b_malformed.xml"] and "malformed XML" in skipped["b_malformed.xml"]
-    assert skipped["c_envmap.xml"] == ("raycast: envmap emitter 'sky.exr' uses 'envmap', which raycast "
-                                       "does not model")
+    assert skipped["c_projector.xml"] == ("raycast: a projector emitter uses 'projector', which raycast "
+                                          "does not model")
     assert "'conductor' BSDF" in skipped["d_conductor.xml"]
     assert "mesh file 'gone.obj' not found" in skipped["e_missing_mesh.xml"]
     assert all("\n" not in r for r in skipped.values())
@@ -111,7 +107,7 @@ def test_one_crashing_file_does_not_stop_the_run(tmp_path, monkeypatch):
     suite = scene_dir.directory_suite(d, "raycast")
     records, skipped = scene_dir.run_directory(suite, Store(), run_id="t", out_root=tmp_path,
                                                log=lambda *a: None)
-    assert calls == ["a_good.xml", "b_malformed.xml", "c_envmap.xml", "d_conductor.xml",
+    assert calls == ["a_good.xml", "b_malformed.xml", "c_projector.xml", "d_conductor.xml",
                      "e_missing_mesh.xml"]
     assert skipped[0] == ("a_good.xml", "'boom'") and len(records) == 5
 

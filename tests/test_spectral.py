@@ -217,14 +217,16 @@ def test_prism_deviation_follows_cauchy_dispersion(wavelength):
     """A 60° prism of Cauchy glass (n_d = 1.5168, B = 0.0042 µm², BK7-like), ray at
     50° incidence: the deviation through two faces of the path tracer's dielectric
     equals the analytic δ(λ) to 1e-9 rad; blue is deviated more than red."""
+    from impl import bsdf
     from impl.materials import MAT_DIELECTRIC, MaterialArrays
     from impl.spectral import SpectralArrays, cauchy_ior, eta_scale_at
 
     n_d, b = 1.5168, 0.0042
     n = float(cauchy_ior(n_d, b, wavelength))
     o = np.ones((1, 3))
-    B = MaterialArrays(o, o, np.zeros((1, 3)), o.copy(), np.array([n_d]), np.array([n_d]),
-                       np.ones(1), np.array([MAT_DIELECTRIC]), np.zeros(1), np.ones(1, np.int64))
+    B = bsdf.with_plastic(MaterialArrays(o, o, np.zeros((1, 3)), o.copy(), np.array([n_d]),
+                                         np.array([n_d]), np.ones(1), np.array([MAT_DIELECTRIC]),
+                                         np.zeros(1), np.ones(1, np.int64)))
     S = SpectralArrays(*(np.zeros((1, 1)),) * 3, np.array([b]), np.array([n_d]), np.zeros((1, 3)),
                        np.eye(3), 1.0)
     scale = eta_scale_at(S, 0, wavelength - 360.0)

@@ -235,7 +235,8 @@ def test_projector_field_of_view_matches_mitsuba(mitsuba, tmp_path, props, aspec
 
 
 def test_plastic_alone_is_refused_by_name(tmp_path):
-    """A scene whose only new feature is a plastic sphere: each algorithm names 'plastic'."""
+    """A scene whose only new feature is a plastic sphere: each algorithm but path (which
+    models it) names 'plastic'."""
     from gibench import registry
 
     extra = ('<emitter type="point"><point name="position" value="0, 0, -3"/></emitter>'
@@ -243,7 +244,7 @@ def test_plastic_alone_is_refused_by_name(tmp_path):
              '<bsdf type="plastic"/></shape>')
     scene = load_scene(_write(tmp_path, SENSOR.format(props='<float name="fov" value="45"/>', w=8,
                                                       h=6, extra=extra)))
-    for name in ("raycast", "whitted", "path", "distributed"):
+    for name in ("raycast", "whitted", "distributed"):
         algo = registry.get(name)
         with pytest.raises(UnsupportedError) as info:
             algo.render(scene, algo.parse_params({}), seed=0)
