@@ -57,10 +57,12 @@ def test_envmap_scene_passes_the_ztest_against_mitsuba_direct(algorithm, params)
 @pytest.mark.mitsuba
 def test_envmap_scene_passes_the_ztest_against_mitsuba_path():
     """The glow map through the path tracer (full transport, sphere and ground
-    interreflecting) against Mitsuba's ``path``; a 3 % exposure error is rejected."""
+    interreflecting) against Mitsuba's ``path``; a 3 % exposure error is rejected.
+    64 spp: with the map light-sampled and MIS-weighted as Mitsuba does (BSDF
+    sampling alone needed 256 spp for the per-pixel test)."""
     from reports.metrics import z_test
 
-    ref, own, z = _ztest(ENVMAP_PATH, "path", {"spp": 256}, "full")
+    ref, own, z = _ztest(ENVMAP_PATH, "path", {"spp": 64}, "full")
     print(f"\npath: {z}")
     assert z.passed, z
     assert not z_test(ref.image, own.image * 1.03, reference_variance=ref.variance,
@@ -113,15 +115,20 @@ def test_constant_map_matches_the_constant_emitters_reference(constant_map_scene
 
 
 def test_constant_map_is_the_constant_emitter_in_the_path_tracer(constant_map_scene):
-    """The path tracer reaches the environment by BSDF sampling only: with the same
-    random numbers a constant map and the constant emitter give the same image (up to
-    the map's float32 texels)."""
+    """The path tracer light-samples a map (MIS with its escaped rays) and reaches a
+    ``constant`` emitter by BSDF sampling only: two estimators of one image, which agree
+    within their variances (per-pixel Z-test), while a 3 % exposure error is caught."""
+    from reports.metrics import z_test
+
     algo = registry.get("path")
-    params = algo.parse_params({"spp": 4, "max_depth": 3})
+    params = algo.parse_params({"spp": 16, "max_depth": 3})
     a = algo.render(load_scene(constant_map_scene), params, seed=2)
-    b = algo.render(load_scene(CONSTANT_ENV), params, seed=2)
+    b = algo.render(load_scene(CONSTANT_ENV), params, seed=3)
     assert a.image.mean() > 0.1
-    np.testing.assert_allclose(a.image, b.image, rtol=1e-5, atol=1e-6)
+    z = z_test(b.image, a.image, reference_variance=b.variance, test_variance=a.variance)
+    assert z.passed, z
+    assert not z_test(b.image, a.image * 1.03, reference_variance=b.variance,
+                      test_variance=a.variance).passed
 
 
 def test_radiosity_still_refuses_an_envmap():
