@@ -170,7 +170,6 @@ from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
 from core.errors import ParamError
 
-from .accel.packets import NOT_TRACED
 from .camera import camera_params
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import (SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo, direct_batch,

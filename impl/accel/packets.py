@@ -59,8 +59,8 @@ __all__ = ["packet_closest", "packet_hits", "packet_buffers", "tile_eye_packet",
 TILE = 8
 #: ``pre_prim`` of a tracer's radiance function when no first hit is given.  Callers
 #: pass it as ``np.int64(NOT_TRACED)``: a bare ``-2`` is typed ``Literal[int]`` and
-#: would compile the radiance function a second time (measured: two signatures of
-#: ``whitted._tree``, one per kernel), doubling the tile kernel's compile time.
+#: would compile the radiance function a second time (two signatures, one per
+#: kernel), doubling the tile kernel's compile time.
 NOT_TRACED = -2
 
 
