@@ -57,6 +57,23 @@ def _start_and_interrupt(tmp_path, sig):
     return proc.returncode, out
 
 
+def _interrupt_at_case(tmp_path, sig, case):
+    """Start a run and send ``sig`` as soon as its progress line ``[case/N]`` is printed
+    (unbuffered output read line by line): cases ``case``..N are still to do."""
+    env = dict(ENV, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen(_cmd(tmp_path), cwd=REPO_ROOT, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    seen = []
+    for line in proc.stdout:
+        seen.append(line)
+        if f"[{case}/" in line:
+            proc.send_signal(sig)
+            break
+    assert seen and f"[{case}/" in seen[-1], "the run ended before case %d:\n%s" % (case, "".join(seen))
+    rest, _ = proc.communicate(timeout=60)
+    return proc.returncode, "".join(seen) + rest
+
+
 def _assert_consistent(tmp_path, *, complete=False):
     with warnings.catch_warnings():
         warnings.simplefilter("error")          # no malformed line in the results file
@@ -88,11 +105,11 @@ def test_kill_and_interrupt_leave_stores_consistent(tmp_path, mitsuba):
     n_killed = len(_assert_consistent(tmp_path))
     assert 1 <= n_killed < len(SCENES)
 
-    # The killed run left some references stored; with them the rest of a run takes
-    # less than the pause before the signal (own renders of a few ms), so the store is
-    # emptied: the interrupted run renders references again and the signal lands mid-run.
+    # The killed run left some references stored, and with them the rest of a run can
+    # take less than any fixed pause (own renders of a few ms): the store is emptied,
+    # and the signal goes out when the run announces its second case.
     shutil.rmtree(tmp_path / "store")
-    rc, out = _start_and_interrupt(tmp_path, signal.SIGINT)
+    rc, out = _interrupt_at_case(tmp_path, signal.SIGINT, 2)
     assert rc == 130 and "interrupted" in out, out
     _assert_consistent(tmp_path)
 
