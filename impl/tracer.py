@@ -17,7 +17,9 @@ the same steps:
 3. :func:`accumulate` — Welford mean and squared-deviation sums per pixel.
 
 :func:`store` writes a tile's mean, variance of the mean and counters into
-the :class:`Film`.  A tracer module is thus its transport step plus a
+the :class:`Film`.  :func:`new_points` makes a batch not tied to a tile: the
+shading points a tracer collects along its rays (``whitted``'s diffuse
+leaves) to light them together.  A tracer module is thus its transport step plus a
 ten-line tile function and ``prange`` loop (numba cannot cache a kernel that
 takes or closes over another kernel, so the loop itself cannot live here).
 
@@ -28,8 +30,8 @@ has no branch (masks and selects), so LLVM vectorises it over the rays
 (AVX2 ``ymm`` registers where the host has them; ``tests/test_tracer.py``
 checks the machine code).  Without an early exit they test every primitive
 for every ray: the branchy scalar loop that rejects most triangles after a
-few operations costs about as much per ray on scenes of tens of triangles.  They compute exactly what
-:func:`impl.intersect.closest_hit_form` / ``any_hit_form`` compute for each
+few operations costs about as much per ray on scenes of tens of triangles.
+They compute exactly what :func:`impl.intersect.closest_hit_form` / ``any_hit_form`` compute for each
 ray (same arithmetic, same tie rule: the first primitive of smallest ``t``),
 so the image does not depend on the path taken.  The algebraic and geometric
 forms and every acceleration structure go to :func:`impl.accel.closest_rays` /
