@@ -57,12 +57,21 @@ def _start_and_interrupt(tmp_path, sig):
     return proc.returncode, out
 
 
+def _as_from_a_terminal():
+    """Give the child the default SIGINT disposition, as a shell in a terminal does.  A
+    command started in the background by a shell without job control (``cmd &`` in a
+    script, as CI runners and batch jobs may start the tests) inherits SIGINT *ignored*,
+    and Python then installs no KeyboardInterrupt handler: the signal would be lost by
+    design, not by the run."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _interrupt_at_case(tmp_path, sig, case):
     """Start a run and send ``sig`` as soon as its progress line ``[case/N]`` is printed
     (unbuffered output read line by line): cases ``case``..N are still to do."""
     env = dict(ENV, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(_cmd(tmp_path), cwd=REPO_ROOT, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
+                            stderr=subprocess.STDOUT, text=True, preexec_fn=_as_from_a_terminal)
     seen = []
     for line in proc.stdout:
         seen.append(line)
