@@ -218,7 +218,7 @@ def _conductor_fresnel(B: MaterialArrays, mat, cos_i):
             fresnel_conductor(cos_i, B.cond_eta[mat, 2], B.cond_k[mat, 2]) * B.spec_refl[mat, 2])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=True)             # the plastic lobes allocate: runtime on
 def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2):
     """Sample wo for material ``mat`` (diffuse albedo ρ given, textures resolved by the caller).
 
@@ -285,7 +285,7 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
             s * B.spec_trans[mat, 1], s * B.spec_trans[mat, 2], 1.0 - F, True, eta_it)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=True)             # the plastic lobes allocate: runtime on
 def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz):
     """f(wi, wo)·|cos θ_o| (RGB) of the non-delta lobes; 0 for delta BSDFs."""
     k = B.kind[mat]
@@ -320,7 +320,7 @@ def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, 
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=True)             # the plastic lobes allocate: runtime on
 def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
     """Solid-angle pdf of :func:`bsdf_sample` producing wo (0 for delta lobes)."""
     k = B.kind[mat]

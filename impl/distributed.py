@@ -146,6 +146,7 @@ from core.errors import ParamError, UnsupportedError
 
 from .accel.packets import NOT_TRACED, packet_buffers, packet_hits, tile_count, tile_rect
 from .camera import camera_params, eye_ray_lens
+from .kernel import batch_kernel
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, surface
@@ -275,7 +276,7 @@ def _frame(nx, ny, nz):
             b, sign + ny * ny * a, -ny)
 
 
-@njit(cache=True)
+@batch_kernel
 def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, hall_ks,
                      hall_n, shadows, counts):
     """Hall's light-source terms at a specular surface (thesis 2.4.5.5, Fig. 2.20):
@@ -343,7 +344,7 @@ def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx
     return r, g, b
 
 
-@njit(cache=True)
+@batch_kernel
 def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays, R: RayConfig, sph_c,
           tri64, trin64, hall, hall_ks, hall_n, hall_t, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
           shadows, light_samples, seed, pixel, sample, spp, stack_f, stack_i, counts, cut_w, pre_t,
@@ -556,7 +557,7 @@ def _eye(cam, seed, pixel, sample, fx, fy):
     return eye_ray_lens(cam, fx, fy, u1, u2)
 
 
-@njit(cache=True)
+@batch_kernel
 def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, fy, sample, spp, gmodel,
               max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
               light_samples, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1,

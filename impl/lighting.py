@@ -56,6 +56,7 @@ import numpy as np
 from numba import njit
 
 from .envmap import envmap_draw, envmap_radiance
+from .kernel import batch_kernel
 from .rays import RayConfig, legacy_config, leave, occluded
 from .phong import attenuation, phong_brdf_cos
 from .rng import uniform
@@ -416,7 +417,7 @@ def local_model(params: dict) -> LocalModel:
 SP_P, SP_G, SP_S, SP_V, SP_RHO = 0, 3, 6, 9, 12
 
 
-@njit(cache=True)
+@batch_kernel
 def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, nshadow):
     """:func:`direct_light_rays` over a batch of shading points (an
     :class:`impl.tracer.Batch` ``T``), light sample by light sample: each sample's

@@ -128,6 +128,7 @@ from .bsdf import to_local, to_world
 from .materials import MaterialArrays
 from .accel.packets import NOT_TRACED
 from .camera import camera_params
+from .kernel import batch_kernel
 from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_with_lights,
                              sample_light)
 from .lighting import diffuse_albedo, environment_radiance, surface
@@ -175,7 +176,7 @@ class PathConfig(NamedTuple):
     bias: int                   # DEBUG_BIAS code
 
 
-@njit(cache=True)
+@batch_kernel
 def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
            P: PathConfig, seed, sample, T: Batch):
     """The radiance ``T.L`` carried to the eye along one sampled path per eye ray of the

@@ -82,6 +82,7 @@ from core.errors import ParamError, UnsupportedError
 
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
+from .kernel import batch_kernel
 from .lighting import (SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo, direct_batch,
                        environment_radiance, local_model, surface)
 from .phong import PHONG_PARAMS
@@ -98,7 +99,7 @@ __all__ = ["render", "cast_primary", "ALGORITHM"]
 COUNTERS = ("shadow_rays",)
 
 
-@njit(cache=True)
+@batch_kernel
 def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx):
     """Radiance of the batch's eye rays from their closest hits into ``T.L``: a constant
     environment for escaped rays; L_e (front side) + ambient I_a k_a ρ + the Phong

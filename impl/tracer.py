@@ -56,6 +56,7 @@ from .accel import closest_rays, occluded_rays
 from .accel.packets import TILE, packet_hits
 from .camera import eye_ray
 from .intersect import like
+from .kernel import batch_kernel
 from .rays import PARAMS as RAY_PARAMS, RayConfig, ray_config
 from .sampling import pixel_sample, strata, variance_of_mean
 from .scene_arrays import scene_memo
@@ -200,7 +201,7 @@ def new_points(n, R: RayConfig, counters=0):
                  np.empty((3, n), F), np.empty(n, np.int32))
 
 
-@njit(cache=True)
+@batch_kernel
 def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     """Sample ``s`` of the tile's pixels: the eye rays (pixel centre for spp = 1, else
     the sample ``s`` of ``sampler``: jittered stratum or Sobol point,
@@ -227,7 +228,7 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
         closest_batch(R, ray, T.n, T.t, T.prim, T.b, T.q, T.qt, T.qp)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=True)
 def closest_batch(R: RayConfig, ray, n, t, prim, b, q, qt, qp):
     """Closest hits of the first ``n`` rays of ``ray`` (8, ≥n) in R's form, precision and
     structure: ``t`` (float64), ``prim`` (-1 on a miss), ``b`` (2, n) barycentrics.
@@ -239,7 +240,7 @@ def closest_batch(R: RayConfig, ray, n, t, prim, b, q, qt, qp):
                  ray[TMIN, :n], ray[TMAX, :n], t[:n], prim[:n], b[0, :n], b[1, :n])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=True)
 def occluded_batch(R: RayConfig, ray, n, blocked, q):
     """Whether anything lies on each of the first ``n`` rays of ``ray`` (8, ≥n) within
     (tmin, tmax), in R's form, precision and structure; ``q`` (8, ≥n) in R's precision

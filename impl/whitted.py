@@ -171,6 +171,7 @@ from core.scene import Scene
 from core.errors import ParamError
 
 from .camera import camera_params
+from .kernel import batch_kernel
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import (SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo, direct_batch,
                        direct_light_rays, environment_radiance, local_model, surface)
@@ -248,7 +249,7 @@ def _admit(wr, wg, wb, depth, max_depth, hall_threshold, counts, cut_w):
     return True
 
 
-@njit(cache=True)
+@batch_kernel
 def _trees(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
            hall_threshold, seed, sample, spp, T: Batch, traced, stack_f, stack_i, cut_w, P: Batch,
            lw, lcol, lsample, nshadow, lcount):
@@ -462,7 +463,7 @@ def _scratch(n, max_depth, R: RayConfig):
             np.zeros(LEAF_BATCH, np.int64), np.zeros(1, np.int64))
 
 
-@njit(cache=True)
+@batch_kernel
 def _light_leaves(A: SceneArrays, R: RayConfig, M: LocalModel, P: Batch, lw, lcol, lsample,
                   nshadow, lcount, T: Batch, seed):
     """Light the ``lcount[0]`` collected diffuse leaves together

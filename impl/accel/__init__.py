@@ -152,7 +152,7 @@ def timed_build(name, *args, **kw):
     return acc, time.perf_counter() - t0
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=True)
 def closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit through R's structure: ``(t, prim, b1, b2, nodes, tests)`` in R's
     precision (arguments too); ``R.accel`` must not be ``NONE``."""
@@ -168,7 +168,7 @@ def closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return slabs_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=True)
 def any_hit(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any hit in (tmin, tmax) through R's structure: ``(hit, nodes, tests)``."""
     k = R.accel
@@ -183,7 +183,7 @@ def any_hit(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return slabs_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=True)
 def closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2):
     """Closest hits of the N rays given as float64 arrays (N,), one after the other, in
     R's form, precision and structure (what :func:`impl.rays.hit` returns for each):
@@ -211,7 +211,7 @@ def closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1,
         out_t[i], out_prim[i], out_b1[i], out_b2[i] = float(t), p, float(b1), float(b2)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=True)
 def occluded_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
     """Any-hit of the N rays (float64 arrays (N,)) within (tmin[i], tmax[i]), one after
     the other, in R's form, precision and structure (:func:`impl.rays.occluded` of

@@ -137,7 +137,7 @@ def packet_closest(R, o, inv, d, tmin, best_t, best_p, bb, counts):
     return
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=True)
 def packet_hits(R, rays, n, hit_t, hit_p, hit_b, counts):
     """Closest hits of the eye rays ``rays[:n]`` = (ox, oy, oz, dx, dy, dz, tmin, tmax)
     (float64, as the camera gives them) traced as one packet through R's tree.

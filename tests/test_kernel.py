@@ -1,0 +1,55 @@
+"""The batch kernels run without numba's runtime (no reference counting), and the
+functions that allocate and can be reached from them keep it.
+
+A kernel that lost ``batch_kernel`` would still compute the same image, only slower
+(atomic reference counts inside the per-ray loops), so its option is pinned here; a
+function that allocates must state ``_nrt=True`` or a batch kernel calling it first
+would compile it without the runtime and fail.
+"""
+
+import numpy as np
+import pytest
+from numba import njit
+from numba.core.errors import TypingError
+
+from impl import accel, bsdf, lighting, path, raycast, tracer, whitted
+from impl.kernel import batch_kernel
+
+BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, whitted._trees,
+                 whitted._light_leaves, path._paths]
+ALLOCATING = [tracer.closest_batch, tracer.occluded_batch, accel.closest, accel.any_hit,
+              accel.closest_rays, accel.occluded_rays, bsdf.bsdf_sample, bsdf.bsdf_eval,
+              bsdf.bsdf_pdf]
+
+
+@pytest.mark.parametrize("fn", BATCH_KERNELS, ids=lambda f: f.py_func.__qualname__)
+def test_batch_kernels_are_compiled_without_the_runtime(fn):
+    assert fn.targetoptions.get("_nrt") is False
+    assert fn.targetoptions.get("cache") is True
+
+
+@pytest.mark.parametrize("fn", ALLOCATING, ids=lambda f: f.py_func.__qualname__)
+def test_allocating_callees_state_the_runtime(fn):
+    assert fn.targetoptions.get("_nrt") is True
+
+
+def test_a_batch_kernel_cannot_allocate():
+    @batch_kernel(cache=False)
+    def bad(n):
+        a = np.empty(n)
+        return a.sum()
+
+    with pytest.raises(TypingError):
+        bad(3)
+
+
+def test_a_batch_kernel_computes_what_the_runtime_version_does():
+    def body(x, out):
+        for i in range(x.shape[0]):
+            out[i] = x[i] * x[i] if x[i] > 0.5 else -x[i]
+
+    x = np.random.default_rng(1).random(1000)
+    a, b = np.empty_like(x), np.empty_like(x)
+    batch_kernel(cache=False)(body)(x, a)
+    njit(body)(x, b)
+    np.testing.assert_array_equal(a, b)
