@@ -7,9 +7,11 @@ defaults) into a :class:`MaterialArrays` named tuple, one row per material of
 
 * ``conductor`` / ``roughconductor``: ``specular_reflectance`` × the conductor
   Fresnel term of the complex index ``eta + i k`` (RGB).  ``material="none"``
-  (Mitsuba's default) is ``eta = 0, k = 1``: Fresnel = 1.  Named conductors
-  (``material="Au"``) are refused: their spectral IOR tables are not
-  tabulated here; give ``eta`` and ``k``.
+  (Mitsuba's default) is ``eta = 0, k = 1``: Fresnel = 1.  A named conductor
+  (``material="Au"``) takes the RGB ``eta``/``k`` Mitsuba's RGB variants
+  derive from its measured spectra, stored in ``impl/data/conductors_rgb.json``
+  (:func:`named_conductor`; written from Mitsuba by
+  ``references/conductor_table.py``, which records the version).
 * ``dielectric`` / ``roughdielectric``: ``int_ior`` (default BK7),
   ``ext_ior`` (default air), ``specular_reflectance``,
   ``specular_transmittance``.
@@ -30,6 +32,9 @@ parameters are then :func:`plastic_arrays`'s.
 
 from __future__ import annotations
 
+import functools
+import json
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -40,7 +45,7 @@ from core.errors import SceneError, UnsupportedError
 from .fresnel import lookup_ior
 from .scene_arrays import MATERIAL_CODES
 
-__all__ = ["MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
+__all__ = ["named_conductor", "CONDUCTOR_TABLE", "MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "MAT_PLASTIC",
            "MAT_ROUGHPLASTIC", "KIND_CODES",
            "DEFAULT_ALPHA"]
@@ -59,6 +64,27 @@ KIND_CODES = {"diffuse": MAT_DIFFUSE, "conductor": MAT_CONDUCTOR, "dielectric": 
 
 #: Mitsuba's default roughness of roughconductor / roughdielectric.
 DEFAULT_ALPHA = 0.1
+
+
+#: Mitsuba's named conductors as RGB complex indices (see the module docstring).
+CONDUCTOR_TABLE = Path(__file__).resolve().parent / "data" / "conductors_rgb.json"
+
+
+@functools.cache
+def _conductors() -> dict:
+    return json.loads(CONDUCTOR_TABLE.read_text())["materials"]
+
+
+def named_conductor(name: str, *, where: str = "conductor") -> tuple[np.ndarray, np.ndarray]:
+    """``(eta, k)``, RGB, of Mitsuba's conductor ``material=name`` (case-sensitive, as
+    Mitsuba); an unknown name raises :class:`SceneError` listing a few known ones."""
+    table = _conductors()
+    if name not in table:
+        raise SceneError(f"{where}: unknown conductor material '{name}' (Mitsuba's names, e.g. "
+                         f"{', '.join(n for n in ('Ag', 'Al', 'Au', 'Cr', 'Cu', 'W'))}; "
+                         f"{len(table)} in {CONDUCTOR_TABLE.name})")
+    row = table[name]
+    return np.asarray(row["eta"], dtype=np.float64), np.asarray(row["k"], dtype=np.float64)
 
 
 class MaterialArrays(NamedTuple):
@@ -142,11 +168,11 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
     ------
     NotImplementedError
         A material the algorithm does not model (naming the shape and the
-        material), a named conductor (``material="Au"``), a two-sided
+        material), a two-sided
         dielectric, a GGX distribution, anisotropic roughness.
     ValueError
         Conflicting or malformed parameters (e.g. both ``material`` and
-        ``eta`` on a conductor, an unknown IOR name, equal indices on a
+        ``eta`` on a conductor, an unknown IOR or conductor name, equal indices on a
         roughdielectric, a negative alpha).
     """
     unknown = [k for k in kinds if k not in KIND_CODES]
@@ -182,12 +208,14 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             if "eta" in p and material != "none":
                 raise SceneError(f"{where}: conductor gives both 'material' ('{material}') and "
                                  "'eta'; give one of them (as Mitsuba requires)")
-            if material != "none" and "eta" not in p:
-                raise UnsupportedError(
-                    f"{where}: conductor material '{material}' is not tabulated (its spectral "
-                    "IOR is not modelled); give 'eta' and 'k' as rgb values, or material='none'")
-            cond_eta[i] = _rgb_param(p, "eta", 0.0, where)
-            cond_k[i] = _rgb_param(p, "k", 1.0, where)
+            if material != "none":
+                if "k" in p:
+                    raise SceneError(f"{where}: conductor gives both 'material' ('{material}') and "
+                                     "'k'; give one of them (as Mitsuba requires)")
+                cond_eta[i], cond_k[i] = named_conductor(str(material), where=where)
+            else:
+                cond_eta[i] = _rgb_param(p, "eta", 0.0, where)
+                cond_k[i] = _rgb_param(p, "k", 1.0, where)
             spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
         elif m.kind in ("dielectric", "roughdielectric"):
             if m.twosided:

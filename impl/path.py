@@ -42,7 +42,10 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   weighted by the power heuristic against it, as Mitsuba's ``path`` does.
 * Materials (:mod:`impl.bsdf`): ``diffuse`` (textures included), smooth
   ``conductor`` and ``dielectric``, ``roughconductor`` and
-  ``roughdielectric`` (Beckmann, Smith G; :mod:`impl.microfacet`);
+  ``roughdielectric`` (Beckmann, Smith G; :mod:`impl.microfacet`), named
+  conductors (``material="Au"``: Mitsuba's RGB indices,
+  :func:`impl.materials.named_conductor`), ``plastic`` and ``roughplastic``
+  (a textured ``diffuse_reflectance`` included: ρ(u, v) as for ``diffuse``);
   two-sided opaque materials.
 
 Spectral mode (``spectral=true``, :mod:`impl.spectral`): each path carries
@@ -447,5 +450,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap", "plastic", "roughplastic"}),
+    models=frozenset({"envmap", "plastic", "roughplastic", "plastic texture"}),
 )

@@ -24,16 +24,10 @@ SCENES = sorted([*ROOT.glob("docs/scenes/*.xml"), *ROOT.glob("scenes/*/*.xml"),
 
 #: Files refused, with the reason each is refused (a substring of the message).
 REFUSED = {
-    "bsdf_blendbsdf.xml": "unsupported bsdf type 'blendbsdf'",
-    "bsdf_mask_after.xml": "unsupported bsdf type 'mask'",
-    "bsdf_thindielectric_glass.xml": "unsupported bsdf type 'thindielectric'",
     # Upstream, these need a <path> the documentation build adds (and -D spp=...).
     "sensor_orthographic.xml": "not found",
     # Upstream, the mesh it names does not exist (Mitsuba refuses it too).
     "sensor_orthographic_2.xml": "not found",
-    "test_envmap_path.xml": "unsupported bsdf type 'mask'",
-    "test_constant_path.xml": "unsupported bsdf type 'mask'",
-    "test_pointlight_path.xml": "unsupported bsdf type 'mask'",
     "test_texturedprincipled1_path.xml": "not a model of the thesis",
 }
 
@@ -63,7 +57,7 @@ def test_load_or_refuse_with_one_line():
     assert set(refused) == set(REFUSED), sorted(set(refused) ^ set(REFUSED))
     for name, why in REFUSED.items():
         assert why in refused[name], (name, refused[name])
-    assert len(loaded) == len(SCENES) - len(REFUSED) == 58
+    assert len(loaded) == len(SCENES) - len(REFUSED) == 64
 
 
 def _closest_hits(scene, o, d):
