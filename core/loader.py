@@ -675,7 +675,9 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
     bsdfs = p.child_elements("bsdf")
     if len(bsdfs) > 1:
         raise ctx.error(el, "a shape takes at most one bsdf")
-    mat = _material(ctx, bsdfs[0], materials, cache) if bsdfs else default_mat()
+    # Mitsuba's default BSDF: diffuse 0.5, black on an emitter (shape.cpp).
+    emitting = any(ctx.attr(e, "type") == "area" for e in p.child_elements("emitter"))
+    mat = _material(ctx, bsdfs[0], materials, cache) if bsdfs else default_mat(emitter=emitting)
     emit = emit_spectrum = None
     for e in p.child_elements("emitter"):
         ep = _Plugin(ctx, e, "emitter")
@@ -950,13 +952,17 @@ def load_scene(path, defines: dict | None = None) -> Scene:
 
     materials: list[Material] = []
     cache: dict = {}
-    default_mat_index: list[int] = []
+    default_mat_index: dict[bool, int] = {}
 
-    def default_mat() -> int:
-        if not default_mat_index:
-            materials.append(Material(kind="diffuse", reflectance=(0.5, 0.5, 0.5), name="(default)"))
-            default_mat_index.append(len(materials) - 1)
-        return default_mat_index[0]
+    def default_mat(emitter: bool = False) -> int:
+        """The material of a shape without a bsdf: Mitsuba's default, a diffuse 0.5, or a
+        black diffuse on an area emitter (Mitsuba's ``Shape`` does the same)."""
+        if emitter not in default_mat_index:
+            rho = 0.0 if emitter else 0.5
+            materials.append(Material(kind="diffuse", reflectance=(rho, rho, rho),
+                                      name="(default, emitter)" if emitter else "(default)"))
+            default_mat_index[emitter] = len(materials) - 1
+        return default_mat_index[emitter]
 
     camera, shapes, lights, integrator = None, [], [], {"type": "path"}
     environment = None

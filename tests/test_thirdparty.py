@@ -131,11 +131,10 @@ def test_instancing_hits_match_mitsuba(mitsuba, name):
 #: Of the files that load, those the path tracer renders (8x6 pixels, 1 spp,
 #: max_depth 3 here); the others are refused by name before rendering (textured
 #: parameters other than a plastic's diffuse reflectance, projector, normal/bump
-#: maps, a textured spot, GGX roughplastic, anisotropic roughness, mask,
-#: blendbsdf, thindielectric).
-PATH_RENDERS = 44
+#: maps, a textured spot, anisotropic roughness, mask, blendbsdf, thindielectric).
+PATH_RENDERS = 46
 #: Of those, the scenes lit by an envmap and those with a plastic or roughplastic shape.
-ENVMAPS, PLASTICS = 30, 12
+ENVMAPS, PLASTICS = 32, 14
 
 
 def test_path_renders_or_refuses_by_name():

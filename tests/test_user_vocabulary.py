@@ -10,7 +10,7 @@
   roughplastic in the path tracer: D normalised, D / G1 / visible-normal samples
   equal Mitsuba's, and ``suites/vocabulary/ggx.xml`` passes the Z-test against
   Mitsuba's ``path``.
-* A ``thinlens`` sensor in the path tracer: ``suites/distributed/dof.xml``
+* A ``thinlens`` sensor in the path tracer: ``suites/vocabulary/thinlens.xml``
   passes the Z-test against Mitsuba's ``path``.
 * A plastic's textured ``diffuse_reflectance``: ``suites/vocabulary/textured_plastic.xml``
   passes the Z-test against Mitsuba's ``path``, and the same scene with the
@@ -35,7 +35,7 @@ VOCAB = Path(__file__).resolve().parent.parent / "suites" / "vocabulary"
 CONDUCTORS = VOCAB / "named_conductors.xml"
 TEXTURED_PLASTIC = VOCAB / "textured_plastic.xml"
 #: A thinlens sensor (aperture 0.12, focused at 5.5) over spheres at three depths.
-DOF = VOCAB.parent / "distributed" / "dof.xml"
+DOF = VOCAB / "thinlens.xml"
 GGX_SCENE = VOCAB / "ggx.xml"
 
 _SCENE = """<scene version="3.0.0">
