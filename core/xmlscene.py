@@ -348,6 +348,10 @@ def expanded(path, defines: dict | None = None) -> etree._Element:
     for el in root.iter():
         if isinstance(el.tag, str) and _SRC in el.attrib:
             del el.attrib[_SRC]
+            if el is not root:
+                # An included file's own root (e.g. a <bsdf>) carries the file's version,
+                # which Mitsuba does not accept inside a scene.
+                el.attrib.pop("version", None)
     etree.cleanup_namespaces(root)
     dirs = [doc.path.parent.resolve(), *reversed(doc.search)]   # searched last ... first
     for k, d in enumerate(dirs):
