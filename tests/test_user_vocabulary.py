@@ -267,3 +267,20 @@ def test_the_ztest_sees_the_plastic_textures_replaced_by_their_means(tmp_path):
     z = z_test(ref.image, own.image, reference_variance=ref.variance, test_variance=own.variance)
     print(f"\ntextures as means: {z}")
     assert not z.passed
+
+
+@pytest.mark.mitsuba
+def test_reference_overrides_a_sensor_declared_in_an_included_file(mitsuba):
+    """A documentation scene whose sensor and integrator sit in an included file: the
+    reference's overrides reach them (in the expanded scene) and Mitsuba loads it,
+    its textures and meshes found through the file's <path>."""
+    from references.reference import load_scene as mitsuba_load, prepare_scene_xml
+
+    path = VOCAB.parent / "thirdparty" / "docs" / "scenes" / "bsdf_plastic_preserve.xml"
+    xml, integrator, overrides = prepare_scene_xml(path, transport="full", spp_per_pass=3)
+    assert integrator == {"type": "path", "max_depth": -1}
+    assert overrides["sensor[0]"]["sampler"]["to"]["sample_count"] == 3
+    assert overrides["sensor[0]"]["rfilter"]["to"] == {"type": "box"}
+    scene = mitsuba_load(mitsuba, path, xml)
+    assert scene.sensors()[0].sampler().sample_count() == 3
+    assert len(scene.shapes()) == len(load_scene(path).shapes)
