@@ -61,6 +61,10 @@ bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric
                  plastic, roughplastic (diffuse_reflectance, specular_reflectance,
                  int_ior, ext_ior, nonlinear; alpha, distribution, sample_visible),
                  normalmap / bumpmap around one bsdf (:attr:`Material.shading`);
+                 thindielectric (int_ior, ext_ior, specular_reflectance,
+                 specular_transmittance); mask (opacity, a float or texture,
+                 outermost: :attr:`Material.opacity`); blendbsdf (weight, a
+                 float or texture, two nested bsdfs: :attr:`Material.components`);
                  ``principled`` refused by name (not a thesis model); BSDFs no
                  shape uses are dropped
 texture          on any parameter Mitsuba reads as a texture (a conductor's
@@ -100,7 +104,8 @@ sampler's seed) are accepted; any other property is an error, so nothing in a
 file is silently ignored.
 
 Which algorithm models the newer parts of the vocabulary (plastic, envmap,
-projector, normal/bump maps, textured parameters) is
+projector, normal/bump maps, textured parameters, mask, blendbsdf,
+thindielectric) is
 :attr:`core.algorithm.Algorithm.models`; the others refuse a scene using them.
 """
 
@@ -125,7 +130,7 @@ SUPPORTED = {
     "shape": ("sphere", "rectangle", "cube", "disk", "cylinder", "obj", "ply", "serialized",
               "shapegroup", "instance"),
     "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric", "twosided",
-             "plastic", "roughplastic", "normalmap", "bumpmap"),
+             "plastic", "roughplastic", "normalmap", "bumpmap", "thindielectric", "mask", "blendbsdf"),
     "emitter": ("point", "directional", "spot", "area", "constant", "envmap", "projector"),
     "sensor": ("perspective", "thinlens", "orthographic"),
     "film": ("hdrfilm",),
@@ -187,6 +192,9 @@ _PROPS = {
     ("bsdf", "roughplastic"): {"diffuse_reflectance", "specular_reflectance", "int_ior", "ext_ior",
                                "nonlinear", "alpha", "distribution", "sample_visible"},
     ("bsdf", "normalmap"): {"flip_invalid_normals", "use_shadowing_function"},
+    ("bsdf", "thindielectric"): {"int_ior", "ext_ior", "specular_reflectance", "specular_transmittance"},
+    ("bsdf", "mask"): {"opacity"},
+    ("bsdf", "blendbsdf"): {"weight"},
     ("bsdf", "bumpmap"): {"scale", "flip_invalid_normals", "use_shadowing_function"},
     ("emitter", "envmap"): {"filename", "scale", "to_world", "mis_compensation"},
     ("emitter", "projector"): {"irradiance", "scale", "to_world", "fov", "fov_axis", "focal_length"},
@@ -239,6 +247,8 @@ _SCHEMA = {
     "shape_index": ("integer", lambda v: v >= 0, ">= 0"),
     "scale": ("number", None, ""),
     "diffuse_reflectance": ("colour", None, ">= 0"),
+    "opacity": ("number", lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
+    "weight": ("number", lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
     "nonlinear": ("boolean", None, ""),
     "flip_invalid_normals": ("boolean", None, ""),
     "use_shadowing_function": ("boolean", None, ""),
@@ -515,6 +525,11 @@ def _material(ctx, el, materials: list, cache: dict) -> int:
     if key in cache:
         return cache[key]
     p = _Plugin(ctx, el, "bsdf")
+    p, opacity = _mask_wrapper(ctx, p)
+    if p.type == "blendbsdf":
+        materials.append(_blend(ctx, p, opacity))
+        cache[key] = len(materials) - 1
+        return cache[key]
     p, shading = _shading_wrapper(ctx, p)
     twosided = False
     if p.type == "twosided":
@@ -531,6 +546,9 @@ def _material(ctx, el, materials: list, cache: dict) -> int:
     if p.type in _WRAPPERS:
         raise ctx.error(p.el, f"a {p.type} bsdf must wrap a plain bsdf (at most one normalmap or "
                               "bumpmap, outside or inside twosided)")
+    if p.type in ("mask", "blendbsdf"):
+        raise ctx.error(p.el, f"a {p.type} bsdf must be the outermost bsdf (it may wrap twosided, "
+                              "normalmap, bumpmap or a plain bsdf)")
     texture = None
     if p.type == "diffuse":
         p.unexpected_children(("texture",))
@@ -549,7 +567,7 @@ def _material(ctx, el, materials: list, cache: dict) -> int:
     params = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in p.props.items()}
     materials.append(Material(kind=p.type, reflectance=refl, twosided=twosided, params=params,
                               name=ctx.attr(el, "id", "") or "", texture=texture, textures=textures,
-                              shading=shading))
+                              shading=shading, opacity=opacity))
     cache[key] = len(materials) - 1
     return cache[key]
 
@@ -657,7 +675,9 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
     bsdfs = p.child_elements("bsdf")
     if len(bsdfs) > 1:
         raise ctx.error(el, "a shape takes at most one bsdf")
-    mat = _material(ctx, bsdfs[0], materials, cache) if bsdfs else default_mat()
+    # Mitsuba's default BSDF: diffuse 0.5, black on an emitter (shape.cpp).
+    emitting = any(ctx.attr(e, "type") == "area" for e in p.child_elements("emitter"))
+    mat = _material(ctx, bsdfs[0], materials, cache) if bsdfs else default_mat(emitter=emitting)
     emit = emit_spectrum = None
     for e in p.child_elements("emitter"):
         ep = _Plugin(ctx, e, "emitter")
@@ -932,13 +952,17 @@ def load_scene(path, defines: dict | None = None) -> Scene:
 
     materials: list[Material] = []
     cache: dict = {}
-    default_mat_index: list[int] = []
+    default_mat_index: dict[bool, int] = {}
 
-    def default_mat() -> int:
-        if not default_mat_index:
-            materials.append(Material(kind="diffuse", reflectance=(0.5, 0.5, 0.5), name="(default)"))
-            default_mat_index.append(len(materials) - 1)
-        return default_mat_index[0]
+    def default_mat(emitter: bool = False) -> int:
+        """The material of a shape without a bsdf: Mitsuba's default, a diffuse 0.5, or a
+        black diffuse on an area emitter (Mitsuba's ``Shape`` does the same)."""
+        if emitter not in default_mat_index:
+            rho = 0.0 if emitter else 0.5
+            materials.append(Material(kind="diffuse", reflectance=(rho, rho, rho),
+                                      name="(default, emitter)" if emitter else "(default)"))
+            default_mat_index[emitter] = len(materials) - 1
+        return default_mat_index[emitter]
 
     camera, shapes, lights, integrator = None, [], [], {"type": "path"}
     environment = None
@@ -1011,6 +1035,7 @@ _TEXTURABLE = {
     "roughdielectric": ("specular_reflectance", "specular_transmittance", "alpha", "alpha_u", "alpha_v"),
     "plastic": ("diffuse_reflectance", "specular_reflectance"),
     "roughplastic": ("diffuse_reflectance", "specular_reflectance"),
+    "thindielectric": ("specular_reflectance", "specular_transmittance"),
 }
 
 
@@ -1102,6 +1127,59 @@ def _shading_wrapper(ctx, p):
     return _Plugin(ctx, inner[0], "bsdf"), shading
 
 
+def _mask_wrapper(ctx, p):
+    """``(inner plugin, opacity)`` of a ``mask`` bsdf ``p`` (Mitsuba's: the wrapped BSDF
+    with probability ``opacity``, else the ray passes through), or ``(p, None)``.
+    ``opacity`` is ``{"type": "constant", "value": a}`` (Mitsuba's default 0.5) or a
+    texture dict."""
+    if p.type != "mask":
+        return p, None
+    p.unexpected_children(("bsdf", "texture"))
+    inner = p.child_elements("bsdf")
+    texs = [(name, c) for name, c in p.children if c.tag == "texture"]
+    if len(inner) != 1 or len(texs) > 1:
+        raise ctx.error(p.el, "mask needs exactly one nested bsdf and at most one texture")
+    if texs:
+        name, tex_el = texs[0]
+        if name != "opacity":
+            raise ctx.error(tex_el, f"the texture of a mask must be named 'opacity', got '{name}'")
+        if "opacity" in p.props:
+            raise ctx.error(tex_el, "'opacity' is given both as a value and as a texture")
+        opacity = _texture_element(ctx, tex_el)
+    else:
+        opacity = {"type": "constant", "value": float(p.get("opacity", 0.5))}
+    q = _Plugin(ctx, inner[0], "bsdf")
+    if q.type == "mask":
+        raise ctx.error(inner[0], "nested mask bsdf")
+    return q, opacity
+
+
+def _blend(ctx, p, opacity) -> Material:
+    """Mitsuba's ``blendbsdf``: (1 − weight) × the first nested BSDF + weight × the
+    second; ``weight`` a float (default 0.5) or a texture (``textures["weight"]``).
+    The two BSDFs are :attr:`Material.components`; ``reflectance`` is the blend of
+    their reflectances at the mean weight."""
+    p.unexpected_children(("bsdf", "texture"))
+    inner = p.child_elements("bsdf")
+    if len(inner) != 2:
+        raise ctx.error(p.el, f"blendbsdf needs exactly two nested bsdfs, got {len(inner)}")
+    textures = {}
+    for name, c in p.children:
+        if c.tag != "texture":
+            continue
+        if name != "weight" or "weight" in p.props or textures:
+            raise ctx.error(c, f"the texture of a blendbsdf must be one, named 'weight', got '{name}'")
+        textures["weight"] = _texture_element(ctx, c)
+    parts: list[Material] = []
+    for c in inner:
+        _material(ctx, c, parts, {})
+    w = float(np.mean(_texture_mean(textures["weight"]))) if textures else float(p.get("weight", 0.5))
+    refl = tuple((1.0 - w) * np.asarray(parts[0].reflectance) + w * np.asarray(parts[1].reflectance))
+    params = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in p.props.items()}
+    return Material(kind="blendbsdf", reflectance=refl, params=params, name=ctx.attr(p.el, "id", "") or "",
+                    textures=textures, opacity=opacity, components=tuple(parts))
+
+
 def _param_textures(ctx, p) -> dict:
     """The textures nested in (or referenced by) bsdf ``p``, by parameter name."""
     allowed = _TEXTURABLE.get(p.type, ())
@@ -1136,6 +1214,12 @@ def _uv_texture(m: Material) -> dict | None:
         return m.texture
     for t in m.textures.values():
         return t
+    if m.opacity is not None and m.opacity["type"] != "constant":
+        return m.opacity
+    for c in m.components:
+        t = _uv_texture(c)
+        if t is not None:
+            return t
     return None if m.shading is None else m.shading["texture"]
 
 

@@ -16,7 +16,8 @@ instance's shapes in world space, as ordinary shapes.
 
 Parts of the vocabulary that not every algorithm models (``plastic``, an
 ``envmap``, a ``projector``, normal and bump maps, textures on parameters other
-than a diffuse reflectance) are named by :func:`scene_features`; an algorithm
+than a diffuse reflectance, a plastic's textured ``diffuse_reflectance``
+(``plastic texture``), ``mask``, ``blendbsdf``, ``thindielectric``) are named by :func:`scene_features`; an algorithm
 renders a scene only if it models every feature the scene has
 (:class:`core.algorithm.Algorithm` ``models``), so none of them is silently
 rendered as something else.
@@ -196,6 +197,13 @@ class Material:
     #: Mitsuba's ``normalmap``) or ``{"type": "bumpmap", "texture": tex, "scale": s}``
     #: (a height field; Mitsuba's ``bumpmap``).  ``kind``/``params`` are the wrapped BSDF's.
     shading: dict | None = None
+    #: A ``mask`` wrapped around the BSDF, or None: the opacity, ``{"type": "constant",
+    #: "value": a}`` or a texture dict; Mitsuba's ``mask`` scatters by the wrapped BSDF
+    #: with probability a and lets the ray pass unchanged otherwise.
+    opacity: dict | None = None
+    #: ``blendbsdf``: its two BSDFs (Materials), blended as (1 − weight)·first +
+    #: weight·second (``params["weight"]`` or ``textures["weight"]``).
+    components: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -309,7 +317,8 @@ class Scene:
 #: The features :func:`scene_features` names: parts of the scene vocabulary an
 #: algorithm must model explicitly (``Algorithm.models``) to render a scene that has them.
 FEATURES = ("envmap", "projector", "spot texture", "plastic", "roughplastic", "normalmap", "bumpmap",
-            "textured parameter", "camera motion", "mesh motion")
+            "textured parameter", "plastic texture", "camera motion", "mesh motion", "mask", "blendbsdf",
+            "thindielectric")
 
 
 def scene_features(scene: Scene) -> dict[str, str]:
@@ -333,10 +342,15 @@ def scene_features(scene: Scene) -> dict[str, str]:
         where = f"shape '{shape.name or shape.source}'"
         if shape.kind == "mesh" and shape.moves:
             found.setdefault("mesh motion", where)
-        if m.kind in ("plastic", "roughplastic"):
+        if m.kind in ("plastic", "roughplastic", "blendbsdf", "thindielectric"):
             found.setdefault(m.kind, where)
+        if m.opacity is not None:
+            found.setdefault("mask", where)
         if m.shading is not None:
             found.setdefault(m.shading["type"], where)
         for name in m.textures:
-            found.setdefault("textured parameter", f"{where} ('{name}' of its {m.kind} BSDF)")
+            if m.kind in ("plastic", "roughplastic") and name == "diffuse_reflectance":
+                found.setdefault("plastic texture", where)
+            else:
+                found.setdefault("textured parameter", f"{where} ('{name}' of its {m.kind} BSDF)")
     return found

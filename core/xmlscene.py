@@ -28,7 +28,7 @@ from lxml import etree
 
 from .errors import SceneError
 
-__all__ = ["Document", "resolve", "parse_file", "substitute", "check_defines", "short",
+__all__ = ["Document", "resolve", "expanded", "parse_file", "substitute", "check_defines", "short",
            "IDENTIFIER", "MAX_INCLUDE_DEPTH", "MAX_INCLUDES"]
 
 #: A ``<default>`` / ``-D`` name and what ``$name`` matches.
@@ -330,3 +330,32 @@ def resolve(path, defines: dict | None = None, *, cls=None) -> Document:
                 if "$" in value and key != _SRC:
                     doc.subst(el, value)
     return doc
+
+
+def expanded(path, defines: dict | None = None) -> etree._Element:
+    """The scene of ``path`` as one self-contained ``<scene>`` element that Mitsuba loads
+    as it loads the file: every ``<include>`` replaced by its content (:func:`resolve`),
+    the ``<path>`` directories given back as ``<path>`` elements with absolute
+    folders at the top, in their declaration order (Mitsuba searches the latest
+    first), and the scene file's own directory among them, so relative names resolve
+    wherever the string is loaded.  ``<default>`` elements and ``$name`` stay as
+    written (an included file's defaults follow the including file's, which win, as
+    in Mitsuba).  Used where the scene's elements must be edited after the includes
+    are expanded (a sensor or an integrator declared in an included file).
+    """
+    doc = resolve(path, defines)
+    root = doc.root
+    for el in root.iter():
+        if isinstance(el.tag, str) and _SRC in el.attrib:
+            del el.attrib[_SRC]
+            if el is not root:
+                # An included file's own root (e.g. a <bsdf>) carries the file's version,
+                # which Mitsuba does not accept inside a scene.
+                el.attrib.pop("version", None)
+    etree.cleanup_namespaces(root)
+    dirs = [doc.path.parent.resolve(), *reversed(doc.search)]   # searched last ... first
+    for k, d in enumerate(dirs):
+        el = etree.Element("path")
+        el.set("value", str(d))
+        root.insert(k, el)
+    return root

@@ -7,7 +7,9 @@ one case of an in-memory suite.  Each file either
 
 * loads in the own loader, is rendered by ``A`` and compared with a Mitsuba
   reference of ``A``'s transport (``direct`` for ``raycast``), rendered on
-  demand into the reference store as for any suite; or
+  demand into the reference store as for any suite (a full-transport ``A``
+  with a ``max_depth`` takes the file's ``path`` integrator's ``max_depth``,
+  as the reference does, unless ``--set`` gives one); or
 * is listed as **skipped** with its one-line reason: the loader's error
   (``file:line: <element>: cause``: malformed XML, an unsupported plugin such
   as ``envmap``), the algorithm's refusal (``NotImplementedError``: a
@@ -98,13 +100,36 @@ def directory_suite(directory, algorithm: str, params: dict | None = None, *,
     files = sorted(p for p in directory.glob("*.xml") if p.is_file())
     if not files:
         raise UsageError(f"--scenes: no *.xml scene files in {directory}")
-    cases = tuple(Case(scene=p.resolve(), scene_id=f"{directory.name}/{_scene_id(p)}",
-                       algorithm=algo.name, params=params, transport=algo.transport,
-                       label=f"{algo.name} {params}" if params else algo.name, expect=expect)
-                  for p in files)
+    cases = []
+    for p in files:
+        own = {**params, **_file_max_depth(p, algo, params)}
+        cases.append(Case(scene=p.resolve(), scene_id=f"{directory.name}/{_scene_id(p)}",
+                          algorithm=algo.name, params=own, transport=algo.transport,
+                          label=f"{algo.name} {own}" if own else algo.name, expect=expect))
+    cases = tuple(cases)
     return Suite(name=f"scenes:{directory.name}", path=directory.resolve(), cases=cases,
                  reference_spp=reference_spp, reference_passes=reference_passes, repeats=repeats,
                  description=f"every scene file of {directory}")
+
+
+def _file_max_depth(path: Path, algo, params: dict) -> dict:
+    """``{"max_depth": n}`` when the file's integrator is Mitsuba's ``path`` with a
+    ``max_depth`` and ``algo`` computes full transport with a ``max_depth`` of Mitsuba's
+    meaning that ``--set`` does not give: the reference renders the file's depth, so
+    the own render takes it too.  ``{}`` otherwise (or when the file does not load:
+    :func:`preflight` reports why)."""
+    from core.errors import GibenchError
+    from core.loader import load_scene
+
+    if algo.transport != "full" or "max_depth" in params or "max_depth" not in algo.defaults():
+        return {}
+    try:
+        integrator = load_scene(path).integrator
+    except GibenchError:
+        return {}
+    if integrator.get("type") == "path" and "max_depth" in integrator:
+        return {"max_depth": int(integrator["max_depth"])}
+    return {}
 
 
 def preflight(case: Case, defines: dict | None = None) -> str | None:

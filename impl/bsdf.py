@@ -27,7 +27,7 @@ law; weights ``specular_reflectance`` and ``specular_transmittance`` ×
 η_ti² (radiance scaling of Mitsuba's Radiance transport mode).  Two-sided by
 construction (the normal points outward; cos θ_i < 0 is inside).
 
-``roughconductor`` and ``roughdielectric`` (Beckmann, Smith G, visible-normal
+``roughconductor`` and ``roughdielectric`` (Beckmann or GGX, Smith G, visible-normal
 sampling by default): Mitsuba's microfacet BSDFs of :mod:`impl.microfacet`
 (Walter et al. 2007), with the conductor Fresnel term at the sampled
 microfacet and ``specular_reflectance`` / ``specular_transmittance``.
@@ -87,7 +87,7 @@ from . import plastic as pl
 from .fresnel import fresnel_conductor, fresnel_dielectric
 from .materials import (KIND_CODES, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_PLASTIC,
                         MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MAT_ROUGHPLASTIC, MaterialArrays,
-                        PlasticArrays, material_arrays, plastic_arrays)
+                        PlasticArrays, distribution_codes, material_arrays, plastic_arrays)
 
 __all__ = ["bsdf_arrays", "BsdfArrays", "with_plastic", "MODELLED", "frame", "to_local", "to_world", "sample_cosine_hemisphere",
            "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "is_delta",
@@ -124,18 +124,23 @@ class BsdfArrays(NamedTuple):
     pl_fdr_int: np.ndarray      # (M,) plastic: inner diffuse Fresnel reflectance
     pl_ext_t: np.ndarray        # (M, TABLE_RES) roughplastic: coat transmittance over cos θ
     pl_int_r: np.ndarray        # (M,) roughplastic: internal diffuse reflectance
+    dist: np.ndarray            # (M,) int: microfacet distribution of the rough kinds (BECKMANN, GGX)
 
 
-def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None) -> BsdfArrays:
-    """``M``'s rows with ``P``'s plastic rows (none: rows of zeros, no plastic material)."""
+def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None,
+                 dist: np.ndarray | None = None) -> BsdfArrays:
+    """``M``'s rows with ``P``'s plastic rows (none: rows of zeros, no plastic material)
+    and the distribution codes ``dist`` (none: Beckmann everywhere)."""
     n = M.kind.shape[0]
     if P is None:
         P = PlasticArrays(np.zeros(n, dtype=np.int64), np.ones(n), np.zeros((n, 3)), np.zeros((n, 3)),
                           np.zeros(n), np.zeros(n, dtype=np.int64), np.zeros(n),
                           np.ones(n, dtype=np.int64), np.zeros(n), np.zeros((n, pl.TABLE_RES)),
                           np.zeros(n))
+    if dist is None:
+        dist = np.zeros(n, dtype=np.int64)
     return BsdfArrays(*M, P.eta, P.specular, P.spec_weight, P.nonlinear, P.alpha, P.visible,
-                      P.fdr_int, P.ext_t, P.int_r)
+                      P.fdr_int, P.ext_t, P.int_r, np.asarray(dist, dtype=np.int64))
 
 
 def bsdf_arrays(scene: Scene, *, algorithm: str = "path") -> BsdfArrays:
@@ -147,8 +152,10 @@ def bsdf_arrays(scene: Scene, *, algorithm: str = "path") -> BsdfArrays:
     NotImplementedError
         A BSDF kind not modelled, naming the shape (and see ``material_arrays``).
     """
-    M = material_arrays(scene, algorithm=algorithm, model="the path tracer", kinds=MODELLED)
-    return with_plastic(M, plastic_arrays(scene, algorithm=algorithm))
+    M = material_arrays(scene, algorithm=algorithm, model="the path tracer", kinds=MODELLED,
+                        distributions=tuple(mf.DISTRIBUTIONS))
+    return with_plastic(M, plastic_arrays(scene, algorithm=algorithm, distributions=tuple(mf.DISTRIBUTIONS)),
+                        distribution_codes(scene))
 
 
 # ------------------------------------------------------------------ frames ---
@@ -245,7 +252,7 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
             wo, pdf, w = pl.roughplastic_sample(wi, u0, u1, u2, B.pl_eta[mat], B.pl_alpha[mat],
                                                 B.pl_visible[mat] != 0, rho, B.pl_specular[mat],
                                                 B.pl_spec_weight[mat], B.pl_ext_t[mat],
-                                                B.pl_int_r[mat], B.pl_nonlinear[mat] != 0)
+                                                B.pl_int_r[mat], B.pl_nonlinear[mat] != 0, B.dist[mat])
             delta = False
         if not pdf > 0.0:
             return wo[0], wo[1], wo[2], 0.0, 0.0, 0.0, 0.0, False, 1.0
@@ -257,7 +264,7 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
         return -wix, -wiy, wiz, fr, fg, fb, 1.0, True, 1.0
     if k == MAT_ROUGHCONDUCTOR:
         ox, oy, oz, w, pdf, cos_ih = mf.conductor_sample(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
-                                                         B.visible[mat], wix, wiy, wiz, u1, u2)
+                                                         B.visible[mat], wix, wiy, wiz, u1, u2, B.dist[mat])
         if w <= 0.0 or pdf <= 0.0:
             return ox, oy, oz, 0.0, 0.0, 0.0, 0.0, False, 1.0
         fr, fg, fb = _conductor_fresnel(B, mat, cos_ih)
@@ -266,7 +273,7 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
     if k == MAT_ROUGHDIELECTRIC:
         ox, oy, oz, w, pdf, refl, eti = mf.dielectric_sample(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
                                                              B.visible[mat], eta, wix, wiy, wiz,
-                                                             u0, u1, u2)
+                                                             u0, u1, u2, B.dist[mat])
         if w <= 0.0 or pdf <= 0.0:
             return ox, oy, oz, 0.0, 0.0, 0.0, 0.0, False, 1.0
         if refl:
@@ -302,18 +309,19 @@ def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, 
             f = pl.plastic_eval(wi, wo, B.pl_eta[mat], rho, B.pl_fdr_int[mat], B.pl_nonlinear[mat] != 0)
         else:
             f = pl.roughplastic_eval(wi, wo, B.pl_eta[mat], B.pl_alpha[mat], rho, B.pl_specular[mat],
-                                     B.pl_ext_t[mat], B.pl_int_r[mat], B.pl_nonlinear[mat] != 0)
+                                     B.pl_ext_t[mat], B.pl_int_r[mat], B.pl_nonlinear[mat] != 0,
+                                     B.dist[mat])
         return f[0], f[1], f[2]
     if k == MAT_ROUGHCONDUCTOR:
         v, cos_ih = mf.conductor_eval(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH, wix, wiy, wiz,
-                                      wox, woy, woz)
+                                      wox, woy, woz, B.dist[mat])
         if v <= 0.0:
             return 0.0, 0.0, 0.0
         fr, fg, fb = _conductor_fresnel(B, mat, cos_ih)
         return v * fr, v * fg, v * fb
     if k == MAT_ROUGHDIELECTRIC:
         v, refl = mf.dielectric_eval(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
-                                     B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz)
+                                     B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz, B.dist[mat])
         if refl:
             return v * B.spec_refl[mat, 0], v * B.spec_refl[mat, 1], v * B.spec_refl[mat, 2]
         return v * B.spec_trans[mat, 0], v * B.spec_trans[mat, 1], v * B.spec_trans[mat, 2]
@@ -332,13 +340,13 @@ def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
         if k == MAT_PLASTIC:
             return pl.plastic_pdf(wi, wo, B.pl_eta[mat], B.pl_spec_weight[mat])
         return pl.roughplastic_pdf(wi, wo, B.pl_alpha[mat], B.pl_visible[mat] != 0, B.pl_spec_weight[mat],
-                                   B.pl_ext_t[mat])
+                                   B.pl_ext_t[mat], B.dist[mat])
     if k == MAT_ROUGHCONDUCTOR:
         return mf.conductor_pdf(mf.clamp_alpha(B.alpha[mat]), B.visible[mat], wix, wiy, wiz,
-                                wox, woy, woz)
+                                wox, woy, woz, B.dist[mat])
     if k == MAT_ROUGHDIELECTRIC:
         return mf.dielectric_pdf(mf.clamp_alpha(B.alpha[mat]), B.visible[mat],
-                                 B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz)
+                                 B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz, B.dist[mat])
     return 0.0
 
 

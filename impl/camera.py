@@ -58,7 +58,8 @@ def camera_params(camera: Camera, *, lens: bool = False) -> np.ndarray:
     if camera.kind == "thinlens" and not lens:
         raise UnsupportedError(
             "camera_params: a 'thinlens' sensor (depth of field) is modelled only by the "
-            "'distributed' ray tracer; use a 'perspective' sensor with this algorithm")
+            "'distributed' ray tracer and the 'path' tracer; use a 'perspective' sensor with "
+            "this algorithm")
     m = camera.to_world
     f = camera.film
     tx = camera.tan_half_fov_x if camera.kind != "orthographic" else 1.0

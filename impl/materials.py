@@ -7,14 +7,17 @@ defaults) into a :class:`MaterialArrays` named tuple, one row per material of
 
 * ``conductor`` / ``roughconductor``: ``specular_reflectance`` × the conductor
   Fresnel term of the complex index ``eta + i k`` (RGB).  ``material="none"``
-  (Mitsuba's default) is ``eta = 0, k = 1``: Fresnel = 1.  Named conductors
-  (``material="Au"``) are refused: their spectral IOR tables are not
-  tabulated here; give ``eta`` and ``k``.
+  (Mitsuba's default) is ``eta = 0, k = 1``: Fresnel = 1.  A named conductor
+  (``material="Au"``) takes the RGB ``eta``/``k`` Mitsuba's RGB variants
+  derive from its measured spectra, stored in ``impl/data/conductors_rgb.json``
+  (:func:`named_conductor`; written from Mitsuba by
+  ``references/conductor_table.py``, which records the version).
 * ``dielectric`` / ``roughdielectric``: ``int_ior`` (default BK7),
   ``ext_ior`` (default air), ``specular_reflectance``,
   ``specular_transmittance``.
 * ``roughconductor`` / ``roughdielectric``: ``alpha`` (default 0.1, Mitsuba's),
-  ``distribution`` (``beckmann``, the default; ``ggx`` is refused),
+  ``distribution`` (``beckmann``, the default; ``ggx`` only where the caller
+  lists it in ``distributions``: :func:`distribution_codes` gives the rows),
   ``sample_visible`` (default true).  Anisotropic ``alpha_u``/``alpha_v`` are
   accepted only when equal.
 
@@ -30,6 +33,9 @@ parameters are then :func:`plastic_arrays`'s.
 
 from __future__ import annotations
 
+import functools
+import json
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -38,9 +44,10 @@ from core.scene import Scene
 from core.errors import SceneError, UnsupportedError
 
 from .fresnel import lookup_ior
+from .microfacet import DISTRIBUTIONS
 from .scene_arrays import MATERIAL_CODES
 
-__all__ = ["MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
+__all__ = ["named_conductor", "distribution_codes", "CONDUCTOR_TABLE", "MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "MAT_PLASTIC",
            "MAT_ROUGHPLASTIC", "KIND_CODES",
            "DEFAULT_ALPHA"]
@@ -59,6 +66,27 @@ KIND_CODES = {"diffuse": MAT_DIFFUSE, "conductor": MAT_CONDUCTOR, "dielectric": 
 
 #: Mitsuba's default roughness of roughconductor / roughdielectric.
 DEFAULT_ALPHA = 0.1
+
+
+#: Mitsuba's named conductors as RGB complex indices (see the module docstring).
+CONDUCTOR_TABLE = Path(__file__).resolve().parent / "data" / "conductors_rgb.json"
+
+
+@functools.cache
+def _conductors() -> dict:
+    return json.loads(CONDUCTOR_TABLE.read_text())["materials"]
+
+
+def named_conductor(name: str, *, where: str = "conductor") -> tuple[np.ndarray, np.ndarray]:
+    """``(eta, k)``, RGB, of Mitsuba's conductor ``material=name`` (case-sensitive, as
+    Mitsuba); an unknown name raises :class:`SceneError` listing a few known ones."""
+    table = _conductors()
+    if name not in table:
+        raise SceneError(f"{where}: unknown conductor material '{name}' (Mitsuba's names, e.g. "
+                         f"{', '.join(n for n in ('Ag', 'Al', 'Au', 'Cr', 'Cu', 'W'))}; "
+                         f"{len(table)} in {CONDUCTOR_TABLE.name})")
+    row = table[name]
+    return np.asarray(row["eta"], dtype=np.float64), np.asarray(row["k"], dtype=np.float64)
 
 
 class MaterialArrays(NamedTuple):
@@ -95,14 +123,15 @@ def _and_list(items) -> str:
     return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
 
 
-def _roughness(p: dict, where: str) -> tuple[float, int]:
-    """(alpha, sample_visible) of a rough BSDF, Mitsuba's defaults and checks."""
+def _roughness(p: dict, where: str, distributions: tuple[str, ...] = ("beckmann",)) -> tuple[float, int]:
+    """(alpha, sample_visible) of a rough BSDF, Mitsuba's defaults and checks; its
+    ``distribution`` must be one of ``distributions``."""
     dist = str(p.get("distribution", "beckmann")).lower()
-    if dist == "ggx":
-        raise UnsupportedError(f"{where}: distribution 'ggx' is not modelled; only 'beckmann' "
-                                  "(the thesis's Cook-Torrance D) is")
-    if dist != "beckmann":
+    if dist not in DISTRIBUTIONS:
         raise SceneError(f"{where}: invalid distribution '{dist}' (Mitsuba accepts 'beckmann' or 'ggx')")
+    if dist not in distributions:
+        raise UnsupportedError(f"{where}: distribution '{dist}' is not modelled; only 'beckmann' "
+                                  "(the thesis's Cook-Torrance D) is")
     has_uv = "alpha_u" in p or "alpha_v" in p
     if "alpha" in p and has_uv:
         raise SceneError(f"{where}: give either 'alpha' or 'alpha_u'/'alpha_v' (as Mitsuba requires)")
@@ -125,7 +154,8 @@ def _roughness(p: dict, where: str) -> tuple[float, int]:
 
 def material_arrays(scene: Scene, *, algorithm: str = "whitted",
                     model: str = "the Whitted ray tracer",
-                    kinds: tuple[str, ...] = ("diffuse", "conductor", "dielectric")) -> MaterialArrays:
+                    kinds: tuple[str, ...] = ("diffuse", "conductor", "dielectric"),
+                    distributions: tuple[str, ...] = ("beckmann",)) -> MaterialArrays:
     """Check every used material against ``kinds`` and decode its BSDF parameters.
 
     Parameters
@@ -137,16 +167,19 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
         'y' BSDF, which {model} does not model"``).
     kinds
         The BSDF types the caller models (keys of :data:`KIND_CODES`).
+    distributions
+        The microfacet distributions the caller models (``beckmann``, ``ggx``);
+        the rows' codes are :func:`distribution_codes`'s.
 
     Raises
     ------
     NotImplementedError
         A material the algorithm does not model (naming the shape and the
-        material), a named conductor (``material="Au"``), a two-sided
+        material), a two-sided
         dielectric, a GGX distribution, anisotropic roughness.
     ValueError
         Conflicting or malformed parameters (e.g. both ``material`` and
-        ``eta`` on a conductor, an unknown IOR name, equal indices on a
+        ``eta`` on a conductor, an unknown IOR or conductor name, equal indices on a
         roughdielectric, a negative alpha).
     """
     unknown = [k for k in kinds if k not in KIND_CODES]
@@ -182,12 +215,14 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             if "eta" in p and material != "none":
                 raise SceneError(f"{where}: conductor gives both 'material' ('{material}') and "
                                  "'eta'; give one of them (as Mitsuba requires)")
-            if material != "none" and "eta" not in p:
-                raise UnsupportedError(
-                    f"{where}: conductor material '{material}' is not tabulated (its spectral "
-                    "IOR is not modelled); give 'eta' and 'k' as rgb values, or material='none'")
-            cond_eta[i] = _rgb_param(p, "eta", 0.0, where)
-            cond_k[i] = _rgb_param(p, "k", 1.0, where)
+            if material != "none":
+                if "k" in p:
+                    raise SceneError(f"{where}: conductor gives both 'material' ('{material}') and "
+                                     "'k'; give one of them (as Mitsuba requires)")
+                cond_eta[i], cond_k[i] = named_conductor(str(material), where=where)
+            else:
+                cond_eta[i] = _rgb_param(p, "eta", 0.0, where)
+                cond_k[i] = _rgb_param(p, "k", 1.0, where)
             spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
         elif m.kind in ("dielectric", "roughdielectric"):
             if m.twosided:
@@ -205,9 +240,19 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
             spec_trans[i] = _rgb_param(p, "specular_transmittance", 1.0, where)
         if m.kind in ("roughconductor", "roughdielectric"):
-            alpha[i], visible[i] = _roughness(p, where)
+            alpha[i], visible[i] = _roughness(p, where, distributions)
     return MaterialArrays(spec_refl, spec_trans, cond_eta, cond_k, diel_eta, diel_int, diel_ext,
                           kind, alpha, visible)
+
+
+def distribution_codes(scene: Scene) -> np.ndarray:
+    """(M,) int: the microfacet distribution of each rough material
+    (:data:`impl.microfacet.DISTRIBUTIONS`; Beckmann for the others)."""
+    out = np.zeros(len(scene.materials), dtype=np.int64)
+    for i, m in enumerate(scene.materials):
+        if m.kind in ("roughconductor", "roughdielectric", "roughplastic"):
+            out[i] = DISTRIBUTIONS.get(str(m.params.get("distribution", "beckmann")).lower(), 0)
+    return out
 
 
 class PlasticArrays(NamedTuple):
@@ -227,13 +272,14 @@ class PlasticArrays(NamedTuple):
     int_r: np.ndarray           # (M,) roughplastic: internal diffuse reflectance
 
 
-def plastic_arrays(scene: Scene, *, algorithm: str = "plastic") -> PlasticArrays:
+def plastic_arrays(scene: Scene, *, algorithm: str = "plastic",
+                   distributions: tuple[str, ...] = ("beckmann",)) -> PlasticArrays:
     """:class:`PlasticArrays` for ``scene.materials`` (only plastic kinds are decoded).
 
     Raises
     ------
     UnsupportedError
-        A ``ggx`` roughplastic (Beckmann only, as :func:`material_arrays`).
+        A roughplastic distribution not in ``distributions``.
     SceneError
         Malformed parameters (an unknown IOR name, equal indices on a roughplastic).
     """
@@ -246,7 +292,7 @@ def plastic_arrays(scene: Scene, *, algorithm: str = "plastic") -> PlasticArrays
     for i, m in enumerate(scene.materials):
         if m.kind not in ("plastic", "roughplastic"):
             continue
-        p = plastic_params(m, where=f"{algorithm}: material '{m.name or i}'")
+        p = plastic_params(m, where=f"{algorithm}: material '{m.name or i}'", distributions=distributions)
         out.is_plastic[i] = 1 if m.kind == "plastic" else 2
         out.eta[i], out.spec_weight[i], out.alpha[i] = p.eta, p.spec_weight, p.alpha
         out.diffuse[i], out.specular[i] = np.asarray(m.reflectance), p.specular

@@ -99,7 +99,18 @@ probability w_k and sampling its D cos (the pdf is the whole mixture's, so any
 lobe may have produced a given m).  :func:`mixture_arrays` checks and packs
 the two arrays.
 
-Leaves out: GGX (refused in :mod:`impl.materials`), anisotropic roughness.
+GGX
+---
+Every function above that depends on the distribution takes a trailing
+``dist`` (:data:`BECKMANN`, the default, or :data:`GGX`): Mitsuba's GGX
+(Trowbridge–Reitz) ``D(m) = 1 / (π α² cos⁴θ_m (1 + tan²θ_m / α²)²)``, its
+exact Smith ``G1 = 2 / (1 + √(1 + α² tan²θ))``, ``D cos`` sampling
+(``tan²θ_m = α² u1 / (1 − u1)``) and visible-normal sampling by Mitsuba's
+``sample_visible_11`` for GGX (a concentric disk point projected onto the
+hemisphere seen from wi; E. Heitz, "A simpler and exact sampling routine for
+the GGX distribution of visible normals", 2017).  For GGX the pdf's G1 is exact.
+
+Leaves out: anisotropic roughness.
 """
 
 from __future__ import annotations
@@ -112,8 +123,8 @@ from core.errors import ParamError
 
 from .fresnel import fresnel_dielectric
 
-__all__ = ["G_SMITH", "G_VCAVITY", "ALPHA_MIN", "clamp_alpha", "erfinv",
-           "beckmann_d", "cook_torrance_d", "gaussian_d", "gaussian_d_normalisation",
+__all__ = ["G_SMITH", "G_VCAVITY", "BECKMANN", "GGX", "DISTRIBUTIONS", "ALPHA_MIN", "clamp_alpha",
+           "erfinv", "beckmann_d", "ggx_d", "microfacet_d", "cook_torrance_d", "gaussian_d", "gaussian_d_normalisation",
            "smith_g1", "smith_g1_exact", "smith_g", "vcavity_g", "masking",
            "sample_normal", "normal_pdf", "sample_visible_normal", "visible_normal_pdf",
            "conductor_eval", "conductor_pdf", "conductor_sample",
@@ -121,6 +132,9 @@ __all__ = ["G_SMITH", "G_VCAVITY", "ALPHA_MIN", "clamp_alpha", "erfinv",
            "mixture_arrays", "mixture_d", "mixture_normal_pdf", "sample_mixture_normal"]
 
 G_SMITH, G_VCAVITY = 0, 1
+#: Microfacet distributions (the ``dist`` argument), by Mitsuba's ``distribution`` name.
+BECKMANN, GGX = 0, 1
+DISTRIBUTIONS = {"beckmann": BECKMANN, "ggx": GGX}
 #: Mitsuba clamps the roughness below at 1e-4 (``MicrofacetDistribution::configure``).
 ALPHA_MIN = 1e-4
 
@@ -193,6 +207,26 @@ def beckmann_d(alpha, mx, my, mz):
 
 
 @njit(cache=True)
+def ggx_d(alpha, mx, my, mz):
+    """Mitsuba's GGX D(m) = 1 / (π α² cos⁴θ (1 + tan²θ/α²)²) (0 for m_z ≤ 0)."""
+    a = clamp_alpha(alpha)
+    if mz <= 0.0:
+        return 0.0
+    c2 = mz * mz
+    t = 1.0 + (mx * mx + my * my) / (a * a * c2)
+    d = 1.0 / (math.pi * a * a * c2 * c2 * t * t)
+    return d if d * mz > 1e-20 else 0.0
+
+
+@njit(inline="always", cache=True)
+def microfacet_d(dist, alpha, mx, my, mz):
+    """D(m) of distribution ``dist`` (:data:`BECKMANN` or :data:`GGX`)."""
+    if dist == GGX:
+        return ggx_d(alpha, mx, my, mz)
+    return beckmann_d(alpha, mx, my, mz)
+
+
+@njit(cache=True)
 def cook_torrance_d(m, cos_alpha):
     """The thesis's accurate Cook–Torrance D(m, α) = exp(−(tan α / m)²) / (m² cos⁴ α).
 
@@ -229,14 +263,17 @@ def gaussian_d_normalisation(m: float) -> float:
 # ----------------------------------------------------- masking and shadowing ---
 
 @njit(cache=True)
-def smith_g1(alpha, vx, vy, vz, mx, my, mz):
-    """Smith's G1(v, m) for Beckmann, Mitsuba's rational approximation (see module doc)."""
+def smith_g1(alpha, vx, vy, vz, mx, my, mz, dist=BECKMANN):
+    """Smith's G1(v, m): for Beckmann Mitsuba's rational approximation, for GGX the exact
+    2 / (1 + √(1 + α² tan²θ)) (see module doc)."""
     a_ = clamp_alpha(alpha)
     if (vx * mx + vy * my + vz * mz) * vz <= 0.0:
         return 0.0                           # the back of the facet is not visible from v
     xy_alpha_2 = a_ * a_ * (vx * vx + vy * vy)
     if xy_alpha_2 == 0.0:
         return 1.0
+    if dist == GGX:
+        return 2.0 / (1.0 + math.sqrt(1.0 + xy_alpha_2 / (vz * vz)))
     a = abs(vz) / math.sqrt(xy_alpha_2)      # 1 / (α tan θ)
     if a >= 1.6:
         return 1.0
@@ -259,9 +296,9 @@ def smith_g1_exact(alpha, vx, vy, vz, mx, my, mz):
 
 
 @njit(cache=True)
-def smith_g(alpha, ix, iy, iz, ox, oy, oz, mx, my, mz):
+def smith_g(alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist=BECKMANN):
     """Separable Smith G = G1(wi, m) G1(wo, m) (Mitsuba's ``MicrofacetDistribution::G``)."""
-    return smith_g1(alpha, ix, iy, iz, mx, my, mz) * smith_g1(alpha, ox, oy, oz, mx, my, mz)
+    return smith_g1(alpha, ix, iy, iz, mx, my, mz, dist) * smith_g1(alpha, ox, oy, oz, mx, my, mz, dist)
 
 
 @njit(cache=True)
@@ -279,24 +316,30 @@ def vcavity_g(ix, iy, iz, ox, oy, oz, mx, my, mz):
 
 
 @njit(inline="always", cache=True)
-def masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, mx, my, mz):
-    """G of the chosen model: :data:`G_SMITH` or :data:`G_VCAVITY`."""
+def masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist=BECKMANN):
+    """G of the chosen model: :data:`G_SMITH` (of distribution ``dist``) or :data:`G_VCAVITY`."""
     if gmodel == G_VCAVITY:
         return vcavity_g(ix, iy, iz, ox, oy, oz, mx, my, mz)
-    return smith_g(alpha, ix, iy, iz, ox, oy, oz, mx, my, mz)
+    return smith_g(alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist)
 
 
 # ------------------------------------------------------ sampling the normal ---
 
 @njit(cache=True)
-def sample_normal(alpha, u1, u2):
+def sample_normal(alpha, u1, u2, dist=BECKMANN):
     """m ~ D(m) cos θ_m: ``(mx, my, mz, pdf)`` (Mitsuba, ``sample_visible=false``).
 
-    Inverting the CDF of tan²θ_m: ``cos θ_m = 1/√(1 − α² ln(1 − u1))``,
-    ``φ = 2π u2``; pdf ``(1 − u1) / (π α² cos³θ_m)`` = D(m) cos θ_m.
+    Inverting the CDF of tan²θ_m: Beckmann ``cos θ_m = 1/√(1 − α² ln(1 − u1))``,
+    pdf ``(1 − u1) / (π α² cos³θ_m)`` = D(m) cos θ_m; GGX ``tan²θ_m = α² u1 / (1 − u1)``,
+    pdf D(m) cos θ_m; ``φ = 2π u2``.
     """
     a = clamp_alpha(alpha)
     phi = 2.0 * math.pi * u2
+    if dist == GGX:
+        cos_t = 1.0 / math.sqrt(1.0 + a * a * u1 / (1.0 - u1))
+        sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+        mx, my = math.cos(phi) * sin_t, math.sin(phi) * sin_t
+        return mx, my, cos_t, ggx_d(alpha, mx, my, cos_t) * cos_t
     cos_t = 1.0 / math.sqrt(1.0 - a * a * math.log(1.0 - u1))
     c2 = cos_t * cos_t
     pdf = (1.0 - u1) / (math.pi * a * a * max(c2 * cos_t, 1e-20))
@@ -305,9 +348,36 @@ def sample_normal(alpha, u1, u2):
 
 
 @njit(cache=True)
-def normal_pdf(alpha, mx, my, mz):
+def normal_pdf(alpha, mx, my, mz, dist=BECKMANN):
     """Density D(m) cos θ_m of :func:`sample_normal` (solid angle of m)."""
-    return beckmann_d(alpha, mx, my, mz) * mz
+    return microfacet_d(dist, alpha, mx, my, mz) * mz
+
+
+@njit(cache=True)
+def _visible_slopes_ggx(cos_theta_i, u1, u2):
+    """Mitsuba's ``sample_visible_11`` for GGX: slopes of a visible normal, α = 1 (a
+    concentric disk point, squeezed towards the side wi sees, lifted to the hemisphere)."""
+    px, py = _concentric(u1, u2)
+    s = 0.5 * (1.0 + cos_theta_i)
+    py = (1.0 - s) * math.sqrt(max(0.0, 1.0 - px * px)) + s * py
+    z = math.sqrt(max(0.0, 1.0 - px * px - py * py))
+    sin_theta_i = math.sqrt(max(0.0, 1.0 - cos_theta_i * cos_theta_i))
+    norm = 1.0 / (sin_theta_i * py + cos_theta_i * z)
+    return (cos_theta_i * py - sin_theta_i * z) * norm, px * norm
+
+
+@njit(inline="always", cache=True)
+def _concentric(u1, u2):
+    """Shirley–Chiu concentric map of [0, 1)² onto the unit disk."""
+    a = 2.0 * u1 - 1.0
+    b = 2.0 * u2 - 1.0
+    if a == 0.0 and b == 0.0:
+        return 0.0, 0.0
+    if abs(a) > abs(b):
+        r, phi = a, (math.pi / 4.0) * (b / a)
+    else:
+        r, phi = b, math.pi / 2.0 - (math.pi / 4.0) * (a / b)
+    return r * math.cos(phi), r * math.sin(phi)
 
 
 @njit(cache=True)
@@ -331,7 +401,7 @@ def _visible_slopes(cos_theta_i, u1, u2):
 
 
 @njit(cache=True)
-def sample_visible_normal(alpha, ix, iy, iz, u1, u2):
+def sample_visible_normal(alpha, ix, iy, iz, u1, u2, dist=BECKMANN):
     """m ~ the visible normals seen from wi (``iz > 0``): ``(mx, my, mz, pdf)``.
 
     Heitz–d'Eon 2014 with Jakob's Beckmann inversion, as Mitsuba's
@@ -353,42 +423,46 @@ def sample_visible_normal(alpha, ix, iy, iz, u1, u2):
     else:
         cos_phi = max(-1.0, min(1.0, sx / sin_t))
         sin_phi = max(-1.0, min(1.0, sy / sin_t))
-    s1, s2 = _visible_slopes(sz, u1, u2)
+    if dist == GGX:
+        s1, s2 = _visible_slopes_ggx(sz, u1, u2)
+    else:
+        s1, s2 = _visible_slopes(sz, u1, u2)
     px = (cos_phi * s1 - sin_phi * s2) * a
     py = (sin_phi * s1 + cos_phi * s2) * a
     n = 1.0 / math.sqrt(px * px + py * py + 1.0)
     mx, my, mz = -px * n, -py * n, n
-    return mx, my, mz, visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, False)
+    return mx, my, mz, visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, False, dist)
 
 
 @njit(cache=True)
-def visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, exact):
-    """D_wi(m) = D(m) G1(wi, m) |wi·m| / cos θ_i; G1 rational (Mitsuba) or ``exact``."""
+def visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, exact, dist=BECKMANN):
+    """D_wi(m) = D(m) G1(wi, m) |wi·m| / cos θ_i; Beckmann's G1 rational (Mitsuba) or
+    ``exact``; GGX's G1 is exact either way."""
     if iz <= 0.0:
         return 0.0
-    g1 = smith_g1_exact(alpha, ix, iy, iz, mx, my, mz) if exact else \
-        smith_g1(alpha, ix, iy, iz, mx, my, mz)
-    return beckmann_d(alpha, mx, my, mz) * g1 * abs(ix * mx + iy * my + iz * mz) / iz
+    g1 = smith_g1_exact(alpha, ix, iy, iz, mx, my, mz) if exact and dist == BECKMANN else \
+        smith_g1(alpha, ix, iy, iz, mx, my, mz, dist)
+    return microfacet_d(dist, alpha, mx, my, mz) * g1 * abs(ix * mx + iy * my + iz * mz) / iz
 
 
 @njit(inline="always", cache=True)
-def _m_pdf(alpha, visible, ix, iy, iz, mx, my, mz):
+def _m_pdf(alpha, visible, ix, iy, iz, mx, my, mz, dist):
     if visible:
-        return visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, False)
-    return normal_pdf(alpha, mx, my, mz)
+        return visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, False, dist)
+    return normal_pdf(alpha, mx, my, mz, dist)
 
 
 @njit(inline="always", cache=True)
-def _sample_m(alpha, visible, ix, iy, iz, u1, u2):
+def _sample_m(alpha, visible, ix, iy, iz, u1, u2, dist):
     if visible:
-        return sample_visible_normal(alpha, ix, iy, iz, u1, u2)
-    return sample_normal(alpha, u1, u2)
+        return sample_visible_normal(alpha, ix, iy, iz, u1, u2, dist)
+    return sample_normal(alpha, u1, u2, dist)
 
 
 # ------------------------------------------------------- rough conductor ---
 
 @njit(cache=True)
-def conductor_eval(alpha, gmodel, ix, iy, iz, ox, oy, oz):
+def conductor_eval(alpha, gmodel, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
     """``roughconductor`` f·cos θ_o without Fresnel: ``(D G / (4 cos θ_i), cos_ih)``.
 
     0 unless both directions are above the surface (one-sided, as Mitsuba).
@@ -402,15 +476,15 @@ def conductor_eval(alpha, gmodel, ix, iy, iz, ox, oy, oz):
     hx *= n
     hy *= n
     hz *= n
-    d = beckmann_d(alpha, hx, hy, hz)
+    d = microfacet_d(dist, alpha, hx, hy, hz)
     if d == 0.0:
         return 0.0, 1.0
-    g = masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, hx, hy, hz)
+    g = masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, hx, hy, hz, dist)
     return d * g / (4.0 * iz), ix * hx + iy * hy + iz * hz
 
 
 @njit(cache=True)
-def conductor_pdf(alpha, visible, ix, iy, iz, ox, oy, oz):
+def conductor_pdf(alpha, visible, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
     """Solid-angle density of wo from :func:`conductor_sample`."""
     if iz <= 0.0 or oz <= 0.0:
         return 0.0
@@ -422,24 +496,24 @@ def conductor_pdf(alpha, visible, ix, iy, iz, ox, oy, oz):
     do = ox * hx + oy * hy + oz * hz
     if (ix * hx + iy * hy + iz * hz) <= 0.0 or do <= 0.0:
         return 0.0
-    return _m_pdf(alpha, visible, ix, iy, iz, hx, hy, hz) / (4.0 * do)
+    return _m_pdf(alpha, visible, ix, iy, iz, hx, hy, hz, dist) / (4.0 * do)
 
 
 @njit(cache=True)
-def conductor_sample(alpha, gmodel, visible, ix, iy, iz, u1, u2):
+def conductor_sample(alpha, gmodel, visible, ix, iy, iz, u1, u2, dist=BECKMANN):
     """Sample wo: ``(ox, oy, oz, weight, pdf, cos_ih)``; weight = f cos θ_o / pdf without F.
 
     weight = 0 (and pdf 0) for an invalid sample (wo below the surface).
     """
     if iz <= 0.0:
         return 0.0, 0.0, 1.0, 0.0, 0.0, 1.0
-    mx, my, mz, pm = _sample_m(alpha, visible, ix, iy, iz, u1, u2)
+    mx, my, mz, pm = _sample_m(alpha, visible, ix, iy, iz, u1, u2, dist)
     dim = ix * mx + iy * my + iz * mz
     ox, oy, oz = 2.0 * dim * mx - ix, 2.0 * dim * my - iy, 2.0 * dim * mz - iz
     if pm == 0.0 or oz <= 0.0 or dim <= 0.0:
         return ox, oy, oz, 0.0, 0.0, dim
     pdf = pm / (4.0 * dim)
-    val, _ = conductor_eval(alpha, gmodel, ix, iy, iz, ox, oy, oz)
+    val, _ = conductor_eval(alpha, gmodel, ix, iy, iz, ox, oy, oz, dist)
     return ox, oy, oz, val / pdf, pdf, dim
 
 
@@ -461,7 +535,7 @@ def _dielectric_half(eta, ix, iy, iz, ox, oy, oz):
 
 
 @njit(cache=True)
-def dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz):
+def dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
     """``roughdielectric`` f·|cos θ_o| (radiance transport), without specular_reflectance/transmittance.
 
     ``eta = int_ior / ext_ior``.  Returns ``(value, reflect)``.  Reflection:
@@ -477,9 +551,9 @@ def dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz):
         return 0.0, reflect
     dim = ix * mx + iy * my + iz * mz
     dom = ox * mx + oy * my + oz * mz
-    d = beckmann_d(alpha, mx, my, mz)
+    d = microfacet_d(dist, alpha, mx, my, mz)
     F, _, _, _ = fresnel_dielectric(dim, eta)
-    g = masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, mx, my, mz)
+    g = masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist)
     if reflect:
         return F * d * g / (4.0 * abs(iz)), True
     denom = dim + e * dom
@@ -490,7 +564,7 @@ def dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz):
 
 
 @njit(cache=True)
-def dielectric_pdf(alpha, visible, eta, ix, iy, iz, ox, oy, oz):
+def dielectric_pdf(alpha, visible, eta, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
     """Solid-angle density of wo from :func:`dielectric_sample` (lobe chosen with prob. F)."""
     if iz == 0.0:
         return 0.0
@@ -507,13 +581,13 @@ def dielectric_pdf(alpha, visible, eta, ix, iy, iz, ox, oy, oz):
         den = dim + e * dom
         jac = e * e * dom / (den * den)
     sgn = 1.0 if iz > 0.0 else -1.0
-    pm = _m_pdf(alpha, visible, sgn * ix, sgn * iy, sgn * iz, mx, my, mz)
+    pm = _m_pdf(alpha, visible, sgn * ix, sgn * iy, sgn * iz, mx, my, mz, dist)
     F, _, _, _ = fresnel_dielectric(dim, eta)
     return pm * (F if reflect else 1.0 - F) * abs(jac)
 
 
 @njit(cache=True)
-def dielectric_sample(alpha, gmodel, visible, eta, ix, iy, iz, u0, u1, u2):
+def dielectric_sample(alpha, gmodel, visible, eta, ix, iy, iz, u0, u1, u2, dist=BECKMANN):
     """Sample wo: ``(ox, oy, oz, weight, pdf, reflect, eta_ti)``.
 
     As Mitsuba's ``roughdielectric::sample``: a microfacet normal from the
@@ -525,7 +599,7 @@ def dielectric_sample(alpha, gmodel, visible, eta, ix, iy, iz, u0, u1, u2):
     if iz == 0.0:
         return 0.0, 0.0, 1.0, 0.0, 0.0, True, 1.0
     sgn = 1.0 if iz > 0.0 else -1.0
-    mx, my, mz, pm = _sample_m(alpha, visible, sgn * ix, sgn * iy, sgn * iz, u1, u2)
+    mx, my, mz, pm = _sample_m(alpha, visible, sgn * ix, sgn * iy, sgn * iz, u1, u2, dist)
     dim = ix * mx + iy * my + iz * mz
     F, cos_t, eta_it, eta_ti = fresnel_dielectric(dim, eta)
     if pm == 0.0:
@@ -542,8 +616,8 @@ def dielectric_sample(alpha, gmodel, visible, eta, ix, iy, iz, u0, u1, u2):
     # A sample on the wrong side of the macro-surface for its lobe is invalid.
     if (iz * oz > 0.0) != reflect:
         return ox, oy, oz, 0.0, 0.0, reflect, eti
-    val, _ = dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz)
-    pdf = dielectric_pdf(alpha, visible, eta, ix, iy, iz, ox, oy, oz)
+    val, _ = dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz, dist)
+    pdf = dielectric_pdf(alpha, visible, eta, ix, iy, iz, ox, oy, oz, dist)
     if pdf <= 0.0 or val <= 0.0:
         return ox, oy, oz, 0.0, 0.0, reflect, eti
     return ox, oy, oz, val / pdf, pdf, reflect, eti

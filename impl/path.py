@@ -42,7 +42,10 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   weighted by the power heuristic against it, as Mitsuba's ``path`` does.
 * Materials (:mod:`impl.bsdf`): ``diffuse`` (textures included), smooth
   ``conductor`` and ``dielectric``, ``roughconductor`` and
-  ``roughdielectric`` (Beckmann, Smith G; :mod:`impl.microfacet`);
+  ``roughdielectric`` (Beckmann, Smith G; :mod:`impl.microfacet`), named
+  conductors (``material="Au"``: Mitsuba's RGB indices,
+  :func:`impl.materials.named_conductor`), ``plastic`` and ``roughplastic``
+  (a textured ``diffuse_reflectance`` included: ρ(u, v) as for ``diffuse``);
   two-sided opaque materials.
 
 Spectral mode (``spectral=true``, :mod:`impl.spectral`): each path carries
@@ -70,7 +73,8 @@ of probability p per sample and n samples).
 
 Pixel sampling as in ``raycast``/``whitted`` (:mod:`impl.sampling`):
 ``spp = k²`` jittered strata with a box filter, returning the variance of
-the pixel mean.  Every ray goes through :mod:`impl.rays` (parameters
+the pixel mean.  A ``thinlens`` sensor adds a uniform aperture point per eye
+ray (:func:`impl.camera.eye_ray_lens`, Mitsuba's ``thinlens``).  Every ray goes through :mod:`impl.rays` (parameters
 ``intersect``, ``precision``, ``offset``, ``epsilon``).
 
 Counters: ``paths`` (= eye rays), ``shadow_rays``, ``bounce_rays``
@@ -403,7 +407,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
     _check(params)
     B = scene_memo(scene, "path.bsdf", lambda: bsdf_arrays(scene, algorithm="path"))
     A, L = scene_memo(scene, "path.lights", lambda: flatten_with_lights(scene))
-    cam = camera_params(scene.camera)
+    cam = camera_params(scene.camera, lens=True)
     H, W = scene.camera.film.height, scene.camera.film.width
     spp = params["spp"]
     R = ray_config_cached(scene, A, params, algorithm="path")
@@ -448,5 +452,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap", "plastic", "roughplastic"}),
+    models=frozenset({"envmap", "plastic", "roughplastic", "plastic texture"}),
 )

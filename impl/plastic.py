@@ -21,14 +21,14 @@ after Weidlich and Wilkie 2007):
   ``nonlinear=true`` replaces R by ρ·R (the colour shift of multiple
   internal bounces);
 * specular: F_i · specular_reflectance along the mirror direction
-  (``plastic``), or the Beckmann microfacet reflection F D G / (4 cos θ_i)
-  (``roughplastic``);
+  (``plastic``), or the microfacet reflection F D G / (4 cos θ_i) (``roughplastic``,
+  Beckmann or GGX: :mod:`impl.microfacet`);
 * lobe selection: specular with probability ∝ F_i · w (plastic) or
   (1 − T_i) · w (roughplastic), w = s̄ / (d̄ + s̄) from the mean specular and
   diffuse reflectances.
 
-Limits: Beckmann only (``ggx`` is refused by :func:`plastic_params`, as in
-:mod:`impl.materials`); isotropic roughness (as Mitsuba's roughplastic).  The
+Limits: isotropic roughness (as Mitsuba's roughplastic); a caller that models
+only Beckmann refuses ``ggx`` through :func:`plastic_params`'s ``distributions``.  The
 rough tables are integrated here with Mitsuba's quadrature (64 cosines, 32²
 Gauss-Legendre nodes over visible normals), in float64.
 """
@@ -44,7 +44,8 @@ from numba import njit
 from core.errors import SceneError, UnsupportedError
 
 from .fresnel import fresnel_dielectric, lookup_ior
-from .microfacet import beckmann_d, sample_visible_normal, sample_normal, smith_g1, normal_pdf
+from .microfacet import (BECKMANN, DISTRIBUTIONS, microfacet_d, normal_pdf, sample_normal,
+                         sample_visible_normal, smith_g1)
 
 __all__ = ["PlasticParams", "plastic_params", "fresnel_diffuse_reflectance", "rough_tables",
            "plastic_eval", "plastic_pdf", "plastic_sample", "roughplastic_eval", "roughplastic_pdf",
@@ -65,11 +66,12 @@ class PlasticParams(NamedTuple):
     specular: np.ndarray        # (3,) specular_reflectance (1 when absent)
     spec_weight: float          # s̄ / (d̄ + s̄)
     nonlinear: bool
-    alpha: float                # Beckmann roughness (roughplastic)
+    alpha: float                # roughness (roughplastic)
     visible: bool               # sample visible normals (roughplastic)
     fdr_int: float              # plastic: inner diffuse Fresnel reflectance
     ext_t: np.ndarray           # roughplastic: (TABLE_RES,) coat transmittance over cos θ
     int_r: float                # roughplastic: internal diffuse reflectance
+    dist: int = BECKMANN        # roughplastic: microfacet distribution (impl.microfacet code)
 
 
 @njit(cache=True)
@@ -84,7 +86,7 @@ def fresnel_diffuse_reflectance(eta):
 
 
 @njit(cache=True)
-def _table_integrals(alpha, eta, nodes, weights):
+def _table_integrals(alpha, eta, nodes, weights, dist):
     """(transmittance over TABLE_RES cosines with η, internal reflectance with 1/η)."""
     n = TABLE_RES
     trans = np.zeros(n)
@@ -99,7 +101,7 @@ def _table_integrals(alpha, eta, nodes, weights):
                 u1 = nodes[b] * 0.5 + 0.5       # meshgrid: x varies fastest
                 u2 = nodes[a] * 0.5 + 0.5
                 w = weights[a] * weights[b] * 0.25
-                mx, my, mz, _ = sample_visible_normal(alpha, ix, iy, iz, u1, u2)
+                mx, my, mz, _ = sample_visible_normal(alpha, ix, iy, iz, u1, u2, dist)
                 c = ix * mx + iy * my + iz * mz
                 # transmission through the coat (η)
                 f, cos_t, eta_it, eta_ti = fresnel_dielectric(c, eta)
@@ -107,28 +109,28 @@ def _table_integrals(alpha, eta, nodes, weights):
                 oy = eta_ti * -iy + (eta_ti * c + cos_t) * my
                 oz = eta_ti * -iz + (eta_ti * c + cos_t) * mz
                 if oz * iz < 0.0:
-                    t_sum += smith_g1(alpha, ox, oy, oz, mx, my, mz) * (1.0 - f) * w
+                    t_sum += smith_g1(alpha, ox, oy, oz, mx, my, mz, dist) * (1.0 - f) * w
                 # reflection from inside (1/η)
                 f2 = fresnel_dielectric(c, 1.0 / eta)[0]
                 rx, ry, rz = 2.0 * c * mx - ix, 2.0 * c * my - iy, 2.0 * c * mz - iz
                 if rz > 0.0 and iz > 0.0:
-                    r_sum += smith_g1(alpha, rx, ry, rz, mx, my, mz) * f2 * w
+                    r_sum += smith_g1(alpha, rx, ry, rz, mx, my, mz, dist) * f2 * w
         trans[k] = t_sum
         refl[k] = r_sum * mu
     return trans, 2.0 * refl.mean()
 
 
-def rough_tables(alpha: float, eta: float) -> tuple[np.ndarray, float]:
-    """Mitsuba's roughplastic tables for Beckmann ``alpha`` and ``eta``: the coat's
+def rough_tables(alpha: float, eta: float, dist: int = BECKMANN) -> tuple[np.ndarray, float]:
+    """Mitsuba's roughplastic tables for ``alpha`` of distribution ``dist`` and ``eta``: the coat's
     transmittance at TABLE_RES evenly spaced cos θ ∈ [0, 1] and its internal diffuse
     reflectance 2 ⟨R(μ) μ⟩ (32² Gauss-Legendre nodes over visible normals for η > 1,
     128² otherwise; ``roughplastic.cpp``'s ``parameters_changed``)."""
     res_t = 32 if eta > 1.0 else 128
     nodes, weights = np.polynomial.legendre.leggauss(res_t)
-    trans, _ = _table_integrals(alpha, eta, nodes, weights)
+    trans, _ = _table_integrals(alpha, eta, nodes, weights, dist)
     res_r = 32 if 1.0 / eta > 1.0 else 128
     nodes, weights = np.polynomial.legendre.leggauss(res_r)
-    _, int_r = _table_integrals(alpha, eta, nodes, weights)
+    _, int_r = _table_integrals(alpha, eta, nodes, weights, dist)
     return trans, float(int_r)
 
 
@@ -141,10 +143,12 @@ def _rgb(p: dict, name: str, default: float, where: str) -> np.ndarray:
     return a
 
 
-def plastic_params(material, *, where: str = "plastic") -> PlasticParams:
+def plastic_params(material, *, where: str = "plastic",
+                   distributions: tuple[str, ...] = ("beckmann",)) -> PlasticParams:
     """Decode a :class:`core.scene.Material` of kind ``plastic``/``roughplastic``
     with Mitsuba's defaults (int_ior polypropylene, ext_ior air, diffuse 0.5,
-    alpha 0.1, beckmann, sample_visible true, nonlinear false).  Textured
+    alpha 0.1, beckmann, sample_visible true, nonlinear false); ``distributions``:
+    those the caller models (a roughplastic with another is refused).  Textured
     reflectances enter as their means (the lobe weight, as Mitsuba); the
     per-point values are the caller's lookups (:mod:`impl.textures`)."""
     p = material.params
@@ -166,15 +170,20 @@ def plastic_params(material, *, where: str = "plastic") -> PlasticParams:
     ext_t, int_r = np.zeros(TABLE_RES), 0.0
     if material.kind == "roughplastic":
         dist = str(p.get("distribution", "beckmann")).lower()
-        if dist != "beckmann":
+        if dist not in DISTRIBUTIONS:
+            raise SceneError(f"{where}: invalid distribution '{dist}' (Mitsuba accepts 'beckmann' or 'ggx')")
+        if dist not in distributions:
             raise UnsupportedError(f"{where}: roughplastic distribution '{dist}' is not modelled; "
-                                   "only 'beckmann' is")
+                                   f"only {' and '.join(repr(d) for d in distributions)}")
         alpha = float(p.get("alpha", 0.1))
         visible = bool(p.get("sample_visible", True))
-        ext_t, int_r = rough_tables(alpha, eta)
+        code = DISTRIBUTIONS[dist]
+        ext_t, int_r = rough_tables(alpha, eta, code)
+    else:
+        code = BECKMANN
     return PlasticParams(material.kind, eta, diffuse, specular, s_mean / (d_mean + s_mean),
                          bool(p.get("nonlinear", False)), alpha, visible,
-                         float(fresnel_diffuse_reflectance(1.0 / eta)), ext_t, int_r)
+                         float(fresnel_diffuse_reflectance(1.0 / eta)), ext_t, int_r, code)
 
 
 # ------------------------------------------------------------- plastic ---
@@ -251,18 +260,19 @@ def _lerp_table(table, x):
 
 
 @njit(cache=True)
-def roughplastic_eval(wi, wo, eta, alpha, diffuse, specular, ext_t, int_r, nonlinear):
-    """``roughplastic`` BSDF times cos θ_o (RGB): Beckmann reflection off the coat
-    plus the diffuse base seen through it."""
+def roughplastic_eval(wi, wo, eta, alpha, diffuse, specular, ext_t, int_r, nonlinear, dist=BECKMANN):
+    """``roughplastic`` BSDF times cos θ_o (RGB): microfacet reflection off the coat
+    (distribution ``dist``) plus the diffuse base seen through it."""
     out = np.zeros(3)
     if wi[2] <= 0.0 or wo[2] <= 0.0:
         return out
     hx, hy, hz = wi[0] + wo[0], wi[1] + wo[1], wi[2] + wo[2]
     inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
     hx, hy, hz = hx * inv, hy * inv, hz * inv
-    d = beckmann_d(alpha, hx, hy, hz)
+    d = microfacet_d(dist, alpha, hx, hy, hz)
     f = fresnel_dielectric(wi[0] * hx + wi[1] * hy + wi[2] * hz, eta)[0]
-    g = smith_g1(alpha, wi[0], wi[1], wi[2], hx, hy, hz) * smith_g1(alpha, wo[0], wo[1], wo[2], hx, hy, hz)
+    g = smith_g1(alpha, wi[0], wi[1], wi[2], hx, hy, hz, dist) * \
+        smith_g1(alpha, wo[0], wo[1], wo[2], hx, hy, hz, dist)
     spec = f * d * g / (4.0 * wi[2])
     t_i = _lerp_table(ext_t, wi[2])
     t_o = _lerp_table(ext_t, wo[2])
@@ -273,7 +283,7 @@ def roughplastic_eval(wi, wo, eta, alpha, diffuse, specular, ext_t, int_r, nonli
 
 
 @njit(cache=True)
-def roughplastic_pdf(wi, wo, alpha, visible, spec_weight, ext_t):
+def roughplastic_pdf(wi, wo, alpha, visible, spec_weight, ext_t, dist=BECKMANN):
     """Solid-angle density of :func:`roughplastic_sample`."""
     if wi[2] <= 0.0 or wo[2] <= 0.0:
         return 0.0
@@ -285,15 +295,16 @@ def roughplastic_pdf(wi, wo, alpha, visible, spec_weight, ext_t):
     inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
     hx, hy, hz = hx * inv, hy * inv, hz * inv
     if visible:
-        spec = beckmann_d(alpha, hx, hy, hz) * smith_g1(alpha, wi[0], wi[1], wi[2], hx, hy, hz) / (4.0 * wi[2])
+        spec = microfacet_d(dist, alpha, hx, hy, hz) * \
+            smith_g1(alpha, wi[0], wi[1], wi[2], hx, hy, hz, dist) / (4.0 * wi[2])
     else:
-        spec = normal_pdf(alpha, hx, hy, hz) / (4.0 * (wo[0] * hx + wo[1] * hy + wo[2] * hz))
+        spec = normal_pdf(alpha, hx, hy, hz, dist) / (4.0 * (wo[0] * hx + wo[1] * hy + wo[2] * hz))
     return spec * ps + (1.0 - ps) * wo[2] * _INV_PI
 
 
 @njit(cache=True)
 def roughplastic_sample(wi, u1, u2, u3, eta, alpha, visible, diffuse, specular, spec_weight,
-                        ext_t, int_r, nonlinear):
+                        ext_t, int_r, nonlinear, dist=BECKMANN):
     """``(wo, pdf, weight = eval / pdf)``: a microfacet reflection with probability
     ∝ (1 − T_i) w, else a cosine-weighted direction; ``pdf`` is the mixture's."""
     wo = np.zeros(3)
@@ -305,16 +316,17 @@ def roughplastic_sample(wi, u1, u2, u3, eta, alpha, visible, diffuse, specular, 
     ps = ps / (ps + pd)
     if u1 < ps:
         if visible:
-            mx, my, mz, _ = sample_visible_normal(alpha, wi[0], wi[1], wi[2], u2, u3)
+            mx, my, mz, _ = sample_visible_normal(alpha, wi[0], wi[1], wi[2], u2, u3, dist)
         else:
-            mx, my, mz, _ = sample_normal(alpha, u2, u3)
+            mx, my, mz, _ = sample_normal(alpha, u2, u3, dist)
         c = 2.0 * (wi[0] * mx + wi[1] * my + wi[2] * mz)
         wo[0], wo[1], wo[2] = c * mx - wi[0], c * my - wi[1], c * mz - wi[2]
     else:
         r = math.sqrt(u2)
         phi = 2.0 * math.pi * u3
         wo[0], wo[1], wo[2] = r * math.cos(phi), r * math.sin(phi), math.sqrt(max(0.0, 1.0 - u2))
-    pdf = roughplastic_pdf(wi, wo, alpha, visible, spec_weight, ext_t)
+    pdf = roughplastic_pdf(wi, wo, alpha, visible, spec_weight, ext_t, dist)
     if not pdf > 0.0:
         return wo, 0.0, np.zeros(3)
-    return wo, pdf, roughplastic_eval(wi, wo, eta, alpha, diffuse, specular, ext_t, int_r, nonlinear) / pdf
+    return wo, pdf, roughplastic_eval(wi, wo, eta, alpha, diffuse, specular, ext_t, int_r, nonlinear,
+                                      dist) / pdf

@@ -35,7 +35,7 @@ from .textures import FILTER_BILINEAR, FILTER_NEAREST, WRAP_CLAMP, WRAP_MIRROR, 
 WRAP_CODES = {"repeat": WRAP_REPEAT, "clamp": WRAP_CLAMP, "mirror": WRAP_MIRROR}
 FILTER_CODES = {"bilinear": FILTER_BILINEAR, "nearest": FILTER_NEAREST}
 
-__all__ = ["SceneArrays", "flatten", "flatten_cached", "scene_memo", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
+__all__ = ["SceneArrays", "diffuse_texture", "flatten", "flatten_cached", "scene_memo", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
            "TEX_NONE", "TEX_CHECKERBOARD", "TEX_BITMAP", "MATERIAL_CODES"]
 
 LIGHT_POINT, LIGHT_DIRECTIONAL, LIGHT_SPOT = 0, 1, 2
@@ -96,6 +96,16 @@ MATERIAL_CODES = {"diffuse": 0, "conductor": 1, "dielectric": 2, "roughconductor
                   "plastic": 5, "roughplastic": 6}
 
 
+def diffuse_texture(m) -> dict | None:
+    """The texture of material ``m``'s diffuse reflectance ρ, or None: a diffuse BSDF's
+    ``reflectance`` texture, a plastic's ``diffuse_reflectance`` texture."""
+    if m.texture is not None:
+        return m.texture
+    if m.kind in ("plastic", "roughplastic"):
+        return m.textures.get("diffuse_reflectance")
+    return None
+
+
 def flatten(scene: Scene) -> SceneArrays:
     spheres = [s for s in scene.shapes if s.kind == "sphere"]
     meshes = [s for s in scene.shapes if s.kind == "mesh"]
@@ -140,19 +150,19 @@ def flatten(scene: Scene) -> SceneArrays:
         em_offset.append(len(em_tri))
 
     tex_codes = {"checkerboard": TEX_CHECKERBOARD, "bitmap": TEX_BITMAP}
-    mats = scene.materials
-    mat_tex = [tex_codes[m.texture["type"]] if m.texture else TEX_NONE for m in mats]
-    is_cb = [m.texture is not None and m.texture["type"] == "checkerboard" for m in mats]
-    mat_tex_c0 = [m.texture["color0"] if cb else (0.0, 0.0, 0.0) for m, cb in zip(mats, is_cb)]
-    mat_tex_c1 = [m.texture["color1"] if cb else (0.0, 0.0, 0.0) for m, cb in zip(mats, is_cb)]
+    texs = [diffuse_texture(m) for m in scene.materials]   # the textures ρ(u, v) reads
+    mat_tex = [tex_codes[t["type"]] if t else TEX_NONE for t in texs]
+    is_cb = [t is not None and t["type"] == "checkerboard" for t in texs]
+    mat_tex_c0 = [t["color0"] if cb else (0.0, 0.0, 0.0) for t, cb in zip(texs, is_cb)]
+    mat_tex_c1 = [t["color1"] if cb else (0.0, 0.0, 0.0) for t, cb in zip(texs, is_cb)]
     texels, tex_offset, tex_size, tex_wrap, tex_filter, n_texels = [], [], [], [], [], 0
-    for m in mats:
-        if m.texture is not None and m.texture["type"] == "bitmap":
-            img = np.asarray(m.texture["data"], dtype=np.float64)
+    for t in texs:
+        if t is not None and t["type"] == "bitmap":
+            img = np.asarray(t["data"], dtype=np.float64)
             tex_offset.append(n_texels)
             tex_size.append((img.shape[1], img.shape[0]))
-            tex_wrap.append(WRAP_CODES[m.texture["wrap_mode"]])
-            tex_filter.append(FILTER_CODES[m.texture["filter_type"]])
+            tex_wrap.append(WRAP_CODES[t["wrap_mode"]])
+            tex_filter.append(FILTER_CODES[t["filter_type"]])
             texels.append(img.reshape(-1, 3))
             n_texels += img.shape[0] * img.shape[1]
         else:
@@ -160,7 +170,7 @@ def flatten(scene: Scene) -> SceneArrays:
             tex_size.append((0, 0))
             tex_wrap.append(0)
             tex_filter.append(0)
-    mat_tex_uv = [np.asarray(m.texture["to_uv"])[:2] if m.texture else np.eye(3)[:2] for m in mats]
+    mat_tex_uv = [np.asarray(t["to_uv"])[:2] if t else np.eye(3)[:2] for t in texs]
 
     envmap = getattr(scene, "envmap", None)
     if envmap is not None:

@@ -112,6 +112,10 @@ def spectral_arrays(scene: Scene, A, L) -> SpectralArrays:
         if m.kind in ("plastic", "roughplastic"):
             raise UnsupportedError(f"path (spectral=true): {where}: plastic BSDFs are not modelled "
                                    "in spectral mode")
+        if m.kind in ("conductor", "roughconductor") and m.params.get("material", "none") != "none":
+            raise UnsupportedError(f"path (spectral=true): {where}: the named conductor "
+                                   f"'{m.params['material']}' is tabulated in RGB only; its spectral "
+                                   "IOR is not modelled")
         if m.texture is not None:
             raise UnsupportedError(f"path (spectral=true): {where}: textures are not "
                                       "supported in spectral mode")

@@ -54,12 +54,16 @@ from core.algorithm import RenderResult
 
 from .accel import closest_rays, occluded_rays
 from .accel.packets import TILE, packet_hits
-from .camera import eye_ray
+from .camera import SENSOR_THINLENS, eye_ray, eye_ray_lens
 from .intersect import like
 from .kernel import batch_kernel
+from .rng import uniform
 from .rays import PARAMS as RAY_PARAMS, RayConfig, ray_config
 from .sampling import pixel_sample, strata, variance_of_mean
 from .scene_arrays import scene_memo
+
+#: The random dimensions of a thin lens's aperture sample (beyond any tracer's own).
+DIM_LENS = 1 << 29
 
 __all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "film_result", "new_batch",
            "new_points",
@@ -205,7 +209,9 @@ def new_points(n, R: RayConfig, counters=0):
 def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     """Sample ``s`` of the tile's pixels: the eye rays (pixel centre for spp = 1, else
     the sample ``s`` of ``sampler``: jittered stratum or Sobol point,
-    :func:`impl.sampling.pixel_sample`), rounded to R's precision, and their closest
+    :func:`impl.sampling.pixel_sample`; through a lens point drawn from the random
+    dimensions ``DIM_LENS``, ``DIM_LENS + 1`` for a ``thinlens`` sensor,
+    :func:`impl.camera.eye_ray_lens`), rounded to R's precision, and their closest
     hits into ``T.t`` / ``T.prim`` / ``T.b``."""
     k = strata(spp)
     g = R.sph_radius
@@ -213,7 +219,12 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     for i in range(T.n):
         x, y = T.x0 + i % T.nx, T.y0 + i // T.nx
         fx, fy = pixel_sample(spp, k, s, seed, T.pixel[i], sampler, x, y)
-        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
+        if cam[18] == SENSOR_THINLENS:     # a lens point (camera_params(..., lens=True) only)
+            ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray_lens(
+                cam, x + fx, y + fy, uniform(seed, T.pixel[i], s, DIM_LENS),
+                uniform(seed, T.pixel[i], s, DIM_LENS + 1))
+        else:
+            ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
         ray[OX, i], ray[OY, i], ray[OZ, i] = float(like(g, ox)), float(like(g, oy)), float(like(g, oz))
         ray[DX, i], ray[DY, i], ray[DZ, i] = float(like(g, dx)), float(like(g, dy)), float(like(g, dz))
         ray[TMIN, i], ray[TMAX, i] = tmin, tmax

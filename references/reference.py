@@ -65,7 +65,7 @@ from core.errors import ParamError, ReferenceError_, SceneError, UnsupportedErro
 from core.imageio import ImageError, as_rgb, check_finite
 from core.loader import MAX_FILM_PIXELS, MAX_FILM_SIDE
 from core.xmlscene import check_defines as _check_defines
-from core.xmlscene import parse_file, resolve as resolve_xml, substitute
+from core.xmlscene import expanded, parse_file, resolve as resolve_xml, substitute
 
 from .mitsuba_env import load_mitsuba, mitsuba_versions, spectral_variant
 from .motion_blur import has_motion
@@ -478,6 +478,10 @@ def prepare_scene_xml(scene_path, *, transport: str = "full", spp_per_pass: int 
     scene = _scene_file(scene_path)
     _check_film_size(scene, defines)
     tree = _parse(scene)
+    if any(True for _ in tree.getroot().iter("include")):
+        # The sensor or the integrator may come from an included file: override them
+        # in the expanded scene (core.xmlscene.expanded), which Mitsuba loads as the file.
+        tree = etree.ElementTree(expanded(scene, defines))
     root = tree.getroot()
     defines = _check_defines(defines)
     _apply_defines(root, defines)

@@ -217,14 +217,15 @@ def test_rectangle_light_sampling():
 
 # ------------------------------------------------------ rough BSDFs ---
 
-def _rough_materials(kind, alpha, eta=1.5):
+def _rough_materials(kind, alpha, eta=1.5, dist=0):
     from impl.materials import MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC
 
     code = {"roughconductor": MAT_ROUGHCONDUCTOR, "roughdielectric": MAT_ROUGHDIELECTRIC}[kind]
     o = np.ones((1, 3))
     return bsdf.with_plastic(MaterialArrays(o, o, np.zeros((1, 3)), o.copy(), np.array([eta]),
                                             np.array([eta]), np.ones(1), np.array([code]),
-                                            np.array([alpha]), np.ones(1, np.int64)))
+                                            np.array([alpha]), np.ones(1, np.int64)),
+                             dist=np.array([dist]))
 
 
 @njit
@@ -247,13 +248,17 @@ def _bsdf_pdfs(B, wi, w):
     return out
 
 
-@pytest.mark.parametrize("kind,alpha,theta", [("roughconductor", 0.3, 40.0),
-                                              ("roughdielectric", 0.4, 30.0),
-                                              ("roughdielectric", 0.25, 150.0)])
-def test_rough_bsdf_sampling(kind, alpha, theta):
-    """The path tracer's rough-BSDF sampling (lobe choice, Beckmann visible normals,
-    Fresnel) against its own pdf, for wi outside and (θ > 90°) inside the glass."""
-    B = _rough_materials(kind, alpha)
+@pytest.mark.parametrize("kind,alpha,theta,dist", [("roughconductor", 0.3, 40.0, 0),
+                                                   ("roughdielectric", 0.4, 30.0, 0),
+                                                   ("roughdielectric", 0.25, 150.0, 0),
+                                                   ("roughconductor", 0.3, 40.0, 1),
+                                                   ("roughdielectric", 0.4, 30.0, 1),
+                                                   ("roughdielectric", 0.25, 150.0, 1)],
+                         ids=lambda v: {0: "beckmann", 1: "ggx"}.get(v) if isinstance(v, int) else None)
+def test_rough_bsdf_sampling(kind, alpha, theta, dist):
+    """The path tracer's rough-BSDF sampling (lobe choice, Beckmann or GGX visible
+    normals, Fresnel) against its own pdf, for wi outside and (θ > 90°) inside the glass."""
+    B = _rough_materials(kind, alpha, dist=dist)
     th = math.radians(theta)
     wi = np.array([math.sin(th), 0.0, math.cos(th)])
     s = _bsdf_samples(N, 4, B, wi)
@@ -264,7 +269,7 @@ def test_rough_bsdf_sampling(kind, alpha, theta):
         return _bsdf_pdfs(B, wi, w)
 
     def wrong(w):   # a 10% rougher distribution
-        return _bsdf_pdfs(_rough_materials(kind, alpha * 1.1), wi, w)
+        return _bsdf_pdfs(_rough_materials(kind, alpha * 1.1, dist=dist), wi, w)
 
     # Invalid samples (wo on the wrong side for its lobe) carry pdf mass no valid
     # direction has: the valid directions' pdf integrates to the valid fraction.

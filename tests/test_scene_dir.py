@@ -116,3 +116,21 @@ def test_directory_options_are_refused_for_a_suite_run(tmp_path, capsys):
     code = main(["run", "vocabulary", "--set", "spp=4", "--results", str(tmp_path / "r.jsonl")])
     err = capsys.readouterr().err
     assert code == 2 and "--set only apply with --scenes DIR" in err
+
+
+def test_path_takes_the_files_max_depth_unless_set(tmp_path):
+    """The reference renders a file's ``<integrator type="path">`` max_depth; a directory
+    run of ``path`` takes it too (``--set max_depth`` wins), raycast has no such depth."""
+    from gibench import scene_dir
+
+    d = tmp_path / "scenes"
+    d.mkdir()
+    body = f'{CAMERA}{SPHERE.format(bsdf="diffuse")}</scene>\n'
+    _write(d, "a_depth1.xml", '<scene version="3.0.0"><integrator type="path"><integer name="max_depth" '
+                              f'value="1"/></integrator>{body}')
+    _write(d, "b_direct.xml", f'<scene version="3.0.0"><integrator type="direct"/>{body}')
+    cases = scene_dir.directory_suite(d, "path").cases
+    assert [c.params for c in cases] == [{"max_depth": 1}, {}]
+    cases = scene_dir.directory_suite(d, "path", {"max_depth": "3"}).cases
+    assert [c.params for c in cases] == [{"max_depth": "3"}] * 2
+    assert [c.params for c in scene_dir.directory_suite(d, "raycast").cases] == [{}, {}]

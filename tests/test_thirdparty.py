@@ -24,16 +24,10 @@ SCENES = sorted([*ROOT.glob("docs/scenes/*.xml"), *ROOT.glob("scenes/*/*.xml"),
 
 #: Files refused, with the reason each is refused (a substring of the message).
 REFUSED = {
-    "bsdf_blendbsdf.xml": "unsupported bsdf type 'blendbsdf'",
-    "bsdf_mask_after.xml": "unsupported bsdf type 'mask'",
-    "bsdf_thindielectric_glass.xml": "unsupported bsdf type 'thindielectric'",
     # Upstream, these need a <path> the documentation build adds (and -D spp=...).
     "sensor_orthographic.xml": "not found",
     # Upstream, the mesh it names does not exist (Mitsuba refuses it too).
     "sensor_orthographic_2.xml": "not found",
-    "test_envmap_path.xml": "unsupported bsdf type 'mask'",
-    "test_constant_path.xml": "unsupported bsdf type 'mask'",
-    "test_pointlight_path.xml": "unsupported bsdf type 'mask'",
     "test_texturedprincipled1_path.xml": "not a model of the thesis",
 }
 
@@ -63,7 +57,7 @@ def test_load_or_refuse_with_one_line():
     assert set(refused) == set(REFUSED), sorted(set(refused) ^ set(REFUSED))
     for name, why in REFUSED.items():
         assert why in refused[name], (name, refused[name])
-    assert len(loaded) == len(SCENES) - len(REFUSED) == 58
+    assert len(loaded) == len(SCENES) - len(REFUSED) == 64
 
 
 def _closest_hits(scene, o, d):
@@ -136,11 +130,11 @@ def test_instancing_hits_match_mitsuba(mitsuba, name):
 
 #: Of the files that load, those the path tracer renders (8x6 pixels, 1 spp,
 #: max_depth 3 here); the others are refused by name before rendering (textured
-#: parameters, projector, normal/bump maps, a textured spot, thin-lens sensors,
-#: named conductor materials, GGX roughplastic).
-PATH_RENDERS = 33
+#: parameters other than a plastic's diffuse reflectance, projector, normal/bump
+#: maps, a textured spot, anisotropic roughness, mask, blendbsdf, thindielectric).
+PATH_RENDERS = 46
 #: Of those, the scenes lit by an envmap and those with a plastic or roughplastic shape.
-ENVMAPS, PLASTICS = 19, 6
+ENVMAPS, PLASTICS = 32, 14
 
 
 def test_path_renders_or_refuses_by_name():
@@ -181,6 +175,6 @@ def test_path_renders_or_refuses_by_name():
         print(f"  refused {name}: {msg}")
     assert len(rendered) == PATH_RENDERS
     assert (envmaps, plastics) == (ENVMAPS, PLASTICS)
-    reasons = ("which path does not model", "is modelled only by", "is not tabulated",
+    reasons = ("which path does not model", "is modelled only by", "anisotropic roughness",
                "is not modelled; only 'beckmann' is")
     assert all(any(r in msg for r in reasons) for msg in refused.values()), refused
