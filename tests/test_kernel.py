@@ -25,7 +25,7 @@ ALLOCATING = [tracer.closest_batch, tracer.occluded_batch, accel.closest, accel.
 @pytest.mark.parametrize("fn", BATCH_KERNELS, ids=lambda f: f.py_func.__qualname__)
 def test_batch_kernels_are_compiled_without_the_runtime(fn):
     assert fn.targetoptions.get("_nrt") is False
-    assert fn.targetoptions.get("cache") is True
+    assert fn._cache is not None and type(fn._cache).__name__ == "FunctionCache"   # cache=True
 
 
 @pytest.mark.parametrize("fn", ALLOCATING, ids=lambda f: f.py_func.__qualname__)
