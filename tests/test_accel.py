@@ -211,6 +211,29 @@ def test_wide_bvh_is_the_sah_tree_collapsed_with_outward_float32_boxes():
     np.testing.assert_array_equal(seen, 1)
 
 
+def test_wide_bvh_node_records_hold_the_boxes_and_child_references():
+    """``wide_arrays`` stores each node as one record of 8·WIDTH float32 words: the
+    collapsed boxes bit for bit, then per child its int32 reference (the child node,
+    or ``-s - 1`` for the leaf or empty slot s), then zero padding."""
+    from impl.accel.wide import WIDTH, collapse, wide_arrays
+
+    rng = np.random.default_rng(SEED + 19)
+    c, r, v, _ = random_scene(rng, 150, 150)
+    lo, hi = prim_bounds(c, r, v)
+    nlo, nhi, na, nb, idx = build_bvh(lo, hi, "sah")
+    box, sa, sb = collapse(nlo, nhi, na, nb)
+    acc_f, acc_i = wide_arrays(box, sa, sb, idx, r, v)
+    M = len(box)
+    rec = acc_f.view(np.float32)[:M * 8 * WIDTH].reshape(M, 8, WIDTH)
+    np.testing.assert_array_equal(rec[:, :6, :], box)
+    ref = rec[:, 6, :].view(np.int32).reshape(-1)
+    s = np.arange(M * WIDTH)
+    np.testing.assert_array_equal(ref, np.where(sb < 0, sa, -s - 1))
+    assert (ref[sb < 0] > 0).all(), "interior children are nodes after the root"
+    np.testing.assert_array_equal(rec[:, 7, :], 0.0)
+    assert acc_i[1] == M * 8 * WIDTH // 2, "the leaf groups start after the records"
+
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
 def test_wide_batches_and_packets_return_brute_force_answers(dtype):
     """The wavefront entry points over SoA rays — single rays, and packets of 8 and 64
