@@ -211,6 +211,35 @@ def test_wide_bvh_is_the_sah_tree_collapsed_with_outward_float32_boxes():
     np.testing.assert_array_equal(seen, 1)
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+def test_ulp_above_is_nextafter_toward_inf_bit_for_bit(dtype):
+    """The inline ``ulp_above`` (integer arithmetic on the bits) equals
+    ``np.nextafter(t, inf)``: signed zeros, subnormals, the largest finite
+    numbers, ±inf, NaN and random magnitudes over the whole exponent range."""
+    from numba import njit
+
+    from impl.accel.primitives import ulp_above
+
+    @njit
+    def kernel(a, out):
+        for i in range(a.shape[0]):
+            out[i] = ulp_above(a[i])
+
+    fi = np.finfo(dtype)
+    special = [0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, fi.max, -fi.max, fi.tiny,
+               -fi.tiny, fi.smallest_subnormal, -fi.smallest_subnormal]
+    rng = np.random.default_rng(SEED + 23)
+    mags = 2.0 ** rng.uniform(np.log2(fi.smallest_subnormal), np.log2(fi.max), 20000)
+    a = np.concatenate([np.array(special, dtype=dtype),
+                        (rng.choice([-1.0, 1.0], 20000) * mags).astype(dtype)])
+    out = np.empty_like(a)
+    kernel(a, out)
+    with np.errstate(over="ignore"):
+        ref = np.nextafter(a, dtype(np.inf))
+    ints = np.int64 if dtype == np.float64 else np.int32
+    np.testing.assert_array_equal(out.view(ints), ref.view(ints))
+
+
 def test_wide_bvh_node_records_hold_the_boxes_and_child_references():
     """``wide_arrays`` stores each node as one record of 8·WIDTH float32 words: the
     collapsed boxes bit for bit, then per child its int32 reference (the child node,

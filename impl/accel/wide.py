@@ -329,9 +329,9 @@ def _ptr(typingctx, a):
 
     The per-ray traversal reads the arrays through these pointers: a pointer is
     no reference-counted object, so passing it to the inlined helpers costs no
-    atomic increment and decrement per call (passing the arrays did, and those
-    atomics took about half of the traversal's time).  The caller keeps the
-    arrays alive (they are fields of the configuration it holds)."""
+    atomic increment and decrement of a reference count per call, as passing an
+    array does.  The caller keeps the arrays alive (they are fields of the
+    configuration it holds)."""
     if not (isinstance(a, types.Array) and a.layout == "C"):
         return None
     sig = types.CPointer(a.dtype)(a)
