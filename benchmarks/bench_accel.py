@@ -14,6 +14,10 @@
   (the SoA batch entry point, no counters).  ``extra_info`` carries both
   rays/s and the ratio own / Mitsuba (of the medians, and the median of the
   per-pair ratios).
+* ``bench_vs_mitsuba_cpu`` — single-thread CPU time per ray of the wide BVH's
+  serial batch loop against Mitsuba's ``ray_intersect_preliminary`` on one
+  Dr.Jit thread, rounds alternated (less moved by other processes' load than
+  wall-clock time).
 * ``bench_packets`` — 8×8 eye-ray packets vs single rays through the same tree.
 * ``bench_wide_packets`` — the wide BVH's batch entry points on coherent rays
   (eye rays in 8×8 tile order, shadow rays from their hits to a point light):
@@ -35,8 +39,8 @@ from gibench import registry
 from gibench.studies.accel import bounce_rays, camera_rays, mesh_field, sphere_field
 from impl import accel
 from impl.accel.packets import primary_hits
-from impl.accel.wide import (wide_closest_batch, wide_closest_packets, wide_occluded_batch,
-                             wide_occluded_packets)
+from impl.accel.wide import (wide_closest_batch, wide_closest_packets, wide_closest_rays,
+                             wide_occluded_batch, wide_occluded_packets)
 from impl.rays import ray_config
 from impl.scene_arrays import flatten
 from _timing import median_s
@@ -164,6 +168,71 @@ def bench_vs_mitsuba(benchmark, name, rays, precision, structure):
         ratio_own_vs_mitsuba_preliminary_pairs_median=statistics.median(pair),
         ratio_own_vs_mitsuba_preliminary_pairs_range=(min(pair), max(pair)),
         ratio_own_vs_mitsuba_full=mi_full_s / own_s, hit_miss_agreement=agree)
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("precision", ["float32", "float64"])
+@pytest.mark.parametrize("rays", ["primary", "diffuse"])
+@pytest.mark.parametrize("name", list(SCENES))
+def bench_vs_mitsuba_cpu(benchmark, name, rays, precision):
+    """Single-thread CPU time per ray, own wide BVH vs Mitsuba, rounds alternated.
+
+    Own: the serial batch loop :func:`impl.accel.wide.wide_closest_rays` under
+    ``time.thread_time``; Mitsuba: ``ray_intersect_preliminary`` with Dr.Jit's
+    thread pool set to one thread, under ``time.process_time`` (all of the
+    process's threads).  CPU time does not count the time a thread waits for a
+    core, so on a shared machine it moves less than wall-clock time; one thread
+    on each side leaves out both sides' parallel scaling."""
+    import drjit as dr
+
+    from references.mitsuba_env import load_mitsuba
+    from references.raybench import mitsuba_scene
+
+    mitsuba = load_mitsuba()
+    _, A, ray_sets = scene(name)
+    o, d = ray_sets[rays]
+    R = config(A, "bvh-wide", precision)
+    cols, n = soa(o, d), len(o)
+    tmin, tmax = np.zeros(n), np.full(n, np.inf)
+    out = (np.empty(n), np.empty(n, dtype=np.int64), np.empty(n), np.empty(n))
+
+    def run():
+        wide_closest_rays(R, *cols, tmin, tmax, *out)
+        return out[0], out[1]
+    run()                                                            # warm-up
+    mi_scene = mitsuba_scene(mitsuba, A.sph_center, A.sph_radius, A.tri_v)
+    o32, d32 = np.asarray(o, np.float32), np.asarray(d, np.float32)
+    ray = mitsuba.Ray3f(o=mitsuba.Point3f(*o32.T), d=mitsuba.Vector3f(*d32.T))
+    dr.eval(ray)                                                     # uploaded before the clock
+
+    def mi_run():
+        si = mi_scene.ray_intersect_preliminary(ray)
+        dr.eval(si.t)
+        dr.sync_thread()                                             # Dr.Jit evaluates lazily
+        return si.t
+    threads = dr.thread_count()
+    dr.set_thread_count(1)
+    try:
+        t_mi = np.asarray(mi_run(), dtype=np.float64)                # warm-up (kernel compile)
+        own, mi = [], []
+        for _ in range(ROUNDS):                                      # A B A B ...
+            c0 = time.thread_time()
+            run()
+            own.append(time.thread_time() - c0)
+            c0 = time.process_time()
+            mi_run()
+            mi.append(time.process_time() - c0)
+    finally:
+        dr.set_thread_count(threads)
+    benchmark.pedantic(run, rounds=1, iterations=1)
+    agree = float(((out[1] >= 0) == np.isfinite(t_mi)).mean())
+    assert agree > 0.99, f"own and Mitsuba hit/miss agree on only {agree:.4f} of the rays"
+    own_ns, mi_ns = statistics.median(own) / n * 1e9, statistics.median(mi) / n * 1e9
+    pair = [m / s for s, m in zip(own, mi)]
+    benchmark.extra_info.update(
+        variant=mitsuba.variant(), rays=n, own_cpu_ns_per_ray=own_ns, mitsuba_cpu_ns_per_ray=mi_ns,
+        ratio_own_vs_mitsuba_cpu=mi_ns / own_ns,
+        ratio_own_vs_mitsuba_cpu_pairs=(min(pair), statistics.median(pair), max(pair)))
 
 
 @pytest.mark.parametrize("packets", [False, True], ids=["single", "packets"])

@@ -212,6 +212,58 @@ def test_wide_bvh_is_the_sah_tree_collapsed_with_outward_float32_boxes():
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+def test_ulp_above_is_nextafter_toward_inf_bit_for_bit(dtype):
+    """The inline ``ulp_above`` (integer arithmetic on the bits) equals
+    ``np.nextafter(t, inf)``: signed zeros, subnormals, the largest finite
+    numbers, ±inf, NaN and random magnitudes over the whole exponent range."""
+    from numba import njit
+
+    from impl.accel.primitives import ulp_above
+
+    @njit
+    def kernel(a, out):
+        for i in range(a.shape[0]):
+            out[i] = ulp_above(a[i])
+
+    fi = np.finfo(dtype)
+    special = [0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, fi.max, -fi.max, fi.tiny,
+               -fi.tiny, fi.smallest_subnormal, -fi.smallest_subnormal]
+    rng = np.random.default_rng(SEED + 23)
+    mags = 2.0 ** rng.uniform(np.log2(fi.smallest_subnormal), np.log2(fi.max), 20000)
+    a = np.concatenate([np.array(special, dtype=dtype),
+                        (rng.choice([-1.0, 1.0], 20000) * mags).astype(dtype)])
+    out = np.empty_like(a)
+    kernel(a, out)
+    with np.errstate(over="ignore"):
+        ref = np.nextafter(a, dtype(np.inf))
+    ints = np.int64 if dtype == np.float64 else np.int32
+    np.testing.assert_array_equal(out.view(ints), ref.view(ints))
+
+
+def test_wide_bvh_node_records_hold_the_boxes_and_child_references():
+    """``wide_arrays`` stores each node as one record of 8·WIDTH float32 words: the
+    collapsed boxes bit for bit, then per child its int32 reference (the child node,
+    or ``-s - 1`` for the leaf or empty slot s), then zero padding."""
+    from impl.accel.wide import WIDTH, collapse, wide_arrays
+
+    rng = np.random.default_rng(SEED + 19)
+    c, r, v, _ = random_scene(rng, 150, 150)
+    lo, hi = prim_bounds(c, r, v)
+    nlo, nhi, na, nb, idx = build_bvh(lo, hi, "sah")
+    box, sa, sb = collapse(nlo, nhi, na, nb)
+    acc_f, acc_i = wide_arrays(box, sa, sb, idx, r, v)
+    M = len(box)
+    rec = acc_f.view(np.float32)[:M * 8 * WIDTH].reshape(M, 8, WIDTH)
+    np.testing.assert_array_equal(rec[:, :6, :], box)
+    ref = rec[:, 6, :].view(np.int32).reshape(-1)
+    s = np.arange(M * WIDTH)
+    np.testing.assert_array_equal(ref, np.where(sb < 0, sa, -s - 1))
+    assert (ref[sb < 0] > 0).all(), "interior children are nodes after the root"
+    np.testing.assert_array_equal(rec[:, 7, :], 0.0)
+    assert acc_i[1] == M * 8 * WIDTH // 2, "the leaf groups start after the records"
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
 def test_wide_batches_and_packets_return_brute_force_answers(dtype):
     """The wavefront entry points over SoA rays — single rays, and packets of 8 and 64
     consecutive rays (coherent camera rays and incoherent random rays, so the packets

@@ -31,7 +31,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.extending import intrinsic
 
 from core.errors import ParamError
 
@@ -70,10 +72,38 @@ def prim_bounds(sph_center, sph_radius, tri_v):
     return np.ascontiguousarray(lo), np.ascontiguousarray(hi)
 
 
+@intrinsic
+def _next_up(typingctx, t):
+    """``nextafter(t, +inf)`` of a float32 or float64 ``t`` from its IEEE 754 bits, inline
+    (numba's ``np.nextafter`` calls a library function): a positive finite t
+    has the next bit pattern, a negative t the previous one (-inf: the most
+    negative finite number; the smallest negative subnormal: -0.0), ±0 the
+    smallest positive subnormal; +inf and NaN are returned unchanged."""
+    if not isinstance(t, types.Float):
+        return None
+    sig = t(t)
+
+    def codegen(context, builder, sig, args):
+        x = args[0]
+        it = ir.IntType(sig.args[0].bitwidth)
+        i = builder.bitcast(x, it)
+        zero, inf = ir.Constant(x.type, 0.0), ir.Constant(x.type, math.inf)
+        up = builder.bitcast(builder.add(i, ir.Constant(it, 1)), x.type)
+        down = builder.bitcast(builder.sub(i, ir.Constant(it, 1)), x.type)
+        tiny = builder.bitcast(ir.Constant(it, 1), x.type)
+        cmp = builder.fcmp_ordered
+        r = builder.select(cmp("<", x, zero), down, x)
+        r = builder.select(cmp("==", x, zero), tiny, r)
+        return builder.select(builder.and_(cmp(">", x, zero), cmp("<", x, inf)), up, r)
+
+    return sig, codegen
+
+
 @njit(inline="always", cache=True)
 def ulp_above(t):
-    """The next representable value above ``t`` in t's precision (a tie-inclusive tmax)."""
-    return np.nextafter(t, like(t, np.inf))
+    """The next representable value above ``t`` in t's precision (a tie-inclusive tmax):
+    ``np.nextafter(t, inf)``, computed inline (:func:`_next_up`)."""
+    return _next_up(t)
 
 
 @njit(inline="always", cache=True)

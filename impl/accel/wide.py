@@ -46,7 +46,13 @@ that a smaller limit would have rejected is not nearer, so
 Traversal (:func:`_trace`, one skeleton for both queries): nearest child
 first (children sorted by entry ``t`` on the stack), popped entries entered
 beyond the nearest hit skipped; shadow rays (:func:`wide_any`) push the
-children in slot order and stop at the first hit in (tmin, tmax).
+children in slot order and stop at the first hit in (tmin, tmax).  A node's
+children's references sit in its record beside their boxes, so opening a node
+reads one 128-byte record.  The per-ray code reads the arrays through raw data
+pointers bound once per batch (:func:`_bind`): an array passed to an inlined
+helper costs an atomic increment and decrement of its reference count per
+call, which numba's reference-count pruning does not remove from a traversal
+loop with several exits.
 
 Entry points: :func:`wide_closest` / :func:`wide_any` (one ray, with
 counters: what :func:`impl.accel.closest` dispatches to); over SoA ray
@@ -72,10 +78,14 @@ node_a     (M·W,) i64         slot ``n·W + k``: child node (interior) or
 node_b     (M·W,) i64         ``-1`` interior, ``c ≥ 0`` leaf of c
                               primitives (0: empty slot, empty box)
 prim_idx   (P,) i64           the leaves' primitive ids
-acc_f      (K,) f64           the float32 boxes, node by node
-                              ``[lo_x, lo_y, lo_z, hi_x, hi_y, hi_z]×W``,
-                              stored two per float64 word (read through
-                              ``acc_f.view(np.float32)``), then the leaves'
+acc_f      (K,) f64           the node records, 8·W float32 words each:
+                              the boxes ``[lo_x, lo_y, lo_z, hi_x, hi_y,
+                              hi_z]×W``, the children's int32 references
+                              ×W (node index, or ``-s - 1`` for the leaf
+                              of slot s), W words of padding; stored two
+                              words per float64 (read through
+                              ``acc_f.view(np.float32)`` and
+                              ``.view(np.int32)``), then the leaves'
                               triangle groups (G, 9, LANES) in the
                               configured precision (:func:`wide_arrays`)
 acc_i      (4+M·W+G·LANES,)   ``W``, the groups' first word in that
@@ -108,8 +118,8 @@ from numba import njit, prange, types
 from numba.extending import intrinsic, overload
 
 from ..intersect import like, ray_sphere_form
-from .primitives import box_enter, closer, prim_test_arrays as _prim, ulp_above
-from .tree import STACK, stack_f64, stack_i64
+from .primitives import _slab64, box_enter, closer, prim_test_arrays as _prim, ulp_above
+from .tree import STACK, _alloca_f64, _alloca_i64
 
 __all__ = ["WIDTH", "SWITCH", "collapse", "wide_closest", "wide_any", "wide_depth",
            "wide_closest_batch", "wide_occluded_batch", "wide_packet_closest",
@@ -121,6 +131,9 @@ WIDTH = 4
 #: leaf (the builder keeps a subtree's primitives consecutive in ``prim_idx``).
 LEAF_MAX = 4
 _PLANES = 6 * WIDTH                 # float32 words of one node's boxes
+#: float32 words of one node record: its boxes, its children's references
+#: (int32, :func:`wide_arrays`) and padding to a multiple of 64 bytes.
+_REC = 8 * WIDTH
 #: Triangles per vector test of a leaf (:func:`_tri_lanes`).
 LANES = 4
 _TRI_WORDS = 9 * LANES              # words of one leaf group: v0, e1, e2 (SoA)
@@ -264,13 +277,21 @@ def _leaf_groups(slot_a, slot_b, idx, ns, tri_v):
 
 
 def wide_arrays(box32, slot_a, slot_b, idx, sph_radius, tri_v):
-    """The ``(acc_f, acc_i)`` of a wide BVH: the float32 boxes followed by the leaves'
+    """The ``(acc_f, acc_i)`` of a wide BVH: the node records followed by the leaves'
     triangle groups (:func:`_leaf_groups`) in the precision of ``tri_v``, and
     ``[W, word offset of the groups in that precision, S slots, grp (S+1), ids]``."""
     F = np.asarray(sph_radius).dtype            # the kernels' precision (impl.rays.RayConfig)
     tri_v = np.ascontiguousarray(tri_v, dtype=F).reshape(-1, 3, 3)
     grp, data, ids = _leaf_groups(slot_a, slot_b, idx, len(sph_radius), tri_v)
-    boxes = box32.reshape(-1)
+    m, _, W = box32.shape
+    if m * W >= 2 ** 31:
+        raise ValueError(f"wide_arrays: {m * W} slots do not fit the int32 child references")
+    s = np.arange(m * W, dtype=np.int64)
+    ref = np.where(slot_b < 0, slot_a, -s - 1).astype(np.int32).reshape(m, 1, W)
+    rec = np.zeros((m, 8, W), dtype=np.float32)
+    rec[:, :6, :] = box32
+    rec[:, 6:7, :] = ref.view(np.float32)
+    boxes = rec.reshape(-1)
     if F == np.float32:
         acc_f = np.concatenate([boxes, data.reshape(-1)]).view(np.float64)
         off = boxes.size
@@ -303,14 +324,41 @@ def wide_depth(slot_a, slot_b, W):
 
 
 @intrinsic
+def _ptr(typingctx, a):
+    """The data pointer of the contiguous array ``a`` (``CPointer`` of its dtype).
+
+    The per-ray traversal reads the arrays through these pointers: a pointer is
+    no reference-counted object, so passing it to the inlined helpers costs no
+    atomic increment and decrement of a reference count per call, as passing an
+    array does.  The caller keeps the arrays alive (they are fields of the
+    configuration it holds)."""
+    if not (isinstance(a, types.Array) and a.layout == "C"):
+        return None
+    sig = types.CPointer(a.dtype)(a)
+
+    def codegen(context, builder, sig, args):
+        return context.make_array(sig.args[0])(context, builder, args[0]).data
+
+    return sig, codegen
+
+
+def _data_ptr(context, builder, t, v):
+    """An intrinsic argument's data pointer: an array's data, or the pointer itself."""
+    if isinstance(t, types.Array):
+        return context.make_array(t)(context, builder, v).data
+    return v
+
+
+@intrinsic
 def _enter_all(typingctx, box, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy, iz, tmin, tmax, tn):
     """Slab test of one node's WIDTH children in WIDTH-lane vectors: ``tn[k]`` = entry t
     of child k's box within [tmin, tmax] (inf on a miss); returns the hit mask
     (bit k: child k entered).
 
-    ``box`` is the float32 view of the boxes, ``base`` the node's first word, ``nx``
-    … ``fz`` the word offsets of the near / far plane of each axis
-    (:func:`_planes`); ray and limits float64, ``tn`` a float64 array.  Per axis
+    ``box`` is the float32 view of the node records (or its :func:`_ptr`), ``base``
+    the node's first word, ``nx`` … ``fz`` the word offsets of the near / far plane
+    of each axis (:func:`_planes`); ray and limits float64, ``tn`` a float64 array
+    or pointer.  Per axis
     ``a = (near − o)·(1/d)``, ``t0 = a if a > t0 else t0`` (and ``t1`` alike with
     ``<``): the arithmetic and NaN rule of :func:`.primitives.box_enter`, lane by
     lane, on the boxes widened to float64 (exact).  Written as LLVM vector IR
@@ -319,12 +367,11 @@ def _enter_all(typingctx, box, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy,
     sig = types.int64(box, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy, iz, tmin, tmax, tn)
 
     def codegen(context, builder, sig, args):
-        args = [a if isinstance(t, types.Array) else
-                context.cast(builder, a, t, types.int64 if isinstance(t, types.Integer) else types.float64)
+        args = [_data_ptr(context, builder, t, a) if isinstance(t, (types.Array, types.CPointer))
+                else context.cast(builder, a, t, types.int64 if isinstance(t, types.Integer)
+                                  else types.float64)
                 for a, t in zip(args, sig.args)]
-        (abox, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy, iz, tmin, tmax, atn) = args
-        box_ptr = context.make_array(sig.args[0])(context, builder, abox).data
-        tn_ptr = context.make_array(sig.args[16])(context, builder, atn).data
+        (box_ptr, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy, iz, tmin, tmax, tn_ptr) = args
         f32v = ir.VectorType(ir.FloatType(), WIDTH)
         f64v = ir.VectorType(ir.DoubleType(), WIDTH)
 
@@ -377,8 +424,8 @@ def _tri_lanes(typingctx, data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out):
         ft = context.get_value_type(F)
         vt = ir.VectorType(ft, LANES)
         dv = ir.VectorType(ir.DoubleType(), LANES)
-        d_ptr = context.make_array(sig.args[0])(context, builder, args[0]).data
-        o_ptr = context.make_array(sig.args[10])(context, builder, args[10]).data
+        d_ptr = _data_ptr(context, builder, sig.args[0], args[0])
+        o_ptr = _data_ptr(context, builder, sig.args[10], args[10])
         base = context.cast(builder, args[1], sig.args[1], types.int64)
         s = [context.cast(builder, a, t, F) for a, t in zip(args[2:10], sig.args[2:10])]
 
@@ -449,8 +496,7 @@ def _planes(ix, iy, iz):
 
 
 @njit(inline="always", cache=True, error_model="numpy")
-def _trace(na, nb, idx, box, tri, tri_off, grp, ids, form, sc, sr, tv, ref0, t0,
-           ox, oy, oz, dx, dy, dz, tmin, tmax, best_t, best_p, bb1, bb2, any_hit):
+def _trace(T, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, tmax, best_t, best_p, bb1, bb2, any_hit):
     """The traversal of both queries, from subtree ``ref0`` (a node, or ``-s - 1`` for
     the leaf of slot s) entered at ``t0``: ``(t, prim, b1, b2, nodes_visited,
     prim_tests)``.
@@ -460,18 +506,17 @@ def _trace(na, nb, idx, box, tri, tri_off, grp, ids, form, sc, sr, tv, ref0, t0,
     primitives tested with the tie-inclusive limit ``ulp_above(best_t)`` and kept
     by :func:`.primitives.closer`.  Any hit (``any_hit`` True, a constant the
     compiler folds): children in slot order, primitives tested within (tmin,
-    tmax), stops at the first hit (prim ≥ 0 then says "hit").  Arrays: the
-    :class:`impl.accel.Accel` fields and their views (:func:`_bind`); the ray in
-    R's precision."""
+    tmax), stops at the first hit (prim ≥ 0 then says "hit").  ``T``: the tree as
+    :func:`_bind` gives it; the ray in R's precision."""
+    na, nb, idx, box, cref, tri, tri_off, grp, ids, form, sc, sr, ns = T
     nodes = tests = 0
     fox, foy, foz = float(ox), float(oy), float(oz)
     ix, iy, iz = 1.0 / float(dx), 1.0 / float(dy), 1.0 / float(dz)
     ftmin = float(tmin)
-    ns = sr.shape[0]
     nx, ny, nz, fx, fy, fz = _planes(ix, iy, iz)
-    stack_n = stack_i64()
-    stack_t = stack_f64()
-    tn = stack_f64()
+    stack_n = _alloca_i64()
+    stack_t = _alloca_f64()
+    tn = _alloca_f64()
     stack_n[0], stack_t[0] = ref0, t0
     sp = 1
     zero = like(tmax, 0.0)
@@ -489,8 +534,8 @@ def _trace(na, nb, idx, box, tri, tri_off, grp, ids, form, sc, sr, tv, ref0, t0,
                     p = idx[k]
                     if p < ns:
                         tests += 1
-                        t = ray_sphere_form(form, ox, oy, oz, dx, dy, dz, sc[p, 0], sc[p, 1],
-                                            sc[p, 2], sr[p], tmin, lim)
+                        t = ray_sphere_form(form, ox, oy, oz, dx, dy, dz, sc[3 * p],
+                                            sc[3 * p + 1], sc[3 * p + 2], sr[p], tmin, lim)
                         if any_hit:
                             if t > zero:
                                 return t, p, zero, zero, nodes, tests
@@ -510,14 +555,14 @@ def _trace(na, nb, idx, box, tri, tri_off, grp, ids, form, sc, sr, tv, ref0, t0,
                             bb1, bb2 = like(tmax, tn[LANES + k]), like(tmax, tn[2 * LANES + k])
             continue
         # Interior: all W boxes in one vector test, then push the entered ones.
-        mask = _enter_all(box, ref * _PLANES, nx, ny, nz, fx, fy, fz, fox, foy, foz, ix, iy, iz,
+        base = ref * _REC
+        mask = _enter_all(box, base, nx, ny, nz, fx, fy, fz, fox, foy, foz, ix, iy, iz,
                           ftmin, float(best_t), tn)
         sp0 = sp
         for k in range(WIDTH):
             if mask & (1 << k):
                 tc = tn[k]
-                s = ref * WIDTH + k
-                c = na[s] if nb[s] < 0 else -s - 1
+                c = cref[base + _PLANES + k]
                 j = sp
                 if not any_hit:                  # nearest on top
                     while j > sp0 and stack_t[j - 1] < tc:
@@ -532,48 +577,70 @@ def _trace(na, nb, idx, box, tri, tri_off, grp, ids, form, sc, sr, tv, ref0, t0,
 
 @njit(inline="always", cache=True)
 def _bind(R):
-    """R's wide-BVH arrays and views, bound once per batch: ``(lo, hi, na, nb, idx, box,
-    tri, tri_off, grp, ids)`` (binding the whole configuration per ray would
-    increment and decrement the reference count of each of its arrays, atomic
-    operations that the threads tracing in parallel contend for)."""
+    """R's wide BVH, bound once per batch of rays: ``(T, root, g)`` with ``T = (na, nb,
+    idx, box, cref, tri, tri_off, grp, ids, form, sc, sr, ns)`` — data pointers
+    (:func:`_ptr`) to the :class:`impl.accel.Accel` fields and their views (``box``
+    the node records as float32, ``cref`` the same words as int32, ``tri`` the
+    leaf groups in R's precision, ``sc`` the sphere centres row by row), the
+    groups' first word, the sphere form and the number of spheres ``ns`` —, the
+    root box ``root = (lo_x, lo_y, lo_z, hi_x, hi_y, hi_z)`` and ``g`` a zero of
+    R's precision.  Pointers and numbers are no reference-counted objects: the
+    inlined per-ray helpers take them without the atomic reference counting that
+    passing arrays (or the configuration) to them costs."""
     ai = R.acc_i
     S = ai[2]
-    return (R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx, R.acc_f.view(np.float32),
-            _as_precision(R.acc_f, R.sph_radius), ai[1], ai[3:4 + S], ai[4 + S:])
+    lo, hi = R.node_lo, R.node_hi
+    sr = R.sph_radius
+    T = (_ptr(R.node_a), _ptr(R.node_b), _ptr(R.prim_idx), _ptr(R.acc_f.view(np.float32)),
+         _ptr(R.acc_f.view(np.int32)), _ptr(_as_precision(R.acc_f, sr)), ai[1],
+         _ptr(ai[3:4 + S]), _ptr(ai[4 + S:]), R.form, _ptr(R.sph_center), _ptr(sr), sr.shape[0])
+    root = (float(lo[0, 0]), float(lo[0, 1]), float(lo[0, 2]), float(hi[0, 0]),
+            float(hi[0, 1]), float(hi[0, 2]))
+    return T, root, like(sr, 0.0)
 
 
 @njit(inline="always", cache=True, error_model="numpy")
-def _query(lo, hi, na, nb, idx, box, tri, tri_off, grp, ids, form, sc, sr, tv,
-           ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
+def _root_enter(root, ox, oy, oz, ix, iy, iz, tmin, tmax):
+    """:func:`.primitives.box_enter` of the root box ``(lo_x, lo_y, lo_z, hi_x, hi_y,
+    hi_z)``."""
+    lx, ly, lz, hx, hy, hz = root
+    t0, t1 = tmin, tmax
+    t0, t1 = _slab64(lx, hx, ox, ix, t0, t1)
+    t0, t1 = _slab64(ly, hy, oy, iy, t0, t1)
+    t0, t1 = _slab64(lz, hz, oz, iz, t0, t1)
+    if t0 > t1:
+        return math.inf
+    return t0
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
     """One ray from the root (root box test, then :func:`_trace`)."""
     zero = like(tmax, 0.0)
-    t_root = box_enter(lo, hi, 0, float(ox), float(oy), float(oz), 1.0 / float(dx),
-                       1.0 / float(dy), 1.0 / float(dz), float(tmin), float(tmax))
+    t_root = _root_enter(root, float(ox), float(oy), float(oz), 1.0 / float(dx),
+                         1.0 / float(dy), 1.0 / float(dz), float(tmin), float(tmax))
     if t_root == math.inf:
         return tmax, -1, zero, zero, 1, 0
-    return _trace(na, nb, idx, box, tri, tri_off, grp, ids, form, sc, sr, tv, 0, t_root,
-                  ox, oy, oz, dx, dy, dz, tmin, tmax, tmax, -1, zero, zero, any_hit)
+    return _trace(T, 0, t_root, ox, oy, oz, dx, dy, dz, tmin, tmax, tmax, -1, zero, zero,
+                  any_hit)
 
 
 @njit(inline="always", cache=True, error_model="numpy")
 def _walk(R, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_p, bb1, bb2):
     """Closest-hit traversal of the subtree ``ref0`` entered at ``t0`` from the hit so
     far (the packets' single-ray continuation): see :func:`_trace`."""
-    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
-    return _trace(na, nb, idx, box, tri, tri_off, grp, ids, R.form, R.sph_center, R.sph_radius,
-                  R.tri_v, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_t, best_p,
-                  bb1, bb2, False)
+    T, _, _ = _bind(R)
+    return _trace(T, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_t, best_p, bb1, bb2,
+                  False)
 
 
 @njit(inline="always", cache=True, error_model="numpy")
 def _any_from(R, ref0, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any-hit traversal of the subtree ``ref0``: ``(hit, nodes_visited, prim_tests)``."""
-    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
+    T, _, _ = _bind(R)
     zero = like(tmax, 0.0)
-    _, p, _, _, nodes, tests = _trace(na, nb, idx, box, tri, tri_off, grp, ids, R.form,
-                                      R.sph_center, R.sph_radius, R.tri_v, ref0, -math.inf,
-                                      ox, oy, oz, dx, dy, dz, tmin, tmax, tmax, -1, zero, zero,
-                                      True)
+    _, p, _, _, nodes, tests = _trace(T, ref0, -math.inf, ox, oy, oz, dx, dy, dz, tmin, tmax,
+                                      tmax, -1, zero, zero, True)
     return p >= 0, nodes, tests
 
 
@@ -581,18 +648,15 @@ def _any_from(R, ref0, ox, oy, oz, dx, dy, dz, tmin, tmax):
 def wide_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and t in
     R's precision, prim = -1 on a miss (nodes: wide nodes and leaves opened)."""
-    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
-    return _query(lo, hi, na, nb, idx, box, tri, tri_off, grp, ids, R.form, R.sph_center,
-                  R.sph_radius, R.tri_v, ox, oy, oz, dx, dy, dz, tmin, tmax, False)
+    T, root, _ = _bind(R)
+    return _query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, False)
 
 
 @njit(cache=True, error_model="numpy")
 def wide_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
-    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
-    _, p, _, _, nodes, tests = _query(lo, hi, na, nb, idx, box, tri, tri_off, grp, ids, R.form,
-                                      R.sph_center, R.sph_radius, R.tri_v, ox, oy, oz, dx, dy,
-                                      dz, tmin, tmax, True)
+    T, root, _ = _bind(R)
+    _, p, _, _, nodes, tests = _query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, True)
     return p >= 0, nodes, tests
 
 
@@ -606,13 +670,11 @@ def wide_closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, ou
     (the tracers' batches, inside their own parallel loop): each ray rounded to R's
     precision as :func:`impl.rays.hit` rounds it; ``out_t`` (tmax on a miss),
     ``out_b1``, ``out_b2`` float64 (N,), ``out_prim`` int64 (N,) (-1 on a miss)."""
-    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
-    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    T, root, g = _bind(R)
     for i in range(ox.shape[0]):
-        t, p, b1, b2, _, _ = _query(lo, hi, na, nb, idx, box, tri, tri_off, grp, ids, form,
-                                    sc, sr, tv, like(sr, ox[i]), like(sr, oy[i]),
-                                    like(sr, oz[i]), like(sr, dx[i]), like(sr, dy[i]),
-                                    like(sr, dz[i]), like(sr, tmin[i]), like(sr, tmax[i]), False)
+        t, p, b1, b2, _, _ = _query(T, root, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
+                                    like(g, dx[i]), like(g, dy[i]), like(g, dz[i]),
+                                    like(g, tmin[i]), like(g, tmax[i]), False)
         out_t[i], out_prim[i], out_b1[i], out_b2[i] = float(t), p, float(b1), float(b2)
 
 
@@ -620,13 +682,11 @@ def wide_closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, ou
 def wide_occluded_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
     """Any-hit of the N rays (float64 arrays (N,)) within (tmin[i], tmax[i]), one after
     the other: ``out_hit`` bool (N,)."""
-    lo, hi, na, nb, idx, box, tri, tri_off, grp, ids = _bind(R)
-    form, sc, sr, tv = R.form, R.sph_center, R.sph_radius, R.tri_v
+    T, root, g = _bind(R)
     for i in range(ox.shape[0]):
-        _, p, _, _, _, _ = _query(lo, hi, na, nb, idx, box, tri, tri_off, grp, ids, form,
-                                  sc, sr, tv, like(sr, ox[i]), like(sr, oy[i]),
-                                  like(sr, oz[i]), like(sr, dx[i]), like(sr, dy[i]),
-                                  like(sr, dz[i]), like(sr, tmin[i]), like(sr, tmax[i]), True)
+        _, p, _, _, _, _ = _query(T, root, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
+                                  like(g, dx[i]), like(g, dy[i]), like(g, dz[i]),
+                                  like(g, tmin[i]), like(g, tmax[i]), True)
         out_hit[i] = p >= 0
 
 
@@ -776,7 +836,7 @@ def wide_packet_closest(R, ox, oy, oz, dx, dy, dz, tmin, best_t, best_p, bb1, bb
                             best_t[i], best_p[i], bb1[i], bb2[i] = t, p, b1, b2
                             fbest[i] = float(t)
             continue
-        base = ref * _PLANES
+        base = ref * _REC
         sp0 = sp
         for k in range(WIDTH):
             s = ref * WIDTH + k
@@ -861,7 +921,7 @@ def wide_packet_occluded(R, ox, oy, oz, dx, dy, dz, tmin, tmax, hit, counts):
                             hit[i] = True
                             live[i] = 0
             continue
-        base = ref * _PLANES
+        base = ref * _REC
         for k in range(WIDTH):
             s = ref * WIDTH + k
             if nb[s] == 0:
