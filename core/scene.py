@@ -309,7 +309,8 @@ class Scene:
 #: The features :func:`scene_features` names: parts of the scene vocabulary an
 #: algorithm must model explicitly (``Algorithm.models``) to render a scene that has them.
 FEATURES = ("envmap", "projector", "spot texture", "plastic", "roughplastic", "normalmap", "bumpmap",
-            "textured parameter", "camera motion", "mesh motion")
+            "textured parameter", "camera motion", "mesh motion", "gibench_cooktorrance",
+            "gibench_difftrans")
 
 
 def scene_features(scene: Scene) -> dict[str, str]:
@@ -333,7 +334,7 @@ def scene_features(scene: Scene) -> dict[str, str]:
         where = f"shape '{shape.name or shape.source}'"
         if shape.kind == "mesh" and shape.moves:
             found.setdefault("mesh motion", where)
-        if m.kind in ("plastic", "roughplastic"):
+        if m.kind in ("plastic", "roughplastic", "gibench_cooktorrance", "gibench_difftrans"):
             found.setdefault(m.kind, where)
         if m.shading is not None:
             found.setdefault(m.shading["type"], where)

@@ -42,6 +42,18 @@ plus:
   centre).  Moving meshes are placed per sample in per-pixel copies of the
   triangle arrays (cost: the moving triangles, per sample); a moving mesh
   cannot be an emitter (the loader refuses it: its light samples would stay);
+* **Cook–Torrance** (2.4.5.2) — a ``gibench_cooktorrance`` surface (k_d ρ/π
+  + k_s F D G / (4 cos θ_i cos θ_o), D the roughness mixture Σ w_k D(m_k),
+  F the exact dielectric Fresnel term, :func:`impl.bsdf.cook_torrance_sample`)
+  continues its branch along one sampled direction, weight f·cos/pdf;
+  one-sided;
+* **diffuse transmission** (2.4.5.3) — a ``gibench_difftrans`` surface
+  (ρ/π on the viewer's side, τ/π through it,
+  :func:`impl.bsdf.diffuse_transmission_sample`) likewise; two-sided.
+  Like the glossy surfaces, these receive light only along their sampled
+  rays (no shadow rays, delta lights do not light them).  No Mitsuba plugin
+  computes them: their reference is the white furnace's closed form
+  (``tests/test_thesis_materials.py``);
 * the thesis's Cook–Torrance terms with the V-cavity G are an option
   (``g=vcavity``); the difference from Smith (what Mitsuba uses) is a model
   difference, reported, not tested against Mitsuba.
@@ -157,8 +169,9 @@ from .camera import camera_params, eye_ray_lens
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, surface
-from .materials import (MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC,
-                        MaterialArrays, material_arrays)
+from .bsdf import cook_torrance_sample, diffuse_transmission_sample
+from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIFFTRANS,
+                        MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, material_arrays)
 from .microfacet import G_SMITH, G_VCAVITY, conductor_sample, dielectric_sample
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
@@ -522,10 +535,62 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
                            nwr, nwg, nwb, depth + 1, nxt, med)
             continue
 
+        if mkind == MAT_DIFFTRANS:
+            # Diffuse transmission (2.4.5.3): ρ/π on the viewer's side, τ/π through.
+            tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
+            wix = tx_ * vx + ty_ * vy + tz_ * vz
+            wiy = bx * vx + by * vy + bz * vz
+            dim = _D_BSDF + 3 * bounce
+            bounce += 1
+            u0 = uniform(seed + _STREAM, pixel, sample, dim)
+            u1 = uniform(seed + _STREAM, pixel, sample, dim + 1)
+            u2 = uniform(seed + _STREAM, pixel, sample, dim + 2)
+            lx, ly, lz, w_r, w_g, w_b, pdf = diffuse_transmission_sample(
+                S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2], S.spec_trans[mat, 0],
+                S.spec_trans[mat, 1], S.spec_trans[mat, 2], wix, wiy, cos_v, u0, u1, u2)
+            if pdf <= 0.0:
+                continue
+            counts[_C_GLOSSY] += 1
+            ox_ = tx_ * lx + bx * ly + sx * lz
+            oy_ = ty_ * lx + by * ly + sy * lz
+            oz_ = tz_ * lx + bz * ly + sz * lz
+            nxt = RAY_REFLECTION if lz * cos_v > 0.0 else RAY_TRANSMISSION
+            nwr, nwg, nwb = wr * w_r, wg * w_g, wb * w_b
+            if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
+                           nwr, nwg, nwb, depth + 1, nxt, medium)
+            continue
+
         if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
             gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
             cos_v = -cos_v
         if cos_v <= 0.0:
+            continue
+
+        if mkind == MAT_COOKTORRANCE:
+            # Cook–Torrance (2.4.5.2): k_d ρ/π + k_s F D G / (4 cos cos), D a roughness mixture.
+            tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
+            wix = tx_ * vx + ty_ * vy + tz_ * vz
+            wiy = bx * vx + by * vy + bz * vz
+            dim = _D_BSDF + 3 * bounce
+            bounce += 1
+            u0 = uniform(seed + _STREAM, pixel, sample, dim)
+            u1 = uniform(seed + _STREAM, pixel, sample, dim + 1)
+            u2 = uniform(seed + _STREAM, pixel, sample, dim + 2)
+            lx, ly, lz, w_r, w_g, w_b, pdf = cook_torrance_sample(
+                S.spec_trans[mat, 0], S.spec_trans[mat, 1], S.cond_eta[mat], S.cond_k[mat], gmodel,
+                S.diel_eta[mat], S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2],
+                wix, wiy, cos_v, u0, u1, u2)
+            if pdf <= 0.0:
+                continue
+            counts[_C_GLOSSY] += 1
+            ox_ = tx_ * lx + bx * ly + sx * lz
+            oy_ = ty_ * lx + by * ly + sy * lz
+            oz_ = tz_ * lx + bz * ly + sz * lz
+            nwr, nwg, nwb = wr * w_r, wg * w_g, wb * w_b
+            if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
+                           nwr, nwg, nwb, depth + 1, RAY_REFLECTION, medium)
             continue
 
         if mkind == MAT_CONDUCTOR:
@@ -928,7 +993,8 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
 
     _check(params)
     S = material_arrays(scene, algorithm="distributed", model="the distributed ray tracer",
-                        kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric"))
+                        kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric",
+                               "gibench_cooktorrance", "gibench_difftrans"))
     A = flatten(scene)
     cam = camera_params(scene.camera, lens=True)
     H, W = scene.camera.film.height, scene.camera.film.width
@@ -1025,5 +1091,6 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"camera motion", "mesh motion", "envmap"}),
+    models=frozenset({"camera motion", "mesh motion", "envmap", "gibench_cooktorrance",
+                      "gibench_difftrans"}),
 )
