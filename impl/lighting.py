@@ -202,23 +202,25 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
     :class:`LocalModel` fields ``shadow_eta``/``shadow_trans``) non-empty, a blocked
     sample keeps its light × :func:`shadow_filter` of its segment."""
     if seta is None:
+        # Opaque shadows; any two arrays of the right types stand in for the unused filter.
         return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
                                   rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
-                                  light_samples, seed, pixel, sample, R, np.zeros(0),
-                                  np.zeros((0, 3)))
+                                  light_samples, seed, pixel, sample, R, False, A.sph_radius,
+                                  A.mat_rho)
     return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
                               rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
-                              light_samples, seed, pixel, sample, R, seta, strans)
+                              light_samples, seed, pixel, sample, R, seta.shape[0] > 0, seta,
+                              strans)
 
 
 @njit(cache=True)
 def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                        A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                       seed, pixel, sample, R: RayConfig, seta, strans):
-    """The body of :func:`direct_light_rays`."""
+                       seed, pixel, sample, R: RayConfig, through, seta, strans):
+    """The body of :func:`direct_light_rays`; ``through``: blocked samples pass the
+    dielectrics of ``seta``/``strans`` (:func:`shadow_filter`)."""
     r = g = b = 0.0
     nshadow = 0
-    through = seta.shape[0] > 0
     for li in range(A.light_kind.shape[0]):
         kind = A.light_kind[li]
         ok, lx, ly, lz, w, kd, spec = delta_sample(
