@@ -746,7 +746,7 @@ def sphere_hits_agree(t: np.ndarray, o: np.ndarray, d: np.ndarray, radius: float
     return bool(np.allclose(t[hit], exact, rtol=rtol, atol=0.0))
 
 
-def sphere_form_cost(*, rays=1 << 20, repeats=15, forms=SPHERE_FORMS, precisions=PRECISIONS,
+def sphere_form_cost(*, rays=1 << 16, repeats=31, forms=SPHERE_FORMS, precisions=PRECISIONS,
                      seed=20240917) -> list[dict]:
     """Time of :func:`impl.intersect.ray_sphere_batch` on ``rays`` rays against the unit
     sphere, per form × precision: one untimed warm-up each, then ``repeats`` rounds in
