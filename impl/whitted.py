@@ -108,8 +108,9 @@ shadow ray that meets smooth ``dielectric`` surfaces keeps its light times
 segment (:func:`impl.lighting.shadow_filter`); any other surface still
 blocks it.  This is Whitted's approximation, not light transport: the
 segment is not refracted, so the light is not focused into a caustic; its
-error against full transport (``path``) is a model error, measured by the
-study ``transmissive_shadows``.  The default ``opaque`` stops shadow rays at
+error against full transport (``path``) is a model error, reported by the
+``thesis`` suite on ``thesis/glass_shadow.xml`` and checked by
+``tests/test_transmissive_shadows.py``.  The default ``opaque`` stops shadow rays at
 glass (the matched Mitsuba reference does the same).
 
 Leaves out: indirect diffuse light (no interreflection between diffuse
