@@ -65,6 +65,11 @@ bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric
                  specular_transmittance); mask (opacity, a float or texture,
                  outermost: :attr:`Material.opacity`); blendbsdf (weight, a
                  float or texture, two nested bsdfs: :attr:`Material.components`);
+                 gibench-only ``gibench_cooktorrance`` (reflectance, kd, ks,
+                 int_ior, ext_ior, alphas, weights: Cook–Torrance with a
+                 roughness mixture) and ``gibench_difftrans`` (reflectance,
+                 transmittance: diffuse transmission), thesis 2.4.5, decoded
+                 by :func:`impl.materials.material_arrays`;
                  ``principled`` refused by name (not a thesis model); BSDFs no
                  shape uses are dropped
 texture          on any parameter Mitsuba reads as a texture (a conductor's
@@ -130,7 +135,8 @@ SUPPORTED = {
     "shape": ("sphere", "rectangle", "cube", "disk", "cylinder", "obj", "ply", "serialized",
               "shapegroup", "instance"),
     "bsdf": ("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric", "twosided",
-             "plastic", "roughplastic", "normalmap", "bumpmap", "thindielectric", "mask", "blendbsdf"),
+             "plastic", "roughplastic", "normalmap", "bumpmap", "thindielectric", "mask", "blendbsdf",
+             "gibench_cooktorrance", "gibench_difftrans"),
     "emitter": ("point", "directional", "spot", "area", "constant", "envmap", "projector"),
     "sensor": ("perspective", "thinlens", "orthographic"),
     "film": ("hdrfilm",),
@@ -176,6 +182,10 @@ _PROPS = {
                                  "alpha_v", "distribution", "sample_visible"},
     ("bsdf", "roughdielectric"): {"int_ior", "ext_ior", "specular_reflectance", "specular_transmittance",
                                   "alpha", "alpha_u", "alpha_v", "distribution", "sample_visible"},
+    # gibench-only BSDFs of the thesis's 2.4.5 models (impl.materials; no Mitsuba plugin).
+    ("bsdf", "gibench_cooktorrance"): {"reflectance", "kd", "ks", "int_ior", "ext_ior", "alphas",
+                                       "weights"},
+    ("bsdf", "gibench_difftrans"): {"reflectance", "transmittance"},
     ("emitter", "point"): {"intensity", "position", "to_world"},
     ("emitter", "directional"): {"irradiance", "direction", "to_world"},
     ("emitter", "spot"): {"intensity", "cutoff_angle", "beam_width", "to_world"},
@@ -242,6 +252,8 @@ _SCHEMA = {
     "alpha_u": ("number", lambda v: v >= 0.0, ">= 0"),
     "alpha_v": ("number", lambda v: v >= 0.0, ">= 0"),
     "cauchy_b": ("number", lambda v: v >= 0.0, ">= 0"),
+    "kd": ("number", lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
+    "ks": ("number", lambda v: 0.0 <= v <= 1.0, "in [0, 1]"),
     "int_ior": ("ior", lambda v: v > 0.0, "> 0 or a material name"),
     "focal_length": ("string", None, ""),
     "shape_index": ("integer", lambda v: v >= 0, ">= 0"),
@@ -256,7 +268,7 @@ _SCHEMA = {
     "ext_ior": ("ior", lambda v: v > 0.0, "> 0 or a material name"),
     **{name: ("colour", None, ">= 0") for name in (
         "reflectance", "radiance", "intensity", "irradiance", "specular_reflectance",
-        "specular_transmittance", "color0", "color1", "eta", "k")},
+        "specular_transmittance", "color0", "color1", "eta", "k", "transmittance")},
     **{name: ("vector", None, "") for name in (
         "center", "position", "direction", "p0", "p1", "gibench_velocity", "gibench_angular_velocity",
         "gibench_pivot")},
@@ -265,7 +277,7 @@ _SCHEMA = {
         "flip_normals", "face_normals", "raw", "sample_visible", "jitter")},
     **{name: ("string", None, "") for name in (
         "fov_axis", "filename", "material", "distribution", "filter_type", "wrap_mode",
-        "pixel_format", "component_format", "format")},
+        "pixel_format", "component_format", "format", "alphas", "weights")},
 }
 
 _KIND_TAGS = {

@@ -318,7 +318,7 @@ class Scene:
 #: algorithm must model explicitly (``Algorithm.models``) to render a scene that has them.
 FEATURES = ("envmap", "projector", "spot texture", "plastic", "roughplastic", "normalmap", "bumpmap",
             "textured parameter", "plastic texture", "camera motion", "mesh motion", "mask", "blendbsdf",
-            "thindielectric")
+            "thindielectric", "gibench_cooktorrance", "gibench_difftrans")
 
 
 def scene_features(scene: Scene) -> dict[str, str]:
@@ -342,7 +342,8 @@ def scene_features(scene: Scene) -> dict[str, str]:
         where = f"shape '{shape.name or shape.source}'"
         if shape.kind == "mesh" and shape.moves:
             found.setdefault("mesh motion", where)
-        if m.kind in ("plastic", "roughplastic", "blendbsdf", "thindielectric"):
+        if m.kind in ("plastic", "roughplastic", "blendbsdf", "thindielectric", "gibench_cooktorrance",
+                      "gibench_difftrans"):
             found.setdefault(m.kind, where)
         if m.opacity is not None:
             found.setdefault("mask", where)

@@ -96,7 +96,8 @@ __all__ = ["bsdf_arrays", "BsdfArrays", "with_plastic", "MODELLED", "frame", "to
            "check_cook_torrance"]
 
 #: The Mitsuba BSDF plugins the path tracer models.
-MODELLED = tuple(KIND_CODES)
+MODELLED = ("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric", "plastic",
+            "roughplastic")
 
 INV_PI = 1.0 / math.pi
 

@@ -42,17 +42,34 @@ plus:
   centre).  Moving meshes are placed per sample in per-pixel copies of the
   triangle arrays (cost: the moving triangles, per sample); a moving mesh
   cannot be an emitter (the loader refuses it: its light samples would stay);
+* **Cook–Torrance** (2.4.5.2) — a ``gibench_cooktorrance`` surface (k_d ρ/π
+  + k_s F D G / (4 cos θ_i cos θ_o), D the roughness mixture Σ w_k D(m_k),
+  F the exact dielectric Fresnel term, :func:`impl.bsdf.cook_torrance_sample`)
+  continues its branch along one sampled direction, weight f·cos/pdf;
+  one-sided;
+* **diffuse transmission** (2.4.5.3) — a ``gibench_difftrans`` surface
+  (ρ/π on the viewer's side, τ/π through it,
+  :func:`impl.bsdf.diffuse_transmission_sample`) likewise; two-sided.
+  Like the glossy surfaces, these receive light only along their sampled
+  rays (no shadow rays, delta lights do not light them).  No Mitsuba plugin
+  computes them: their reference is the white furnace's closed form
+  (``tests/test_thesis_materials.py``);
 * the thesis's Cook–Torrance terms with the V-cavity G are an option
   (``g=vcavity``); the difference from Smith (what Mitsuba uses) is a model
   difference, reported, not tested against Mitsuba.
 
 ``shading=hall`` — Hall's shading model (thesis 2.4.5.5; Hall & Greenberg
 1983, Fig. 2.20): at every *specular* hit the light-source terms
-``k_sr Σ_j I_j F_sr (N·H_j)^n`` (lights on the viewer's side, shadow-tested)
+``k_sr Σ_j I_j F_sr (N·H_j)^n`` and ``k_dr Σ_j I_j F_dr (N·L_j)`` (lights on
+the viewer's side, shadow-tested; F_dr the surface's ``specular_reflectance``)
 and ``k_st Σ_j I_j F_st (N·H'_j)^n'`` (lights behind a dielectric), from delta
-lights; the reflected/transmitted rays as before, the transmitted ones
-attenuated by ``T_t^Δ`` over the distance Δ they travel; diffuse and ambient
-terms as ``whitted``'s.  Not physically based (a perfect mirror has no
+lights, a spot's cone fall-off applied to its I_j; the reflected/transmitted
+rays as before, weighted by k_sr = k_st and attenuated by ``T_r^Δ`` /
+``T_t^Δ`` over the distance Δ they travel (an escaping ray is not attenuated);
+diffuse and ambient terms of diffuse surfaces as ``whitted``'s.  The thesis's
+constraints k_dr + k_sr = 1 and 0 ≤ k, T ≤ 1 are enforced: a parameter set
+that breaks them is refused with its values (k_dt = 1 − k_st weights nothing:
+the model has no diffuse transmission term).  Not physically based (a perfect mirror has no
 highlight from a point light): its error against full transport is reported
 as a model error (suites/distributed.toml).
 
@@ -101,9 +118,12 @@ confidence      float   0.95            statistical: CI level
 rfilter         str     film            film | box | gaussian
 g               str     smith           smith | vcavity (masking–shadowing)
 shading         str     cook-torrance   cook-torrance | hall (Hall's model, below)
-hall_ks         float   1               Hall: weight k_sr = k_st of the highlights
+hall_ks         float   1               Hall: k_sr = k_st (highlights and rays)
+hall_kd         float   0               Hall: k_dr (diffuse light-source term);
+                                        k_dr + k_sr = 1 is enforced
 hall_n          float   50              Hall: highlight exponent n = n'
 hall_t          float   1               Hall: transmissivity per unit length T_t
+hall_tr         float   1               Hall: transmissivity per unit length T_r
 max_depth       int     10              deepest ray of a branch (eye ray = 1)
 hall_threshold  float   1e-5            cut a branch whose weight is below this
 light_samples   int     1               shadow rays per area emitter per diffuse hit
@@ -150,8 +170,9 @@ from .kernel import batch_kernel
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, surface
-from .materials import (MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC,
-                        MaterialArrays, material_arrays)
+from .bsdf import cook_torrance_sample, diffuse_transmission_sample
+from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIFFTRANS,
+                        MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, material_arrays)
 from .microfacet import G_SMITH, G_VCAVITY, conductor_sample, dielectric_sample
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
@@ -159,7 +180,7 @@ from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
 from .rng import uniform
 from .samplers import (adaptive_children, adaptive_disagree, gaussian_jitter_pattern, jitter_pattern,
                        poisson_disk_pattern, random_pattern, statistical_done, uniform_pattern)
-from .scene_arrays import LIGHT_DIRECTIONAL, SceneArrays, flatten
+from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
 from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit, _push
 
 __all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS", "Motion", "motion_arrays"]
@@ -177,6 +198,9 @@ COUNTERS = ("eye_rays", "shadow_rays", "reflection_rays", "transmission_rays", "
 #: Seed offset of the tracer's own random stream (lens, time, BSDF samples), apart from the
 #: light samples of :func:`impl.lighting.direct_light_rays` and the pixel patterns.
 _STREAM = 0x2545F491
+
+#: |k_dr + k_sr − 1| above this refuses a Hall parameter set.
+HALL_SUM_TOLERANCE = 1e-9
 _D_LENS, _D_TIME, _D_BSDF = 0, 2, 8  # dimensions of the stream: lens (2), time; bounce k: 8 + 3k ..
 
 
@@ -278,14 +302,18 @@ def _frame(nx, ny, nz):
 
 @batch_kernel
 def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, hall_ks,
-                     hall_n, shadows, counts):
+                     hall_n, hall_kd, shadows, counts):
     """Hall's light-source terms at a specular surface (thesis 2.4.5.5, Fig. 2.20):
-    k_s Σ_j I_j F(V·H_j) (N·H_j)^n for lights on the viewer's side and, at a
-    dielectric, k_s Σ_j I_j (1 − F) |N·H'_j|^n for lights behind the surface, H'_j
-    the refraction half-vector −(η_v V + η_l L) (Walter 2007).  Delta lights only:
-    area emitters already reach specular surfaces along their reflected and
-    transmitted rays.  I_j is the light's intensity / d² (point, spot without its
-    cone) or irradiance (directional); reflection terms cast shadow rays.
+    k_sr Σ_j I_j F(V·H_j) (N·H_j)^n + k_dr Σ_j I_j F_dr (N·L_j) for lights on the
+    viewer's side (F_dr: the surface's ``specular_reflectance`` as its colour curve)
+    and, at a dielectric, k_st Σ_j I_j (1 − F) |N·H'_j|^n for lights behind the
+    surface, H'_j the refraction half-vector −(η_v V + η_l L) (Walter 2007); there is
+    no diffuse transmission term (Fig. 2.20 has none).  k_sr = k_st = ``hall_ks``,
+    k_dr = ``hall_kd``.  Delta lights only: area emitters already reach specular
+    surfaces along their reflected and transmitted rays.  I_j is the light's
+    intensity / d² (point; spot times Mitsuba's cone fall-off: 1 inside the beam
+    width, linear in angle to 0 at the cutoff, nothing outside) or irradiance
+    (directional); reflection terms cast shadow rays.
     """
     r = g = b = 0.0
     for li in range(A.light_kind.shape[0]):
@@ -300,6 +328,12 @@ def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx
             dist = math.sqrt(lx * lx + ly * ly + lz * lz)
             lx, ly, lz = lx / dist, ly / dist, lz / dist
             inv_d2 = 1.0 / (dist * dist)
+            if A.light_kind[li] == LIGHT_SPOT:
+                cos_s = -(lx * A.light_dir[li, 0] + ly * A.light_dir[li, 1] + lz * A.light_dir[li, 2])
+                if cos_s <= A.light_cos_cutoff[li]:
+                    continue
+                if cos_s < A.light_cos_beam[li]:
+                    inv_d2 *= (A.light_cutoff[li] - math.acos(min(cos_s, 1.0))) * A.light_inv_tw[li]
         cos_l = sx * lx + sy * ly + sz * lz
         if cos_l > 0.0:
             hx, hy, hz = lx + vx, ly + vy, lz + vz
@@ -307,7 +341,7 @@ def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx
             hx, hy, hz = hx / hn, hy / hn, hz / hn
             ndh = sx * hx + sy * hy + sz * hz
             vdh = vx * hx + vy * hy + vz * hz
-            if ndh <= 0.0:
+            if ndh <= 0.0 and hall_kd == 0.0:
                 continue
             if shadows:
                 counts[_C_SHADOW] += 1
@@ -316,6 +350,12 @@ def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx
                 t1 = (dist * (1.0 - R.shrink_point)) if dist < np.inf else np.inf
                 if occluded(R, ox, oy, oz, lx, ly, lz, t0, t1):
                     continue
+            dif = hall_kd * cos_l * inv_d2
+            r += dif * S.spec_refl[mat, 0] * A.light_rad[li, 0]
+            g += dif * S.spec_refl[mat, 1] * A.light_rad[li, 1]
+            b += dif * S.spec_refl[mat, 2] * A.light_rad[li, 2]
+            if ndh <= 0.0:
+                continue
             spec = hall_ks * ndh ** hall_n * inv_d2
             if mkind == MAT_DIELECTRIC:
                 F, _, _, _ = fresnel_dielectric(vdh, S.diel_eta[mat])
@@ -346,7 +386,7 @@ def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx
 
 @batch_kernel
 def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays, R: RayConfig, sph_c,
-          tri64, trin64, hall, hall_ks, hall_n, hall_t, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
+          tri64, trin64, hall, hall_ks, hall_n, hall_t, hall_tr, hall_kd, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
           shadows, light_samples, seed, pixel, sample, spp, stack_f, stack_i, counts, cut_w, pre_t,
           pre_prim, pre_b1, pre_b2):
     """Radiance (r, g, b) of one eye ray: whitted's ray tree plus sampled glossy bounces.
@@ -404,6 +444,11 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             wr *= att
             wg *= att
             wb *= att
+        if hall and kind == RAY_REFLECTION and hall_tr < 1.0:
+            att = hall_tr ** t            # Hall's T_r^Δ, over the distance the reflected ray travels
+            wr *= att
+            wg *= att
+            wb *= att
         shape = A.prim_shape[prim]
         px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
         gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, sph_c, A.sph_radius,
@@ -419,10 +464,15 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
 
         if hall and (mkind == MAT_DIELECTRIC or mkind == MAT_CONDUCTOR):
             hr, hg, hb = _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz,
-                                          vx, vy, vz, hall_ks, hall_n, shadows, counts)
+                                          vx, vy, vz, hall_ks, hall_n, hall_kd, shadows, counts)
             r += wr * hr
             g += wg * hg
             b += wb * hb
+            # k_sr I_sr F_sr T_r^Δ and k_st I_st F_st T_t^Δ: the rays from other bodies
+            # carry k_sr = k_st too.
+            wr *= hall_ks
+            wg *= hall_ks
+            wb *= hall_ks
 
         if mkind == MAT_DIELECTRIC:
             eta = S.diel_eta[mat]
@@ -486,10 +536,62 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
                            nwr, nwg, nwb, depth + 1, nxt, med)
             continue
 
+        if mkind == MAT_DIFFTRANS:
+            # Diffuse transmission (2.4.5.3): ρ/π on the viewer's side, τ/π through.
+            tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
+            wix = tx_ * vx + ty_ * vy + tz_ * vz
+            wiy = bx * vx + by * vy + bz * vz
+            dim = _D_BSDF + 3 * bounce
+            bounce += 1
+            u0 = uniform(seed + _STREAM, pixel, sample, dim)
+            u1 = uniform(seed + _STREAM, pixel, sample, dim + 1)
+            u2 = uniform(seed + _STREAM, pixel, sample, dim + 2)
+            lx, ly, lz, w_r, w_g, w_b, pdf = diffuse_transmission_sample(
+                S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2], S.spec_trans[mat, 0],
+                S.spec_trans[mat, 1], S.spec_trans[mat, 2], wix, wiy, cos_v, u0, u1, u2)
+            if pdf <= 0.0:
+                continue
+            counts[_C_GLOSSY] += 1
+            ox_ = tx_ * lx + bx * ly + sx * lz
+            oy_ = ty_ * lx + by * ly + sy * lz
+            oz_ = tz_ * lx + bz * ly + sz * lz
+            nxt = RAY_REFLECTION if lz * cos_v > 0.0 else RAY_TRANSMISSION
+            nwr, nwg, nwb = wr * w_r, wg * w_g, wb * w_b
+            if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
+                           nwr, nwg, nwb, depth + 1, nxt, medium)
+            continue
+
         if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
             gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
             cos_v = -cos_v
         if cos_v <= 0.0:
+            continue
+
+        if mkind == MAT_COOKTORRANCE:
+            # Cook–Torrance (2.4.5.2): k_d ρ/π + k_s F D G / (4 cos cos), D a roughness mixture.
+            tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
+            wix = tx_ * vx + ty_ * vy + tz_ * vz
+            wiy = bx * vx + by * vy + bz * vz
+            dim = _D_BSDF + 3 * bounce
+            bounce += 1
+            u0 = uniform(seed + _STREAM, pixel, sample, dim)
+            u1 = uniform(seed + _STREAM, pixel, sample, dim + 1)
+            u2 = uniform(seed + _STREAM, pixel, sample, dim + 2)
+            lx, ly, lz, w_r, w_g, w_b, pdf = cook_torrance_sample(
+                S.spec_trans[mat, 0], S.spec_trans[mat, 1], S.cond_eta[mat], S.cond_k[mat], gmodel,
+                S.diel_eta[mat], S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2],
+                wix, wiy, cos_v, u0, u1, u2)
+            if pdf <= 0.0:
+                continue
+            counts[_C_GLOSSY] += 1
+            ox_ = tx_ * lx + bx * ly + sx * lz
+            oy_ = ty_ * lx + by * ly + sy * lz
+            oz_ = tz_ * lx + bz * ly + sz * lz
+            nwr, nwg, nwb = wr * w_r, wg * w_g, wb * w_b
+            if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
+                           nwr, nwg, nwb, depth + 1, RAY_REFLECTION, medium)
             continue
 
         if mkind == MAT_CONDUCTOR:
@@ -596,7 +698,7 @@ def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, f
     Rt = RayConfig(R.form, R.strategy, R.eps, R.shrink_point, R.shrink_area, cen, R.sph_radius, tri,
                    R.accel, R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx, R.acc_f, R.acc_i)
     return _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, Rt, cen64, tri64, trin64, HL[0] > 0.0, HL[1],
-                 HL[2], HL[3], gmodel,
+                 HL[2], HL[3], HL[4], HL[5], gmodel,
                  max_depth, hall_threshold,
                  ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
                  pixel, sample, spp, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1, pre_b2)
@@ -877,8 +979,13 @@ def _check(p: dict) -> None:
         raise ParamError(f"{name}: hall_threshold must be >= 0, got {p['hall_threshold']}")
     if p["light_samples"] < 0:
         raise ParamError(f"{name}: light_samples must be >= 0")
-    if not 0.0 < p["hall_t"] <= 1.0 or p["hall_ks"] < 0.0 or p["hall_n"] < 0.0:
-        raise ParamError(f"{name}: Hall needs 0 < hall_t <= 1, hall_ks >= 0, hall_n >= 0")
+    if not (0.0 < p["hall_t"] <= 1.0 and 0.0 < p["hall_tr"] <= 1.0) or p["hall_n"] < 0.0:
+        raise ParamError(f"{name}: Hall needs 0 < hall_t <= 1, 0 < hall_tr <= 1, hall_n >= 0 "
+                         f"(got hall_t={p['hall_t']}, hall_tr={p['hall_tr']}, hall_n={p['hall_n']})")
+    kd, ks = p["hall_kd"], p["hall_ks"]
+    if not (0.0 <= kd <= 1.0 and 0.0 <= ks <= 1.0) or abs(kd + ks - 1.0) > HALL_SUM_TOLERANCE:
+        raise ParamError(f"{name}: Hall's coefficients must satisfy k_dr + k_sr = 1 with both in "
+                         f"[0, 1] (thesis 2.4.5.5); got hall_kd={kd} + hall_ks={ks} = {kd + ks}")
 
 
 def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
@@ -887,7 +994,8 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
 
     _check(params)
     S = material_arrays(scene, algorithm="distributed", model="the distributed ray tracer",
-                        kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric"))
+                        kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric",
+                               "gibench_cooktorrance", "gibench_difftrans"))
     A = flatten(scene)
     cam = camera_params(scene.camera, lens=True)
     H, W = scene.camera.film.height, scene.camera.film.width
@@ -921,7 +1029,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     R = ray_config(A, params, algorithm="distributed")
     z = float(norm.ppf(0.5 * (1.0 + params["confidence"])))
     HL = np.array([1.0 if params["shading"] == "hall" else 0.0, params["hall_ks"], params["hall_n"],
-                   params["hall_t"]])
+                   params["hall_t"], params["hall_tr"], params["hall_kd"]])
     shade = (G_MODELS[params["g"]], params["max_depth"], float(params["hall_threshold"]),
              params["ka"], params["ambient"], params["ks"], params["shininess"], params["c1"],
              params["c2"], params["c3"], params["fatt_clamp"], params["shadows"],
@@ -969,9 +1077,13 @@ ALGORITHM = Algorithm(
         Param("shading", str, "cook-torrance", "cook-torrance (microfacet BSDFs, Mitsuba's model) or "
               "hall (adds Hall's light-source highlights at specular surfaces and T^Δ)",
               choices=("cook-torrance", "hall")),
-        Param("hall_ks", float, 1.0, "Hall: k_sr = k_st, weight of the light-source highlights"),
+        Param("hall_ks", float, 1.0, "Hall: k_sr = k_st, weight of the highlights and of the "
+              "reflected and transmitted rays at specular surfaces"),
+        Param("hall_kd", float, 0.0, "Hall: k_dr, weight of the diffuse light-source term at "
+              "specular surfaces (k_dr + k_sr = 1)"),
         Param("hall_n", float, 50.0, "Hall: highlight exponent n = n'"),
         Param("hall_t", float, 1.0, "Hall: transmissivity per unit length T_t of transmitted rays"),
+        Param("hall_tr", float, 1.0, "Hall: transmissivity per unit length T_r of reflected rays"),
         Param("max_depth", int, 10, "deepest ray of a tree branch (eye ray = 1)"),
         Param("hall_threshold", float, 1e-5, "cut a branch whose weight (every RGB channel) is below this"),
         Param("light_samples", int, 1, "shadow rays per area emitter per diffuse hit"),
@@ -980,5 +1092,6 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"camera motion", "mesh motion", "envmap"}),
+    models=frozenset({"camera motion", "mesh motion", "envmap", "gibench_cooktorrance",
+                      "gibench_difftrans"}),
 )

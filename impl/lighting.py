@@ -31,7 +31,12 @@ tree (thesis 2.2: the shadow rays of a hit point):
   origin moved SHADOW_EPSILON·(1 + max|p_i|) along the normal);
 * :func:`direct_batch` — the same over a batch of shading points, each light
   sample's shadow rays traced together (:func:`impl.tracer.occluded_batch`),
-  with the parameters in one :class:`LocalModel`.
+  with the parameters in one :class:`LocalModel`;
+* :func:`shadow_filter` — transmissive shadows (thesis 2.2: a shadow ray
+  passes transparent objects, its light attenuated by their transmittance):
+  the Fresnel transmittance of the smooth dielectric interfaces a blocked
+  shadow segment crosses, 0 if it meets anything else.  Off unless the
+  :class:`LocalModel` carries the dielectrics' indices (``shadow_eta``).
 
 Both sums visit the samples in one order — delta lights, then
 ``light_samples`` per area emitter, then ``light_samples`` for the
@@ -56,8 +61,9 @@ import numpy as np
 from numba import njit
 
 from .envmap import envmap_draw, envmap_radiance
+from .fresnel import fresnel_dielectric
 from .kernel import batch_kernel
-from .rays import RayConfig, legacy_config, leave, occluded
+from .rays import RayConfig, hit, legacy_config, leave, occluded, refine, round_ray
 from .phong import attenuation, phong_brdf_cos
 from .rng import uniform
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays
@@ -67,10 +73,17 @@ from .tracer import occluded_batch
 __all__ = ["SHADOW_EPSILON", "surface", "diffuse_albedo", "sample_emitter", "direct_light",
            "direct_light_rays", "delta_sample", "area_sample", "environment_sample",
            "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
-           "environment_radiance", "sample_cosine_hemisphere"]
+           "environment_radiance", "sample_cosine_hemisphere", "shadow_filter", "SHADOW_MODES"]
 
 #: Shadow-ray origins move off the surface by this much times (1 + |p|_max).
 SHADOW_EPSILON = 1e-7
+
+#: What a shadow ray does at a transparent object: stop (``opaque``) or pass it,
+#: filtered by its Fresnel transmittance (``transmissive``, :func:`shadow_filter`).
+SHADOW_MODES = ("opaque", "transmissive")
+
+#: Interfaces a transmissive shadow segment may cross before it counts as blocked.
+MAX_INTERFACES = 16
 
 
 @njit(inline="always", cache=True)
@@ -180,13 +193,33 @@ def direct_light(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, r
                              seed, pixel, sample, legacy_config(A, SHADOW_EPSILON))
 
 
-@njit(cache=True)
+@njit(inline="always", cache=True)
 def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                       A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                      seed, pixel, sample, R: RayConfig):
+                      seed, pixel, sample, R: RayConfig, seta=None, strans=None):
     """:func:`direct_light` with shadow rays cast by the ray configuration ``R``: the
     sum of every light sample whose shadow ray is unoccluded (all of them with
-    ``shadows`` false); (r, g, b, shadow rays)."""
+    ``shadows`` false); (r, g, b, shadow rays).  With ``seta``/``strans`` (the
+    :class:`LocalModel` fields ``shadow_eta``/``shadow_trans``) non-empty, a blocked
+    sample keeps its light × :func:`shadow_filter` of its segment."""
+    if seta is None:
+        # Opaque shadows; any two arrays of the right types stand in for the unused filter.
+        return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
+                                  rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
+                                  light_samples, seed, pixel, sample, R, False, A.sph_radius,
+                                  A.mat_rho)
+    return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
+                              rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
+                              light_samples, seed, pixel, sample, R, seta.shape[0] > 0, seta,
+                              strans)
+
+
+@njit(cache=True)
+def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
+                       A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
+                       seed, pixel, sample, R: RayConfig, through, seta, strans):
+    """The body of :func:`direct_light_rays`; ``through``: blocked samples pass the
+    dielectrics of ``seta``/``strans`` (:func:`shadow_filter`)."""
     r = g = b = 0.0
     nshadow = 0
     for li in range(A.light_kind.shape[0]):
@@ -210,7 +243,13 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
                     R, px, py, pz, gx, gy, gz, lx, ly, lz, A.light_pos[li, 0], A.light_pos[li, 1],
                     A.light_pos[li, 2], R.shrink_point)
             if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
-                continue
+                if not through:
+                    continue
+                fr, fg, fb = shadow_filter(R, ox, oy, oz, dx, dy, dz, t0, t1, seta, strans,
+                                           A.prim_shape, A.shape_material, A.sph_center,
+                                           A.sph_radius, A.tri_v, A.tri_n, A.tri_has_n,
+                                           A.shape_flip)
+                cr, cg, cb = cr * fr, cg * fg, cb * fb
         r += cr
         g += cg
         b += cb
@@ -237,7 +276,13 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
                 ox, oy, oz, dx, dy, dz, t0, t1 = shadow_towards(R, px, py, pz, gx, gy, gz, lx, ly,
                                                                 lz, yx, yy, yz, R.shrink_area)
                 if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
-                    continue
+                    if not through:
+                        continue
+                    fr, fg, fb = shadow_filter(R, ox, oy, oz, dx, dy, dz, t0, t1, seta, strans,
+                                               A.prim_shape, A.shape_material, A.sph_center,
+                                               A.sph_radius, A.tri_v, A.tri_n, A.tri_has_n,
+                                               A.shape_flip)
+                    cr, cg, cb = cr * fr, cg * fg, cb * fb
             r += cr
             g += cg
             b += cb
@@ -257,7 +302,13 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
                 nshadow += 1
                 ox, oy, oz, dx, dy, dz, t0, t1 = shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz)
                 if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
-                    continue
+                    if not through:
+                        continue
+                    fr, fg, fb = shadow_filter(R, ox, oy, oz, dx, dy, dz, t0, t1, seta, strans,
+                                               A.prim_shape, A.shape_material, A.sph_center,
+                                               A.sph_radius, A.tri_v, A.tri_n, A.tri_has_n,
+                                               A.shape_flip)
+                    cr, cg, cb = cr * fr, cg * fg, cb * fb
             r += cr
             g += cg
             b += cb
@@ -390,6 +441,50 @@ def shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz):
     return ox, oy, oz, lx, ly, lz, t0, np.inf
 
 
+@njit(cache=True)
+def shadow_filter(R, ox, oy, oz, dx, dy, dz, t0, t1, seta, strans, prim_shape, shape_material,
+                  sph_center, sph_radius, tri_v, tri_n, tri_has_n, shape_flip):
+    """Transmittance (r, g, b) of the shadow segment o + t d, t0 < t < t1, when shadow
+    rays pass transparent objects (thesis 2.2): the product, over the surfaces the
+    segment meets in order, of (1 − F(N·(−d))) × ``specular_transmittance`` at a smooth
+    dielectric (``seta[mat]`` = its int_ior/ext_ior > 0, F the unpolarised Fresnel
+    reflectance, :func:`impl.fresnel.fresnel_dielectric`); 0 at any other surface, under
+    total internal reflection, or after ``MAX_INTERFACES`` interfaces.
+
+    Whitted's approximation, not light transport: the segment goes straight through
+    (refraction does not bend it, so no caustic is formed and the shadow of a glass
+    sphere is a disc of light dimmed by two Fresnel factors), and the η² radiance
+    scaling is left out (it cancels between entering and leaving a closed object).
+    Each crossing continues from the hit, offset to the far side by R's strategy.
+    """
+    ns = sph_radius.shape[0]
+    tr = tg = tb = 1.0
+    for _ in range(MAX_INTERFACES):
+        ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
+        t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, t0, t1)
+        if prim < 0:
+            return tr, tg, tb
+        shape = prim_shape[prim]
+        mat = shape_material[shape]
+        eta = seta[mat]
+        if eta <= 0.0:
+            return 0.0, 0.0, 0.0
+        px, py, pz = refine(R, prim, b1, b2, ox + t * dx, oy + t * dy, oz + t * dz)
+        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, sph_center, sph_radius,
+                                         tri_v, tri_n, tri_has_n, shape_flip[shape])
+        F, cos_t, _eit, _eti = fresnel_dielectric(-(sx * dx + sy * dy + sz * dz), eta)
+        tr *= (1.0 - F) * strans[mat, 0]
+        tg *= (1.0 - F) * strans[mat, 1]
+        tb *= (1.0 - F) * strans[mat, 2]
+        if tr <= 0.0 and tg <= 0.0 and tb <= 0.0:
+            return 0.0, 0.0, 0.0
+        side = 1.0 if gx * dx + gy * dy + gz * dz >= 0.0 else -1.0
+        qx, qy, qz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+        t1 -= (qx - ox) * dx + (qy - oy) * dy + (qz - oz) * dz
+        ox, oy, oz = qx, qy, qz
+    return 0.0, 0.0, 0.0
+
+
 class LocalModel(NamedTuple):
     """The local-illumination parameters (thesis 1.4.2) as one kernel argument."""
 
@@ -403,14 +498,25 @@ class LocalModel(NamedTuple):
     fclamp: bool                # clamp f_att to 1
     shadows: bool               # cast shadow rays
     light_samples: int          # samples per area emitter / environment
+    shadow_eta: np.ndarray      # (M,) transmissive shadows: a smooth dielectric's int_ior/ext_ior,
+                                # 0 for an opaque material; empty (0,): shadow rays stop at anything
+    shadow_trans: np.ndarray    # (M, 3) its specular_transmittance
 
 
-def local_model(params: dict) -> LocalModel:
-    """The :class:`LocalModel` of an algorithm's parsed parameters."""
+def local_model(params: dict, materials=None) -> LocalModel:
+    """The :class:`LocalModel` of an algorithm's parsed parameters.  With
+    ``params["shadow_mode"] == "transmissive"``, ``materials`` (the scene's
+    :class:`impl.materials.MaterialArrays`) gives the dielectrics shadow rays pass."""
+    eta, trans = np.zeros(0), np.zeros((0, 3))
+    if params.get("shadow_mode", "opaque") == "transmissive":
+        from .materials import MAT_DIELECTRIC
+        dielectric = materials.kind == MAT_DIELECTRIC
+        eta = np.where(dielectric, materials.diel_eta, 0.0).astype(np.float64)
+        trans = np.ascontiguousarray(materials.spec_trans, dtype=np.float64)
     return LocalModel(float(params["ka"]), float(params["ambient"]), float(params["ks"]),
                       float(params["shininess"]), float(params["c1"]), float(params["c2"]),
                       float(params["c3"]), bool(params["fatt_clamp"]), bool(params["shadows"]),
-                      int(params["light_samples"]))
+                      int(params["light_samples"]), eta, trans)
 
 
 #: Rows of a batch of shading points (:func:`direct_batch`).
@@ -434,6 +540,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
     sh, sh_w, sh_i = T.sh, T.sh_w, T.sh_i
     ks, shininess, c1, c2, c3, fclamp = M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp
     shadows, light_samples = M.shadows, M.light_samples
+    seta, strans = M.shadow_eta, M.shadow_trans
     for li in range(A.light_kind.shape[0]):
         kind = A.light_kind[li]
         lpx, lpy, lpz = A.light_pos[li, 0], A.light_pos[li, 1], A.light_pos[li, 2]
@@ -465,7 +572,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                 ray = shadow_towards(R, P[0, i], P[1, i], P[2, i], P[3, i], P[4, i], P[5, i], lx,
                                      ly, lz, lpx, lpy, lpz, R.shrink_point)
             m = _queue_shadow(sh, sh_w, sh_i, m, i, ray, cr, cg, cb)
-        _light_unoccluded(R, T, m, nshadow)
+        _light_unoccluded(R, T, m, nshadow, A, seta, strans)
     if light_samples <= 0:
         return
     q = int(math.sqrt(light_samples) + 0.5)
@@ -498,7 +605,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                 ray = shadow_towards(R, P[0, i], P[1, i], P[2, i], P[3, i], P[4, i], P[5, i], lx,
                                      ly, lz, yx, yy, yz, R.shrink_area)
                 m = _queue_shadow(sh, sh_w, sh_i, m, i, ray, cr, cg, cb)
-            _light_unoccluded(R, T, m, nshadow)
+            _light_unoccluded(R, T, m, nshadow, A, seta, strans)
     if A.env_radiance.shape[0] + A.env_image.shape[0] > 0:
         er = eg = eb = 0.0
         if A.env_radiance.shape[0] > 0:
@@ -523,7 +630,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                     continue
                 ray = shadow_along(R, P[0, i], P[1, i], P[2, i], P[3, i], P[4, i], P[5, i], lx, ly, lz)
                 m = _queue_shadow(sh, sh_w, sh_i, m, i, ray, cr, cg, cb)
-            _light_unoccluded(R, T, m, nshadow)
+            _light_unoccluded(R, T, m, nshadow, A, seta, strans)
 
 
 @njit(inline="always", cache=True)
@@ -539,8 +646,9 @@ def _queue_shadow(sh, sh_w, sh_i, m, i, ray, cr, cg, cb):
 
 
 @njit(inline="always", cache=True)
-def _light_unoccluded(R: RayConfig, T, m, nshadow):
-    """Trace the m queued shadow rays together; add the light of the unoccluded ones."""
+def _light_unoccluded(R: RayConfig, T, m, nshadow, A: SceneArrays, seta, strans):
+    """Trace the m queued shadow rays together; add the light of the unoccluded ones
+    (and, with transmissive shadows, of the blocked ones × :func:`shadow_filter`)."""
     if m == 0:
         return
     occluded_batch(R, T.sh, m, T.blocked, T.q)
@@ -551,6 +659,22 @@ def _light_unoccluded(R: RayConfig, T, m, nshadow):
             T.L[0, i] += T.sh_w[0, k]
             T.L[1, i] += T.sh_w[1, k]
             T.L[2, i] += T.sh_w[2, k]
+    if seta.shape[0] == 0:
+        return
+    sh = T.sh
+    prim_shape, shape_material, sph_center, sph_radius = (A.prim_shape, A.shape_material,
+                                                          A.sph_center, A.sph_radius)
+    tri_v, tri_n, tri_has_n, shape_flip = A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip
+    for k in range(m):
+        if T.blocked[k]:
+            i = T.sh_i[k]
+            fr, fg, fb = shadow_filter(R, sh[0, k], sh[1, k], sh[2, k], sh[3, k], sh[4, k],
+                                       sh[5, k], sh[6, k], sh[7, k], seta, strans, prim_shape,
+                                       shape_material, sph_center, sph_radius, tri_v, tri_n,
+                                       tri_has_n, shape_flip)
+            T.L[0, i] += T.sh_w[0, k] * fr
+            T.L[1, i] += T.sh_w[1, k] * fg
+            T.L[2, i] += T.sh_w[2, k] * fb
 
 
 @njit(inline="always", cache=True)

@@ -49,7 +49,7 @@ from .scene_arrays import MATERIAL_CODES
 
 __all__ = ["named_conductor", "distribution_codes", "CONDUCTOR_TABLE", "MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "MAT_PLASTIC",
-           "MAT_ROUGHPLASTIC", "KIND_CODES",
+           "MAT_ROUGHPLASTIC", "MAT_COOKTORRANCE", "MAT_DIFFTRANS", "MAX_LOBES", "KIND_CODES",
            "DEFAULT_ALPHA"]
 
 MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
@@ -59,10 +59,16 @@ MAT_ROUGHCONDUCTOR = MATERIAL_CODES["roughconductor"]
 MAT_ROUGHDIELECTRIC = MATERIAL_CODES["roughdielectric"]
 MAT_PLASTIC = MATERIAL_CODES["plastic"]
 MAT_ROUGHPLASTIC = MATERIAL_CODES["roughplastic"]
+MAT_COOKTORRANCE = MATERIAL_CODES["gibench_cooktorrance"]
+MAT_DIFFTRANS = MATERIAL_CODES["gibench_difftrans"]
+#: Most roughness lobes of a ``gibench_cooktorrance`` mixture (its row holds them in
+#: ``cond_eta`` / ``cond_k``).
+MAX_LOBES = 3
 #: Material kind codes of :attr:`MaterialArrays.kind` (those of ``scene_arrays.MATERIAL_CODES``).
 KIND_CODES = {"diffuse": MAT_DIFFUSE, "conductor": MAT_CONDUCTOR, "dielectric": MAT_DIELECTRIC,
               "roughconductor": MAT_ROUGHCONDUCTOR, "roughdielectric": MAT_ROUGHDIELECTRIC,
-              "plastic": MAT_PLASTIC, "roughplastic": MAT_ROUGHPLASTIC}
+              "plastic": MAT_PLASTIC, "roughplastic": MAT_ROUGHPLASTIC,
+              "gibench_cooktorrance": MAT_COOKTORRANCE, "gibench_difftrans": MAT_DIFFTRANS}
 
 #: Mitsuba's default roughness of roughconductor / roughdielectric.
 DEFAULT_ALPHA = 0.1
@@ -90,7 +96,13 @@ def named_conductor(name: str, *, where: str = "conductor") -> tuple[np.ndarray,
 
 
 class MaterialArrays(NamedTuple):
-    """Per-material parameters of the specular and microfacet BSDFs (one row per material)."""
+    """Per-material parameters of the specular and microfacet BSDFs (one row per material).
+
+    The gibench-only thesis models reuse the rows: a ``gibench_cooktorrance`` row holds
+    ρ in ``spec_refl``, (k_d, k_s, 0) in ``spec_trans``, the mixture's roughnesses α_k
+    in ``cond_eta`` and weights w_k in ``cond_k`` (``MAX_LOBES`` of them, unused lobes
+    weight 0), int_ior/ext_ior in ``diel_eta``; a ``gibench_difftrans`` row holds ρ in
+    ``spec_refl`` and τ in ``spec_trans``."""
 
     spec_refl: np.ndarray       # (M, 3) specular_reflectance
     spec_trans: np.ndarray      # (M, 3) specular_transmittance (dielectrics)
@@ -150,6 +162,33 @@ def _roughness(p: dict, where: str, distributions: tuple[str, ...] = ("beckmann"
     if not alpha >= 0.0:
         raise SceneError(f"{where}: 'alpha' must be >= 0, got {alpha}")
     return alpha, int(bool(p.get("sample_visible", True)))
+
+
+def _mixture(p: dict, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """The roughness mixture of a ``gibench_cooktorrance``: ``alphas`` and ``weights``
+    (comma-separated strings; default one lobe α = 0.1), checked by
+    :func:`impl.microfacet.mixture_arrays`, padded to ``MAX_LOBES`` lobes of weight 0
+    (α of the last lobe)."""
+    from core.errors import ParamError
+
+    from .microfacet import mixture_arrays
+
+    def floats(name, default):
+        v = p.get(name, default)
+        try:
+            return [float(x) for x in str(v).replace(",", " ").split()]
+        except ValueError:
+            raise SceneError(f"{where}: '{name}' must be a list of numbers, got {v!r}") from None
+
+    a, w = floats("alphas", "0.1"), floats("weights", "1")
+    if len(a) > MAX_LOBES:
+        raise UnsupportedError(f"{where}: at most {MAX_LOBES} roughness lobes are modelled, got {len(a)}")
+    try:
+        a, w = mixture_arrays(a, w)
+    except ParamError as exc:
+        raise SceneError(f"{where}: {exc}") from None
+    pad = MAX_LOBES - len(a)
+    return np.concatenate([a, np.full(pad, a[-1])]), np.concatenate([w, np.zeros(pad)])
 
 
 def material_arrays(scene: Scene, *, algorithm: str = "whitted",
@@ -241,6 +280,26 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             spec_trans[i] = _rgb_param(p, "specular_transmittance", 1.0, where)
         if m.kind in ("roughconductor", "roughdielectric"):
             alpha[i], visible[i] = _roughness(p, where, distributions)
+        elif m.kind == "gibench_cooktorrance":
+            spec_refl[i] = _rgb_param(p, "reflectance", 0.5, where)
+            kd, ks = float(p.get("kd", 0.5)), float(p.get("ks", 0.5))
+            if kd + ks > 1.0 + 1e-12:
+                raise SceneError(f"{where}: gibench_cooktorrance needs kd + ks <= 1 (the thesis's "
+                                 f"d + s = 1), got kd={kd} + ks={ks} = {kd + ks}")
+            spec_trans[i] = (kd, ks, 0.0)
+            a, w = _mixture(p, where)
+            cond_eta[i], cond_k[i] = a, w
+            alpha[i] = a[0]
+            n_int = lookup_ior(p.get("int_ior", 1.5), what=f"{where}: int_ior")
+            n_ext = lookup_ior(p.get("ext_ior", 1.0), what=f"{where}: ext_ior")
+            diel_int[i], diel_ext[i], diel_eta[i] = n_int, n_ext, n_int / n_ext
+        elif m.kind == "gibench_difftrans":
+            rho = _rgb_param(p, "reflectance", 0.5, where)
+            tau = _rgb_param(p, "transmittance", 0.5, where)
+            if np.any(rho + tau > 1.0 + 1e-12):
+                raise SceneError(f"{where}: gibench_difftrans needs reflectance + transmittance <= 1 "
+                                 f"per channel, got {rho.tolist()} + {tau.tolist()}")
+            spec_refl[i], spec_trans[i] = rho, tau
     return MaterialArrays(spec_refl, spec_trans, cond_eta, cond_k, diel_eta, diel_int, diel_ext,
                           kind, alpha, visible)
 

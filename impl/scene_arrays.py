@@ -93,7 +93,7 @@ class SceneArrays(NamedTuple):
 
 
 MATERIAL_CODES = {"diffuse": 0, "conductor": 1, "dielectric": 2, "roughconductor": 3, "roughdielectric": 4,
-                  "plastic": 5, "roughplastic": 6}
+                  "plastic": 5, "roughplastic": 6, "gibench_cooktorrance": 7, "gibench_difftrans": 8}
 
 
 def diffuse_texture(m) -> dict | None:

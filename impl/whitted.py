@@ -101,9 +101,22 @@ Pixel sampling as in ``raycast``: ``spp = 1`` traces the pixel centre,
 ``spp = k²`` a k×k jittered grid (box filter), returning the variance of the
 pixel mean.
 
+Shadows through glass (thesis 2.2: shadow rays pass transparent objects,
+attenuated by their transmittance): with ``shadow_mode=transmissive`` a
+shadow ray that meets smooth ``dielectric`` surfaces keeps its light times
+(1 − F) × ``specular_transmittance`` per interface, along the straight
+segment (:func:`impl.lighting.shadow_filter`); any other surface still
+blocks it.  This is Whitted's approximation, not light transport: the
+segment is not refracted, so the light is not focused into a caustic; its
+error against full transport (``path``) is a model error, reported by the
+``thesis`` suite on ``thesis/glass_shadow.xml`` and checked by
+``tests/test_transmissive_shadows.py``.  The default ``opaque`` stops shadow rays at
+glass (the matched Mitsuba reference does the same).
+
 Leaves out: indirect diffuse light (no interreflection between diffuse
 surfaces), light transported *through* or *off* specular surfaces to a
-diffuse one (caustics: shadow rays are blocked by glass), glossy BSDFs
+diffuse one (caustics; shadow rays are blocked by glass unless
+``shadow_mode=transmissive`` lets them through unrefracted), glossy BSDFs
 (``roughconductor`` and other materials raise ``NotImplementedError``),
 absorbing media inside dielectrics, named conductor IOR spectra.
 
@@ -123,6 +136,9 @@ shininess       float   32       Phong exponent n
 c1, c2, c3      float   0, 0, 1  f_att = 1 / (c1 + c2 d + c3 d²)
 fatt_clamp      bool    false    clamp f_att to 1, as the thesis does
 shadows         bool    true     cast shadow rays
+shadow_mode     str     opaque   opaque: a shadow ray stops at any surface |
+                                 transmissive: it passes smooth dielectrics,
+                                 filtered by their Fresnel transmittance
 intersect       str     stable   ray–sphere form for every sphere test:
                                  algebraic | geometric | stable
 precision       str     float64  intersection arithmetic: float32 | float64
@@ -173,8 +189,8 @@ from core.errors import ParamError
 from .camera import camera_params
 from .kernel import batch_kernel
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import (SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo, direct_batch,
-                       direct_light_rays, environment_radiance, local_model, surface)
+from .lighting import (SHADOW_MODES, SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo,
+                       direct_batch, direct_light_rays, environment_radiance, local_model, surface)
 from .materials import SpecularArrays, material_arrays
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, ray_config, refine, round_ray
@@ -418,7 +434,7 @@ def _trees(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
                 lr, lg, lb, nsh = direct_light_rays(
                     px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, A, M.ks,
                     M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows, M.light_samples, seed, pixel,
-                    sample + leaf * spp, R)
+                    sample + leaf * spp, R, M.shadow_eta, M.shadow_trans)
                 counts[_C_SHADOW] += nsh
             leaf += 1
             counts[_C_DIFFUSE] += 1
@@ -533,7 +549,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
                     sampler_code(params))
     cut = np.zeros((H, W, 2))
     t1 = time.perf_counter()
-    _render_kernel(cam, A, S, R, local_model(params), max_depth, float(params["hall_threshold"]),
+    _render_kernel(cam, A, S, R, local_model(params, S), max_depth, float(params["hall_threshold"]),
                    film, spp, seed, cut)
     t2 = time.perf_counter()
     counters = film_counters(film, COUNTERS)
@@ -559,7 +575,7 @@ def trace(scene: Scene, origin, direction, params: dict | None = None, *, seed: 
     d = d / np.linalg.norm(d)
     R = ray_config(A, p, algorithm="whitted")
     rgb, cnt, cut_w = _trace_one(o[0], o[1], o[2], d[0], d[1], d[2], A, S, R, p["max_depth"],
-                                 float(p["hall_threshold"]), local_model(p), seed)
+                                 float(p["hall_threshold"]), local_model(p, S), seed)
     counts, hist = cnt[:len(COUNTERS)], cnt[len(COUNTERS):]
     counters = {name: int(v) for name, v in zip(COUNTERS, counts)}
     counters["tree_depth_histogram"] = [int(v) for v in hist]
@@ -582,6 +598,8 @@ ALGORITHM = Algorithm(
         Param("light_samples", int, 16, "shadow rays per area emitter per diffuse hit"),
         *PHONG_PARAMS,
         Param("shadows", bool, True, "cast shadow rays"),
+        Param("shadow_mode", str, "opaque", "shadow rays at a smooth dielectric: opaque (stop) | "
+              "transmissive (pass, filtered by its Fresnel transmittance)", choices=SHADOW_MODES),
         *RAY_PARAMS,
     ),
     render=render,

@@ -161,6 +161,7 @@ def test_run_studies_returns_flat_rows_with_titles():
                                   strategies=[{"strategy": "robust"}]),
         "grazing_sphere": {"distances": [4.0], "azimuths": 2},
         "grazing_plane": {"thetas": [0.1, 0.0]},
+        "sphere_form_cost": {"rays": 1024, "repeats": 1},
     }
     out = studies.run_studies(small, mitsuba=False)
     assert set(out) == set(studies.STUDIES)

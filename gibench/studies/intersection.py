@@ -18,6 +18,11 @@ study                  what it measures
 ``grazing_sphere``     NaNs and hit/miss errors of rays tangent to a sphere
 ``grazing_plane``      NaNs and t errors of rays nearly parallel to a plane,
                        a polygon and a triangle
+``sphere_form_cost``   time per ray of each ray–sphere form × precision on
+                       one batch of rays (thesis 2.3.3: the algebraic
+                       solution costs more than the geometric one), the
+                       forms timed in alternation, with each form's hits
+                       checked against the float64 closed form
 =====================  ======================================================
 
 The Mitsuba 3 side of the distant sphere is :func:`mitsuba_distant_sphere`;
@@ -51,7 +56,8 @@ from core.transforms import look_at, rotate
 from . import StudyInfo, as_config, read_config, run_registered, table_titles
 
 __all__ = ["StudyInfo", "STUDIES", "TABLES", "PRECISIONS", "DEFAULT_CONFIG", "load_config", "run_studies",
-           "unit_roundoff", "distant_sphere", "self_intersection", "grazing_sphere", "grazing_plane"]
+           "unit_roundoff", "distant_sphere", "self_intersection", "grazing_sphere", "grazing_plane",
+           "sphere_form_cost", "sphere_hits_agree"]
 
 PRECISIONS = ("float32", "float64")
 DEFAULT_CONFIG = REPO_ROOT / "suites" / "hard" / "studies.toml"
@@ -711,6 +717,73 @@ def mitsuba_distant_sphere(scene_path, *, distances, variants=("scalar_rgb", "ll
     return rows
 
 
+# ======================================================== sphere form cost ===
+
+def _cost_rays(n: int, seed: int):
+    """n unit rays from points around (0, 0, −10) towards the [−1.5, 1.5]² window at z = 0
+    (about a third of them meet the unit sphere at the origin)."""
+    rng = np.random.default_rng(seed)
+    o = np.array([0.0, 0.0, -10.0]) + rng.uniform(-0.5, 0.5, (n, 3))
+    target = np.column_stack([rng.uniform(-1.5, 1.5, (n, 2)), np.zeros(n)])
+    d = target - o
+    return o, d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def sphere_hits_agree(t: np.ndarray, o: np.ndarray, d: np.ndarray, radius: float = 1.0,
+                      precision: str = "float64") -> bool:
+    """Whether the hits ``t`` (−1 = miss) of the rays (o, d) with the sphere of ``radius``
+    at the origin are the float64 closed form's: hit exactly where the line passes
+    within the radius (rays within 1e-3 of tangency left out), t = b − sqrt(r² − p²)
+    to 1e-4 (float32) or 1e-12 (float64) relative."""
+    b = -np.einsum("ij,ij->i", o, d)
+    perp = np.linalg.norm(o + b[:, None] * d, axis=1)
+    clear = np.abs(perp - radius) > 1e-3
+    if not np.array_equal((t >= 0)[clear], (perp < radius)[clear]):
+        return False
+    hit = clear & (perp < radius)
+    exact = b[hit] - np.sqrt(radius * radius - perp[hit] ** 2)
+    rtol = 1e-4 if precision == "float32" else 1e-12
+    return bool(np.allclose(t[hit], exact, rtol=rtol, atol=0.0))
+
+
+def sphere_form_cost(*, rays=1 << 16, repeats=31, forms=SPHERE_FORMS, precisions=PRECISIONS,
+                     seed=20240917) -> list[dict]:
+    """Time of :func:`impl.intersect.ray_sphere_batch` on ``rays`` rays against the unit
+    sphere, per form × precision: one untimed warm-up each, then ``repeats`` rounds in
+    which every form × precision is timed once in turn (so machine load drifts over all
+    of them alike); median, min and max seconds, rays per second, the median relative
+    to the algebraic form's in the same precision, and whether the hits are the closed
+    form's (:func:`sphere_hits_agree`).  Wall-clock times of a shared machine: a
+    measurement for the report, never a test's pass condition."""
+    import time as _time
+
+    o64, d64 = _cost_rays(int(rays), int(seed))
+    cases = [(f, p) for p in precisions for f in forms]
+    inputs = {p: (o64.astype(p), d64.astype(p)) for p in precisions}
+    times = {c: [] for c in cases}
+    agree = {}
+    for f, p in cases:
+        o, d = inputs[p]
+        t = ray_sphere_batch(o, d, np.zeros(3, dtype=p), 1.0, form=f, dtype=p)
+        agree[(f, p)] = sphere_hits_agree(np.asarray(t, np.float64), o64, d64, 1.0, p)
+    for _ in range(int(repeats)):
+        for f, p in cases:
+            o, d = inputs[p]
+            t0 = _time.perf_counter()
+            ray_sphere_batch(o, d, np.zeros(3, dtype=p), 1.0, form=f, dtype=p)
+            times[(f, p)].append(_time.perf_counter() - t0)
+    med = {c: float(np.median(v)) for c, v in times.items()}
+    rows = []
+    for f, p in cases:
+        base = med.get(("algebraic", p))
+        rows.append({"form": f, "precision": p, "rays": int(rays), "repeats": int(repeats),
+                     "median_s": med[(f, p)], "min_s": float(min(times[(f, p)])),
+                     "max_s": float(max(times[(f, p)])), "mrays_per_s": rays / med[(f, p)] / 1e6,
+                     "vs_algebraic": med[(f, p)] / base if base else float("nan"),
+                     "hits_agree": agree[(f, p)]})
+    return rows
+
+
 # ================================================================ registry ===
 
 STUDIES = {s.name: s for s in (
@@ -740,6 +813,12 @@ STUDIES = {s.name: s for s in (
               "square polygon and a triangle in it), and a ray lying in the plane: NaNs, hit/miss and the "
               "relative error of t = h / sin θ against a tolerance ~u / sin θ.",
               grazing_plane),
+    StudyInfo("sphere_form_cost", "Ray–sphere cost: algebraic vs geometric (thesis 2.3.3)",
+              "Median wall-clock time of the batch ray–sphere kernel per form and precision on one batch "
+              "of rays (about a third hit), the forms timed in alternation over the repeats; vs_algebraic "
+              "is the median over the algebraic form's in the same precision, hits_agree whether the "
+              "hits match the float64 closed form.  Shared-machine timings: a measurement, not a check.",
+              sphere_form_cost),
 )}
 
 

@@ -31,6 +31,12 @@ study                     what it measures
                           the geometry stage, Gouraud vertices shaded — and
                           the time share of the tessellation every frame
                           could reuse
+``visibility_growth``     render time of the z-buffer and of depth sort as
+                          the triangle count grows (thesis 1.3: the
+                          z-buffer's cost tends to be independent of the
+                          number of objects, depth sort's grows faster),
+                          the two timed in alternation, with the fraction
+                          of pixels where their images agree
 ``mach_bands``            Mach-band strength (:func:`reports.metrics.mach_band`:
                           jump of the log-luminance slope across polygon
                           edges beyond the exact image's) per mode ×
@@ -65,7 +71,8 @@ from core.provenance import REPO_ROOT
 from core.errors import SuiteError
 
 __all__ = ["STUDIES", "TABLES", "boundary_mask", "polygon_edges", "shading_convergence", "highlights",
-           "mach_bands", "scan_coherence", "frame_coherence", "zfighting", "visibility", "run_studies"]
+           "mach_bands", "scan_coherence", "frame_coherence", "zfighting", "visibility",
+           "visibility_growth", "image_agreement", "run_studies"]
 
 SUITES = REPO_ROOT / "suites"
 ALGORITHMS = {"zbuffer": zbuffer.ALGORITHM, "depthsort": depth_sort.ALGORITHM}
@@ -261,6 +268,44 @@ def scan_coherence(*, scenes=("spheres/lit_sphere.xml", "cornell/cornell_point.x
     return rows
 
 
+def image_agreement(a, b, tolerance=1e-4) -> float:
+    """Fraction of pixels whose RGB values differ by at most ``tolerance`` in every channel."""
+    diff = np.abs(np.asarray(a, np.float64) - np.asarray(b, np.float64)).max(axis=-1)
+    return float(np.mean(diff <= tolerance))
+
+
+def visibility_growth(*, scene="spheres/lit_sphere.xml", segments=(4, 12, 32, 100, 318), repeats=3,
+                      tolerance=1e-4) -> list[dict]:
+    """Rows (algorithm, segments, triangles, median/min/max seconds, µs per triangle,
+    agree) per tessellation × rasteriser: the scene's sphere as a UV sphere of
+    ``segments`` (10 … 1e5 triangles with the default), rendered by ``zbuffer`` and
+    ``depthsort`` after an untimed warm-up, the two timed in turn ``repeats`` times
+    (load drifts over both alike).  ``agree``: the fraction of pixels whose RGB differs
+    by at most ``tolerance`` between the two images (the same visible surfaces).
+    Wall-clock times of a shared machine: a measurement, never a test's pass condition."""
+    sc = _scene(scene)
+    rows = []
+    for n in segments:
+        params = {k: a.parse_params({"tessellation": int(n)}) for k, a in ALGORITHMS.items()}
+        times = {k: [] for k in ALGORITHMS}
+        out = {}
+        for k, a in ALGORITHMS.items():
+            out[k] = a.render(sc, params[k], seed=0)              # warm-up, and the image
+        for _ in range(int(repeats)):
+            for k, a in ALGORITHMS.items():
+                t0 = time.perf_counter()
+                a.render(sc, params[k], seed=0)
+                times[k].append(time.perf_counter() - t0)
+        agree = image_agreement(out["zbuffer"].image, out["depthsort"].image, tolerance)
+        for k in ALGORITHMS:
+            tris = int(out[k].counters.get("triangles_in", sphere_triangle_count(int(n)) + 2))
+            med = statistics.median(times[k])
+            rows.append({"algorithm": k, "segments": int(n), "triangles": tris, "repeats": int(repeats),
+                         "median_s": med, "min_s": min(times[k]), "max_s": max(times[k]),
+                         "us_per_triangle": 1e6 * med / tris, "agree": agree})
+    return rows
+
+
 def _turned(scene, degrees):
     """``scene`` with its camera turned about its own up axis by ``degrees``."""
     a = np.deg2rad(degrees)
@@ -408,6 +453,13 @@ STUDIES = {
                         "triangle, of triangles past the geometry stage, of Gouraud vertices already "
                         "shaded, and the time share of each pipeline stage (thesis 1.2.1).",
                         frame_coherence),
+    "visibility_growth": ("Z-buffer vs depth sort as the triangle count grows",
+                          "Median wall-clock render time of zbuffer and depthsort on a UV-sphere mesh of 10 … "
+                          "1e5 triangles, the two timed in alternation, µs per triangle, and the fraction of "
+                          "pixels where their images agree (thesis 1.3: the z-buffer's cost tends to be "
+                          "independent of the number of objects; depth sort's sort and overlap tests grow "
+                          "faster).  Shared-machine timings: a measurement, not a check.",
+                          visibility_growth),
     "zfighting": ("Z-fighting vs near plane and depth format",
                   "Two surfaces 0.01 apart seen at a slant: pixels where the z-buffer keeps the farther one, "
                   "per depth format (float32, 24- and 16-bit fixed point) and near clip distance (thesis 1.3.1).",
