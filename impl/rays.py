@@ -136,10 +136,12 @@ _SCALED = STRATEGIES.index("scaled")
 #: (benchmarks/bench_accel.py, the scaling study).
 AUTO_ACCEL = "bvh-wide"
 #: ``accel=auto`` traces scenes with fewer primitives than this by brute force:
-#: below it a hierarchy's traversal costs more than it saves (measured crossover of
-#: camera-ray closest hits, brute force against the wide BVH, on the scaling study's
-#: sphere fields and meshes).
-AUTO_MIN_PRIMS = 40
+#: below it the wide BVH's traversal costs more than it saves.  Measured crossover
+#: of whole renders (single-thread CPU time, brute force against the wide BVH, the
+#: wide BVH's traversal on raw pointers): the wide BVH loses at 12 primitives
+#: (Cornell box with a mirror and a glass sphere, whitted) and wins from 24 on
+#: (thin_gap, cornell_point, raycast).
+AUTO_MIN_PRIMS = 16
 
 #: The parameter-table rows of the ray tracers that take a ray configuration.
 PARAMS = (
@@ -152,7 +154,7 @@ PARAMS = (
     Param("epsilon", float, 1e-4, "ε of offset=epsilon (t_min) and offset=normal (scene units)"),
     Param("accel", str, "auto", "acceleration structure of every ray query (thesis 2.6; "
           "impl.accel): none = brute force; auto = bvh-wide with the stable sphere form from "
-          "40 primitives on, none below and with the algebraic/geometric forms", choices=("auto",) + _accel.ACCELS),
+          "16 primitives on, none below and with the algebraic/geometric forms", choices=("auto",) + _accel.ACCELS),
     Param("slab_normals", int, 7, "plane normals of accel=slabs (3 axes, 7 = + cube diagonals, "
           "13 = + face diagonals)", choices=_accel.SLAB_COUNTS),
     Param("grid_density", float, _accel.GRID_DENSITY, "accel=grid: voxels per primitive, the grid's "
