@@ -85,6 +85,7 @@ from core.scene import Scene
 from . import microfacet as mf
 from . import plastic as pl
 from .fresnel import fresnel_conductor, fresnel_dielectric
+from .kernel import batch_kernel
 from .materials import (KIND_CODES, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_PLASTIC,
                         MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MAT_ROUGHPLASTIC, MaterialArrays,
                         PlasticArrays, distribution_codes, material_arrays, plastic_arrays)
@@ -226,7 +227,57 @@ def _conductor_fresnel(B: MaterialArrays, mat, cos_i):
             fresnel_conductor(cos_i, B.cond_eta[mat, 2], B.cond_k[mat, 2]) * B.spec_refl[mat, 2])
 
 
-@njit(cache=True, _nrt=True)             # the plastic lobes allocate: runtime on
+# The plastic lobes (:mod:`impl.plastic`) work on small arrays, which need numba's
+# runtime: they sit in their own functions (runtime on, called only at plastic hits),
+# so that the dispatchers below are batch kernels without reference counting.
+
+@njit(cache=True, _nrt=True)
+def _plastic_sample(B: MaterialArrays, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, u0, u1, u2):
+    """:func:`bsdf_sample` of a plastic or roughplastic material."""
+    wi = np.array((wix, wiy, wiz))
+    rho = np.array((rho_r, rho_g, rho_b))
+    if k == MAT_PLASTIC:
+        wo, pdf, w, delta = pl.plastic_sample(wi, u0, u1, u2, B.pl_eta[mat], rho, B.pl_specular[mat],
+                                              B.pl_spec_weight[mat], B.pl_fdr_int[mat],
+                                              B.pl_nonlinear[mat] != 0)
+    else:
+        wo, pdf, w = pl.roughplastic_sample(wi, u0, u1, u2, B.pl_eta[mat], B.pl_alpha[mat],
+                                            B.pl_visible[mat] != 0, rho, B.pl_specular[mat],
+                                            B.pl_spec_weight[mat], B.pl_ext_t[mat],
+                                            B.pl_int_r[mat], B.pl_nonlinear[mat] != 0, B.dist[mat])
+        delta = False
+    if not pdf > 0.0:
+        return wo[0], wo[1], wo[2], 0.0, 0.0, 0.0, 0.0, False, 1.0
+    return wo[0], wo[1], wo[2], w[0], w[1], w[2], pdf, delta, 1.0
+
+
+@njit(cache=True, _nrt=True)
+def _plastic_eval(B: MaterialArrays, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, wox, woy, woz):
+    """:func:`bsdf_eval` of a plastic or roughplastic material."""
+    wi = np.array((wix, wiy, wiz))
+    wo = np.array((wox, woy, woz))
+    rho = np.array((rho_r, rho_g, rho_b))
+    if k == MAT_PLASTIC:
+        f = pl.plastic_eval(wi, wo, B.pl_eta[mat], rho, B.pl_fdr_int[mat], B.pl_nonlinear[mat] != 0)
+    else:
+        f = pl.roughplastic_eval(wi, wo, B.pl_eta[mat], B.pl_alpha[mat], rho, B.pl_specular[mat],
+                                 B.pl_ext_t[mat], B.pl_int_r[mat], B.pl_nonlinear[mat] != 0,
+                                 B.dist[mat])
+    return f[0], f[1], f[2]
+
+
+@njit(cache=True, _nrt=True)
+def _plastic_pdf(B: MaterialArrays, mat, k, wix, wiy, wiz, wox, woy, woz):
+    """:func:`bsdf_pdf` of a plastic or roughplastic material."""
+    wi = np.array((wix, wiy, wiz))
+    wo = np.array((wox, woy, woz))
+    if k == MAT_PLASTIC:
+        return pl.plastic_pdf(wi, wo, B.pl_eta[mat], B.pl_spec_weight[mat])
+    return pl.roughplastic_pdf(wi, wo, B.pl_alpha[mat], B.pl_visible[mat] != 0, B.pl_spec_weight[mat],
+                               B.pl_ext_t[mat], B.dist[mat])
+
+
+@batch_kernel
 def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2):
     """Sample wo for material ``mat`` (diffuse albedo ρ given, textures resolved by the caller).
 
@@ -243,21 +294,7 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
         x, y, z = sample_cosine_hemisphere(u1, u2)
         return x, y, z, rho_r, rho_g, rho_b, cosine_hemisphere_pdf(z), False, 1.0
     if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
-        wi = np.array((wix, wiy, wiz))
-        rho = np.array((rho_r, rho_g, rho_b))
-        if k == MAT_PLASTIC:
-            wo, pdf, w, delta = pl.plastic_sample(wi, u0, u1, u2, B.pl_eta[mat], rho, B.pl_specular[mat],
-                                                  B.pl_spec_weight[mat], B.pl_fdr_int[mat],
-                                                  B.pl_nonlinear[mat] != 0)
-        else:
-            wo, pdf, w = pl.roughplastic_sample(wi, u0, u1, u2, B.pl_eta[mat], B.pl_alpha[mat],
-                                                B.pl_visible[mat] != 0, rho, B.pl_specular[mat],
-                                                B.pl_spec_weight[mat], B.pl_ext_t[mat],
-                                                B.pl_int_r[mat], B.pl_nonlinear[mat] != 0, B.dist[mat])
-            delta = False
-        if not pdf > 0.0:
-            return wo[0], wo[1], wo[2], 0.0, 0.0, 0.0, 0.0, False, 1.0
-        return wo[0], wo[1], wo[2], w[0], w[1], w[2], pdf, delta, 1.0
+        return _plastic_sample(B, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, u0, u1, u2)
     if k == MAT_CONDUCTOR:
         if wiz <= 0.0:
             return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, True, 1.0
@@ -293,7 +330,7 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
             s * B.spec_trans[mat, 1], s * B.spec_trans[mat, 2], 1.0 - F, True, eta_it)
 
 
-@njit(cache=True, _nrt=True)             # the plastic lobes allocate: runtime on
+@batch_kernel
 def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz):
     """f(wi, wo)·|cos θ_o| (RGB) of the non-delta lobes; 0 for delta BSDFs."""
     k = B.kind[mat]
@@ -303,16 +340,7 @@ def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, 
             return rho_r * c, rho_g * c, rho_b * c
         return 0.0, 0.0, 0.0
     if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
-        wi = np.array((wix, wiy, wiz))
-        wo = np.array((wox, woy, woz))
-        rho = np.array((rho_r, rho_g, rho_b))
-        if k == MAT_PLASTIC:
-            f = pl.plastic_eval(wi, wo, B.pl_eta[mat], rho, B.pl_fdr_int[mat], B.pl_nonlinear[mat] != 0)
-        else:
-            f = pl.roughplastic_eval(wi, wo, B.pl_eta[mat], B.pl_alpha[mat], rho, B.pl_specular[mat],
-                                     B.pl_ext_t[mat], B.pl_int_r[mat], B.pl_nonlinear[mat] != 0,
-                                     B.dist[mat])
-        return f[0], f[1], f[2]
+        return _plastic_eval(B, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, wox, woy, woz)
     if k == MAT_ROUGHCONDUCTOR:
         v, cos_ih = mf.conductor_eval(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH, wix, wiy, wiz,
                                       wox, woy, woz, B.dist[mat])
@@ -329,19 +357,14 @@ def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, 
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True, _nrt=True)             # the plastic lobes allocate: runtime on
+@batch_kernel
 def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
     """Solid-angle pdf of :func:`bsdf_sample` producing wo (0 for delta lobes)."""
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
         return cosine_hemisphere_pdf(woz) if wiz > 0.0 else 0.0
     if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
-        wi = np.array((wix, wiy, wiz))
-        wo = np.array((wox, woy, woz))
-        if k == MAT_PLASTIC:
-            return pl.plastic_pdf(wi, wo, B.pl_eta[mat], B.pl_spec_weight[mat])
-        return pl.roughplastic_pdf(wi, wo, B.pl_alpha[mat], B.pl_visible[mat] != 0, B.pl_spec_weight[mat],
-                                   B.pl_ext_t[mat], B.dist[mat])
+        return _plastic_pdf(B, mat, k, wix, wiy, wiz, wox, woy, woz)
     if k == MAT_ROUGHCONDUCTOR:
         return mf.conductor_pdf(mf.clamp_alpha(B.alpha[mat]), B.visible[mat], wix, wiy, wiz,
                                 wox, woy, woz, B.dist[mat])

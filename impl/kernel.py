@@ -22,7 +22,7 @@ numba refuses to compile it, naming the operation.  Helpers it calls with
 version per signature, whichever caller came first: so every njit function that
 allocates and can be reached from a batch kernel states ``_nrt=True`` (the
 acceleration structures' query entry points, :func:`impl.tracer.closest_batch`
-and ``occluded_batch``, the BSDFs whose lobes build small arrays).
+and ``occluded_batch``, the plastic BSDF lobes of :mod:`impl.bsdf`).
 """
 
 from __future__ import annotations

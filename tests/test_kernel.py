@@ -16,10 +16,10 @@ from impl import accel, bsdf, lighting, path, raycast, tracer, whitted
 from impl.kernel import batch_kernel
 
 BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, whitted._trees,
-                 whitted._light_leaves, path._paths]
+                 whitted._light_leaves, path._paths, bsdf.bsdf_sample, bsdf.bsdf_eval, bsdf.bsdf_pdf]
 ALLOCATING = [tracer.closest_batch, tracer.occluded_batch, accel.closest, accel.any_hit,
-              accel.closest_rays, accel.occluded_rays, bsdf.bsdf_sample, bsdf.bsdf_eval,
-              bsdf.bsdf_pdf]
+              accel.closest_rays, accel.occluded_rays, bsdf._plastic_sample, bsdf._plastic_eval,
+              bsdf._plastic_pdf]
 
 
 @pytest.mark.parametrize("fn", BATCH_KERNELS, ids=lambda f: f.py_func.__qualname__)
