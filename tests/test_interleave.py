@@ -153,5 +153,11 @@ params = {{ spp = 4, light_samples = 4 }}
     assert set(ladder[0].params["sampler_probe"]) == {"independent", "multijitter"}
     (g,) = points_from_records(recs).values()
     race = top_rung_race(g["own"], g["mitsuba"])
-    assert race["spp"] == 4 and race["spread"] == "paired" and len(race["ratio_rounds"]) == 2
+    # A round whose own times give no time at Mitsuba's error is left out (on a loaded
+    # host the 4-spp configuration can time below the 1-spp one in a round: the round's
+    # front is one point, which cannot be extended), so the count depends on timings: at
+    # most one ratio per round, each finite; without any, the min-max spread.
+    assert race["spp"] == 4 and len(race["ratio_rounds"]) <= 2
+    assert all(math.isfinite(x) and x > 0 for x in race["ratio_rounds"])
+    assert race["spread"] == ("paired" if race["ratio_rounds"] else "min-max")
     assert math.isfinite(race["ratio"]) and race["ratio_min"] <= race["ratio_max"]
