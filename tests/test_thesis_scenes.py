@@ -87,3 +87,27 @@ def test_fig31_path_ztest_passes_and_an_exposure_error_fails():
 
     print(f"aggregate Z: {aggregate(1.0):.2f} (as is), {aggregate(1.05):.2f} (5 % brighter)")
     assert abs(aggregate(1.0)) < 4.0 and abs(aggregate(1.05)) > 4.0
+
+
+@pytest.mark.mitsuba
+def test_radiosity_image_bounds_fail_without_interreflection():
+    """Thesis 3.5: the suite's relMSE bounds of the radiosity images (Cornell room, Fig. 3.1
+    panels) against Mitsuba's full transport hold for the suite's z-buffer-hemicube
+    configurations and fail for the same solve cut to one bounce (direct light only,
+    ``max_bounces=1``): the negative control of the bound."""
+    from references.reference import get_reference
+    from reports.metrics import relmse
+
+    algo = registry.get("radiosity")
+    cases = [c for c in load_suite(SUITES / "thesis.toml").cases
+             if c.algorithm == "radiosity" and c.params.get("formfactor") == "hemicube-zbuffer"]
+    assert len(cases) == 2
+    for case in cases:
+        bound = case.tolerances["relmse"]
+        ref = get_reference(case.scene, transport="full", spp=1024, passes=8)
+        scene = load_scene(case.scene)
+        good = relmse(ref.image, algo.render(scene, algo.parse_params(case.params)).image)
+        cut = relmse(ref.image, algo.render(scene, algo.parse_params({**case.params,
+                                                                      "max_bounces": 1})).image)
+        print(case.scene.name, good, cut, bound)
+        assert good <= bound < cut
