@@ -153,11 +153,16 @@ params = {{ spp = 4, light_samples = 4 }}
     assert set(ladder[0].params["sampler_probe"]) == {"independent", "multijitter"}
     (g,) = points_from_records(recs).values()
     race = top_rung_race(g["own"], g["mitsuba"])
-    # A round whose own times give no time at Mitsuba's error is left out (on a loaded
-    # host the 4-spp configuration can time below the 1-spp one in a round: the round's
-    # front is one point, which cannot be extended), so the count depends on timings: at
-    # most one ratio per round, each finite; without any, the min-max spread.
-    assert race["spp"] == 4 and len(race["ratio_rounds"]) <= 2
+    # The race's arithmetic is pinned on synthetic points above; here only its wiring to
+    # the records.  Whether a time at Mitsuba's error exists depends on the timings: at
+    # 1 and 4 spp of a 160x120 image the fixed costs dominate, and on a loaded host the
+    # 4-spp configuration can time below the 1-spp one (in a round, or in the medians),
+    # leaving a one-point front that cannot be extended.  So: at most one ratio per
+    # round, each finite; a range whenever there is a ratio.
+    assert race["spp"] == 4 and race["same_run"] and race["interleaved"]
+    assert len(race["ratio_rounds"]) <= 2
     assert all(math.isfinite(x) and x > 0 for x in race["ratio_rounds"])
-    assert race["spread"] == ("paired" if race["ratio_rounds"] else "min-max")
-    assert math.isfinite(race["ratio"]) and race["ratio_min"] <= race["ratio_max"]
+    if race["ratio_rounds"]:
+        assert race["spread"] == "paired"
+        assert race["ratio_min"] == min(race["ratio_rounds"]) <= race["ratio_max"]
+    assert not race["ratio"] <= 0                     # a positive ratio, or none (NaN)
