@@ -214,6 +214,21 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
                               strans)
 
 
+@njit(inline="always", cache=True)
+def _through_shadow(R, A, ox, oy, oz, dx, dy, dz, t0, t1, through, seta, strans, cr, cg, cb):
+    """A shadow ray's verdict on the light (cr, cg, cb) it decides: ``(lit, light)``.  An
+    unoccluded ray keeps it; an occluded one is dark unless ``through`` (transmissive
+    shadows), where :func:`shadow_filter` scales it by the smooth dielectrics crossed."""
+    if not occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
+        return True, cr, cg, cb
+    if not through:
+        return False, cr, cg, cb
+    fr, fg, fb = shadow_filter(R, ox, oy, oz, dx, dy, dz, t0, t1, seta, strans, A.prim_shape,
+                               A.shape_material, A.sph_center, A.sph_radius, A.tri_v, A.tri_n,
+                               A.tri_has_n, A.shape_flip)
+    return True, cr * fr, cg * fg, cb * fb
+
+
 @njit(cache=True)
 def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                        A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
@@ -242,14 +257,10 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
                 ox, oy, oz, dx, dy, dz, t0, t1 = shadow_towards(
                     R, px, py, pz, gx, gy, gz, lx, ly, lz, A.light_pos[li, 0], A.light_pos[li, 1],
                     A.light_pos[li, 2], R.shrink_point)
-            if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
-                if not through:
-                    continue
-                fr, fg, fb = shadow_filter(R, ox, oy, oz, dx, dy, dz, t0, t1, seta, strans,
-                                           A.prim_shape, A.shape_material, A.sph_center,
-                                           A.sph_radius, A.tri_v, A.tri_n, A.tri_has_n,
-                                           A.shape_flip)
-                cr, cg, cb = cr * fr, cg * fg, cb * fb
+            lit, cr, cg, cb = _through_shadow(R, A, ox, oy, oz, dx, dy, dz, t0, t1, through, seta,
+                                              strans, cr, cg, cb)
+            if not lit:
+                continue
         r += cr
         g += cg
         b += cb
@@ -275,14 +286,10 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
                 nshadow += 1
                 ox, oy, oz, dx, dy, dz, t0, t1 = shadow_towards(R, px, py, pz, gx, gy, gz, lx, ly,
                                                                 lz, yx, yy, yz, R.shrink_area)
-                if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
-                    if not through:
-                        continue
-                    fr, fg, fb = shadow_filter(R, ox, oy, oz, dx, dy, dz, t0, t1, seta, strans,
-                                               A.prim_shape, A.shape_material, A.sph_center,
-                                               A.sph_radius, A.tri_v, A.tri_n, A.tri_has_n,
-                                               A.shape_flip)
-                    cr, cg, cb = cr * fr, cg * fg, cb * fb
+                lit, cr, cg, cb = _through_shadow(R, A, ox, oy, oz, dx, dy, dz, t0, t1, through, seta,
+                                                  strans, cr, cg, cb)
+                if not lit:
+                    continue
             r += cr
             g += cg
             b += cb
@@ -301,14 +308,10 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
             if shadows:
                 nshadow += 1
                 ox, oy, oz, dx, dy, dz, t0, t1 = shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz)
-                if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
-                    if not through:
-                        continue
-                    fr, fg, fb = shadow_filter(R, ox, oy, oz, dx, dy, dz, t0, t1, seta, strans,
-                                               A.prim_shape, A.shape_material, A.sph_center,
-                                               A.sph_radius, A.tri_v, A.tri_n, A.tri_has_n,
-                                               A.shape_flip)
-                    cr, cg, cb = cr * fr, cg * fg, cb * fb
+                lit, cr, cg, cb = _through_shadow(R, A, ox, oy, oz, dx, dy, dz, t0, t1, through, seta,
+                                                  strans, cr, cg, cb)
+                if not lit:
+                    continue
             r += cr
             g += cg
             b += cb
