@@ -37,6 +37,7 @@ import pytest
 
 from gibench import registry
 from gibench.studies.accel import bounce_rays, camera_rays, mesh_field, sphere_field
+from gibench.interleave import settle
 from impl import accel
 from impl.accel.packets import primary_hits
 from impl.accel.wide import (wide_closest_batch, wide_closest_packets, wide_closest_rays,
@@ -150,9 +151,11 @@ def bench_vs_mitsuba(benchmark, name, rays, precision, structure):
     mi_full_s, t_mi = time_mitsuba(mitsuba, mi_scene, o, d, rounds=ROUNDS, full=True)
     own, mi = [], []
     for _ in range(ROUNDS):                                          # A B A B ...
+        settle()                                  # the other side's threads idle
         t0 = time.perf_counter()
         run()
         own.append(time.perf_counter() - t0)
+        settle()
         mi.append(time_mitsuba(mitsuba, mi_scene, o, d, rounds=1)[0])
     # Same rays, same geometry: hit/miss must agree except at silhouettes.
     agree = float(((prim >= 0) == np.isfinite(t_mi)).mean())
@@ -356,6 +359,7 @@ def bench_raycast_vs_mitsuba_direct(benchmark, tmp_path):
     times = {k: [] for k in runs}
     for _ in range(ROUNDS):                                   # A B C A B C ...
         for k, run in runs.items():
+            settle()                              # the other side's threads idle
             t0 = time.perf_counter()
             run()
             times[k].append(time.perf_counter() - t0)

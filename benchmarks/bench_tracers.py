@@ -12,8 +12,10 @@ path     cornell_box, diffuse_room                    ``path``            full
 
 * ``bench_equal_spp``: own and Mitsuba render at the same spp (the suite's),
   alternated (own, Mitsuba, own, ...) for ``ROUNDS`` rounds after one warm-up
-  render each (JIT / cache load; Dr.Jit kernel compile); medians, the clock
-  stopped after ``dr.sync_thread()`` on the Mitsuba side.  ``extra_info``:
+  render each (JIT / cache load; Dr.Jit kernel compile); each timed render
+  starts once the process is idle (:func:`gibench.interleave.settle`: the
+  other side's worker threads still spin after its render returns); medians,
+  the clock stopped after ``dr.sync_thread()`` on the Mitsuba side.  ``extra_info``:
   both medians and spreads, their ratio, the own setup/trace split
   (``RenderResult.timings``) and the own rays per second.
 * ``bench_equal_error``: both sides render a ladder of sample counts
@@ -40,6 +42,7 @@ import numpy as np
 import pytest
 
 from gibench import registry
+from gibench.interleave import settle
 from core.loader import load_scene
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"
@@ -105,13 +108,17 @@ def _file_depth(scene: str) -> int:
 
 
 def alternated(a, b, rounds: int = ROUNDS):
-    """Warm both up, then time ``a`` and ``b`` alternately: (times_a, times_b, last a, last b)."""
+    """Warm both up, then time ``a`` and ``b`` alternately, each after
+    :func:`gibench.interleave.settle` (the other side's worker threads idle): (times_a,
+    times_b, last a, last b)."""
     out_a, out_b = a(), b()
     ta, tb = [], []
     for _ in range(rounds):
+        settle()
         t0 = time.perf_counter()
         out_a = a()
         ta.append(time.perf_counter() - t0)
+        settle()
         t0 = time.perf_counter()
         out_b = b()
         tb.append(time.perf_counter() - t0)

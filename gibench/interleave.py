@@ -11,6 +11,14 @@ round: task ``i``'s ``k``-th time and task ``j``'s ``k``-th time were measured
 seconds apart, so their ratio is a paired ratio under the same load
 (:func:`paired_ratios`).
 
+Before every timed task :func:`settle` waits until this process is idle:
+both renderers leave worker threads busy after a render returns (Dr.Jit's
+pool keeps spinning for tens of milliseconds, numba's OpenMP threads for a
+few), and a render started then shares the two cores with them.  Measured in
+one process: a raycast render of ``lit_sphere`` started right after a Mitsuba
+render took about twice its time in a row of own renders; after the wait, the
+same.
+
 :func:`spread` is what the records keep of repeated timings: the minimum,
 median and maximum.
 """
@@ -19,10 +27,11 @@ from __future__ import annotations
 
 import os
 import statistics
+import time
 from dataclasses import dataclass
 from typing import Callable
 
-__all__ = ["Timed", "round_order", "run_rounds", "spread", "paired_ratios", "load_average"]
+__all__ = ["Timed", "round_order", "run_rounds", "settle", "spread", "paired_ratios", "load_average"]
 
 SIDES = ("own", "mitsuba")
 
@@ -53,6 +62,21 @@ def round_order(tasks: list[Timed], k: int) -> list[int]:
     return order[::-1] if k % 2 else order
 
 
+def settle(window: float = 0.01, busy: float = 0.1, limit: float = 1.0) -> float:
+    """Wait until this process's threads are idle: until a ``window``-second sleep costs
+    the process less than ``busy`` × ``window`` seconds of CPU time (worker threads of a
+    finished render still spinning), or ``limit`` seconds have passed.  Returns the wait
+    in seconds.  CPU time of other processes does not count: their load is what the
+    alternation of the two sides evens out."""
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < limit:
+        c0 = time.process_time()
+        time.sleep(window)
+        if time.process_time() - c0 < busy * window:
+            break
+    return time.perf_counter() - t0
+
+
 def load_average() -> float | None:
     """The 1-minute load average (None where the platform has none)."""
     try:
@@ -62,7 +86,8 @@ def load_average() -> float | None:
 
 
 def run_rounds(tasks: list[Timed], repeats: int) -> dict:
-    """Run every task once per round for ``repeats`` rounds (:func:`round_order`).
+    """Run every task once per round for ``repeats`` rounds (:func:`round_order`), each
+    after :func:`settle`.
 
     Returns ``{"times": [[t_round0, t_round1, ...] per task], "order": [task names of
     round 0], "load": [1-minute load average before, after]}``.
@@ -73,6 +98,7 @@ def run_rounds(tasks: list[Timed], repeats: int) -> dict:
     load = [load_average()]
     for k in range(repeats):
         for i in round_order(tasks, k):
+            settle()
             times[i].append(float(tasks[i].run(k)))
     load.append(load_average())
     return {"times": times, "order": [tasks[i].name for i in round_order(tasks, 0)], "load": load}

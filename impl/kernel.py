@@ -23,6 +23,12 @@ version per signature, whichever caller came first: so every njit function that
 allocates and can be reached from a batch kernel states ``_nrt=True`` (the
 acceleration structures' query entry points, :func:`impl.tracer.closest_batch`
 and ``occluded_batch``, the plastic BSDF lobes of :mod:`impl.bsdf`).
+
+Per-ray queries that a batch kernel calls once per bounce or shadow ray (the wide
+BVH's :func:`impl.accel.wide.wide_closest` and ``wide_any``, which
+:func:`impl.rays.hit` and ``occluded`` call directly) are batch kernels too: called
+through a runtime-on entry point, each call would count references to every array
+of the ray configuration, several times the cost of the traversal itself.
 """
 
 from __future__ import annotations

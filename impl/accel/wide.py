@@ -115,9 +115,10 @@ import math
 import numpy as np
 from llvmlite import ir
 from numba import njit, prange, types
-from numba.extending import intrinsic, overload
+from numba.extending import intrinsic
 
 from ..intersect import like, ray_sphere_form
+from ..kernel import batch_kernel
 from .primitives import _slab64, box_enter, closer, prim_test_arrays as _prim, ulp_above
 from .tree import STACK, _alloca_f64, _alloca_i64
 
@@ -475,15 +476,20 @@ def _tri_lanes(typingctx, data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out):
     return sig, codegen
 
 
-def _as_precision(a, g):
-    """``a`` (float64 words) viewed in the dtype of ``g``'s elements."""
+@intrinsic
+def _ptr_as(typingctx, a, g):
+    """The data pointer of the contiguous array ``a`` (float64 words) as a pointer to
+    the dtype of ``g``'s elements (no array is made: a function compiled without the
+    runtime may not return a view)."""
+    if not (isinstance(a, types.Array) and a.layout == "C" and isinstance(g, types.Array)):
+        return None
+    sig = types.CPointer(g.dtype)(a, g)
 
+    def codegen(context, builder, sig, args):
+        data = context.make_array(sig.args[0])(context, builder, args[0]).data
+        return builder.bitcast(data, context.get_value_type(sig.return_type))
 
-@overload(_as_precision, inline="always")
-def _as_precision_impl(a, g):
-    if g.dtype == types.float32:
-        return lambda a, g: a.view(np.float32)
-    return lambda a, g: a
+    return sig, codegen
 
 
 @njit(inline="always", cache=True)
@@ -592,7 +598,7 @@ def _bind(R):
     lo, hi = R.node_lo, R.node_hi
     sr = R.sph_radius
     T = (_ptr(R.node_a), _ptr(R.node_b), _ptr(R.prim_idx), _ptr(R.acc_f.view(np.float32)),
-         _ptr(R.acc_f.view(np.int32)), _ptr(_as_precision(R.acc_f, sr)), ai[1],
+         _ptr(R.acc_f.view(np.int32)), _ptr_as(R.acc_f, sr), ai[1],
          _ptr(ai[3:4 + S]), _ptr(ai[4 + S:]), R.form, _ptr(R.sph_center), _ptr(sr), sr.shape[0])
     root = (float(lo[0, 0]), float(lo[0, 1]), float(lo[0, 2]), float(hi[0, 0]),
             float(hi[0, 1]), float(hi[0, 2]))
@@ -644,17 +650,21 @@ def _any_from(R, ref0, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return p >= 0, nodes, tests
 
 
-@njit(cache=True, error_model="numpy")
+@batch_kernel(error_model="numpy")
 def wide_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and t in
-    R's precision, prim = -1 on a miss (nodes: wide nodes and leaves opened)."""
+    R's precision, prim = -1 on a miss (nodes: wide nodes and leaves opened).
+    Compiled without numba's runtime (it allocates nothing: :mod:`impl.kernel`), so
+    a per-ray call (:func:`impl.rays.hit` in a tracer's bounce loop) costs no
+    reference counting of R's arrays."""
     T, root, _ = _bind(R)
     return _query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, False)
 
 
-@njit(cache=True, error_model="numpy")
+@batch_kernel(error_model="numpy")
 def wide_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
-    """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``."""
+    """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``; without the
+    runtime, as :func:`wide_closest`."""
     T, root, _ = _bind(R)
     _, p, _, _, nodes, tests = _query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, True)
     return p >= 0, nodes, tests
