@@ -31,6 +31,7 @@ from numba import njit
 from core.scene import Scene
 
 from .envmap import envmap_direction_pdf, envmap_draw
+from .kernel import batch_kernel
 from .lighting import sample_emitter
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
 
@@ -157,7 +158,7 @@ def _tri_normal(v, flip):
     return nx * inv, ny * inv, nz * inv
 
 
-@njit(cache=True)
+@batch_kernel
 def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
     """Next-event estimation: pick a light uniformly and sample a direction from p.
 
@@ -247,7 +248,7 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
             L.shape_emit[sh, 2] / pdf, pdf, False, i)
 
 
-@njit(cache=True)
+@batch_kernel
 def emitter_pdf(A: SceneArrays, L: LightArrays, shape, px, py, pz, dist, cos_y):
     """Solid-angle pdf (incl. selection) with which :func:`sample_light` from p would
     produce the emitter point at distance ``dist`` on ``shape`` (|cos θ_y| there)."""

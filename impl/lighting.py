@@ -65,7 +65,7 @@ from .fresnel import fresnel_dielectric
 from .kernel import batch_kernel
 from .rays import RayConfig, hit, legacy_config, leave, occluded, refine, round_ray
 from .phong import attenuation, phong_brdf_cos
-from .rng import uniform
+from .rng import uniform_from, uniform_prefix
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays
 from .textures import bitmap, checkerboard
 from .tracer import occluded_batch
@@ -324,8 +324,9 @@ def light_uv(seed, pixel, sample, j, k, q, stratified):
     light): dimensions 2 + 2j and 3 + 2j of :func:`impl.rng.uniform`, moved into stratum
     k of a q×q grid when the light's sample count is the square q²."""
     dim = 2 + 2 * j
-    u1 = uniform(seed, pixel, sample, dim)
-    u2 = uniform(seed, pixel, sample, dim + 1)
+    h = uniform_prefix(seed, pixel, sample)
+    u1 = uniform_from(h, dim)
+    u2 = uniform_from(h, dim + 1)
     if stratified:
         u1 = (k % q + u1) / q
         u2 = (k // q + u2) / q

@@ -138,13 +138,14 @@ from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_
 from .lighting import diffuse_albedo, environment_radiance, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, occluded, refine, round_ray
-from .rng import uniform
+from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
 from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
-                     new_batch, new_film, OX, OY, OZ, ray_config_cached, store, TMAX, TMIN)
+                     new_batch, new_film, OX, OY, OZ, ray_config_cached, run_tiles, store, TMAX,
+                     TMIN)
 
 __all__ = ["render", "COUNTERS", "DEBUG_BIAS", "ALGORITHM"]
 
@@ -195,9 +196,10 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
     spectral, max_depth, rr_depth, mis, bias = P.spectral, P.max_depth, P.rr_depth, P.mis, P.bias
     for col in range(T.n):
         pixel = T.pixel[col]
-        w0 = w1 = w2 = 0.0
+        h = uniform_prefix(seed, pixel, sample)      # this path's random numbers: dimension d
+        w0 = w1 = w2 = 0.0                           # is uniform_from(h, d)
         if spectral:
-            w0, w1, w2 = sample_wavelengths(uniform(seed, pixel, sample, _DIM_WAVELENGTH))
+            w0, w1, w2 = sample_wavelengths(uniform_from(h, _DIM_WAVELENGTH))
         counts = T.cnt[col]
         ox, oy, oz = T.ray[OX, col], T.ray[OY, col], T.ray[OZ, col]
         dx, dy, dz = T.ray[DX, col], T.ray[DY, col], T.ray[DZ, col]
@@ -278,9 +280,9 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
 
             # Next-event estimation: one light sample, shadow ray, MIS weight.
             if not delta and L.n_lights > 0:
-                u0 = uniform(seed, pixel, sample, dim)
-                u1 = uniform(seed, pixel, sample, dim + 1)
-                u2 = uniform(seed, pixel, sample, dim + 2)
+                u0 = uniform_from(h, dim)
+                u1 = uniform_from(h, dim + 1)
+                u2 = uniform_from(h, dim + 2)
                 lx, ly, lz, ldist, yx, yy, yz, er, eg, eb, lpdf, ldelta, li = sample_light(
                     A, L, px, py, pz, u0, u1, u2)
                 if spectral:                 # L and A carry unit emission: scale by the spectrum
@@ -316,9 +318,9 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                             b += tb * w * fb * eb
 
             # BSDF sampling: the next direction.
-            u0 = uniform(seed, pixel, sample, dim + 3)
-            u1 = uniform(seed, pixel, sample, dim + 4)
-            u2 = uniform(seed, pixel, sample, dim + 5)
+            u0 = uniform_from(h, dim + 3)
+            u1 = uniform_from(h, dim + 4)
+            u2 = uniform_from(h, dim + 5)
             wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample(
                 B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
             if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
@@ -351,7 +353,7 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                 break
             if depth >= rr_depth:
                 q = min(tmax_ * eta * eta, 0.95)
-                if uniform(seed, pixel, sample, dim + 6) >= q:
+                if uniform_from(h, dim + 6) >= q:
                     counts[_C_RR] += 1
                     break
                 if bias != _BIAS_RR:
@@ -426,7 +428,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
                    DEBUG_BIAS.index(debug_bias))
     film = new_film(W, H, len(COUNTERS), bool(params.get("packets", False)), sampler_code(params))
     t1 = time.perf_counter()
-    _render_kernel(cam, A, L, B, R, S, P, film, spp, seed)
+    run_tiles(_render_kernel, cam, A, L, B, R, S, P, film, spp, seed)
     t2 = time.perf_counter()
     counters = film_counters(film, COUNTERS)
     counters["mean_path_length"] = counters["segments"] / max(1, counters["paths"])

@@ -91,7 +91,7 @@ from .rays import RayConfig, refine
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, flatten_cached
 from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
-                     new_batch, new_film, OX, OY, OZ, ray_config_cached, store)
+                     new_batch, new_film, OX, OY, OZ, ray_config_cached, run_tiles, store)
 
 __all__ = ["render", "cast_primary", "ALGORITHM"]
 
@@ -211,7 +211,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     packets = bool(params.get("packets", False))
     film = new_film(W, H, len(COUNTERS), packets, sampler_code(params))
     t1 = time.perf_counter()
-    _render_kernel(cam, A, R, local_model(params), film, spp, seed)
+    run_tiles(_render_kernel, cam, A, R, local_model(params), film, spp, seed)
     t2 = time.perf_counter()
     counters = {"camera_rays": int(W * H * spp), **film_counters(film, COUNTERS)}
     return film_result(film, spp, counters, t0, t1, t2)

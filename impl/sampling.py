@@ -29,7 +29,7 @@ from core.algorithm import Param
 from core.errors import ParamError
 
 from .lowdiscrepancy import pixel_seed, sample_2d
-from .rng import uniform
+from .rng import uniform_from, uniform_prefix
 
 __all__ = ["check_spp", "strata", "pixel_sample", "welford_add", "variance_of_mean",
            "PIXEL_JITTER", "PIXEL_SOBOL", "PIXEL_SAMPLERS", "SAMPLER_PARAM", "sampler_code"]
@@ -80,7 +80,8 @@ def pixel_sample(spp, k, s, seed, pixel, sampler=PIXEL_JITTER, x=0, y=0):
         return 0.5, 0.5
     if sampler == PIXEL_SOBOL:
         return sample_2d(PIXEL_PAIR, s, pixel_seed(x, y, seed))
-    return (s % k + uniform(seed, pixel, s, 0)) / k, (s // k + uniform(seed, pixel, s, 1)) / k
+    h = uniform_prefix(seed, pixel, s)
+    return (s % k + uniform_from(h, 0)) / k, (s // k + uniform_from(h, 1)) / k
 
 
 @njit(inline="always", cache=True)

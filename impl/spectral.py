@@ -48,6 +48,8 @@ from numba import njit
 from core.scene import Scene, Spectrum, cie_tables
 from core.errors import SceneError, UnsupportedError
 
+from .kernel import batch_kernel
+
 __all__ = ["SpectralArrays", "spectral_arrays", "rgb_arrays_placeholder", "cauchy_arrays",
            "cauchy_ior", "eta_scale_at", "LAMBDA_D_UM", "LAMBDA_MIN",
            "LAMBDA_MAX", "sample_wavelengths", "spectrum_at", "to_linear_srgb"]
@@ -207,7 +209,7 @@ def spectrum_at(row, pos):
     return row[i] * (1.0 - f) + row[i + 1] * f
 
 
-@njit(cache=True)
+@batch_kernel
 def to_linear_srgb(S: SpectralArrays, l0, l1, l2, p0, p1, p2):
     """Linear sRGB of radiance samples (l0, l1, l2) at grid positions (p0, p1, p2)."""
     X = Y = Z = 0.0

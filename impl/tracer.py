@@ -47,6 +47,7 @@ import math
 import time
 from typing import NamedTuple
 
+import numba
 import numpy as np
 from numba import njit
 
@@ -57,7 +58,7 @@ from .accel.packets import TILE, packet_hits
 from .camera import SENSOR_THINLENS, eye_ray, eye_ray_lens
 from .intersect import like
 from .kernel import batch_kernel
-from .rng import uniform
+from .rng import uniform_from, uniform_prefix
 from .rays import PARAMS as RAY_PARAMS, RayConfig, ray_config
 from .sampling import pixel_sample, strata, variance_of_mean
 from .scene_arrays import scene_memo
@@ -67,7 +68,7 @@ DIM_LENS = 1 << 29
 
 __all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "film_result", "new_batch",
            "new_points",
-           "ray_config_cached", "eye_batch", "closest_batch", "occluded_batch", "accumulate",
+           "ray_config_cached", "run_tiles", "eye_batch", "closest_batch", "occluded_batch", "accumulate",
            "store", "OX", "OY", "OZ", "DX", "DY", "DZ", "TMIN", "TMAX"]
 
 #: Tile side without packets.
@@ -167,6 +168,16 @@ def film_counters(film: Film, names) -> dict:
     return out
 
 
+def run_tiles(kernel, *args):
+    """Call a tracer's tile kernel (a ``prange`` over the film's tiles) with one tile per
+    scheduling chunk, so each thread takes the next tile when it finishes one.  numba's
+    default hands each thread one equal block of tiles, and tiles differ in cost (a
+    tile of sky traces no shadow or secondary rays), so one thread would idle while
+    the other finishes its block."""
+    with numba.parallel_chunksize(1):
+        return kernel(*args)
+
+
 @njit(cache=True)
 def new_batch(film: Film, R: RayConfig, tile):
     """The batch of tile ``tile`` (of ``film.tile``-square tiles) with zeroed accumulators."""
@@ -216,18 +227,21 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     k = strata(spp)
     g = R.sph_radius
     ray = T.ray
-    for i in range(T.n):
-        x, y = T.x0 + i % T.nx, T.y0 + i // T.nx
-        fx, fy = pixel_sample(spp, k, s, seed, T.pixel[i], sampler, x, y)
-        if cam[18] == SENSOR_THINLENS:     # a lens point (camera_params(..., lens=True) only)
-            ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray_lens(
-                cam, x + fx, y + fy, uniform(seed, T.pixel[i], s, DIM_LENS),
-                uniform(seed, T.pixel[i], s, DIM_LENS + 1))
-        else:
-            ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-        ray[OX, i], ray[OY, i], ray[OZ, i] = float(like(g, ox)), float(like(g, oy)), float(like(g, oz))
-        ray[DX, i], ray[DY, i], ray[DZ, i] = float(like(g, dx)), float(like(g, dy)), float(like(g, dz))
-        ray[TMIN, i], ray[TMAX, i] = tmin, tmax
+    lens = cam[18] == SENSOR_THINLENS     # a lens point (camera_params(..., lens=True) only)
+    i = 0
+    for y in range(T.y0, T.y0 + T.n // T.nx):
+        for x in range(T.x0, T.x0 + T.nx):
+            fx, fy = pixel_sample(spp, k, s, seed, T.pixel[i], sampler, x, y)
+            if lens:
+                h = uniform_prefix(seed, T.pixel[i], s)
+                ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray_lens(
+                    cam, x + fx, y + fy, uniform_from(h, DIM_LENS), uniform_from(h, DIM_LENS + 1))
+            else:
+                ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
+            ray[OX, i], ray[OY, i], ray[OZ, i] = float(like(g, ox)), float(like(g, oy)), float(like(g, oz))
+            ray[DX, i], ray[DY, i], ray[DZ, i] = float(like(g, dx)), float(like(g, dy)), float(like(g, dz))
+            ray[TMIN, i], ray[TMAX, i] = tmin, tmax
+            i += 1
     if packets:
         for i in range(T.n):
             for c in range(8):

@@ -198,8 +198,8 @@ from .phong import PHONG_PARAMS
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten, flatten_cached, scene_memo
 from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
-                     new_batch, new_film, new_points, OX, OY, OZ, ray_config_cached, store, TMAX,
-                     TMIN)
+                     new_batch, new_film, new_points, OX, OY, OZ, ray_config_cached, run_tiles, store,
+                     TMAX, TMIN)
 
 __all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "ALGORITHM"]
 
@@ -549,8 +549,8 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
                     sampler_code(params))
     cut = np.zeros((H, W, 2))
     t1 = time.perf_counter()
-    _render_kernel(cam, A, S, R, local_model(params, S), max_depth, float(params["hall_threshold"]),
-                   film, spp, seed, cut)
+    run_tiles(_render_kernel, cam, A, S, R, local_model(params, S), max_depth,
+              float(params["hall_threshold"]), film, spp, seed, cut)
     t2 = time.perf_counter()
     counters = film_counters(film, COUNTERS)
     hist = film.cnt[..., len(COUNTERS):].reshape(-1, max_depth + 1).sum(axis=0)

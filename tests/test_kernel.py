@@ -12,13 +12,14 @@ import pytest
 from numba import njit
 from numba.core.errors import TypingError
 
-from impl import accel, bsdf, lighting, path, raycast, tracer, whitted
+from impl import accel, bsdf, light_sampling, lighting, path, raycast, spectral, tracer, whitted
 from impl.accel import wide
 from impl.kernel import batch_kernel
 
 BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, whitted._trees,
                  whitted._light_leaves, path._paths, bsdf.bsdf_sample, bsdf.bsdf_eval, bsdf.bsdf_pdf,
-                 wide.wide_closest, wide.wide_any]
+                 wide.wide_closest, wide.wide_any, light_sampling.sample_light,
+                 light_sampling.emitter_pdf, spectral.to_linear_srgb]
 ALLOCATING = [tracer.closest_batch, tracer.occluded_batch, accel.closest, accel.any_hit,
               accel.closest_rays, accel.occluded_rays, bsdf._plastic_sample, bsdf._plastic_eval,
               bsdf._plastic_pdf]
