@@ -170,11 +170,12 @@ def bench_build_vs_mitsuba(benchmark, threads):
     the build.  ``threads``: ``all`` leaves Dr.Jit's pool and numba at their thread
     counts (Embree builds in parallel); ``one`` sets both to one thread.  Each task
     records wall time, process CPU time and the number of threads that did ≥ 10 %
-    of the work (``/proc/self/task``)."""
+    of the work (``/proc/self/task``), in ``extra_info``; pytest-benchmark's own row
+    is one more ``bvh-sah`` build after the rounds."""
     import drjit as dr
     import numba
 
-    from gibench.interleave import Timed, load_average, run_rounds
+    from gibench.interleave import Timed, run_rounds
     from references.mitsuba_env import load_mitsuba
     from references.raybench import mitsuba_mesh, time_mitsuba_build
     from _timing import busy_threads, thread_cpu
@@ -214,10 +215,11 @@ def bench_build_vs_mitsuba(benchmark, threads):
             t.run(-1)
         extra.clear()
         res = run_rounds(tasks, ROUNDS)
+        settle()
+        benchmark.pedantic(config, args=(A, "bvh-sah"), rounds=1, iterations=1)   # the table's row
     finally:
         dr.set_thread_count(dr_threads)
         numba.set_num_threads(nb_threads)
-    benchmark.pedantic(lambda: None, rounds=1, iterations=1)
     med = statistics.median
     info = {"prims": len(A.tri_v), "variant": mi.variant(), "threads": threads,
             "dr_threads": 1 if threads == "one" else dr_threads, "load_before_after": res["load"]}
@@ -252,8 +254,9 @@ def bench_build_pays_off(benchmark, structure):
     N triangle tests per ray, whatever the ray); the subset's hits are checked
     against the structure's.  ``saved_s`` = extrapolated brute-force time − the
     structure's trace time; ``build_over_saved`` ≤ 1 means the build pays for itself
-    in this one render; ``break_even_rays`` = rays at which it does."""
-    from gibench.interleave import load_average, settle
+    in this one render; ``break_even_rays`` = rays at which it does.  The figures are
+    in ``extra_info``; pytest-benchmark's own row is one more build after the rounds."""
+    from gibench.interleave import load_average
 
     _, A, ray_sets = mesh_1e6_rays()
     R = config(A, structure)
@@ -287,7 +290,8 @@ def bench_build_pays_off(benchmark, structure):
             accel.trace_batch(brute, o, d)
             times[f"brute_{name}"].append(time.perf_counter() - t0)
     load.append(load_average())
-    benchmark.pedantic(lambda: None, rounds=1, iterations=1)
+    settle()
+    benchmark.pedantic(config, args=(A, structure), rounds=1, iterations=1)   # the table's row
     med = statistics.median
     n_rays = {name: len(o) for name, (o, _) in ray_sets.items()}
     brute_per_ray = sum(med(times[f"brute_{n}"]) for n in runs) / (BRUTE_RAYS * len(runs))

@@ -18,8 +18,7 @@ constructor builds an Embree BVH (``rtcSetSceneBuildQuality`` HIGH, the
 geometry buffers shared with the mesh, not copied) on the threads of
 Dr.Jit's pool (one thread after ``dr.set_thread_count(1)``), and logs the build's own duration ("Embree ready. (took …)"), which
 is returned too.  The wall time also holds the scene constructor's fixed
-work (a default integrator, registry entries), which a scene of a one-
-triangle mesh measures.
+work, which a scene of a one-triangle mesh measures.
 """
 
 from __future__ import annotations
