@@ -20,7 +20,8 @@ probability argument leads to.  Two top-down builders:
   ≤ 4 primitives when that is cheaper than its best split.  O(n log n), two
   passes over a node's primitives: one bins them along the three axes at
   once, one partitions them and gathers both children's box and centroid
-  bounds (as Wald's builder does), so no allocation or extra pass per node.
+  bounds, so a node split off by SAH needs no bounds pass of its own, and
+  no node allocates.
 
 Both emit the flat layout of :mod:`impl.accel.tree` (binary: ``node_b = -2``),
 traversed nearest child first by :func:`impl.accel.tree.tree_closest`.
