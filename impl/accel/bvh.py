@@ -21,7 +21,7 @@ probability argument leads to.  Two top-down builders:
   passes over a node's primitives: one bins them along the three axes at
   once, one partitions them and gathers both children's box and centroid
   bounds, so a node split off by SAH needs no bounds pass of its own, and
-  no node allocates.
+  no SAH split allocates.
 
 Both emit the flat layout of :mod:`impl.accel.tree` (binary: ``node_b = -2``),
 traversed nearest child first by :func:`impl.accel.tree.tree_closest`.
