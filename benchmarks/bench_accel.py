@@ -4,6 +4,14 @@
   trace of the camera rays on 10⁴ random spheres and a 10⁵-triangle mesh.
 * ``bench_build_1e6`` — the SAH build of a 10⁶-triangle mesh alone and with
   the wide collapse (``bvh-wide``).
+* ``bench_build_vs_mitsuba`` — the same builds against Mitsuba's Embree build
+  over the same triangles (``mi.load_dict`` of the mesh's scene, the upload
+  excluded), rounds alternated; on all threads and on one thread each side;
+  wall and CPU time.
+* ``bench_build_pays_off`` — build time against the time the structure saves
+  on the closest-hit queries of a 256×192 render (camera rays and one diffuse
+  bounce) over brute force, brute force timed on 64 rays per set and
+  extrapolated.
 * ``bench_vs_mitsuba`` — own closest-hit rays per second (float32 and float64)
   against Mitsuba's ``ray_intersect_preliminary`` and ``ray_intersect`` (LLVM
   variant) on the same primitives and the same rays, own and Mitsuba rounds
@@ -116,17 +124,193 @@ def own_tracer(R, structure, o, d):
     return run
 
 
-@pytest.mark.parametrize("name", ["mesh-1e6"])
+def mesh_1e6():
+    """The 10⁶-triangle mesh (:func:`mesh_field`, 256×192 camera), built once per session:
+    ``(scene, arrays, {"primary": rays, "diffuse": rays})``; the ray sets are made on
+    first use (:func:`mesh_1e6_rays`)."""
+    if "mesh-1e6" not in _cache:
+        sc = mesh_field(1_000_000, width=256, height=192)
+        _cache["mesh-1e6"] = (sc, flatten(sc), {})
+    return _cache["mesh-1e6"]
+
+
+def mesh_1e6_rays():
+    """The 10⁶-triangle mesh's camera rays (pixel centres) and one diffuse bounce
+    from each camera hit (the ray sets of :func:`scene`)."""
+    sc, A, ray_sets = mesh_1e6()
+    if not ray_sets:
+        o, d = camera_rays(sc)
+        t, prim, _, _ = accel.trace_batch(config(A, "bvh-sah"), o, d)
+        ray_sets["primary"] = (o, d)
+        ray_sets["diffuse"] = bounce_rays(A, o, d, t, prim, seed=1)
+    return sc, A, ray_sets
+
+
 @pytest.mark.parametrize("structure", ["bvh-sah", "bvh-wide"])
-def bench_build_1e6(benchmark, name, structure):
-    """Build (and collapse) over 10⁶ triangles; the 1e6 mesh is built once per session."""
-    if name not in _cache:
-        A = flatten(mesh_field(1_000_000, width=64, height=48))
-        _cache[name] = (None, A, {})
-    _, A, _ = _cache[name]
+def bench_build_1e6(benchmark, structure):
+    """Build (and collapse) over 10⁶ triangles: the whole :func:`impl.rays.ray_config`."""
+    _, A, _ = mesh_1e6()
     config(A, structure)                                            # warm-up
     R = benchmark.pedantic(config, args=(A, structure), rounds=3, iterations=1)
     benchmark.extra_info.update(prims=len(A.tri_v), memory_mb=accel.memory_bytes(accel.Accel(*R[8:])) / 1e6)
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("threads", ["all", "one"])
+def bench_build_vs_mitsuba(benchmark, threads):
+    """Own SAH build (``bvh-sah``, and ``bvh-wide`` = the same build plus the collapse
+    to 4-wide nodes) against Mitsuba's Embree build over the same 10⁶ triangles,
+    rounds alternated in one process (:func:`gibench.interleave.run_rounds`: a
+    settle before every timed task, every other round in reverse order).
+
+    Own: :func:`impl.rays.ray_config` (bounds, build, collapse; serial numba code).
+    Mitsuba: ``mi.load_dict`` of a scene of the mesh alone, the mesh uploaded before
+    the clock (:func:`references.raybench.time_mitsuba_build`), next to the same for
+    a one-triangle mesh (the scene constructor's fixed work) and Mitsuba's own log of
+    the build.  ``threads``: ``all`` leaves Dr.Jit's pool and numba at their thread
+    counts (Embree builds in parallel); ``one`` sets both to one thread.  Each task
+    records wall time, process CPU time and the number of threads that did ≥ 10 %
+    of the work (``/proc/self/task``), in ``extra_info``; pytest-benchmark's own row
+    is one more ``bvh-sah`` build after the rounds."""
+    import drjit as dr
+    import numba
+
+    from gibench.interleave import Timed, run_rounds
+    from references.mitsuba_env import load_mitsuba
+    from references.raybench import mitsuba_mesh, time_mitsuba_build
+    from _timing import busy_threads, thread_cpu
+
+    mi = load_mitsuba()
+    _, A, _ = mesh_1e6()
+    meshes = {"mitsuba": mitsuba_mesh(mi, A.tri_v), "mitsuba_1tri": mitsuba_mesh(mi, A.tri_v[:1])}
+    extra = {}
+
+    def own(structure):
+        def run(k):
+            before = thread_cpu()
+            c0, t0 = time.process_time(), time.perf_counter()
+            config(A, structure)
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            extra.setdefault(structure, []).append((cpu, busy_threads(before, thread_cpu()), None))
+            return wall
+        return run
+
+    def mitsuba(name):
+        def run(k):
+            before = thread_cpu()
+            wall, cpu, logged = time_mitsuba_build(mi, meshes[name])
+            extra.setdefault(name, []).append((cpu, busy_threads(before, thread_cpu()), logged))
+            return wall
+        return run
+
+    tasks = [Timed("bvh-sah", "own", own("bvh-sah")), Timed("mitsuba", "mitsuba", mitsuba("mitsuba")),
+             Timed("bvh-wide", "own", own("bvh-wide")),
+             Timed("mitsuba_1tri", "mitsuba", mitsuba("mitsuba_1tri"))]
+    dr_threads, nb_threads = dr.thread_count(), numba.get_num_threads()
+    if threads == "one":
+        dr.set_thread_count(1)
+        numba.set_num_threads(1)
+    try:
+        for t in tasks:                                  # warm-up: numba cache, Embree device
+            t.run(-1)
+        extra.clear()
+        res = run_rounds(tasks, ROUNDS)
+        settle()
+        benchmark.pedantic(config, args=(A, "bvh-sah"), rounds=1, iterations=1)   # the table's row
+    finally:
+        dr.set_thread_count(dr_threads)
+        numba.set_num_threads(nb_threads)
+    med = statistics.median
+    info = {"prims": len(A.tri_v), "variant": mi.variant(), "threads": threads,
+            "dr_threads": 1 if threads == "one" else dr_threads, "load_before_after": res["load"]}
+    for t, times in zip(tasks, res["times"]):
+        cpu = [c for c, _, _ in extra[t.name]]
+        info[f"{t.name}_wall_s"] = (min(times), med(times), max(times))
+        info[f"{t.name}_cpu_s"] = (min(cpu), med(cpu), max(cpu))
+        info[f"{t.name}_busy_threads"] = max(b for _, b, _ in extra[t.name])
+    logged = [x for _, _, x in extra["mitsuba"] if x is not None]
+    if logged:
+        info["mitsuba_logged_build_s"] = (min(logged), med(logged), max(logged))
+    times = dict(zip([t.name for t in tasks], res["times"]))
+    for s in ("bvh-sah", "bvh-wide"):
+        pair = [o / m for o, m in zip(times[s], times["mitsuba"])]
+        info[f"{s}_over_mitsuba_wall_pairs"] = (min(pair), med(pair), max(pair))
+        cpu = [o[0] / m[0] for o, m in zip(extra[s], extra["mitsuba"])]
+        info[f"{s}_over_mitsuba_cpu_pairs"] = (min(cpu), med(cpu), max(cpu))
+    benchmark.extra_info.update(info)
+    assert info["bvh-sah_busy_threads"] >= 1 and info["mitsuba_wall_s"][1] > info["mitsuba_1tri_wall_s"][1]
+
+
+@pytest.mark.parametrize("structure", ["bvh-sah", "bvh-wide"])
+def bench_build_pays_off(benchmark, structure):
+    """Build time against the render time the structure saves over brute force on the
+    10⁶-triangle mesh.  The render's queries: the closest hits of the 256×192 camera
+    rays (pixel centres) and of one diffuse bounce from each camera hit.  Rounds
+    alternated (build, trace with the structure, brute force), each after a settle.
+
+    Brute force over 10⁶ triangles would take minutes a round, so it runs on a subset
+    (every ``stride``-th ray of each set, :data:`BRUTE_RAYS` per set) and its time is
+    extrapolated linearly in the number of rays (brute force costs the same
+    N triangle tests per ray, whatever the ray); the subset's hits are checked
+    against the structure's.  ``saved_s`` = extrapolated brute-force time − the
+    structure's trace time; ``build_over_saved`` ≤ 1 means the build pays for itself
+    in this one render; ``break_even_rays`` = rays at which it does.  The figures are
+    in ``extra_info``; pytest-benchmark's own row is one more build after the rounds."""
+    from gibench.interleave import load_average
+
+    _, A, ray_sets = mesh_1e6_rays()
+    R = config(A, structure)
+    brute = config(A, "none")
+    runs, subsets = {}, {}
+    for name, (o, d) in ray_sets.items():
+        runs[name] = own_tracer(R, structure, o, d)
+        stride = max(1, len(o) // BRUTE_RAYS)
+        subsets[name] = (slice(0, stride * BRUTE_RAYS, stride), o[::stride][:BRUTE_RAYS], d[::stride][:BRUTE_RAYS])
+    for name, run in runs.items():                               # warm-up, and the subset check
+        t, prim = run()
+        sub, o, d = subsets[name]
+        tb, pb, _, _ = accel.trace_batch(brute, o, d)
+        assert np.array_equal(pb >= 0, prim[sub] >= 0), f"{name}: brute force and {structure} disagree on hit/miss"
+        assert np.allclose(tb, t[sub], rtol=1e-9, atol=0), f"{name}: brute force and {structure} disagree on t"
+    times = {"build": [], **{f"trace_{n}": [] for n in runs}, **{f"brute_{n}": [] for n in runs}}
+    load = [load_average()]
+    for _ in range(BRUTE_ROUNDS):
+        settle()
+        t0 = time.perf_counter()
+        config(A, structure)
+        times["build"].append(time.perf_counter() - t0)
+        for name, run in runs.items():
+            settle()
+            t0 = time.perf_counter()
+            run()
+            times[f"trace_{name}"].append(time.perf_counter() - t0)
+            settle()
+            _, o, d = subsets[name]
+            t0 = time.perf_counter()
+            accel.trace_batch(brute, o, d)
+            times[f"brute_{name}"].append(time.perf_counter() - t0)
+    load.append(load_average())
+    settle()
+    benchmark.pedantic(config, args=(A, structure), rounds=1, iterations=1)   # the table's row
+    med = statistics.median
+    n_rays = {name: len(o) for name, (o, _) in ray_sets.items()}
+    brute_per_ray = sum(med(times[f"brute_{n}"]) for n in runs) / (BRUTE_RAYS * len(runs))
+    brute_s = sum(med(times[f"brute_{n}"]) / BRUTE_RAYS * n_rays[n] for n in runs)
+    trace_s = sum(med(times[f"trace_{n}"]) for n in runs)
+    build_s = med(times["build"])
+    rays = sum(n_rays.values())
+    info = {f"{k}_s": (min(v), med(v), max(v)) for k, v in times.items()}
+    info.update(prims=len(A.tri_v), rays=n_rays, brute_rays_per_set=BRUTE_RAYS, load_before_after=load,
+                brute_ns_per_ray_per_triangle=brute_per_ray / len(A.tri_v) * 1e9,
+                brute_extrapolated_s=brute_s, trace_s=trace_s, build_s=build_s,
+                saved_s=brute_s - trace_s, build_over_saved=build_s / (brute_s - trace_s),
+                break_even_rays=build_s / (brute_per_ray - trace_s / rays))
+    benchmark.extra_info.update(info)
+
+
+#: Rays per ray set that brute force traces in :func:`bench_build_pays_off`, and its rounds.
+BRUTE_RAYS = 64
+BRUTE_ROUNDS = 5
 
 
 @pytest.mark.mitsuba

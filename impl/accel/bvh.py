@@ -17,8 +17,11 @@ probability argument leads to.  Two top-down builders:
   largest centroid extent (Kay & Kajiya's "median cut"), leaves of ≤ 2.
 * ``sah`` — binned SAH (Wald 2007): 16 bins per axis over the centroid
   bounds, the split of least C over all three axes; a node becomes a leaf of
-  ≤ 4 primitives when that is cheaper than its best split.  O(n log n): a
-  10⁶-triangle build takes seconds (see the scaling study).
+  ≤ 4 primitives when that is cheaper than its best split.  O(n log n), two
+  passes over a node's primitives: one bins them along the three axes at
+  once, one partitions them and gathers both children's box and centroid
+  bounds, so a node split off by SAH needs no bounds pass of its own, and
+  no SAH split allocates.
 
 Both emit the flat layout of :mod:`impl.accel.tree` (binary: ``node_b = -2``),
 traversed nearest child first by :func:`impl.accel.tree.tree_closest`.
@@ -76,71 +79,90 @@ def _median_split(idx, cen, s, e, cmin, cmax):
     return s + (e - s) // 2
 
 
-@njit(cache=True)
-def _sah_split(idx, lo, hi, cen, s, e, cmin, cmax, area_parent):
+@njit(inline="always", cache=True)
+def _sah_split(idx, lo, hi, cen, s, e, cmin, cmax, area_parent, cnt, blo, bhi, right_area,
+               right_cnt, ok, k_scale, side_lo, side_hi, side_cmin, side_cmax):
     """Binned SAH: ``(mid, cost)`` of the best split of idx[s:e] (partitioned in
-    place), or ``(-1, inf)`` when no bin boundary separates the centroids."""
-    best_cost, best_axis, best_bin = np.inf, -1, -1
-    cnt = np.zeros(N_BINS, dtype=np.int64)
-    blo = np.empty((N_BINS, 3))
-    bhi = np.empty((N_BINS, 3))
-    right_area = np.empty(N_BINS)
-    right_cnt = np.empty(N_BINS, dtype=np.int64)
+    place), or ``(-1, inf)`` when no bin boundary separates the centroids.
+
+    One pass bins the primitives along all three axes at once (each primitive's
+    bounds read once); a second pass partitions them and gathers each side's box
+    and centroid bounds into ``side_lo``/``side_hi``/``side_cmin``/``side_cmax``
+    (row 0: left, row 1: right), so the children need no pass of their own.  The
+    arrays after ``area_parent`` are work buffers the caller allocates once."""
+    # Bin along every axis with a non-zero centroid extent.
     for axis in range(3):
         ext = cmax[axis] - cmin[axis]
-        if not ext > 0.0:
-            continue
-        k_scale = N_BINS * (1.0 - 1e-9) / ext
-        cnt[:] = 0
-        blo[:, :] = np.inf
-        bhi[:, :] = -np.inf
-        for k in range(s, e):
-            p = idx[k]
-            b = int((cen[p, axis] - cmin[axis]) * k_scale)
-            b = min(max(b, 0), N_BINS - 1)
-            cnt[b] += 1
+        ok[axis] = ext > 0.0
+        k_scale[axis] = N_BINS * (1.0 - 1e-9) / ext if ok[axis] else 0.0
+        for b in range(N_BINS):
+            cnt[axis, b] = 0
             for a in range(3):
-                blo[b, a] = min(blo[b, a], lo[p, a])
-                bhi[b, a] = max(bhi[b, a], hi[p, a])
+                blo[axis, b, a] = np.inf
+                bhi[axis, b, a] = -np.inf
+    for k in range(s, e):
+        p = idx[k]
+        for axis in range(3):
+            if not ok[axis]:
+                continue
+            b = int((cen[p, axis] - cmin[axis]) * k_scale[axis])
+            b = min(max(b, 0), N_BINS - 1)
+            cnt[axis, b] += 1
+            for a in range(3):
+                blo[axis, b, a] = min(blo[axis, b, a], lo[p, a])
+                bhi[axis, b, a] = max(bhi[axis, b, a], hi[p, a])
+    # The cost of every bin boundary, axis by axis.
+    best_cost, best_axis, best_bin = np.inf, -1, -1
+    for axis in range(3):
+        if not ok[axis]:
+            continue
         # Sweep from the right: area and count of bins b..N_BINS-1.
-        rl = np.full(3, np.inf)
-        rh = np.full(3, -np.inf)
+        rl0, rl1, rl2 = np.inf, np.inf, np.inf
+        rh0, rh1, rh2 = -np.inf, -np.inf, -np.inf
         rc = 0
         for b in range(N_BINS - 1, 0, -1):
-            for a in range(3):
-                rl[a] = min(rl[a], blo[b, a])
-                rh[a] = max(rh[a], bhi[b, a])
-            rc += cnt[b]
-            right_area[b] = _area(rl[0], rl[1], rl[2], rh[0], rh[1], rh[2])
+            rl0, rl1, rl2 = min(rl0, blo[axis, b, 0]), min(rl1, blo[axis, b, 1]), min(rl2, blo[axis, b, 2])
+            rh0, rh1, rh2 = max(rh0, bhi[axis, b, 0]), max(rh1, bhi[axis, b, 1]), max(rh2, bhi[axis, b, 2])
+            rc += cnt[axis, b]
+            right_area[b] = _area(rl0, rl1, rl2, rh0, rh1, rh2)
             right_cnt[b] = rc
         # Sweep from the left: split between bin b-1 and bin b.
-        ll = np.full(3, np.inf)
-        lh = np.full(3, -np.inf)
+        ll0, ll1, ll2 = np.inf, np.inf, np.inf
+        lh0, lh1, lh2 = -np.inf, -np.inf, -np.inf
         lc = 0
         for b in range(1, N_BINS):
-            for a in range(3):
-                ll[a] = min(ll[a], blo[b - 1, a])
-                lh[a] = max(lh[a], bhi[b - 1, a])
-            lc += cnt[b - 1]
+            ll0, ll1, ll2 = min(ll0, blo[axis, b - 1, 0]), min(ll1, blo[axis, b - 1, 1]), min(ll2, blo[axis, b - 1, 2])
+            lh0, lh1, lh2 = max(lh0, bhi[axis, b - 1, 0]), max(lh1, bhi[axis, b - 1, 1]), max(lh2, bhi[axis, b - 1, 2])
+            lc += cnt[axis, b - 1]
             if lc == 0 or right_cnt[b] == 0:
                 continue
-            cost = C_TRAV + C_ISECT * (_area(ll[0], ll[1], ll[2], lh[0], lh[1], lh[2]) * lc
+            cost = C_TRAV + C_ISECT * (_area(ll0, ll1, ll2, lh0, lh1, lh2) * lc
                                        + right_area[b] * right_cnt[b]) / area_parent
             if cost < best_cost:
                 best_cost, best_axis, best_bin = cost, axis, b
     if best_axis < 0:
         return -1, np.inf
-    # Partition idx[s:e]: centroids in bins < best_bin first.
-    ext = cmax[best_axis] - cmin[best_axis]
-    k_scale = N_BINS * (1.0 - 1e-9) / ext
+    # Partition idx[s:e], centroids in bins < best_bin first, gathering each side's bounds.
+    for side in range(2):
+        for a in range(3):
+            side_lo[side, a], side_hi[side, a] = np.inf, -np.inf
+            side_cmin[side, a], side_cmax[side, a] = np.inf, -np.inf
+    c0, ks = cmin[best_axis], k_scale[best_axis]
     i, j = s, e - 1
     while i <= j:
-        b = int((cen[idx[i], best_axis] - cmin[best_axis]) * k_scale)
+        p = idx[i]
+        b = int((cen[p, best_axis] - c0) * ks)
         b = min(max(b, 0), N_BINS - 1)
-        if b < best_bin:
+        side = 0 if b < best_bin else 1
+        for a in range(3):
+            side_lo[side, a] = min(side_lo[side, a], lo[p, a])
+            side_hi[side, a] = max(side_hi[side, a], hi[p, a])
+            side_cmin[side, a] = min(side_cmin[side, a], cen[p, a])
+            side_cmax[side, a] = max(side_cmax[side, a], cen[p, a])
+        if side == 0:
             i += 1
         else:
-            idx[i], idx[j] = idx[j], idx[i]
+            idx[i], idx[j] = idx[j], p
             j -= 1
     return i, best_cost
 
@@ -155,33 +177,55 @@ def _build(lo, hi, method):
     nhi = np.empty((cap, 3))
     na = np.empty(cap, dtype=np.int64)
     nb = np.empty(cap, dtype=np.int64)
+    # Work stack: node, primitive range, depth, and whether the node's box and
+    # centroid bounds are known already (set by its parent's SAH partition).
     st_node = np.empty(256, dtype=np.int64)
     st_s = np.empty(256, dtype=np.int64)
     st_e = np.empty(256, dtype=np.int64)
     st_d = np.empty(256, dtype=np.int64)
+    st_known = np.zeros(256, dtype=np.bool_)
+    st_cmin = np.empty((256, 3))
+    st_cmax = np.empty((256, 3))
     st_node[0], st_s[0], st_e[0], st_d[0] = 0, 0, P, 1
     sp = 1
     n_nodes = 1
     cmin = np.empty(3)
     cmax = np.empty(3)
+    # The SAH split's work buffers, allocated once.
+    cnt = np.empty((3, N_BINS), dtype=np.int64)
+    blo = np.empty((3, N_BINS, 3))
+    bhi = np.empty((3, N_BINS, 3))
+    right_area = np.empty(N_BINS)
+    right_cnt = np.empty(N_BINS, dtype=np.int64)
+    ok = np.empty(3, dtype=np.bool_)
+    k_scale = np.empty(3)
+    side_lo = np.empty((2, 3))
+    side_hi = np.empty((2, 3))
+    side_cmin = np.empty((2, 3))
+    side_cmax = np.empty((2, 3))
     max_depth = 1
     while sp > 0:
         sp -= 1
         node, s, e, depth = st_node[sp], st_s[sp], st_e[sp], st_d[sp]
         max_depth = max(max_depth, depth)
-        # The node's box and its centroid bounds.
-        for a in range(3):
-            nlo[node, a], nhi[node, a] = np.inf, -np.inf
-            cmin[a], cmax[a] = np.inf, -np.inf
-        for k in range(s, e):
-            p = idx[k]
+        if st_known[sp]:
             for a in range(3):
-                nlo[node, a] = min(nlo[node, a], lo[p, a])
-                nhi[node, a] = max(nhi[node, a], hi[p, a])
-                cmin[a] = min(cmin[a], cen[p, a])
-                cmax[a] = max(cmax[a], cen[p, a])
+                cmin[a], cmax[a] = st_cmin[sp, a], st_cmax[sp, a]
+        else:
+            # The node's box and its centroid bounds.
+            for a in range(3):
+                nlo[node, a], nhi[node, a] = np.inf, -np.inf
+                cmin[a], cmax[a] = np.inf, -np.inf
+            for k in range(s, e):
+                p = idx[k]
+                for a in range(3):
+                    nlo[node, a] = min(nlo[node, a], lo[p, a])
+                    nhi[node, a] = max(nhi[node, a], hi[p, a])
+                    cmin[a] = min(cmin[a], cen[p, a])
+                    cmax[a] = max(cmax[a], cen[p, a])
         count = e - s
         mid = -1
+        known = False                            # the children's bounds from the partition
         if method == MEDIAN:
             if count > MEDIAN_LEAF_MAX:
                 mid = _median_split(idx, cen, s, e, cmin, cmax)
@@ -189,7 +233,10 @@ def _build(lo, hi, method):
             area = _area(nlo[node, 0], nlo[node, 1], nlo[node, 2],
                          nhi[node, 0], nhi[node, 1], nhi[node, 2])
             if depth < MAX_SAH_DEPTH and area > 0.0:
-                mid, cost = _sah_split(idx, lo, hi, cen, s, e, cmin, cmax, area)
+                mid, cost = _sah_split(idx, lo, hi, cen, s, e, cmin, cmax, area, cnt, blo, bhi,
+                                       right_area, right_cnt, ok, k_scale,
+                                       side_lo, side_hi, side_cmin, side_cmax)
+                known = mid >= 0
                 if count <= SAH_LEAF_MAX and cost >= C_ISECT * count:
                     mid = -1                     # the leaf is cheaper than any split
                 elif mid < 0 and count > SAH_LEAF_MAX:
@@ -206,6 +253,13 @@ def _build(lo, hi, method):
             raise RuntimeError("bvh build: work stack overflow")
         st_node[sp], st_s[sp], st_e[sp], st_d[sp] = c + 1, mid, e, depth + 1
         st_node[sp + 1], st_s[sp + 1], st_e[sp + 1], st_d[sp + 1] = c, s, mid, depth + 1
+        st_known[sp], st_known[sp + 1] = known, known
+        if known:
+            for side in range(2):
+                n_, k_ = c + side, sp + 1 - side
+                for a in range(3):
+                    nlo[n_, a], nhi[n_, a] = side_lo[side, a], side_hi[side, a]
+                    st_cmin[k_, a], st_cmax[k_, a] = side_cmin[side, a], side_cmax[side, a]
         sp += 2
     return nlo[:n_nodes].copy(), nhi[:n_nodes].copy(), na[:n_nodes].copy(), nb[:n_nodes].copy(), idx, max_depth
 

@@ -240,13 +240,14 @@ def collapse(nlo, nhi, na, nb, width: int = WIDTH):
 
 
 @njit(cache=True)
-def _leaf_groups(slot_a, slot_b, idx, ns, tri_v):
+def _leaf_groups(slot_a, slot_b, idx, ns, tri_v, head):
     """The leaves' triangles in groups of :data:`LANES`, structure of arrays:
-    ``(grp (S+1,), data (G, 9, LANES), ids (G·LANES,))`` — slot s's triangles are
-    groups ``grp[s]:grp[s+1]``; a group's rows are v0x v0y v0z, e1 = v1 − v0,
-    e2 = v2 − v0 (in tri_v's precision, as :func:`impl.intersect.ray_triangle`
-    computes them), ``ids`` the lanes' primitive ids (-1: padding, a zero
-    triangle)."""
+    ``(grp (S+1,), buf, ids (G·LANES,))`` — slot s's triangles are groups
+    ``grp[s]:grp[s+1]``; ``buf`` (head + G·9·LANES,) in tri_v's precision holds
+    ``head`` words left for the caller, then the groups (G, 9, LANES): a group's
+    rows are v0x v0y v0z, e1 = v1 − v0, e2 = v2 − v0 (as
+    :func:`impl.intersect.ray_triangle` computes them); ``ids`` the lanes'
+    primitive ids (-1: padding, a zero triangle)."""
     S = slot_a.shape[0]
     grp = np.zeros(S + 1, dtype=np.int64)
     for s in range(S):
@@ -256,7 +257,9 @@ def _leaf_groups(slot_a, slot_b, idx, ns, tri_v):
                 c += idx[k] >= ns
         grp[s + 1] = grp[s] + (c + LANES - 1) // LANES
     G = grp[S]
-    data = np.zeros((G, 9, LANES), dtype=tri_v.dtype)
+    buf = np.empty(head + G * 9 * LANES, dtype=tri_v.dtype)
+    data = buf[head:].reshape(G, 9, LANES)
+    data[:] = 0.0
     ids = np.full(G * LANES, -1, dtype=np.int64)
     for s in range(S):
         if slot_b[s] <= 0:
@@ -274,31 +277,29 @@ def _leaf_groups(slot_a, slot_b, idx, ns, tri_v):
                 data[g, 6 + a, ln] = v[2, a] - v[0, a]
             ids[j] = p
             j += 1
-    return grp, data, ids
+    return grp, buf, ids
 
 
 def wide_arrays(box32, slot_a, slot_b, idx, sph_radius, tri_v):
     """The ``(acc_f, acc_i)`` of a wide BVH: the node records followed by the leaves'
     triangle groups (:func:`_leaf_groups`) in the precision of ``tri_v``, and
-    ``[W, word offset of the groups in that precision, S slots, grp (S+1), ids]``."""
+    ``[W, word offset of the groups in that precision, S slots, grp (S+1), ids]``.
+    The records are written in place in front of the groups (no copy of either)."""
     F = np.asarray(sph_radius).dtype            # the kernels' precision (impl.rays.RayConfig)
     tri_v = np.ascontiguousarray(tri_v, dtype=F).reshape(-1, 3, 3)
-    grp, data, ids = _leaf_groups(slot_a, slot_b, idx, len(sph_radius), tri_v)
     m, _, W = box32.shape
     if m * W >= 2 ** 31:
         raise ValueError(f"wide_arrays: {m * W} slots do not fit the int32 child references")
+    words = m * 8 * W                           # float32 words of the node records
+    off = words if F == np.float32 else words // 2
+    grp, buf, ids = _leaf_groups(slot_a, slot_b, idx, len(sph_radius), tri_v, off)
+    rec = buf[:off].view(np.float32).reshape(m, 8, W)
     s = np.arange(m * W, dtype=np.int64)
     ref = np.where(slot_b < 0, slot_a, -s - 1).astype(np.int32).reshape(m, 1, W)
-    rec = np.zeros((m, 8, W), dtype=np.float32)
     rec[:, :6, :] = box32
     rec[:, 6:7, :] = ref.view(np.float32)
-    boxes = rec.reshape(-1)
-    if F == np.float32:
-        acc_f = np.concatenate([boxes, data.reshape(-1)]).view(np.float64)
-        off = boxes.size
-    else:
-        acc_f = np.concatenate([boxes.view(np.float64), data.reshape(-1).astype(np.float64)])
-        off = boxes.size // 2
+    rec[:, 7, :] = 0.0
+    acc_f = buf.view(np.float64) if F == np.float32 else buf
     head = np.array([box32.shape[2], off, len(slot_a)], dtype=np.int64)
     return acc_f, np.concatenate([head, grp, ids])
 
