@@ -85,8 +85,7 @@ from core.scene import Scene
 from . import microfacet as mf
 from . import plastic as pl
 from .fresnel import fresnel_conductor, fresnel_dielectric
-from .kernel import batch_kernel
-from .materials import (KIND_CODES, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_PLASTIC,
+from .materials import (MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_PLASTIC,
                         MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MAT_ROUGHPLASTIC, MaterialArrays,
                         PlasticArrays, distribution_codes, material_arrays, plastic_arrays)
 
@@ -229,7 +228,9 @@ def _conductor_fresnel(B: MaterialArrays, mat, cos_i):
 
 # The plastic lobes (:mod:`impl.plastic`) work on small arrays, which need numba's
 # runtime: they sit in their own functions (runtime on, called only at plastic hits),
-# so that the dispatchers below are batch kernels without reference counting.
+# so that the dispatchers below can be inlined into the path tracer's batch kernel,
+# which runs without the runtime (:mod:`impl.kernel`).  The dispatchers are inlined
+# because a call of a separate function passes every array of ``B`` by value.
 
 @njit(cache=True, _nrt=True)
 def _plastic_sample(B: MaterialArrays, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, u0, u1, u2):
@@ -277,7 +278,7 @@ def _plastic_pdf(B: MaterialArrays, mat, k, wix, wiy, wiz, wox, woy, woz):
                                B.pl_ext_t[mat], B.dist[mat])
 
 
-@batch_kernel
+@njit(inline="always", cache=True)
 def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2):
     """Sample wo for material ``mat`` (diffuse albedo ρ given, textures resolved by the caller).
 
@@ -330,7 +331,7 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
             s * B.spec_trans[mat, 1], s * B.spec_trans[mat, 2], 1.0 - F, True, eta_it)
 
 
-@batch_kernel
+@njit(inline="always", cache=True)
 def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz):
     """f(wi, wo)·|cos θ_o| (RGB) of the non-delta lobes; 0 for delta BSDFs."""
     k = B.kind[mat]
@@ -357,7 +358,7 @@ def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, 
     return 0.0, 0.0, 0.0
 
 
-@batch_kernel
+@njit(inline="always", cache=True)
 def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
     """Solid-angle pdf of :func:`bsdf_sample` producing wo (0 for delta lobes)."""
     k = B.kind[mat]

@@ -24,11 +24,14 @@ allocates and can be reached from a batch kernel states ``_nrt=True`` (the
 acceleration structures' query entry points, :func:`impl.tracer.closest_batch`
 and ``occluded_batch``, the plastic BSDF lobes of :mod:`impl.bsdf`).
 
-Per-ray queries that a batch kernel calls once per bounce or shadow ray (the wide
-BVH's :func:`impl.accel.wide.wide_closest` and ``wide_any``, which
-:func:`impl.rays.hit` and ``occluded`` call directly) are batch kernels too: called
-through a runtime-on entry point, each call would count references to every array
-of the ray configuration, several times the cost of the traversal itself.
+What a batch kernel calls once per ray (a path vertex's light sample and BSDF, the
+wide BVH's traversal behind :func:`impl.rays.hit` and ``occluded``) is inlined into
+it (``inline="always"``): a call of a separate njit function passes a tuple of
+arrays (the flattened scene, the materials, the ray configuration) member by
+member, every array's data pointer, shape and strides, which costs more than the
+work of a light sample.  The wide BVH's stand-alone queries
+(:func:`impl.accel.wide.wide_closest`, ``wide_any``) are batch kernels, whichever
+caller compiles them first.
 """
 
 from __future__ import annotations

@@ -31,7 +31,6 @@ from numba import njit
 from core.scene import Scene
 
 from .envmap import envmap_direction_pdf, envmap_draw
-from .kernel import batch_kernel
 from .lighting import sample_emitter
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
 
@@ -158,7 +157,7 @@ def _tri_normal(v, flip):
     return nx * inv, ny * inv, nz * inv
 
 
-@batch_kernel
+@njit(inline="always", cache=True)
 def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
     """Next-event estimation: pick a light uniformly and sample a direction from p.
 
@@ -248,7 +247,7 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
             L.shape_emit[sh, 2] / pdf, pdf, False, i)
 
 
-@batch_kernel
+@njit(inline="always", cache=True)
 def emitter_pdf(A: SceneArrays, L: LightArrays, shape, px, py, pz, dist, cos_y):
     """Solid-angle pdf (incl. selection) with which :func:`sample_light` from p would
     produce the emitter point at distance ``dist`` on ``shape`` (|cos θ_y| there)."""

@@ -2,8 +2,9 @@
 functions that allocate and can be reached from them keep it.
 
 A kernel that lost ``batch_kernel`` would still compute the same image, only slower
-(atomic reference counts inside the per-ray loops), so its option is pinned here; a
-function that allocates must state ``_nrt=True`` or a batch kernel calling it first
+(atomic reference counts inside the per-ray loops), and so would a per-ray helper that
+lost its inlining (its arguments copied at every call), so both options are pinned here;
+a function that allocates must state ``_nrt=True`` or a batch kernel calling it first
 would compile it without the runtime and fail.
 """
 
@@ -12,14 +13,17 @@ import pytest
 from numba import njit
 from numba.core.errors import TypingError
 
-from impl import accel, bsdf, light_sampling, lighting, path, raycast, spectral, tracer, whitted
+from impl import accel, bsdf, light_sampling, lighting, path, raycast, rays, spectral, tracer, whitted
 from impl.accel import wide
 from impl.kernel import batch_kernel
 
 BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, whitted._trees,
-                 whitted._light_leaves, path._paths, bsdf.bsdf_sample, bsdf.bsdf_eval, bsdf.bsdf_pdf,
-                 wide.wide_closest, wide.wide_any, light_sampling.sample_light,
-                 light_sampling.emitter_pdf, spectral.to_linear_srgb]
+                 whitted._light_leaves, path._paths, wide.wide_closest, wide.wide_any,
+                 spectral.to_linear_srgb]
+#: Called per ray from batch kernels: inlined (a call would pass every array of the scene,
+#: material or ray-configuration tuple it takes, member by member).
+PER_RAY = [bsdf.bsdf_sample, bsdf.bsdf_eval, bsdf.bsdf_pdf, light_sampling.sample_light,
+           light_sampling.emitter_pdf, rays.hit, rays.occluded, wide.wide_bind, wide.wide_query]
 ALLOCATING = [tracer.closest_batch, tracer.occluded_batch, accel.closest, accel.any_hit,
               accel.closest_rays, accel.occluded_rays, bsdf._plastic_sample, bsdf._plastic_eval,
               bsdf._plastic_pdf]
@@ -29,6 +33,11 @@ ALLOCATING = [tracer.closest_batch, tracer.occluded_batch, accel.closest, accel.
 def test_batch_kernels_are_compiled_without_the_runtime(fn):
     assert fn.targetoptions.get("_nrt") is False
     assert fn._cache is not None and type(fn._cache).__name__ == "FunctionCache"   # cache=True
+
+
+@pytest.mark.parametrize("fn", PER_RAY, ids=lambda f: f.py_func.__qualname__)
+def test_per_ray_helpers_are_inlined_into_the_batch_kernels(fn):
+    assert fn.targetoptions.get("inline") == "always"
 
 
 @pytest.mark.parametrize("fn", ALLOCATING, ids=lambda f: f.py_func.__qualname__)

@@ -49,7 +49,7 @@ beyond the nearest hit skipped; shadow rays (:func:`wide_any`) push the
 children in slot order and stop at the first hit in (tmin, tmax).  A node's
 children's references sit in its record beside their boxes, so opening a node
 reads one 128-byte record.  The per-ray code reads the arrays through raw data
-pointers bound once per batch (:func:`_bind`): an array passed to an inlined
+pointers bound once per batch (:func:`wide_bind`): an array passed to an inlined
 helper costs an atomic increment and decrement of its reference count per
 call, which numba's reference-count pruning does not remove from a traversal
 loop with several exits.
@@ -514,7 +514,7 @@ def _trace(T, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, tmax, best_t, best_p, bb1,
     by :func:`.primitives.closer`.  Any hit (``any_hit`` True, a constant the
     compiler folds): children in slot order, primitives tested within (tmin,
     tmax), stops at the first hit (prim ≥ 0 then says "hit").  ``T``: the tree as
-    :func:`_bind` gives it; the ray in R's precision."""
+    :func:`wide_bind` gives it; the ray in R's precision."""
     na, nb, idx, box, cref, tri, tri_off, grp, ids, form, sc, sr, ns = T
     nodes = tests = 0
     fox, foy, foz = float(ox), float(oy), float(oz)
@@ -583,7 +583,7 @@ def _trace(T, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, tmax, best_t, best_p, bb1,
 
 
 @njit(inline="always", cache=True)
-def _bind(R):
+def wide_bind(R):
     """R's wide BVH, bound once per batch of rays: ``(T, root, g)`` with ``T = (na, nb,
     idx, box, cref, tri, tri_off, grp, ids, form, sc, sr, ns)`` — data pointers
     (:func:`_ptr`) to the :class:`impl.accel.Accel` fields and their views (``box``
@@ -621,7 +621,7 @@ def _root_enter(root, ox, oy, oz, ix, iy, iz, tmin, tmax):
 
 
 @njit(inline="always", cache=True, error_model="numpy")
-def _query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
+def wide_query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
     """One ray from the root (root box test, then :func:`_trace`)."""
     zero = like(tmax, 0.0)
     t_root = _root_enter(root, float(ox), float(oy), float(oz), 1.0 / float(dx),
@@ -636,7 +636,7 @@ def _query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, any_hit):
 def _walk(R, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_p, bb1, bb2):
     """Closest-hit traversal of the subtree ``ref0`` entered at ``t0`` from the hit so
     far (the packets' single-ray continuation): see :func:`_trace`."""
-    T, _, _ = _bind(R)
+    T, _, _ = wide_bind(R)
     return _trace(T, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_t, best_p, bb1, bb2,
                   False)
 
@@ -644,7 +644,7 @@ def _walk(R, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, best_t, best_p, bb1, bb2):
 @njit(inline="always", cache=True, error_model="numpy")
 def _any_from(R, ref0, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any-hit traversal of the subtree ``ref0``: ``(hit, nodes_visited, prim_tests)``."""
-    T, _, _ = _bind(R)
+    T, _, _ = wide_bind(R)
     zero = like(tmax, 0.0)
     _, p, _, _, nodes, tests = _trace(T, ref0, -math.inf, ox, oy, oz, dx, dy, dz, tmin, tmax,
                                       tmax, -1, zero, zero, True)
@@ -658,16 +658,16 @@ def wide_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     Compiled without numba's runtime (it allocates nothing: :mod:`impl.kernel`), so
     a per-ray call (:func:`impl.rays.hit` in a tracer's bounce loop) costs no
     reference counting of R's arrays."""
-    T, root, _ = _bind(R)
-    return _query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, False)
+    T, root, _ = wide_bind(R)
+    return wide_query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, False)
 
 
 @batch_kernel(error_model="numpy")
 def wide_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Any hit in (tmin, tmax): ``(hit, nodes_visited, prim_tests)``; without the
     runtime, as :func:`wide_closest`."""
-    T, root, _ = _bind(R)
-    _, p, _, _, nodes, tests = _query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, True)
+    T, root, _ = wide_bind(R)
+    _, p, _, _, nodes, tests = wide_query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, True)
     return p >= 0, nodes, tests
 
 
@@ -681,9 +681,9 @@ def wide_closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, ou
     (the tracers' batches, inside their own parallel loop): each ray rounded to R's
     precision as :func:`impl.rays.hit` rounds it; ``out_t`` (tmax on a miss),
     ``out_b1``, ``out_b2`` float64 (N,), ``out_prim`` int64 (N,) (-1 on a miss)."""
-    T, root, g = _bind(R)
+    T, root, g = wide_bind(R)
     for i in range(ox.shape[0]):
-        t, p, b1, b2, _, _ = _query(T, root, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
+        t, p, b1, b2, _, _ = wide_query(T, root, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
                                     like(g, dx[i]), like(g, dy[i]), like(g, dz[i]),
                                     like(g, tmin[i]), like(g, tmax[i]), False)
         out_t[i], out_prim[i], out_b1[i], out_b2[i] = float(t), p, float(b1), float(b2)
@@ -693,9 +693,9 @@ def wide_closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, ou
 def wide_occluded_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
     """Any-hit of the N rays (float64 arrays (N,)) within (tmin[i], tmax[i]), one after
     the other: ``out_hit`` bool (N,)."""
-    T, root, g = _bind(R)
+    T, root, g = wide_bind(R)
     for i in range(ox.shape[0]):
-        _, p, _, _, _, _ = _query(T, root, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
+        _, p, _, _, _, _ = wide_query(T, root, like(g, ox[i]), like(g, oy[i]), like(g, oz[i]),
                                   like(g, dx[i]), like(g, dy[i]), like(g, dz[i]),
                                   like(g, tmin[i]), like(g, tmax[i]), True)
         out_hit[i] = p >= 0
