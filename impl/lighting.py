@@ -15,7 +15,8 @@ tree (thesis 2.2: the shadow rays of a hit point):
 * :func:`sample_emitter` — a uniform point on an area emitter, by area;
 * the light samples of the Phong model (thesis 1.4.1–1.4.2), one helper per
   kind of light, each on plain scalars (and the emitter's arrays): a delta
-  light (point, spot, directional: :func:`delta_sample`), a uniform-by-area
+  light (point, spot, directional: :func:`delta_sample`; a spot's cone
+  :func:`spot_falloff`, Mitsuba's, in the emitter's frame), a uniform-by-area
   point of an area emitter (:func:`area_sample`), a cosine-weighted direction
   towards a ``constant`` environment emitter, or importance-sampled by an
   ``envmap``'s luminance (:func:`environment_sample`).
@@ -339,18 +340,20 @@ def spot_falloff(wx, wy, wz, local, li, cos_cutoff, cos_beam, cutoff, inv_tw):
     (``src/emitters/spot.cpp``, ``falloff_curve``): w is taken into the light's frame
     by ``local[li]`` (the inverse of its to_world's 3×3, so a non-uniform scale or a
     shear shapes the cone as Mitsuba's) and normalised; with θ its angle to +z the
-    profile is 1 where cos θ ≥ cos(beam width), (cutoff − θ) / (cutoff − beam width)
-    (linear in angle, radians; ``inv_tw`` = 1 / (cutoff − beam width)) where
-    cos(cutoff) < cos θ < cos(beam width), and 0 where cos θ ≤ cos(cutoff)."""
+    profile is 0 unless cos θ > cos(cutoff), then 1 where cos θ ≥ cos(beam width)
+    and (cutoff − θ) / (cutoff − beam width) (linear in angle, radians; ``inv_tw`` =
+    1 / (cutoff − beam width)) below.  One return path: a helper with several can keep
+    numba from pruning the reference counts of its caller's arrays."""
     ax = local[li, 0, 0] * wx + local[li, 0, 1] * wy + local[li, 0, 2] * wz
     ay = local[li, 1, 0] * wx + local[li, 1, 1] * wy + local[li, 1, 2] * wz
     az = local[li, 2, 0] * wx + local[li, 2, 1] * wy + local[li, 2, 2] * wz
     cos_t = az / math.sqrt(ax * ax + ay * ay + az * az)
-    if cos_t <= cos_cutoff:
-        return 0.0
-    if cos_t < cos_beam:
-        return (cutoff - math.acos(min(cos_t, 1.0))) * inv_tw
-    return 1.0
+    f = 0.0
+    if cos_t > cos_cutoff:
+        f = 1.0
+        if cos_t < cos_beam:
+            f = (cutoff - math.acos(min(cos_t, 1.0))) * inv_tw
+    return f
 
 
 @njit(inline="always", cache=True)
