@@ -868,7 +868,8 @@ def _light(ctx, el) -> Light:
     beam = float(p.get("beam_width", cutoff * 0.75))
     d = tf.transform_vectors(m, [0.0, 0.0, 1.0])
     return Light("spot", _rgb(ctx, p, "intensity", 1.0), position=tf.transform_points(m, np.zeros(3)),
-                 direction=_unit(ctx, el, d), cutoff_angle=cutoff, beam_width=beam, name=name)
+                 direction=_unit(ctx, el, d), cutoff_angle=cutoff, beam_width=beam, name=name,
+                 to_world=np.asarray(m, dtype=np.float64))
 
 
 def _camera(ctx, el) -> Camera:

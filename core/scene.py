@@ -284,8 +284,9 @@ class Light:
     #: spot: a texture modulating the beam (Mitsuba's ``texture``); projector: the
     #: projected ``irradiance`` texture (None: the constant ``radiant``).
     texture: dict | None = None
-    #: projector (and textured spot): the emitter's to_world (+z forward); projector:
-    #: its horizontal field of view (degrees, Mitsuba's ``parse_fov``) and ``scale``.
+    #: spot and projector: the emitter's to_world (+z forward; a spot's cone is evaluated
+    #: in this frame, as Mitsuba's); projector: its horizontal field of view (degrees,
+    #: Mitsuba's ``parse_fov``) and ``scale``.
     to_world: np.ndarray | None = None
     fov_x: float = 0.0
     scale: float = 1.0

@@ -169,7 +169,7 @@ from .camera import camera_params, eye_ray_lens
 from .kernel import batch_kernel
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, surface
+from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, spot_falloff, surface
 from .bsdf import cook_torrance_sample, diffuse_transmission_sample
 from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIFFTRANS,
                         MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, material_arrays)
@@ -329,11 +329,11 @@ def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx
             lx, ly, lz = lx / dist, ly / dist, lz / dist
             inv_d2 = 1.0 / (dist * dist)
             if A.light_kind[li] == LIGHT_SPOT:
-                cos_s = -(lx * A.light_dir[li, 0] + ly * A.light_dir[li, 1] + lz * A.light_dir[li, 2])
-                if cos_s <= A.light_cos_cutoff[li]:
+                f = spot_falloff(-lx, -ly, -lz, A.light_local, li, A.light_cos_cutoff[li],
+                                 A.light_cos_beam[li], A.light_cutoff[li], A.light_inv_tw[li])
+                if f == 0.0:
                     continue
-                if cos_s < A.light_cos_beam[li]:
-                    inv_d2 *= (A.light_cutoff[li] - math.acos(min(cos_s, 1.0))) * A.light_inv_tw[li]
+                inv_d2 *= f
         cos_l = sx * lx + sy * ly + sz * lz
         if cos_l > 0.0:
             hx, hy, hz = lx + vx, ly + vy, lz + vz

@@ -31,7 +31,7 @@ from numba import njit
 from core.scene import Scene
 
 from .envmap import envmap_direction_pdf, envmap_draw
-from .lighting import sample_emitter
+from .lighting import sample_emitter, spot_falloff
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
 
 __all__ = ["LightArrays", "flatten_with_lights", "sample_sphere_cone", "sphere_cone_pdf",
@@ -185,12 +185,8 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
         wx, wy, wz = wx / d, wy / d, wz / d
         falloff = 1.0
         if kind == LIGHT_SPOT:
-            # Mitsuba's spot: 1 inside beam_width, linear in angle to 0 at cutoff_angle.
-            cos_t = -(wx * A.light_dir[i, 0] + wy * A.light_dir[i, 1] + wz * A.light_dir[i, 2])
-            if cos_t <= A.light_cos_cutoff[i]:
-                falloff = 0.0
-            elif cos_t < A.light_cos_beam[i]:
-                falloff = (A.light_cutoff[i] - math.acos(min(cos_t, 1.0))) * A.light_inv_tw[i]
+            falloff = spot_falloff(-wx, -wy, -wz, A.light_local, i, A.light_cos_cutoff[i],
+                                   A.light_cos_beam[i], A.light_cutoff[i], A.light_inv_tw[i])
         s = n * falloff / (d * d)
         return (wx, wy, wz, d, yx, yy, yz, s * A.light_rad[i, 0], s * A.light_rad[i, 1],
                 s * A.light_rad[i, 2], 0.0, True, i)

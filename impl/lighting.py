@@ -15,7 +15,8 @@ tree (thesis 2.2: the shadow rays of a hit point):
 * :func:`sample_emitter` — a uniform point on an area emitter, by area;
 * the light samples of the Phong model (thesis 1.4.1–1.4.2), one helper per
   kind of light, each on plain scalars (and the emitter's arrays): a delta
-  light (point, spot, directional: :func:`delta_sample`), a uniform-by-area
+  light (point, spot, directional: :func:`delta_sample`; a spot's cone
+  :func:`spot_falloff`, Mitsuba's, in the emitter's frame), a uniform-by-area
   point of an area emitter (:func:`area_sample`), a cosine-weighted direction
   towards a ``constant`` environment emitter, or importance-sampled by an
   ``envmap``'s luminance (:func:`environment_sample`).
@@ -71,7 +72,7 @@ from .textures import bitmap, checkerboard
 from .tracer import occluded_batch
 
 __all__ = ["SHADOW_EPSILON", "surface", "diffuse_albedo", "sample_emitter", "direct_light",
-           "direct_light_rays", "delta_sample", "area_sample", "environment_sample",
+           "direct_light_rays", "spot_falloff", "delta_sample", "area_sample", "environment_sample",
            "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
            "environment_radiance", "sample_cosine_hemisphere", "shadow_filter", "SHADOW_MODES"]
 
@@ -241,9 +242,9 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
         kind = A.light_kind[li]
         ok, lx, ly, lz, w, kd, spec = delta_sample(
             kind, A.light_pos[li, 0], A.light_pos[li, 1], A.light_pos[li, 2], A.light_dir[li, 0],
-            A.light_dir[li, 1], A.light_dir[li, 2], A.light_cos_cutoff[li], A.light_cos_beam[li],
-            A.light_cutoff[li], A.light_inv_tw[li], px, py, pz, sx, sy, sz, vx, vy, vz, ks,
-            shininess, c1, c2, c3, fclamp)
+            A.light_dir[li, 1], A.light_dir[li, 2], A.light_local, li, A.light_cos_cutoff[li],
+            A.light_cos_beam[li], A.light_cutoff[li], A.light_inv_tw[li], px, py, pz, sx, sy, sz,
+            vx, vy, vz, ks, shininess, c1, c2, c3, fclamp)
         if not ok:
             continue
         cr = w * A.light_rad[li, 0] * (kd * rho_r + spec)
@@ -334,16 +335,39 @@ def light_uv(seed, pixel, sample, j, k, q, stratified):
 
 
 @njit(inline="always", cache=True)
-def delta_sample(kind, lpx, lpy, lpz, ldx, ldy, ldz, cos_cutoff, cos_beam, cutoff, inv_tw, px, py,
-                 pz, sx, sy, sz, vx, vy, vz, ks, shininess, c1, c2, c3, fclamp):
+def spot_falloff(wx, wy, wz, local, li, cos_cutoff, cos_beam, cutoff, inv_tw):
+    """The cone profile of spot light ``li`` towards the world direction w (from the
+    light to the lit point; any length), in [0, 1], as Mitsuba 3's ``spot``
+    (``src/emitters/spot.cpp``, ``falloff_curve``): w is taken into the light's frame
+    by ``local[li]`` (the inverse of its to_world's 3×3, so a non-uniform scale or a
+    shear shapes the cone as Mitsuba's) and normalised; with θ its angle to +z the
+    profile is 0 unless cos θ > cos(cutoff), then 1 where cos θ ≥ cos(beam width)
+    and (cutoff − θ) / (cutoff − beam width) (linear in angle, radians; ``inv_tw`` =
+    1 / (cutoff − beam width)) below.  One return path: a helper with several can keep
+    numba from pruning the reference counts of its caller's arrays."""
+    ax = local[li, 0, 0] * wx + local[li, 0, 1] * wy + local[li, 0, 2] * wz
+    ay = local[li, 1, 0] * wx + local[li, 1, 1] * wy + local[li, 1, 2] * wz
+    az = local[li, 2, 0] * wx + local[li, 2, 1] * wy + local[li, 2, 2] * wz
+    cos_t = az / math.sqrt(ax * ax + ay * ay + az * az)
+    f = 0.0
+    if cos_t > cos_cutoff:
+        f = 1.0
+        if cos_t < cos_beam:
+            f = (cutoff - math.acos(min(cos_t, 1.0))) * inv_tw
+    return f
+
+
+@njit(inline="always", cache=True)
+def delta_sample(kind, lpx, lpy, lpz, ldx, ldy, ldz, local, li, cos_cutoff, cos_beam, cutoff,
+                 inv_tw, px, py, pz, sx, sy, sz, vx, vy, vz, ks, shininess, c1, c2, c3, fclamp):
     """A delta light (thesis 1.4.1) at a surface point p (shading normal s, towards the
     viewer v), Phong model (1.4.2): ``(lit, l, w, kd, spec)``, l the unit direction to
     the light; the light of radiant intensity I reflected by diffuse reflectance ρ is
     w I (kd ρ + spec).  Point and spot lights sit at ``lp``, attenuated
-    by f_att(d); a directional light shines along ``ld``.  Mitsuba's spot: 1 inside the
-    beam width, linear in angle to 0 at the cutoff angle (``cutoff`` in radians,
-    ``inv_tw`` = 1 / (cutoff − beam width)).  ``lit`` is false where the light adds
-    nothing (outside the cone, or the bracket is 0)."""
+    by f_att(d); a directional light shines along ``ld``.  A spot (light ``li``) is
+    weighted by :func:`spot_falloff` (``local`` and the cone parameters as there).
+    ``lit`` is false where the light adds nothing (outside the cone, or the bracket
+    is 0)."""
     z = 0.0
     if kind == LIGHT_DIRECTIONAL:
         lx, ly, lz = -ldx, -ldy, -ldz
@@ -354,11 +378,10 @@ def delta_sample(kind, lpx, lpy, lpz, ldx, ldy, ldz, cos_cutoff, cos_beam, cutof
         lx, ly, lz = lx / dist, ly / dist, lz / dist
         w = attenuation(dist, c1, c2, c3, fclamp)
         if kind == LIGHT_SPOT:
-            cos_t = -(lx * ldx + ly * ldy + lz * ldz)
-            if cos_t <= cos_cutoff:
+            f = spot_falloff(-lx, -ly, -lz, local, li, cos_cutoff, cos_beam, cutoff, inv_tw)
+            if f == 0.0:
                 return False, z, z, z, z, z, z
-            if cos_t < cos_beam:
-                w *= (cutoff - math.acos(min(cos_t, 1.0))) * inv_tw
+            w *= f
     kd, spec = phong_brdf_cos(sx, sy, sz, lx, ly, lz, vx, vy, vz, ks, shininess)
     if kd == 0.0 and spec == 0.0:
         return False, z, z, z, z, z, z
@@ -545,6 +568,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
     ks, shininess, c1, c2, c3, fclamp = M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp
     shadows, light_samples = M.shadows, M.light_samples
     seta, strans = M.shadow_eta, M.shadow_trans
+    local = A.light_local
     for li in range(A.light_kind.shape[0]):
         kind = A.light_kind[li]
         lpx, lpy, lpz = A.light_pos[li, 0], A.light_pos[li, 1], A.light_pos[li, 2]
@@ -557,9 +581,9 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
             if not active[i]:
                 continue
             ok, lx, ly, lz, w, kd, spec = delta_sample(
-                kind, lpx, lpy, lpz, ldx, ldy, ldz, cc, cb_, cut, itw, P[0, i], P[1, i], P[2, i],
-                P[6, i], P[7, i], P[8, i], P[9, i], P[10, i], P[11, i], ks, shininess, c1, c2,
-                c3, fclamp)
+                kind, lpx, lpy, lpz, ldx, ldy, ldz, local, li, cc, cb_, cut, itw, P[0, i], P[1, i],
+                P[2, i], P[6, i], P[7, i], P[8, i], P[9, i], P[10, i], P[11, i], ks, shininess, c1,
+                c2, c3, fclamp)
             if not ok:
                 continue
             cr = w * rr * (kd * P[12, i] + spec)

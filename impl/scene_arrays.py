@@ -65,6 +65,7 @@ class SceneArrays(NamedTuple):
     light_cos_beam: np.ndarray
     light_cutoff: np.ndarray    # radians
     light_inv_tw: np.ndarray    # 1 / (cutoff - beam width), radians
+    light_local: np.ndarray     # (L, 3, 3) world -> emitter-local linear map (spot: inverse of to_world's 3x3)
     em_offset: np.ndarray       # (E + 1,) ranges into em_tri / em_cdf
     em_tri: np.ndarray          # (K,) triangle index (into tri_*)
     em_cdf: np.ndarray          # (K,) cumulative area fraction within its emitter
@@ -104,6 +105,25 @@ def diffuse_texture(m) -> dict | None:
     if m.kind in ("plastic", "roughplastic"):
         return m.textures.get("diffuse_reflectance")
     return None
+
+
+def _light_local(light) -> np.ndarray:
+    """The linear map taking a world direction into the light's own frame, where a spot
+    points along +z (Mitsuba's ``spot`` evaluates its cone there: the inverse of its
+    to_world applied to the direction, then normalised, so a non-uniform scale or a
+    shear in to_world makes the world-space cone elliptical).  A spot without a
+    to_world gets an orthonormal frame whose third row is its axis; other lights the
+    identity (unused)."""
+    if light.kind != "spot":
+        return np.eye(3)
+    if light.to_world is not None:
+        return np.linalg.inv(np.asarray(light.to_world, dtype=np.float64)[:3, :3])
+    z = np.asarray(light.direction, dtype=np.float64)
+    z = z / np.linalg.norm(z)
+    a = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(a, z)
+    x /= np.linalg.norm(x)
+    return np.stack([x, np.cross(z, x), z])
 
 
 def flatten(scene: Scene) -> SceneArrays:
@@ -204,6 +224,7 @@ def flatten(scene: Scene) -> SceneArrays:
         light_cos_beam=np.cos(beam).reshape(-1),
         light_cutoff=cutoff.reshape(-1),
         light_inv_tw=np.where(cutoff > beam, 1.0 / np.maximum(cutoff - beam, 1e-12), np.inf).reshape(-1),
+        light_local=np.asarray([_light_local(l) for l in lights], dtype=np.float64).reshape(-1, 3, 3),
         em_offset=np.asarray(em_offset, dtype=np.int64),
         em_tri=np.asarray(em_tri, dtype=np.int64),
         em_cdf=np.asarray(em_cdf, dtype=np.float64),
