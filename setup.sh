@@ -82,7 +82,7 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
 fi
 if [ -z "${GIBENCH_SKIP_WARMUP:-}" ]; then
     echo "setup: compiling the numba kernels of the default and ci suites (gibench warmup)"
-    .venv/bin/python -m gibench.cli warmup default ci | tail -1 \
+    .venv/bin/python -m gibench.cli warmup default ci --jobs 2 | tail -1 \
         || echo "setup: warning: warm-up failed; the first renders will compile instead" >&2
 fi
 echo "setup: ready (.venv/bin/gibench)"

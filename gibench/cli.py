@@ -554,9 +554,10 @@ def cmd_warmup(args) -> int:
 
     t0 = time.perf_counter()
     print(f"gibench warmup: suites {', '.join(args.suites)}")
-    rows = warm_up([_resolve_suite(s) for s in args.suites])
+    rows = warm_up([_resolve_suite(s) for s in args.suites], jobs=args.jobs)
     bad = [r for r in rows if r["error"]]
-    print(f"warmup: {len(rows)} renders in {time.perf_counter() - t0:.1f} s, numba cache "
+    print(f"warmup: {len(rows)} renders in {time.perf_counter() - t0:.1f} s"
+          + (f" ({args.jobs} processes)" if args.jobs > 1 else "") + ", numba cache "
           f"{os.environ.get('NUMBA_CACHE_DIR', '(numba default)')}"
           + (f", {len(bad)} failed" if bad else ""))
     return 1 if bad else 0
@@ -721,6 +722,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("warmup", help="compile the numba kernels the suites need (fills .numba_cache/)")
     s.add_argument("suites", nargs="*", default=["default", "ci"], help="suites (default: default ci)")
+    s.add_argument("--jobs", "-j", type=int, default=1,
+                   help="compile in N worker processes, an algorithm at a time each (default 1)")
     s.set_defaults(func=cmd_warmup)
 
     s = sub.add_parser("view", help="the scene, a radiosity solution or an acceleration "

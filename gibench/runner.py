@@ -45,7 +45,8 @@ def render_timed(algorithm: Algorithm, scene: Scene, params: dict, *, seed: int 
     return result, timing
 
 
-def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6)) -> list[dict]:
+def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6), jobs: int = 1,
+            algorithms=None) -> list[dict]:
     """Compile (or load from numba's cache) every kernel the suites' cases use.
 
     Each distinct (scene, algorithm, parameters) of the suites renders once
@@ -53,8 +54,15 @@ def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6)) -> list[d
     not per image size, so this fills ``.numba_cache/`` for the full-size
     runs at a fraction of their cost.  External algorithms (entry points,
     command renderers) are skipped: they compile nothing of gibench's.
+    ``algorithms`` (names) restricts it to those.  With ``jobs`` > 1 the
+    algorithms go to ``jobs`` worker processes as they free up, those with the
+    largest kernels first (:data:`_COMPILE_ORDER`): numba compiles on one core,
+    and the algorithms' kernels are apart (the shared ones compile in each
+    process that needs them; numba's cache writes are atomic).
     Returns one row per render: scene, algorithm, seconds, error.
     """
+    if jobs > 1:
+        return _warm_up_parallel(suite_paths, size, jobs, log)
     import dataclasses
 
     from core.errors import GibenchError
@@ -70,6 +78,8 @@ def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6)) -> list[d
             if registry.origin(case.algorithm)["source"] != "builtin":
                 continue
             algo = registry.get(case.algorithm)
+            if algorithms is not None and algo.name not in algorithms:
+                continue
             params = algo.parse_params(case.params)
             key = (str(case.scene), algo.name, repr(sorted(params.items())))
             if key in seen:
@@ -88,4 +98,39 @@ def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6)) -> list[d
             rows.append({"scene": case.scene_id, "algorithm": algo.name, "seconds": dt, "error": error})
             if log:
                 log(f"  {case.scene_id}: {case.label}: {dt:.2f} s" + (f" ({error})" if error else ""))
+    return rows
+
+
+#: The built-in algorithms with the largest kernels (longest cold compiles) first: the
+#: order in which :func:`warm_up` hands them to its worker processes.
+_COMPILE_ORDER = ("path", "distributed", "whitted", "raycast", "radiosity")
+
+
+def _warm_algorithm(suite_paths, size, name) -> list[dict]:
+    """:func:`warm_up` of one algorithm, silent (a worker process's task)."""
+    return warm_up(suite_paths, log=None, size=size, algorithms={name})
+
+
+def _warm_up_parallel(suite_paths, size, jobs, log) -> list[dict]:
+    """:func:`warm_up` over ``jobs`` worker processes, one algorithm per task."""
+    from concurrent.futures import ProcessPoolExecutor
+    import multiprocessing
+
+    from . import registry
+    from .suite import load_suite
+
+    names = {registry.get(c.algorithm).name for p in suite_paths for c in load_suite(p).cases
+             if registry.origin(c.algorithm)["source"] == "builtin"}
+    rank = {a: i for i, a in enumerate(_COMPILE_ORDER)}
+    names = sorted(names, key=lambda a: (rank.get(a, len(rank)), a))
+    rows = []
+    with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(_warm_algorithm, suite_paths, size, a) for a in names]
+        for f in futures:
+            part = f.result()
+            rows += part
+            if log:
+                for r in part:
+                    log(f"  {r['scene']}: {r['algorithm']}: {r['seconds']:.2f} s"
+                        + (f" ({r['error']})" if r["error"] else ""))
     return rows

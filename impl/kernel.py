@@ -24,14 +24,18 @@ allocates and can be reached from a batch kernel states ``_nrt=True`` (the
 acceleration structures' query entry points, :func:`impl.tracer.closest_batch`
 and ``occluded_batch``, the plastic BSDF lobes of :mod:`impl.bsdf`).
 
-What a batch kernel calls once per ray (a path vertex's light sample and BSDF, the
-wide BVH's traversal behind :func:`impl.rays.hit` and ``occluded``) is inlined into
-it (``inline="always"``): a call of a separate njit function passes a tuple of
-arrays (the flattened scene, the materials, the ray configuration) member by
-member, every array's data pointer, shape and strides, which costs more than the
-work of a light sample.  The wide BVH's stand-alone queries
-(:func:`impl.accel.wide.wide_closest`, ``wide_any``) are batch kernels, whichever
-caller compiles them first.
+What a batch kernel calls once per ray is either inlined into it
+(``inline="always"``: a path vertex's light sample and BSDF) or takes no tuple of
+arrays: a call of a separate njit function passes a tuple of arrays (the flattened
+scene, the materials, the ray configuration) member by member, every array's data
+pointer, shape and strides, which costs more than the work of a light sample.  The
+wide BVH's traversal behind :func:`impl.rays.hit` and ``occluded`` is such a call
+(:func:`impl.accel.wide.wide_closest_bound`, ``wide_any_bound``): it takes the
+tree's data pointers, bound inline from the configuration, and is compiled once,
+with its own error model (inlined, it would take the caller's, where ``1 / 0.0``
+of an axis-parallel ray raises instead of giving ∞), rather than once per call
+site.  These and the stand-alone queries (``wide_closest``, ``wide_any``) are
+batch kernels, whichever caller compiles them first.
 """
 
 from __future__ import annotations

@@ -118,7 +118,7 @@ from core.algorithm import Param
 from core.errors import ParamError
 
 from . import accel as _accel
-from .accel.wide import wide_bind, wide_query
+from .accel.wide import wide_any_bound, wide_bind, wide_closest_bound
 from .intersect import SPHERE_FORMS, any_hit_form, closest_hit_form, like
 from .offset import STRATEGIES, spawn
 
@@ -255,11 +255,11 @@ def round_ray(R: RayConfig, ox, oy, oz, dx, dy, dz):
 def hit(R: RayConfig, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2)`` (float64 t and barycentrics) in R's form and precision."""
     g = R.sph_radius
-    if R.accel == _accel.WIDE:          # the traversal inlined: no call (impl.kernel)
+    if R.accel == _accel.WIDE:          # pointers passed, not R's arrays (impl.kernel)
         W, root, _ = wide_bind(R)
-        t, prim, b1, b2, _, _ = wide_query(W, root, like(g, ox), like(g, oy), like(g, oz),
-                                           like(g, dx), like(g, dy), like(g, dz),
-                                           like(g, tmin), like(g, tmax), False)
+        t, prim, b1, b2 = wide_closest_bound(W, root, like(g, ox), like(g, oy), like(g, oz),
+                                             like(g, dx), like(g, dy), like(g, dz),
+                                             like(g, tmin), like(g, tmax))
         return float(t), prim, float(b1), float(b2)
     if R.accel != 0:
         t, prim, b1, b2, _, _ = _accel.closest(R, like(g, ox), like(g, oy), like(g, oz),
@@ -308,9 +308,8 @@ def occluded(R: RayConfig, ox, oy, oz, dx, dy, dz, tmin, tmax):
     g = R.sph_radius
     if R.accel == _accel.WIDE:
         W, root, _ = wide_bind(R)
-        _, p, _, _, _, _ = wide_query(W, root, like(g, ox), like(g, oy), like(g, oz), like(g, dx),
-                                      like(g, dy), like(g, dz), like(g, tmin), like(g, tmax), True)
-        return p >= 0
+        return wide_any_bound(W, root, like(g, ox), like(g, oy), like(g, oz), like(g, dx),
+                              like(g, dy), like(g, dz), like(g, tmin), like(g, tmax))
     if R.accel != 0:
         h, _, _ = _accel.any_hit(R, like(g, ox), like(g, oy), like(g, oz), like(g, dx),
                                  like(g, dy), like(g, dz), like(g, tmin), like(g, tmax))

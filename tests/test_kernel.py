@@ -19,11 +19,12 @@ from impl.kernel import batch_kernel
 
 BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, whitted._trees,
                  whitted._light_leaves, path._paths, wide.wide_closest, wide.wide_any,
+                 wide.wide_closest_bound, wide.wide_any_bound,
                  spectral.to_linear_srgb]
 #: Called per ray from batch kernels: inlined (a call would pass every array of the scene,
 #: material or ray-configuration tuple it takes, member by member).
 PER_RAY = [bsdf.bsdf_sample, bsdf.bsdf_eval, bsdf.bsdf_pdf, light_sampling.sample_light,
-           light_sampling.emitter_pdf, rays.hit, rays.occluded, wide.wide_bind, wide.wide_query]
+           light_sampling.emitter_pdf, rays.hit, rays.occluded, wide.wide_bind]
 ALLOCATING = [tracer.closest_batch, tracer.occluded_batch, accel.closest, accel.any_hit,
               accel.closest_rays, accel.occluded_rays, bsdf._plastic_sample, bsdf._plastic_eval,
               bsdf._plastic_pdf]

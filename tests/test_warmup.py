@@ -47,3 +47,31 @@ def test_warm_up_renders_each_builtin_case_once(tmp_path, capsys, monkeypatch):
     code, out, _ = run_cli(capsys, "warmup", manifest)
     assert code == 1 and "warmup: 2 renders" in out and "1 failed" in out
     registry.reset()
+
+
+def test_warm_up_in_worker_processes_renders_the_same_cases(tmp_path, capsys, monkeypatch):
+    monkeypatch.delenv(registry.RENDERERS_ENV, raising=False)
+    registry.reset()
+    small_scene(tmp_path)
+    (tmp_path / "broken.xml").write_text("<scene version='3.0.0'><shape type='nope'/></scene>")
+    manifest = tmp_path / "w.toml"
+    manifest.write_text(textwrap.dedent("""
+        [suite]
+        name = "w"
+        [[group]]
+        scenes = ["small.xml", "broken.xml"]
+        algorithm = "raycast"
+        [[group]]
+        scenes = ["small.xml"]
+        algorithm = "zbuffer"
+        """))
+    serial = warm_up([manifest], log=None)
+    lines = []
+    parallel = warm_up([manifest], log=lines.append, jobs=2)
+    key = lambda rows: sorted((r["scene"], r["algorithm"], r["error"] is None) for r in rows)
+    assert key(parallel) == key(serial) == [("broken", "raycast", False), ("small", "raycast", True),
+                                            ("small", "zbuffer", True)]
+    assert len(lines) == 3
+    code, out, _ = run_cli(capsys, "warmup", manifest, "--jobs", "2")
+    assert code == 1 and "warmup: 3 renders" in out and "(2 processes)" in out and "1 failed" in out
+    registry.reset()

@@ -652,6 +652,22 @@ def _any_from(R, ref0, ox, oy, oz, dx, dy, dz, tmin, tmax):
 
 
 @batch_kernel(error_model="numpy")
+def wide_closest_bound(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """:func:`wide_closest` of the tree ``(T, root)`` that :func:`wide_bind` gives: the
+    arguments are data pointers and numbers, so a per-ray call from a batch kernel
+    copies no array (what :func:`impl.rays.hit` calls); ``(t, prim, b1, b2)``."""
+    t, p, b1, b2, _, _ = wide_query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, False)
+    return t, p, b1, b2
+
+
+@batch_kernel(error_model="numpy")
+def wide_any_bound(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """:func:`wide_any` of the bound tree (as :func:`wide_closest_bound`): hit or not."""
+    _, p, _, _, _, _ = wide_query(T, root, ox, oy, oz, dx, dy, dz, tmin, tmax, True)
+    return p >= 0
+
+
+@batch_kernel(error_model="numpy")
 def wide_closest(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Closest hit ``(t, prim, b1, b2, nodes_visited, prim_tests)``; arguments and t in
     R's precision, prim = -1 on a miss (nodes: wide nodes and leaves opened).
