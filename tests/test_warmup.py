@@ -5,6 +5,8 @@ external algorithms are skipped; a bad case is reported, not raised."""
 import textwrap
 from pathlib import Path
 
+import pytest
+
 from gibench import registry
 from gibench.runner import warm_up
 
@@ -13,12 +15,20 @@ from test_cli import run_cli, small_scene
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples" / "renderers.toml"
 
 
-def test_warm_up_renders_each_builtin_case_once(tmp_path, capsys, monkeypatch):
+@pytest.fixture
+def scenes(tmp_path, monkeypatch):
+    """A folder with a small scene and one that fails to load, the registry without
+    users' renderers (reset again afterwards)."""
     monkeypatch.delenv(registry.RENDERERS_ENV, raising=False)
     registry.reset()
     small_scene(tmp_path)
     (tmp_path / "broken.xml").write_text("<scene version='3.0.0'><shape type='nope'/></scene>")
-    manifest = tmp_path / "w.toml"
+    yield tmp_path
+    registry.reset()
+
+
+def test_warm_up_renders_each_builtin_case_once(scenes, capsys):
+    manifest = scenes / "w.toml"
     manifest.write_text(textwrap.dedent(f"""
         [suite]
         name = "w"
@@ -46,15 +56,10 @@ def test_warm_up_renders_each_builtin_case_once(tmp_path, capsys, monkeypatch):
     assert "unsupported" in rows[1]["error"] and len(lines) == 2
     code, out, _ = run_cli(capsys, "warmup", manifest)
     assert code == 1 and "warmup: 2 renders" in out and "1 failed" in out
-    registry.reset()
 
 
-def test_warm_up_in_worker_processes_renders_the_same_cases(tmp_path, capsys, monkeypatch):
-    monkeypatch.delenv(registry.RENDERERS_ENV, raising=False)
-    registry.reset()
-    small_scene(tmp_path)
-    (tmp_path / "broken.xml").write_text("<scene version='3.0.0'><shape type='nope'/></scene>")
-    manifest = tmp_path / "w.toml"
+def test_warm_up_in_worker_processes_renders_the_same_cases(scenes, capsys):
+    manifest = scenes / "w.toml"
     manifest.write_text(textwrap.dedent("""
         [suite]
         name = "w"
@@ -74,4 +79,3 @@ def test_warm_up_in_worker_processes_renders_the_same_cases(tmp_path, capsys, mo
     assert len(lines) == 3
     code, out, _ = run_cli(capsys, "warmup", manifest, "--jobs", "2")
     assert code == 1 and "warmup: 3 renders" in out and "(2 processes)" in out and "1 failed" in out
-    registry.reset()
