@@ -17,7 +17,7 @@ from pathlib import Path
 from .registry import Algorithm, ParamError
 from core.records import Record
 
-from .suite import TRANSPORTS, Case, Suite, SuiteError
+from .suite import TRANSPORTS, Case, Suite, SuiteError, file_max_depth
 
 __all__ = ["parse_grid", "sweep_suite", "sweep_table"]
 
@@ -76,6 +76,7 @@ def sweep_suite(scene, algo: Algorithm, grid: dict[str, list], *, transport: str
     for values in itertools.product(*(grid[k] for k in keys)):
         params = dict(base, **dict(zip(keys, values)))
         algo.parse_params(params)
+        params.update(file_max_depth(scene, algo, params, transport))
         label = ", ".join(f"{k}={v}" for k, v in zip(keys, values))
         cases.append(Case(scene=scene, scene_id=scene_id, algorithm=algo.name, params=params,
                           transport=transport, label=label, expect="report"))
