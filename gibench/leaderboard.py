@@ -38,7 +38,8 @@ CONFIGS = {
     "distributed": [("distributed, 4x4", {"spp": 16}), ("distributed, 8x8", {"spp": 64})],
     "radiosity": [("radiosity, 256 patches", {"patches": 256, "spp": 4}),
                   ("radiosity, 1024 patches", {"patches": 1024, "spp": 4})],
-    "path": [("path, 2x2", {"spp": 4}), ("path, 4x4", {"spp": 16})],
+    "path": [("path, 16 Sobol points", {"spp": 16, "sampler": "sobol"}),
+             ("path, 64 Sobol points", {"spp": 64, "sampler": "sobol"})],
 }
 
 
