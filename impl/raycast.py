@@ -231,5 +231,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap"}),
+    models=frozenset({"envmap", "projector"}),
 )

@@ -603,5 +603,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap"}),
+    models=frozenset({"envmap", "projector"}),
 )
