@@ -60,7 +60,9 @@ shape            sphere (center/radius or to_world; gibench's own
 bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric, twosided,
                  plastic, roughplastic (diffuse_reflectance, specular_reflectance,
                  int_ior, ext_ior, nonlinear; alpha, distribution, sample_visible),
-                 normalmap / bumpmap around one bsdf (:attr:`Material.shading`);
+                 normalmap / bumpmap around one bsdf, inside or outside a
+                 twosided (:attr:`Material.shading`: the texture, scale,
+                 flip_invalid_normals, use_shadowing_function, the order);
                  thindielectric (int_ior, ext_ior, specular_reflectance,
                  specular_transmittance); mask (opacity, a float or texture,
                  outermost: :attr:`Material.opacity`); blendbsdf (weight, a
