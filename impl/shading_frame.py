@@ -41,6 +41,10 @@ tangent plane; where the map wraps it (``normalmap(twosided(bsdf))``), the
 ``twosided`` negates them in the perturbed frame, so n_p is computed with w_i as
 it is and the BSDF sees −n_p.
 
+Where Mitsuba's normalisations divide by zero (a texel with 2c − 1 = 0, a
+vanishing bumped cross product) n_p is the unperturbed s, and a tangent ∂p/∂u
+along n_s is replaced by any tangent.
+
 Only the normal matters to the BSDFs modelled here (all isotropic), so the
 tracers build their own tangents around n_p; Mitsuba's tangent of the
 perturbed frame, and hence an anisotropic BSDF under a normal map, is not
@@ -113,8 +117,11 @@ def perturbed_normal(code, scale, tex, uvm, data, v, uv, b1, b2, gx, gy, gz, sx,
         cx, cy, cz = 2.0 * r - 1.0, 2.0 * g - 1.0, 2.0 * b - 1.0
         d = sx * pux + sy * puy + sz * puz
         ex, ey, ez = pux - d * sx, puy - d * sy, puz - d * sz
-        inv = 1.0 / math.sqrt(ex * ex + ey * ey + ez * ez)
-        ex, ey, ez = ex * inv, ey * inv, ez * inv
+        le = math.sqrt(ex * ex + ey * ey + ez * ez)
+        if le > 0.0:
+            ex, ey, ez = ex / le, ey / le, ez / le
+        else:                                       # ∂p/∂u along n_s: any tangent
+            ex, ey, ez, _a, _b, _c = _coordinate_system(sx, sy, sz)
         fx, fy, fz = sy * ez - sz * ey, sz * ex - sx * ez, sx * ey - sy * ex
         nx = cx * ex + cy * fx + cz * sx
         ny = cx * ey + cy * fy + cz * sy
@@ -133,8 +140,11 @@ def perturbed_normal(code, scale, tex, uvm, data, v, uv, b1, b2, gx, gy, gz, sx,
     if tex[5] != 0 and (wx * sx + wy * sy + wz * sz) * (wx * nx + wy * ny + wz * nz) <= 0.0:
         d = 2.0 * (nx * sx + ny * sy + nz * sz)
         nx, ny, nz = d * sx - nx, d * sy - ny, d * sz - nz
-    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
-    nx, ny, nz = nx * inv, ny * inv, nz * inv
+    ln = math.sqrt(nx * nx + ny * ny + nz * nz)
+    if ln > 0.0:
+        nx, ny, nz = nx / ln, ny / ln, nz / ln
+    else:                                           # no direction (a texel 2c - 1 = 0): unperturbed
+        nx, ny, nz = sx, sy, sz
     if mirror:
         d = 2.0 * (nx * sx + ny * sy + nz * sz)
         nx, ny, nz = nx - d * sx, ny - d * sy, nz - d * sz

@@ -205,3 +205,20 @@ def test_map_order_around_twosided_is_recorded(tmp_path):
         assert m.twosided and m.shading["type"] == "normalmap"
         found.append(m.shading.get("wraps_twosided", False))
     assert found == [True, False]
+
+
+def test_a_vanishing_map_normal_leaves_the_shading_normal():
+    """A normal-map texel of 0.5 (2c − 1 = 0) has no direction: the shading normal
+    stays, where Mitsuba's normalisation would give NaN; a tilted texel tilts it."""
+    from impl.shading_frame import perturbed_normal
+
+    v = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    uv = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+    uvm = np.eye(3)[:2].copy()
+    tex = np.array([0, 1, 1, 0, 1, 1, 1, 0], dtype=np.int64)       # 1x1, nearest, flip, shadowing
+    args = (uvm, None, v, uv, 0.2, 0.3, 0.0, 0.0, 1.0, 0.0, 0.0, 1.0, 0.0, 0.6, 0.8, False)
+    grey = np.full((1, 3), 0.5)
+    assert perturbed_normal(1, 1.0, tex, args[0], grey, *args[2:]) == (0.0, 0.0, 1.0)
+    tilted = np.array([[0.5 + 0.5 * 0.6, 0.5, 0.5 + 0.5 * 0.8]])   # n = (0.6, 0, 0.8) along ∂p/∂u = +x
+    n = perturbed_normal(1, 1.0, tex, args[0], tilted, *args[2:])
+    assert np.allclose(n, (0.6, 0.0, 0.8))
