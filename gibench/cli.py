@@ -672,7 +672,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--ladder", default="1,4,16,64,256", help="Mitsuba spp ladder ('' for none)")
     s.add_argument("--ladder-samplers", default="independent,stratified,multijitter,ldsampler",
                    help="Mitsuba samplers probed for the ladder; the best on the scene is used")
-    s.add_argument("--seeds", type=_positive, default=3, help="own-render seeds per configuration")
+    s.add_argument("--seeds", type=_positive, default=1,
+                   help="own-render seeds per configuration (the error is their mean)")
     s.add_argument("--metric", default="relmse", help="error metric of the table")
     common(s)
     s.set_defaults(func=cmd_sweep)

@@ -41,6 +41,7 @@ def test_sweep_cli_writes_table_report_and_ladder(tmp_path, capsys, mitsuba):
     report = tmp_path / "sweep.html"
     rc = cli.main(["sweep", str(SCENE), "--algorithm", "raycast", "--grid", "spp=1,4,16",
                    "--transport", "direct", "--ladder", "1,4,16,64", "--repeats", "1",
+                   "--ladder-samplers", "independent",        # renders every rung as asked
                    "--results", str(results), "--report", str(report), "--history",
                    str(tmp_path / "h.sqlite"), "--no-mitsuba-timing", "--no-progress"])
     assert rc == 0
