@@ -67,12 +67,13 @@ from .kernel import batch_kernel
 from .rays import RayConfig, hit, legacy_config, leave, occluded, refine, round_ray
 from .phong import attenuation, phong_brdf_cos
 from .rng import uniform_from, uniform_prefix
+from .samplers import DIM_INDEPENDENT, dim_2d
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays
 from .textures import bitmap, checkerboard
 from .tracer import occluded_batch
 
 __all__ = ["SHADOW_EPSILON", "surface", "diffuse_albedo", "sample_emitter", "direct_light",
-           "direct_light_rays", "spot_falloff", "delta_sample", "area_sample", "environment_sample",
+           "direct_light_rays", "direct_light_dims", "spot_falloff", "delta_sample", "area_sample", "environment_sample",
            "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
            "environment_radiance", "sample_cosine_hemisphere", "shadow_filter", "SHADOW_MODES"]
 
@@ -208,11 +209,26 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
         return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
                                   rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
                                   light_samples, seed, pixel, sample, R, False, A.sph_radius,
-                                  A.mat_rho)
+                                  A.mat_rho, DIM_INDEPENDENT, 0, 0)
     return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
                               rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
                               light_samples, seed, pixel, sample, R, seta.shape[0] > 0, seta,
-                              strans)
+                              strans, DIM_INDEPENDENT, 0, 0)
+
+
+@njit(inline="always", cache=True)
+def direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
+                      A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
+                      seed, pixel, sample, R: RayConfig, dims):
+    """:func:`direct_light_rays` (opaque shadows) with the light samples' numbers of
+    pixel sample ``sample`` drawn by :func:`impl.samplers.dim_2d`: ``dims = (dmode,
+    dspp, ddim)``, light sample j is dimension ``ddim + j`` of ``dspp`` samples in mode
+    ``dmode`` (:func:`light_uv`).  (One tuple: a call of an inlined function with more
+    than 30 arguments compiles to a star-args call, which numba cannot inline.)"""
+    dmode, dspp, ddim = dims
+    return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
+                              A, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
+                              pixel, sample, R, False, A.sph_radius, A.mat_rho, dmode, dspp, ddim)
 
 
 @njit(inline="always", cache=True)
@@ -233,7 +249,7 @@ def _through_shadow(R, A, ox, oy, oz, dx, dy, dz, t0, t1, through, seta, strans,
 @njit(cache=True)
 def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                        A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                       seed, pixel, sample, R: RayConfig, through, seta, strans):
+                       seed, pixel, sample, R: RayConfig, through, seta, strans, dmode, dspp, ddim):
     """The body of :func:`direct_light_rays`; ``through``: blocked samples pass the
     dielectrics of ``seta``/``strans`` (:func:`shadow_filter`)."""
     r = g = b = 0.0
@@ -277,7 +293,8 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
         scale = A.em_area[e] / light_samples
         er, eg, eb = A.shape_emit[sh, 0], A.shape_emit[sh, 1], A.shape_emit[sh, 2]
         for k in range(light_samples):
-            u1, u2 = light_uv(seed, pixel, sample, e * light_samples + k, k, q, stratified)
+            u1, u2 = light_uv(seed, pixel, sample, e * light_samples + k, k, q, stratified, dmode,
+                              dspp, ddim)
             ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
                 e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, px, py, pz,
                 sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, ks, shininess, c1, c2, c3, fclamp)
@@ -300,7 +317,8 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
             er, eg, eb = A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
         img, frame, epdf, ecdf = A.env_image, A.env_frame, A.env_pdf, A.env_cdf
         for k in range(light_samples):
-            u1, u2 = light_uv(seed, pixel, sample, n_em * light_samples + k, k, q, stratified)
+            u1, u2 = light_uv(seed, pixel, sample, n_em * light_samples + k, k, q, stratified, dmode,
+                              dspp, ddim)
             ok, lx, ly, lz, cr, cg, cb = environment_sample(
                 u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, sx, sy, sz, vx, vy, vz,
                 rho_r, rho_g, rho_b, ks, shininess)
@@ -320,10 +338,15 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
 
 
 @njit(inline="always", cache=True)
-def light_uv(seed, pixel, sample, j, k, q, stratified):
+def light_uv(seed, pixel, sample, j, k, q, stratified, dmode, dspp, ddim):
     """The two random numbers of area/environment light sample ``j`` (sample ``k`` of its
     light): dimensions 2 + 2j and 3 + 2j of :func:`impl.rng.uniform`, moved into stratum
-    k of a q×q grid when the light's sample count is the square q²."""
+    k of a q×q grid when the light's sample count is the square q².  With ``dmode`` not
+    ``DIM_INDEPENDENT``: dimension ``ddim + j`` of pixel sample ``sample`` of ``dspp``
+    (:func:`impl.samplers.dim_2d`: shuffled strata or padded Sobol over the pixel's
+    samples) instead."""
+    if dmode != DIM_INDEPENDENT:
+        return dim_2d(dmode, seed, pixel, sample, dspp, ddim + j)
     dim = 2 + 2 * j
     h = uniform_prefix(seed, pixel, sample)
     u1 = uniform_from(h, dim)
@@ -618,7 +641,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                 if not active[i]:
                     continue
                 u1, u2 = light_uv(seed, pixel[i], sample[i], e * light_samples + k, k, q,
-                                  stratified)
+                                  stratified, DIM_INDEPENDENT, 0, 0)
                 ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
                     e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, P[0, i],
                     P[1, i], P[2, i], P[6, i], P[7, i], P[8, i], P[9, i], P[10, i], P[11, i],
@@ -645,7 +668,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                 if not active[i]:
                     continue
                 u1, u2 = light_uv(seed, pixel[i], sample[i], n_em * light_samples + k, k, q,
-                                  stratified)
+                                  stratified, DIM_INDEPENDENT, 0, 0)
                 ok, lx, ly, lz, cr, cg, cb = environment_sample(
                     u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, P[6, i], P[7, i], P[8, i], P[9, i],
                     P[10, i], P[11, i], P[12, i], P[13, i], P[14, i], ks, shininess)

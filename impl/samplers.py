@@ -40,6 +40,28 @@ module holds their geometry and decision rules:
   (:func:`statistical_done`).  The sequential stopping rule has a small bias
   (it stops more readily after low-variance draws), measured in the
   convergence study rather than assumed away.
+
+The other dimensions of a pixel sample (lens, shutter time, light point, BSDF
+direction: thesis 2.5.8) draw from :func:`dim_1d` / :func:`dim_2d`, per
+dimension ``dim`` of pixel sample ``s`` of ``spp``:
+
+* :data:`DIM_STRATIFIED` — Cook's shuffled strata (Cook 1986, "Stochastic
+  sampling in computer graphics", ACM TOG 5(1), §5; the idea of pbrt's
+  stratified sampler): a 2-D dimension has its own k×k jittered strata
+  (spp = k²), a 1-D dimension spp strata, one uniform point per stratum;
+  sample s takes stratum π(s), π a pseudo-random permutation of the strata
+  drawn per pixel and per dimension (:func:`permute`).  So every dimension's
+  spp samples cover its strata once each, and the strata of one dimension
+  are paired at random with those of the pixel and of every other dimension
+  (no correlation between dimensions).  Each sample is uniform over its
+  dimension (π(s) is uniform over the strata), so estimates stay unbiased;
+* :data:`DIM_SOBOL` — padded Owen-scrambled Sobol points
+  (:func:`impl.lowdiscrepancy.sample_2d` / ``sample_1d``), one scrambled
+  (0, 2)-sequence per 2-D dimension and a scrambled van der Corput sequence
+  per 1-D dimension, all seeded per pixel (``pixel_seed(pixel, ...)``) and
+  decorrelated by their own index shuffles: the first 2^m samples of each
+  2-D dimension are a (0, m, 2)-net.  This is the padded per-pixel form
+  (Burley 2020 §4), not a sequence over the whole image (ZSobol).
 """
 
 from __future__ import annotations
@@ -48,12 +70,16 @@ import math
 
 from numba import njit
 
-from .rng import uniform
+import numpy as np
+
+from .lowdiscrepancy import pixel_seed, sample_1d, sample_2d
+from .rng import uniform, uniform_from, uniform_prefix
 
 __all__ = ["uniform_pattern", "random_pattern", "jitter_pattern", "gaussian_jitter_pattern",
            "poisson_disk_pattern", "poisson_min_distance", "adaptive_disagree", "adaptive_children",
            "statistical_done", "normal_from_uniforms", "POISSON_FILL", "POISSON_TRIES",
-           "PATTERN_STREAM"]
+           "PATTERN_STREAM", "permute", "dim_1d", "dim_2d", "sobol_pattern", "DIM_INDEPENDENT",
+           "DIM_STRATIFIED", "DIM_SOBOL", "DIM_STREAM", "JITTER_STREAM"]
 
 #: Dart throwing starts at this fraction of the hexagonal-packing distance.
 POISSON_FILL = 0.75
@@ -61,6 +87,14 @@ POISSON_FILL = 0.75
 POISSON_TRIES = 30
 #: Seed offset of the pattern's random stream (apart from every other stream of the tracer).
 PATTERN_STREAM = 0x51ED2705
+
+#: :func:`dim_1d` / :func:`dim_2d` modes (``DIM_INDEPENDENT``: the tracer's own hashed numbers).
+DIM_INDEPENDENT, DIM_STRATIFIED, DIM_SOBOL = 0, 1, 2
+#: Seed offsets of the strata permutations and of the jitter inside the strata.
+DIM_STREAM = 0x3C6EF372
+JITTER_STREAM = 0x1B873593
+#: The second coordinate of :func:`impl.lowdiscrepancy.pixel_seed` for the Sobol dimensions.
+_SOBOL_ROW = 0x7F4A7C15
 
 
 @njit(cache=True)
@@ -204,3 +238,82 @@ def statistical_done(n, q0, q1, q2, z, tolerance):
     qmax = max(q0, q1, q2)
     s2 = qmax / (n - 1.0)
     return z * math.sqrt(s2 / n) < tolerance
+
+
+# ------------------------------------------------------- sample dimensions ---
+
+@njit(inline="always", cache=True)
+def permute(i, n, key):
+    """Element ``i`` (0 ≤ i < n) of a pseudo-random permutation of 0..n−1 chosen by the
+    64-bit ``key``.
+
+    A four-round balanced Feistel network on 2h-bit integers (2^2h ≥ n), each
+    round ``(L, R) → (R, L xor F(key, round, R))`` with F the low h bits of
+    :func:`impl.rng.uniform_prefix` (a bijection whatever F is; Luby & Rackoff
+    1988), restricted to [0, n) by cycle walking (re-applied until it lands below
+    n: a bijection of [0, 4^h) restricted this way is a bijection of [0, n); at
+    most four steps on average), then rotated by r = key mod n.  The rotation
+    makes each element land on every place with probability 1/n over keys,
+    exactly, whatever the network's quality on tiny domains (where its
+    permutations are far from uniform over all n! ones: pairs of elements are
+    not equally likely to land on every pair of places).
+    """
+    if n <= 1:
+        return 0
+    h = 1
+    while (1 << (2 * h)) < n:
+        h += 1
+    hmask = np.uint64((1 << h) - 1)
+    sh = np.uint64(h)
+    x = np.uint64(i)
+    nn = np.uint64(n)
+    while True:
+        left = x >> sh
+        right = x & hmask
+        for r in range(4):
+            f = uniform_prefix(key, r, right) & hmask
+            left, right = right, left ^ f
+        x = (left << sh) | right
+        if x < nn:
+            break
+    return int((x + np.uint64(key) % nn) % nn)
+
+
+@njit(inline="always", cache=True)
+def dim_2d(mode, seed, pixel, s, spp, dim):
+    """(u, v) in [0, 1)² of 2-D dimension ``dim`` of pixel sample ``s`` (of ``spp``).
+
+    :data:`DIM_STRATIFIED`: stratum π(s) of the k×k grid (spp = k², π the pixel's
+    and dimension's :func:`permute`), jittered uniformly in it; a sample beyond k²
+    (spp not a square) is uniform.  :data:`DIM_SOBOL`: padded Owen-scrambled Sobol
+    point s of pair ``dim``, scrambled per pixel.
+    """
+    if mode == DIM_SOBOL:
+        return sample_2d(dim, s, pixel_seed(pixel, _SOBOL_ROW, seed))
+    h = uniform_prefix(seed + JITTER_STREAM, pixel, s)
+    ju = uniform_from(h, 2 * dim)
+    jv = uniform_from(h, 2 * dim + 1)
+    k = int(math.sqrt(spp) + 0.5)
+    if s >= k * k:
+        return ju, jv
+    c = permute(s, k * k, uniform_prefix(seed + DIM_STREAM, pixel, 2 * dim))
+    return (c % k + ju) / k, (c // k + jv) / k
+
+
+@njit(inline="always", cache=True)
+def dim_1d(mode, seed, pixel, s, spp, dim):
+    """u in [0, 1) of 1-D dimension ``dim`` of pixel sample ``s`` (of ``spp``):
+    stratum π(s) of spp equal strata, jittered (:data:`DIM_STRATIFIED`), or the
+    padded scrambled van der Corput point s (:data:`DIM_SOBOL`)."""
+    if mode == DIM_SOBOL:
+        return sample_1d(dim, s, pixel_seed(pixel, _SOBOL_ROW, seed))
+    c = permute(s, spp, uniform_prefix(seed + DIM_STREAM, pixel, 2 * dim + 1))
+    return (c + uniform(seed + JITTER_STREAM + 1, pixel, s, dim)) / spp
+
+
+@njit(cache=True)
+def sobol_pattern(n, seed, pixel, out):
+    """The pixel positions of :data:`DIM_SOBOL`: pair 0 of :func:`dim_2d`; returns n."""
+    for s in range(n):
+        out[s, 0], out[s, 1] = dim_2d(DIM_SOBOL, seed, pixel, s, n, 0)
+    return n
