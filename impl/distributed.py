@@ -88,8 +88,8 @@ while the five samples disagree by more than ``threshold``, depth limit
 ``adaptive_depth``, at most ``spp`` radiance samples per pixel); ``statistical``
 (4 stratified samples, then random ones until the ``confidence`` interval of
 the pixel mean is narrower than ±``tolerance`` or ``spp`` samples are spent).
-``sobol``: the first ``spp`` points of a padded Owen-scrambled Sobol sequence
-per pixel (:func:`impl.samplers.sobol_pattern`; a (0, m, 2)-net when spp = 2^m).
+``sobol``: the first ``spp`` points of an Owen-scrambled Sobol sequence per
+pixel (:func:`impl.samplers.sobol_pattern`; a (0, m, 2)-net when spp = 2^m).
 For the fixed patterns ``spp`` is the number of samples per pixel (a square
 k² for ``uniform`` and ``jitter``); for ``adaptive`` and ``statistical`` it is
 the per-pixel cap, and the counter ``samples`` (÷ pixels = the mean spp
@@ -111,10 +111,14 @@ shutter time (1-D), every light sample at every diffuse hit of its ray tree
   sample s takes the stratum π_d(s) of a pseudo-random permutation drawn per
   pixel and dimension (:func:`impl.samplers.dim_2d`, ``dim_1d``), so each
   dimension covers its strata once and is paired at random with the pixel
-  position and the other dimensions.  Light sample j at the tree's l-th
+  position and the other dimensions; the lens strata follow the pixel strata's
+  rows and columns (:func:`impl.samplers.lens_stratified`), so film × lens is
+  stratified along each axis, where an edge out of focus lies.  Light sample j at the tree's l-th
   diffuse hit is its own dimension (not stratified against the pixel sample's
   other light samples).
-* ``sampler=sobol``: every dimension from the padded per-pixel Sobol sequence
+* ``sampler=sobol``: the film position and the lens point from one
+  Owen-scrambled 4-D Sobol point per sample (:func:`impl.samplers.camera_sobol`),
+  every other dimension from the padded per-pixel Sobol sequence
   (:data:`impl.samplers.DIM_SOBOL`; a scrambled (0, 2)-sequence per 2-D
   dimension, a scrambled van der Corput sequence per 1-D one, each with its own
   index shuffle; not an image-wide ZSobol sequence).
@@ -213,6 +217,7 @@ from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
 from .rng import uniform, uniform_from, uniform_prefix
 from .samplers import (DIM_INDEPENDENT, DIM_SOBOL, DIM_STRATIFIED, adaptive_children, adaptive_disagree,
+                       camera_sobol, lens_stratified,
                        dim_1d, dim_2d, gaussian_jitter_pattern, jitter_pattern, poisson_disk_pattern,
                        random_pattern, sobol_pattern, statistical_done, uniform_pattern)
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
@@ -694,8 +699,11 @@ def _eye(cam, seed, pixel, sample, spp, dmode, fx, fy):
     if dmode == DIM_INDEPENDENT:
         u1 = uniform(seed + _STREAM, pixel, sample, _D_LENS)
         u2 = uniform(seed + _STREAM, pixel, sample, _D_LENS + 1)
+    elif dmode == DIM_SOBOL:
+        u1 = camera_sobol(seed, pixel, sample, 2)
+        u2 = camera_sobol(seed, pixel, sample, 3)
     else:
-        u1, u2 = dim_2d(dmode, seed, pixel, sample, spp, _X_LENS)
+        u1, u2 = lens_stratified(seed, pixel, sample, spp, _X_LENS)
     return eye_ray_lens(cam, fx, fy, u1, u2)
 
 

@@ -35,7 +35,9 @@ full-dimensional (unpadded) Sobol point, scrambled per dimension.
 
 Limits: 2**32 points per sequence; :data:`JOE_KUO` holds
 :data:`MAX_DIMENSIONS` dimensions (padding needs only two); points are float64
-with 32 significant bits.  The tracers do not draw from this module yet.
+with 32 significant bits.  The tracers draw from it through
+:func:`impl.sampling.pixel_sample` (pixel positions of raycast, whitted, path)
+and :mod:`impl.samplers` (every dimension of ``distributed sampler=sobol``).
 
 References
 ----------

@@ -43,8 +43,10 @@ EFFECTS = [
     ("distributed/penumbra.xml", "direct", {"spp": 64, "light_samples": 1}),
     ("distributed/penumbra.xml", "direct", {"spp": 64, "light_samples": 1, "dimensions": "stratified"}),
     ("distributed/penumbra.xml", "direct", {"spp": 64, "light_samples": 1, "sampler": "sobol"}),
-    ("distributed/dof.xml", "direct", {"spp": 64, "light_samples": 1, "dimensions": "stratified"}),
-    ("distributed/dof.xml", "direct", {"spp": 64, "light_samples": 1, "sampler": "sobol"}),
+    ("distributed/dof.xml", "direct", {"spp": 256, "light_samples": 1, "dimensions": "stratified"}),
+    ("distributed/dof.xml", "direct", {"spp": 256, "light_samples": 1, "sampler": "sobol"}),
+    ("distributed/gloss.xml", "whitted", {"spp": 256, "light_samples": 1, "dimensions": "stratified"}),
+    ("distributed/gloss.xml", "whitted", {"spp": 256, "light_samples": 1, "sampler": "sobol"}),
     ("distributed/gloss.xml", "whitted", {"spp": 256, "light_samples": 1}),
     ("distributed/translucency.xml", "whitted", {"spp": 256, "light_samples": 1}),
 ]

@@ -183,9 +183,14 @@ def test_random_and_jittered_mse_slopes_on_edge_pixels():
 # Slopes of the samplers that stratify every dimension (thesis 2.5.8): on the soft
 # shadow and depth of field the pixel position is not the only dimension that varies,
 # so jittering it alone leaves the slope near -1; shuffled strata and Sobol points in
-# the light and lens dimensions steepen it.  STEEP: the asserted ceiling (see the
-# module docstring of tests/test_samplers.py's README figures for the measured slopes).
-STEEP = -1.15
+# the light and lens dimensions steepen it.  Measured at 32x24, 3 seeds (edge pixels):
+# penumbra random -1.03, jitter -1.05, stratified -1.31, sobol -1.20; dof -1.00, -1.05,
+# -1.16, -1.21.  Each seed's own fit spreads by 0.03 (stratified) to 0.06 (sobol, dof)
+# standard deviation, so the 3-seed fit by about 0.02-0.035: the ceilings below leave
+# 2.6-10 of those (sobol on the penumbra is the closest, 0.05 from its ceiling).  Jitter
+# alone does not reach them (it must not: the test would not tell stratified
+# dimensions from jittered pixels).
+STEEP = {"penumbra": -1.15, "dof": -1.10}
 
 
 @pytest.mark.slow
@@ -200,10 +205,11 @@ def test_stratified_and_sobol_dimensions_steepen_soft_shadow_and_dof_slopes():
     slopes = {(r["scene"].split("/")[-1][:-4], r["sampler"]): r["slope_spp"]
               for r in fit_slopes(rows) if r["pixels"] == "edge"}
     print({k: round(v, 3) for k, v in slopes.items()})
-    for scene in ("penumbra", "dof"):
+    for scene, ceiling in STEEP.items():
         assert slopes[(scene, "random")] == pytest.approx(-1.0, abs=SLOPE_TOL), scene
+        assert slopes[(scene, "jitter")] > ceiling, scene
         for sampler in ("stratified", "sobol"):
-            assert slopes[(scene, sampler)] <= STEEP, (scene, sampler)
+            assert slopes[(scene, sampler)] <= ceiling, (scene, sampler)
         # At 64 and 256 spp both beat jittered pixels alone at equal spp (3 seeds summed).
         by = {(r["sampler"], r["spp"], r["seed"]): r["mse_edge"] for r in rows
               if r["scene"].endswith(scene + ".xml")}
