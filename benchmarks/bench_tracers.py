@@ -18,14 +18,16 @@ path     cornell_box, diffuse_room                    ``path``            full
   the clock stopped after ``dr.sync_thread()`` on the Mitsuba side.  ``extra_info``:
   both medians and spreads, their ratio, the own setup/trace split
   (``RenderResult.timings``) and the own rays per second.
-* ``bench_equal_error``: both sides render a ladder of sample counts
-  (alternated, medians of ``ROUNDS``) and are compared with the stored
-  1024-spp reference of the transport (relMSE).  Both estimators are unbiased,
-  so relMSE·spp is constant up to noise: from the largest rung, c = relMSE·spp
-  and t₁ = time/spp, and the time to reach a relMSE ε is c·t₁/ε.  The target
-  ε is Mitsuba's relMSE at ``TARGET_SPP`` spp (extrapolated the same way).
-  The stratified own estimators (raycast, whitted) converge faster than 1/spp,
-  so their extrapolation from the largest rung is conservative.
+* ``bench_equal_error``: the race to Mitsuba's error at the top of ``LADDER``.
+  Mitsuba renders with its most efficient sampler on the scene (the choice
+  :func:`gibench.ladder.choose_sampler` caches for the report), the own tracer
+  with ``sampler=sobol`` (Sobol pixel, light and BSDF samples); both at the
+  spp of ``LADDER``, ``SEEDS`` seeds each, own and Mitsuba renders alternated
+  (each after :func:`gibench.interleave.settle`); error = relMSE against the
+  stored 1024-spp reference, the mean over the seeds; time = median.  The own
+  time to Mitsuba's top-rung error is interpolated log-log between the own
+  rungs (extrapolated beyond them, flagged ``extrapolated``); the ratio is
+  over Mitsuba's median time at its top rung.
 
     .venv/bin/python -m pytest benchmarks/bench_tracers.py -s --benchmark-json reports/out/bench_tracers.json
 
@@ -47,8 +49,9 @@ from core.loader import load_scene
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"
 ROUNDS = 7
-LADDER = (4, 16)
-TARGET_SPP = 64
+#: Sample counts of the equal-error race (both sides); Mitsuba's last one is the target.
+LADDER = (16, 64)
+SEEDS = (11, 12, 13)
 
 #: (tracer, scene, transport, own params at equal spp).  One shadow ray per emitter and
 #: pixel sample, as Mitsuba's ``direct`` (one emitter sample, plus one BSDF sample) and the
@@ -151,34 +154,90 @@ def bench_equal_spp(benchmark, tracer, scene, transport, params):
           f"own {rays / own_s / 1e6:.1f} M rays/s")
 
 
+def _mitsuba_seeded(scene: str, transport: str, spp: int, sampler: str):
+    """A function ``seed -> image`` rendering the scene with the matched Mitsuba
+    integrator and ``sampler`` at ``spp``, once the work is done."""
+    import drjit as dr
+
+    from references.ladder import sampler_spec
+    from references.mitsuba_env import load_mitsuba
+    from references.reference import load_scene as mi_load_scene, prepare_scene_xml
+
+    mi = load_mitsuba()
+    path = SUITES / scene
+    xml, _, _ = prepare_scene_xml(path, transport=transport, spp_per_pass=spp,
+                                  sampler=sampler_spec(sampler, spp))
+    mscene = mi_load_scene(mi, path, xml)
+
+    def render(seed):
+        img = mi.render(mscene, spp=spp, seed=seed)
+        dr.eval(img)
+        dr.sync_thread()
+        return np.asarray(img, dtype=np.float32)[..., :3]
+
+    return render
+
+
+def time_to_error(points, target):
+    """Time at which the log-log line through the two (time, error) points nearest to
+    ``target`` reaches it: ``(seconds, extrapolated)``."""
+    pts = sorted(points)
+    lo = [p for p in pts if p[1] >= target]
+    hi = [p for p in pts if p[1] < target]
+    if lo and hi:
+        a, b = lo[-1], hi[0]
+        extrapolated = False
+    else:
+        a, b = pts[-2], pts[-1]
+        extrapolated = True
+    slope = (np.log(b[1]) - np.log(a[1])) / (np.log(b[0]) - np.log(a[0]))
+    return float(np.exp(np.log(a[0]) + (np.log(target) - np.log(a[1])) / slope)), extrapolated
+
+
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("tracer, scene, transport, params", CASES, ids=IDS)
 def bench_equal_error(benchmark, tracer, scene, transport, params):
+    from gibench.ladder import choose_sampler, probe_spps
     from references.reference import get_reference
     from reports.metrics import relmse
 
     ref = get_reference(SUITES / scene, transport=transport, spp=1024, passes=8)
-    ladders = {"own": [], "mitsuba": []}
+    sampler = choose_sampler(SUITES / scene, transport=transport, reference=ref,
+                             probe_spp=probe_spps(LADDER))["sampler"]
+    rows = {"own": [], "mitsuba": []}
     for spp in LADDER:
-        own = _own(tracer, scene, {**params, "spp": spp}, seed=11)
-        mit = _mitsuba(scene, transport, spp, seed=11)
-        t_own, t_mi, res, img = alternated(own, mit, rounds=3)
-        ladders["own"].append({"spp": spp, "s": statistics.median(t_own),
-                               "relmse": relmse(ref.image, res.image)})
-        ladders["mitsuba"].append({"spp": spp, "s": statistics.median(t_mi),
-                                   "relmse": relmse(ref.image, img)})
-
-    def constants(rows):
-        top = rows[-1]
-        return top["relmse"] * top["spp"], top["s"] / top["spp"]
-
-    c_own, t1_own = constants(ladders["own"])
-    c_mi, t1_mi = constants(ladders["mitsuba"])
-    target = c_mi / TARGET_SPP
-    own_s, mi_s = c_own * t1_own / target, c_mi * t1_mi / target
-    benchmark.pedantic(_own(tracer, scene, {**params, "spp": LADDER[-1]}, seed=11), rounds=1,
-                       iterations=1)
-    benchmark.extra_info.update(ladders=ladders, target_relmse=target, own_time_to_target_s=own_s,
-                                mitsuba_time_to_target_s=mi_s, ratio_own_over_mitsuba=own_s / mi_s)
-    print(f"\n{tracer:8s} {scene:34s} relMSE {target:.3g} (Mitsuba {TARGET_SPP} spp): own "
-          f"{own_s * 1e3:8.1f} ms, Mitsuba {mi_s * 1e3:8.1f} ms, own/Mitsuba {own_s / mi_s:5.2f}")
+        algo = registry.get(tracer)
+        sc = load_scene(SUITES / scene)
+        p = algo.parse_params({**params, "spp": spp, "sampler": "sobol"})
+        if tracer == "path":
+            p["max_depth"] = _file_depth(scene)
+        mit = _mitsuba_seeded(scene, transport, spp, sampler)
+        algo.render(sc, p, seed=SEEDS[0])                      # warm-up, both sides
+        mit(SEEDS[0])
+        t_own, t_mi, e_own, e_mi = [], [], [], []
+        for seed in SEEDS:
+            settle()
+            t0 = time.perf_counter()
+            res = algo.render(sc, p, seed=seed)
+            t_own.append(time.perf_counter() - t0)
+            settle()
+            t0 = time.perf_counter()
+            img = mit(seed)
+            t_mi.append(time.perf_counter() - t0)
+            e_own.append(relmse(ref.image, res.image))
+            e_mi.append(relmse(ref.image, img))
+        rows["own"].append({"spp": spp, "s": statistics.median(t_own), "times_s": t_own,
+                            "relmse": float(np.mean(e_own)), "relmse_seeds": e_own})
+        rows["mitsuba"].append({"spp": spp, "s": statistics.median(t_mi), "times_s": t_mi,
+                                "relmse": float(np.mean(e_mi)), "relmse_seeds": e_mi})
+    target, mi_s = rows["mitsuba"][-1]["relmse"], rows["mitsuba"][-1]["s"]
+    own_s, extrapolated = time_to_error([(r["s"], r["relmse"]) for r in rows["own"]], target)
+    benchmark.pedantic(lambda: None, rounds=1, iterations=1)
+    benchmark.extra_info.update(rungs=rows, mitsuba_sampler=sampler, target_relmse=target,
+                                own_time_to_target_s=own_s, mitsuba_time_s=mi_s,
+                                ratio_own_over_mitsuba=own_s / mi_s, extrapolated=extrapolated)
+    own_txt = ", ".join(f"{r['spp']} spp {r['relmse']:.3g} in {r['s'] * 1e3:.0f} ms" for r in rows["own"])
+    mi_txt = ", ".join(f"{r['spp']} spp {r['relmse']:.3g} in {r['s'] * 1e3:.0f} ms" for r in rows["mitsuba"])
+    print(f"\n{tracer:8s} {scene:34s} own (sobol): {own_txt}; Mitsuba ({sampler}): {mi_txt}; "
+          f"to Mitsuba's {LADDER[-1]}-spp error: own/Mitsuba {'~' if extrapolated else ''}"
+          f"{own_s / mi_s:5.2f}")

@@ -449,7 +449,10 @@ def cmd_sweep(args) -> int:
     grid = parse_grid(args.grid, algo)
     suite = sweep_suite(args.scene, algo, grid, transport=args.transport,
                         reference_spp=args.reference_spp, reference_passes=args.reference_passes,
-                        repeats=args.repeats, ladder=args.ladder, base_params=base)
+                        repeats=args.repeats, ladder=args.ladder, base_params=base,
+                        ladder_samplers=tuple(x.strip() for x in args.ladder_samplers.split(",")
+                                              if x.strip()),
+                        seeds=args.seeds)
     store = ResultStore(Path(args.results))
     run_id = new_run_id()
     print(f"gibench sweep {run_id}: {suite.name}, {len(suite.cases)} configurations")
@@ -667,6 +670,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--reference-passes", type=_positive, default=8)
     s.add_argument("--repeats", type=_positive, default=3)
     s.add_argument("--ladder", default="1,4,16,64,256", help="Mitsuba spp ladder ('' for none)")
+    s.add_argument("--ladder-samplers", default="independent,stratified,multijitter,ldsampler",
+                   help="Mitsuba samplers probed for the ladder; the best on the scene is used")
+    s.add_argument("--seeds", type=_positive, default=3, help="own-render seeds per configuration")
     s.add_argument("--metric", default="relmse", help="error metric of the table")
     common(s)
     s.set_defaults(func=cmd_sweep)

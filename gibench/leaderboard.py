@@ -22,7 +22,7 @@ from pathlib import Path
 from core.records import Record
 
 from . import registry
-from .suite import Case, Suite, SuiteError
+from .suite import Case, Suite, SuiteError, file_max_depth
 
 __all__ = ["CONFIGS", "SUITE_PREFIX", "leaderboard_suite", "leaderboard_table"]
 
@@ -38,7 +38,8 @@ CONFIGS = {
     "distributed": [("distributed, 4x4", {"spp": 16}), ("distributed, 8x8", {"spp": 64})],
     "radiosity": [("radiosity, 256 patches", {"patches": 256, "spp": 4}),
                   ("radiosity, 1024 patches", {"patches": 1024, "spp": 4})],
-    "path": [("path, 2x2", {"spp": 4}), ("path, 4x4", {"spp": 16})],
+    "path": [("path, 16 Sobol points", {"spp": 16, "sampler": "sobol"}),
+             ("path, 64 Sobol points", {"spp": 64, "sampler": "sobol"})],
 }
 
 
@@ -63,6 +64,7 @@ def leaderboard_suite(scene, *, algorithms=None, reference_spp: int = 1024, refe
         algo = registry.get(name)
         for label, params in CONFIGS.get(name, [(f"{name} defaults", {})]):
             algo.parse_params(dict(params))
+            params = {**params, **file_max_depth(scene, algo, params)}
             cases.append(Case(scene=scene, scene_id=scene_id, algorithm=name, params=dict(params),
                               transport="full", label=label,
                               expect="report" if algo.transport == "full" and name == "path"

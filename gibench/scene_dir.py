@@ -47,7 +47,7 @@ from core.provenance import REPO_ROOT
 from core.records import Record
 
 from . import registry
-from .suite import EXPECTATIONS, Case, Suite, run_case
+from .suite import EXPECTATIONS, Case, Suite, file_max_depth, run_case
 
 __all__ = ["add_arguments", "refuse_without_scenes", "directory_suite", "preflight", "run_directory",
            "cmd_run_scenes"]
@@ -102,7 +102,7 @@ def directory_suite(directory, algorithm: str, params: dict | None = None, *,
         raise UsageError(f"--scenes: no *.xml scene files in {directory}")
     cases = []
     for p in files:
-        own = {**params, **_file_max_depth(p, algo, params)}
+        own = {**params, **file_max_depth(p, algo, params)}
         cases.append(Case(scene=p.resolve(), scene_id=f"{directory.name}/{_scene_id(p)}",
                           algorithm=algo.name, params=own, transport=algo.transport,
                           label=f"{algo.name} {own}" if own else algo.name, expect=expect))
@@ -110,26 +110,6 @@ def directory_suite(directory, algorithm: str, params: dict | None = None, *,
     return Suite(name=f"scenes:{directory.name}", path=directory.resolve(), cases=cases,
                  reference_spp=reference_spp, reference_passes=reference_passes, repeats=repeats,
                  description=f"every scene file of {directory}")
-
-
-def _file_max_depth(path: Path, algo, params: dict) -> dict:
-    """``{"max_depth": n}`` when the file's integrator is Mitsuba's ``path`` with a
-    ``max_depth`` and ``algo`` computes full transport with a ``max_depth`` of Mitsuba's
-    meaning that ``--set`` does not give: the reference renders the file's depth, so
-    the own render takes it too.  ``{}`` otherwise (or when the file does not load:
-    :func:`preflight` reports why)."""
-    from core.errors import GibenchError
-    from core.loader import load_scene
-
-    if algo.transport != "full" or "max_depth" in params or "max_depth" not in algo.defaults():
-        return {}
-    try:
-        integrator = load_scene(path).integrator
-    except GibenchError:
-        return {}
-    if integrator.get("type") == "path" and "max_depth" in integrator:
-        return {"max_depth": int(integrator["max_depth"])}
-    return {}
 
 
 def preflight(case: Case, defines: dict | None = None) -> str | None:

@@ -73,6 +73,27 @@ def _case_transport(transport: str, params: dict) -> str:
     return transport
 
 
+def file_max_depth(path: Path, algo, params: dict, transport: str = "full") -> dict:
+    """``{"max_depth": n}`` when the file's integrator is Mitsuba's ``path`` with a
+    ``max_depth``, the case is compared with full transport (``transport``) and ``algo``
+    computes full transport with a ``max_depth`` of Mitsuba's meaning that the case's
+    ``params`` do not give: the reference renders the file's depth
+    (:func:`references.reference.prepare_scene_xml`), so the own render takes it too
+    (without it an unbounded own path would be compared with a depth-limited
+    reference: a model difference, and time spent on bounces the reference leaves out).
+    ``{}`` otherwise, or when the file does not load (the case's render reports why)."""
+    from core.loader import load_scene
+
+    if (transport != "full" or algo.transport != "full" or "max_depth" in params
+            or "max_depth" not in algo.defaults()):
+        return {}
+    try:
+        integrator = load_scene(path).integrator
+    except GibenchError:
+        return {}
+    if integrator.get("type") == "path" and "max_depth" in integrator:
+        return {"max_depth": int(integrator["max_depth"])}
+    return {}
 
 
 @dataclass(frozen=True)
@@ -290,6 +311,8 @@ def load_suite(path) -> Suite:
                     algo.parse_params(params)            # validates names, types and ranges now
                 except GibenchError as exc:
                     raise SuiteError(f"{m.line('params', gi)}: {exc}") from None
+                params.update(file_max_depth(scene_path, algo, params,
+                                             cfg.get("transport", transport)))
                 expect = cfg.get("expect", group.get("expect", "report"))
                 tol = dict(group.get("tolerances", {}), **cfg.get("tolerances", {}))
                 cases.append(Case(scene=scene_path, scene_id=scene_id, algorithm=algo.name,

@@ -17,7 +17,7 @@ from pathlib import Path
 from .registry import Algorithm, ParamError
 from core.records import Record
 
-from .suite import TRANSPORTS, Case, Suite, SuiteError
+from .suite import LADDER_SAMPLERS, TRANSPORTS, Case, Suite, SuiteError, file_max_depth
 
 __all__ = ["parse_grid", "sweep_suite", "sweep_table"]
 
@@ -47,8 +47,11 @@ def parse_grid(items, algo: Algorithm) -> dict[str, list]:
 
 def sweep_suite(scene, algo: Algorithm, grid: dict[str, list], *, transport: str | None = None,
                 reference_spp: int = 1024, reference_passes: int = 8, repeats: int = 3,
-                ladder="1,4,16,64,256", base_params: dict | None = None) -> Suite:
-    """The suite of a sweep: every grid point of ``algo`` on ``scene``."""
+                ladder="1,4,16,64,256", base_params: dict | None = None,
+                ladder_samplers=("independent",), seeds: int = 1) -> Suite:
+    """The suite of a sweep: every grid point of ``algo`` on ``scene``; Mitsuba's
+    ladder with the best of ``ladder_samplers`` on that scene
+    (:func:`gibench.ladder.choose_sampler`), own errors over ``seeds`` seeds."""
     from core.provenance import REPO_ROOT
 
     scene = Path(scene)
@@ -65,6 +68,9 @@ def sweep_suite(scene, algo: Algorithm, grid: dict[str, list], *, transport: str
             raise SuiteError(f"--ladder expects comma-separated spp, got {ladder!r}") from None
     if any(x < 1 for x in ladder):
         raise SuiteError(f"--ladder spp must be positive, got {ladder}")
+    if not ladder_samplers or any(x not in LADDER_SAMPLERS for x in ladder_samplers):
+        raise SuiteError(f"--ladder-samplers must name some of {', '.join(LADDER_SAMPLERS)}, "
+                         f"got {', '.join(ladder_samplers) or 'none'}")
     try:
         scene_id = str(scene.relative_to(REPO_ROOT / "suites").with_suffix(""))
     except ValueError:
@@ -76,13 +82,14 @@ def sweep_suite(scene, algo: Algorithm, grid: dict[str, list], *, transport: str
     for values in itertools.product(*(grid[k] for k in keys)):
         params = dict(base, **dict(zip(keys, values)))
         algo.parse_params(params)
+        params.update(file_max_depth(scene, algo, params, transport))
         label = ", ".join(f"{k}={v}" for k, v in zip(keys, values))
         cases.append(Case(scene=scene, scene_id=scene_id, algorithm=algo.name, params=params,
                           transport=transport, label=label, expect="report"))
     name = f"sweep {algo.name} on {scene_id} ({' x '.join(keys)})"
     return Suite(name=name, path=scene, cases=tuple(cases), reference_spp=reference_spp,
                  reference_passes=reference_passes, repeats=repeats, ladder=tuple(ladder),
-                 description=f"grid {grid}")
+                 ladder_samplers=tuple(ladder_samplers), seeds=seeds, description=f"grid {grid}")
 
 
 def sweep_table(records: list[Record], *, metric: str = "relmse") -> str:

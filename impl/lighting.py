@@ -66,6 +66,7 @@ from .fresnel import fresnel_dielectric
 from .kernel import batch_kernel
 from .rays import RayConfig, hit, legacy_config, leave, occluded, refine, round_ray
 from .phong import attenuation, phong_brdf_cos
+from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .samplers import DIM_INDEPENDENT, dim_2d
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays
@@ -73,7 +74,8 @@ from .textures import bitmap, checkerboard
 from .tracer import occluded_batch
 
 __all__ = ["SHADOW_EPSILON", "surface", "diffuse_albedo", "sample_emitter", "direct_light",
-           "direct_light_rays", "direct_light_dims", "spot_falloff", "delta_sample", "area_sample", "environment_sample",
+           "direct_light_rays", "direct_light_dims", "spot_falloff", "delta_sample", "area_sample",
+           "environment_sample",
            "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
            "environment_radiance", "sample_cosine_hemisphere", "shadow_filter", "SHADOW_MODES"]
 
@@ -223,8 +225,8 @@ def direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
     """:func:`direct_light_rays` (opaque shadows) with the light samples' numbers of
     pixel sample ``sample`` drawn by :func:`impl.samplers.dim_2d`: ``dims = (dmode,
     dspp, ddim)``, light sample j is dimension ``ddim + j`` of ``dspp`` samples in mode
-    ``dmode`` (:func:`light_uv`).  (One tuple: a call of an inlined function with more
-    than 30 arguments compiles to a star-args call, which numba cannot inline.)"""
+    ``dmode`` (:func:`light_uv_dims`).  (One tuple: a call of an inlined function with
+    more than 30 arguments compiles to a star-args call, which numba cannot inline.)"""
     dmode, dspp, ddim = dims
     return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                               A, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
@@ -293,8 +295,8 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
         scale = A.em_area[e] / light_samples
         er, eg, eb = A.shape_emit[sh, 0], A.shape_emit[sh, 1], A.shape_emit[sh, 2]
         for k in range(light_samples):
-            u1, u2 = light_uv(seed, pixel, sample, e * light_samples + k, k, q, stratified, dmode,
-                              dspp, ddim)
+            u1, u2 = light_uv_dims(seed, pixel, sample, e * light_samples + k, k, q, stratified, dmode,
+                                   dspp, ddim)
             ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
                 e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, px, py, pz,
                 sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, ks, shininess, c1, c2, c3, fclamp)
@@ -317,8 +319,8 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
             er, eg, eb = A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
         img, frame, epdf, ecdf = A.env_image, A.env_frame, A.env_pdf, A.env_cdf
         for k in range(light_samples):
-            u1, u2 = light_uv(seed, pixel, sample, n_em * light_samples + k, k, q, stratified, dmode,
-                              dspp, ddim)
+            u1, u2 = light_uv_dims(seed, pixel, sample, n_em * light_samples + k, k, q, stratified,
+                                   dmode, dspp, ddim)
             ok, lx, ly, lz, cr, cg, cb = environment_sample(
                 u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, sx, sy, sz, vx, vy, vz,
                 rho_r, rho_g, rho_b, ks, shininess)
@@ -338,15 +340,10 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
 
 
 @njit(inline="always", cache=True)
-def light_uv(seed, pixel, sample, j, k, q, stratified, dmode, dspp, ddim):
+def light_uv(seed, pixel, sample, j, k, q, stratified):
     """The two random numbers of area/environment light sample ``j`` (sample ``k`` of its
     light): dimensions 2 + 2j and 3 + 2j of :func:`impl.rng.uniform`, moved into stratum
-    k of a q×q grid when the light's sample count is the square q².  With ``dmode`` not
-    ``DIM_INDEPENDENT``: dimension ``ddim + j`` of pixel sample ``sample`` of ``dspp``
-    (:func:`impl.samplers.dim_2d`: shuffled strata or padded Sobol over the pixel's
-    samples) instead."""
-    if dmode != DIM_INDEPENDENT:
-        return dim_2d(dmode, seed, pixel, sample, dspp, ddim + j)
+    k of a q×q grid when the light's sample count is the square q²."""
     dim = 2 + 2 * j
     h = uniform_prefix(seed, pixel, sample)
     u1 = uniform_from(h, dim)
@@ -355,6 +352,30 @@ def light_uv(seed, pixel, sample, j, k, q, stratified, dmode, dspp, ddim):
         u1 = (k % q + u1) / q
         u2 = (k // q + u2) / q
     return u1, u2
+
+
+@njit(inline="always", cache=True)
+def light_uv_dims(seed, pixel, sample, j, k, q, stratified, dmode, dspp, ddim):
+    """:func:`light_uv`, or with ``dmode`` not ``DIM_INDEPENDENT`` dimension ``ddim + j``
+    of pixel sample ``sample`` of ``dspp`` (:func:`impl.samplers.dim_2d`: shuffled
+    strata or padded Sobol over the pixel's samples)."""
+    if dmode != DIM_INDEPENDENT:
+        return dim_2d(dmode, seed, pixel, sample, dspp, ddim + j)
+    return light_uv(seed, pixel, sample, j, k, q, stratified)
+
+
+@njit(inline="always", cache=True)
+def light_uv_sobol(seed, pixel, sample, light, k, light_samples):
+    """The two numbers of light sample ``k`` of light ``light`` (its index among the area
+    emitters, the environment after them) at pixel sample ``sample``: point
+    ``sample · light_samples + k`` of an Owen-scrambled Sobol (0, 2)-sequence
+    (:func:`impl.lowdiscrepancy.sample_2d`, dimension pair ``1 + light``; the pixel
+    position is pair 0) scrambled per pixel.  The points of a pixel's first
+    ``spp · light_samples`` samples then form a (0, m, 2)-net when that count is a power
+    of two: stratified over the pixel's samples, not only within one (Owen 1997 for
+    the nets; pbrt-v4's padded Sobol sampler for pairing dimensions by independent
+    scrambles).  Each point stays uniform, so the estimate stays unbiased."""
+    return sample_2d(1 + light, sample * light_samples + k, pixel_seed(pixel, 0, seed))
 
 
 @njit(inline="always", cache=True)
@@ -551,6 +572,7 @@ class LocalModel(NamedTuple):
     shadow_eta: np.ndarray      # (M,) transmissive shadows: a smooth dielectric's int_ior/ext_ior,
                                 # 0 for an opaque material; empty (0,): shadow rays stop at anything
     shadow_trans: np.ndarray    # (M, 3) its specular_transmittance
+    sobol: bool                 # light samples from Owen-scrambled Sobol points (light_uv_sobol)
 
 
 def local_model(params: dict, materials=None) -> LocalModel:
@@ -566,7 +588,7 @@ def local_model(params: dict, materials=None) -> LocalModel:
     return LocalModel(float(params["ka"]), float(params["ambient"]), float(params["ks"]),
                       float(params["shininess"]), float(params["c1"]), float(params["c2"]),
                       float(params["c3"]), bool(params["fatt_clamp"]), bool(params["shadows"]),
-                      int(params["light_samples"]), eta, trans)
+                      int(params["light_samples"]), eta, trans, params.get("sampler") == "sobol")
 
 
 #: Rows of a batch of shading points (:func:`direct_batch`).
@@ -578,18 +600,19 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
     """:func:`direct_light_rays` over a batch of shading points (an
     :class:`impl.tracer.Batch` ``T``), light sample by light sample: each sample's
     shadow rays (of the points where it has one) are traced together by
-    :func:`impl.tracer.occluded_batch`.  Same samples, same order, same light as
-    :func:`direct_light_rays` at every point.
+    :func:`impl.tracer.occluded_batch`.  Without ``M.sobol``: the same samples, in the
+    same order, and the same light as :func:`direct_light_rays` at every point.
 
     Reads the points ``T.pts`` (rows p, g, s, v, ρ: ``SP_*``) where ``T.active``,
     point i's random numbers those of pixel ``T.pixel[i]`` and pixel sample
-    ``sample[i]``; adds their light to ``T.L`` and their shadow rays to
-    ``nshadow`` (n,).
+    ``sample[i]`` (hashed and stratified within the pixel sample, :func:`light_uv`, or
+    with ``M.sobol`` Sobol points over the pixel's samples, :func:`light_uv_sobol`); adds
+    their light to ``T.L`` and their shadow rays to ``nshadow`` (n,).
     """
     P, L, active, pixel = T.pts, T.L, T.active, T.pixel
     sh, sh_w, sh_i = T.sh, T.sh_w, T.sh_i
     ks, shininess, c1, c2, c3, fclamp = M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp
-    shadows, light_samples = M.shadows, M.light_samples
+    shadows, light_samples, sobol = M.shadows, M.light_samples, M.sobol
     seta, strans = M.shadow_eta, M.shadow_trans
     local = A.light_local
     for li in range(A.light_kind.shape[0]):
@@ -640,8 +663,11 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
             for i in range(T.n):
                 if not active[i]:
                     continue
-                u1, u2 = light_uv(seed, pixel[i], sample[i], e * light_samples + k, k, q,
-                                  stratified, DIM_INDEPENDENT, 0, 0)
+                if sobol:
+                    u1, u2 = light_uv_sobol(seed, pixel[i], sample[i], e, k, light_samples)
+                else:
+                    u1, u2 = light_uv(seed, pixel[i], sample[i], e * light_samples + k, k, q,
+                                      stratified)
                 ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
                     e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, P[0, i],
                     P[1, i], P[2, i], P[6, i], P[7, i], P[8, i], P[9, i], P[10, i], P[11, i],
@@ -667,8 +693,11 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
             for i in range(T.n):
                 if not active[i]:
                     continue
-                u1, u2 = light_uv(seed, pixel[i], sample[i], n_em * light_samples + k, k, q,
-                                  stratified, DIM_INDEPENDENT, 0, 0)
+                if sobol:
+                    u1, u2 = light_uv_sobol(seed, pixel[i], sample[i], n_em, k, light_samples)
+                else:
+                    u1, u2 = light_uv(seed, pixel[i], sample[i], n_em * light_samples + k, k, q,
+                                      stratified)
                 ok, lx, ly, lz, cr, cg, cb = environment_sample(
                     u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, P[6, i], P[7, i], P[8, i], P[9, i],
                     P[10, i], P[11, i], P[12, i], P[13, i], P[14, i], ks, shininess)

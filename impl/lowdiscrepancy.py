@@ -35,9 +35,9 @@ full-dimensional (unpadded) Sobol point, scrambled per dimension.
 
 Limits: 2**32 points per sequence; :data:`JOE_KUO` holds
 :data:`MAX_DIMENSIONS` dimensions (padding needs only two); points are float64
-with 32 significant bits.  The tracers draw from it through
-:func:`impl.sampling.pixel_sample` (pixel positions of raycast, whitted, path)
-and :mod:`impl.samplers` (every dimension of ``distributed sampler=sobol``).
+with 32 significant bits.  The tracers draw from it with ``sampler=sobol``
+(pixel positions, light samples, path's BSDF samples; every dimension of
+``distributed``, through :mod:`impl.samplers`).
 
 References
 ----------
@@ -105,6 +105,26 @@ def generator_matrices(ndim: int = MAX_DIMENSIONS) -> np.ndarray:
 
 
 _V = generator_matrices()
+
+
+def _byte_tables(columns: np.ndarray) -> np.ndarray:
+    """``T[b, j]``: the XOR of the generator columns ``columns[8b + k]`` over the set
+    bits k of byte value j, uint32 ``(4, 256)``: a point of one dimension is then
+    ``T[0, i & 255] ^ T[1, (i >> 8) & 255] ^ T[2, ...] ^ T[3, ...]`` (four loads
+    instead of a loop over the index's 32 bits)."""
+    t = np.zeros((4, 256), dtype=np.uint32)
+    for b in range(4):
+        for j in range(256):
+            x = 0
+            for k in range(8):
+                if (j >> k) & 1:
+                    x ^= int(columns[8 * b + k])
+            t[b, j] = x
+    return t
+
+
+#: Byte tables of Sobol dimension 1 (dimension 0 is the bit reversal of the index).
+_T1 = _byte_tables(_V[1])
 
 
 # --------------------------------------------------------------------- hashing
@@ -212,9 +232,14 @@ def sample_2d(pair, index, seed):
     value scrambles seeded by ``(seed, pair)``.  For every ``pair`` and ``seed`` the
     points ``index = 0 .. 2**m - 1`` are a scrambled (0, m, 2)-net."""
     h = _hash2(seed, np.uint64(2) * np.uint64(pair) + np.uint64(1))
-    i = nested_uniform_scramble(np.uint64(index), h)
-    u = nested_uniform_scramble(_sobol(_V, i, 0), _mix32(h + np.uint64(1)))
-    v = nested_uniform_scramble(_sobol(_V, i, 1), _mix32(h + np.uint64(2)))
+    # The shuffled index i = rev(LK(rev(index))); dimension 0 of point i is rev(i), so
+    # the reversal pair cancels; dimension 1 from its byte tables.
+    li = _laine_karras(_reverse32(np.uint64(index)), _mix32(h))
+    i = _reverse32(li)
+    x1 = (np.uint64(_T1[0, i & np.uint64(255)]) ^ np.uint64(_T1[1, (i >> np.uint64(8)) & np.uint64(255)])
+          ^ np.uint64(_T1[2, (i >> np.uint64(16)) & np.uint64(255)]) ^ np.uint64(_T1[3, i >> np.uint64(24)]))
+    u = nested_uniform_scramble(li, _mix32(h + np.uint64(1)))
+    v = nested_uniform_scramble(x1, _mix32(h + np.uint64(2)))
     return float(u) * _INV32, float(v) * _INV32
 
 

@@ -73,7 +73,10 @@ of probability p per sample and n samples).
 
 Pixel sampling as in ``raycast``/``whitted`` (:mod:`impl.sampling`):
 ``spp = k²`` jittered strata with a box filter, returning the variance of
-the pixel mean.  A ``thinlens`` sensor adds a uniform aperture point per eye
+the pixel mean.  ``sampler=sobol`` takes the pixel position and, at every
+vertex, the light sample's and the BSDF sample's 2-D numbers from
+Owen-scrambled Sobol points, one padded dimension pair each (:func:`_vertex_uv`);
+the 1-D choices stay hashed uniform numbers.  A ``thinlens`` sensor adds a uniform aperture point per eye
 ray (:func:`impl.camera.eye_ray_lens`, Mitsuba's ``thinlens``).  Every ray goes through :mod:`impl.rays` (parameters
 ``intersect``, ``precision``, ``offset``, ``epsilon``).
 
@@ -92,6 +95,7 @@ max_depth   int    -1       Mitsuba's meaning (1 = emitters only, 2 =
 rr_depth    int    5        Russian roulette from this depth on
 mis         bool   true     MIS (power heuristic) of light and BSDF samples
 spectral    bool   false    hero-wavelength spectral rendering (impl.spectral)
+sampler     str    jitter   jitter | sobol (pixel, light and BSDF samples)
 (rays)                      intersect, precision, offset, epsilon, accel,
                             slab_normals (:mod:`impl.rays`)
 packets     bool   false    trace the eye rays of 8×8 pixel tiles as
@@ -138,6 +142,7 @@ from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_
 from .lighting import diffuse_albedo, environment_radiance, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, occluded, refine, round_ray
+from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
@@ -179,6 +184,20 @@ class PathConfig(NamedTuple):
     rr_depth: int               # Russian roulette from this depth on
     mis: bool                   # power-heuristic MIS of light and BSDF samples
     bias: int                   # DEBUG_BIAS code
+    sobol: bool                 # light and BSDF (u1, u2) from Owen-scrambled Sobol points
+
+
+@njit(inline="always", cache=True)
+def _vertex_uv(pixel_seed, sample, pair):
+    """The 2-D numbers of Sobol dimension pair ``pair`` for pixel sample ``sample``: point
+    ``sample`` of the pixel's Owen-scrambled (0, 2)-sequence for that pair
+    (:func:`impl.lowdiscrepancy.sample_2d`; pair 0 is the pixel position, pairs
+    1 + 2d and 2 + 2d the light and BSDF samples at vertex d).  A pixel's first 2^m
+    samples of one pair form a (0, m, 2)-net; pairs are scrambled independently
+    (padding, as pbrt-v4's PaddedSobolSampler), and every point stays uniform, so the
+    estimate stays unbiased.  The 1-D choices (which light, which lobe, roulette) keep
+    the hashed numbers."""
+    return sample_2d(pair, sample, pixel_seed)
 
 
 @batch_kernel
@@ -194,10 +213,12 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
     """
     ns = A.sph_radius.shape[0]
     spectral, max_depth, rr_depth, mis, bias = P.spectral, P.max_depth, P.rr_depth, P.mis, P.bias
+    sobol = P.sobol
     for col in range(T.n):
         pixel = T.pixel[col]
         h = uniform_prefix(seed, pixel, sample)      # this path's random numbers: dimension d
-        w0 = w1 = w2 = 0.0                           # is uniform_from(h, d)
+        ps = pixel_seed(pixel, 0, seed)              # is uniform_from(h, d); with sobol, the
+        w0 = w1 = w2 = 0.0                           # 2-D ones Sobol points (_vertex_uv)
         if spectral:
             w0, w1, w2 = sample_wavelengths(uniform_from(h, _DIM_WAVELENGTH))
         counts = T.cnt[col]
@@ -281,8 +302,11 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
             # Next-event estimation: one light sample, shadow ray, MIS weight.
             if not delta and L.n_lights > 0:
                 u0 = uniform_from(h, dim)
-                u1 = uniform_from(h, dim + 1)
-                u2 = uniform_from(h, dim + 2)
+                if sobol:
+                    u1, u2 = _vertex_uv(ps, sample, 1 + 2 * depth)
+                else:
+                    u1 = uniform_from(h, dim + 1)
+                    u2 = uniform_from(h, dim + 2)
                 lx, ly, lz, ldist, yx, yy, yz, er, eg, eb, lpdf, ldelta, li = sample_light(
                     A, L, px, py, pz, u0, u1, u2)
                 if spectral:                 # L and A carry unit emission: scale by the spectrum
@@ -319,8 +343,11 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
 
             # BSDF sampling: the next direction.
             u0 = uniform_from(h, dim + 3)
-            u1 = uniform_from(h, dim + 4)
-            u2 = uniform_from(h, dim + 5)
+            if sobol:
+                u1, u2 = _vertex_uv(ps, sample, 2 + 2 * depth)
+            else:
+                u1 = uniform_from(h, dim + 4)
+                u2 = uniform_from(h, dim + 5)
             wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample(
                 B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
             if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
@@ -425,7 +452,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
     else:
         S = rgb_arrays_placeholder()
     P = PathConfig(spectral, int(params["max_depth"]), int(params["rr_depth"]), bool(params["mis"]),
-                   DEBUG_BIAS.index(debug_bias))
+                   DEBUG_BIAS.index(debug_bias), params.get("sampler") == "sobol")
     film = new_film(W, H, len(COUNTERS), bool(params.get("packets", False)), sampler_code(params))
     t1 = time.perf_counter()
     run_tiles(_render_kernel, cam, A, L, B, R, S, P, film, spp, seed)

@@ -17,7 +17,10 @@ casting); ``spp = k²`` traces a k×k jittered stratified grid and averages it
 per-pixel variance of that mean is returned from the sample variance (an
 over-estimate for stratified samples, so Z-tests stay conservative).  Area
 lights are sampled uniformly by area with ``light_samples`` shadow rays per
-emitter and pixel sample (stratified when it is a square).
+emitter and pixel sample (stratified when it is a square); with
+``sampler=sobol`` the pixel positions and the light samples are Owen-scrambled
+Sobol points, the light's stratified over all of a pixel's samples
+(:func:`impl.lighting.light_uv_sobol`).
 
 Leaves out: indirect light, specular reflection and transmission of other
 surfaces (see ``whitted``), glossy microfacet BSDFs.  Materials other than

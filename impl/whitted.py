@@ -31,7 +31,11 @@ For every eye ray, the ray tree over *delta* (perfectly specular) surfaces:
 * At the first non-delta (``diffuse``) hit of a branch: the direct light of
   every emitter — delta lights and area emitters (``light_samples`` shadow
   rays each) — with the Phong/Lambert model of ``raycast``
-  (:mod:`impl.lighting`), and the branch ends.
+  (:mod:`impl.lighting`), and the branch ends.  With ``sampler=sobol`` the
+  pixel positions and the light samples are Owen-scrambled Sobol points
+  (:func:`impl.lighting.light_uv_sobol`; the k-th diffuse leaf of a sample
+  has its own run of the sequence), except at the rare leaves beyond a
+  batch's capacity, which draw hashed numbers.
 * Emission ``L_e`` of area emitters met by eye rays and by every ray of a
   delta chain (front side only, as Mitsuba's ``area``).
 

@@ -219,3 +219,24 @@ def test_reference_max_depth_override_is_keyed_and_checked():
         prepare_scene_xml(scene, transport="direct", max_depth=3)
     with pytest.raises(ValueError, match="max_depth"):
         prepare_scene_xml(scene, transport="full", max_depth=0)
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("scene", ["cornell/cornell_box.xml", "spheres/glass_sphere.xml"])
+def test_sobol_sampler_is_unbiased_and_lowers_the_variance(scene):
+    """``sampler=sobol`` (Sobol pixel positions and per-vertex light and BSDF pairs)
+    estimates the same image as Mitsuba's ``path`` (block Z-test, 16 spp) and, over
+    three seeds each, has a lower pixel variance than the hashed numbers at equal spp
+    in the image's lower half (floor and objects: soft shadows and indirect light)."""
+    ref = _reference(scene)
+    depth = ref.manifest["integrator"]["max_depth"]
+    sob = [render(SUITES / scene, spp=16, max_depth=depth, sampler="sobol", seed=s) for s in (1, 2, 3)]
+    z = _ztest(ref, sob[0])
+    assert z.passed, f"{scene}: {z}"
+    jit = [render(SUITES / scene, spp=16, max_depth=depth, seed=s) for s in (1, 2, 3)]
+    H = ref.image.shape[0]
+
+    def spread(results):
+        return np.stack([r.image[H // 2:] for r in results]).astype(np.float64).var(axis=0, ddof=1).mean()
+
+    assert spread(sob) < 0.9 * spread(jit), (spread(sob), spread(jit))

@@ -9,6 +9,8 @@ from gibench.registry import ParamError
 from gibench.sweep import parse_grid, sweep_suite
 from reports.results import ResultStore
 
+SUITES = REPO_ROOT / "suites"
+
 SCENE = REPO_ROOT / "suites" / "spheres" / "lit_sphere.xml"
 
 
@@ -65,3 +67,23 @@ def test_sweep_rejects_missing_scene(tmp_path, capsys):
     assert cli.main(["sweep", str(tmp_path / "none.xml"), "--algorithm", "raycast",
                      "--grid", "spp=1", "--no-history"]) == 2
     assert "scene file not found" in capsys.readouterr().err
+
+
+def test_full_transport_cases_take_the_files_max_depth():
+    """The full-transport reference renders the file's ``path`` max_depth, so a suite's,
+    a sweep's and a leaderboard's own ``path`` cases take it too (unless the case sets
+    one); other transports and algorithms without Mitsuba's max_depth are left alone."""
+    from gibench.leaderboard import leaderboard_suite
+    from gibench.suite import load_suite
+
+    suite = load_suite(SUITES / "default.toml")
+    paths = [c for c in suite.cases if c.algorithm == "path"]
+    assert paths and all(c.params["max_depth"] == 8 for c in paths)      # cornell_box.xml: 8
+    assert all("max_depth" not in c.params for c in suite.cases if c.algorithm == "raycast")
+    sw = sweep_suite(SUITES / "spheres" / "glass_sphere.xml", registry.get("path"), {"spp": [4]})
+    assert sw.cases[0].params["max_depth"] == 11
+    sw = sweep_suite(SUITES / "spheres" / "glass_sphere.xml", registry.get("path"), {"spp": [4]},
+                     base_params={"max_depth": 3})
+    assert sw.cases[0].params["max_depth"] == 3
+    lb = leaderboard_suite(SUITES / "cornell" / "cornell_box.xml", algorithms=["path", "whitted"])
+    assert {c.algorithm: c.params.get("max_depth") for c in lb.cases}["path"] == 8
