@@ -26,8 +26,9 @@ path     cornell_box, diffuse_room                    ``path``            full
   (each after :func:`gibench.interleave.settle`); error = relMSE against the
   stored 1024-spp reference, the mean over the seeds; time = median.  The own
   time to Mitsuba's top-rung error is interpolated log-log between the own
-  rungs (extrapolated beyond them, flagged ``extrapolated``); the ratio is
-  over Mitsuba's median time at its top rung.
+  rungs (:func:`time_to_error`: an upper bound, ``<=``, when the own lowest
+  rung is already below it; extrapolated, ``~``, when no own rung reaches it);
+  the ratio is over Mitsuba's median time at its top rung.
 
     .venv/bin/python -m pytest benchmarks/bench_tracers.py -s --benchmark-json reports/out/bench_tracers.json
 
@@ -179,19 +180,24 @@ def _mitsuba_seeded(scene: str, transport: str, spp: int, sampler: str):
 
 
 def time_to_error(points, target):
-    """Time at which the log-log line through the two (time, error) points nearest to
-    ``target`` reaches it: ``(seconds, extrapolated)``."""
+    """When the own (time, error) points reach ``target``: ``(seconds, how)``.
+    ``how`` is ``"interpolated"`` (log-log between the two points around the target),
+    ``"bound"`` (the fastest point is already below the target: its time is an upper
+    bound) or ``"extrapolated"`` (no point reaches it: the log-log line through the
+    two slowest points, continued)."""
     pts = sorted(points)
-    lo = [p for p in pts if p[1] >= target]
-    hi = [p for p in pts if p[1] < target]
-    if lo and hi:
-        a, b = lo[-1], hi[0]
-        extrapolated = False
+    if pts[0][1] <= target:
+        return float(pts[0][0]), "bound"
+    hi = [p for p in pts if p[1] <= target]
+    if hi:
+        b = hi[0]
+        a = pts[pts.index(b) - 1]
+        how = "interpolated"
     else:
         a, b = pts[-2], pts[-1]
-        extrapolated = True
+        how = "extrapolated"
     slope = (np.log(b[1]) - np.log(a[1])) / (np.log(b[0]) - np.log(a[0]))
-    return float(np.exp(np.log(a[0]) + (np.log(target) - np.log(a[1])) / slope)), extrapolated
+    return float(np.exp(np.log(a[0]) + (np.log(target) - np.log(a[1])) / slope)), how
 
 
 @pytest.mark.mitsuba
@@ -231,13 +237,13 @@ def bench_equal_error(benchmark, tracer, scene, transport, params):
         rows["mitsuba"].append({"spp": spp, "s": statistics.median(t_mi), "times_s": t_mi,
                                 "relmse": float(np.mean(e_mi)), "relmse_seeds": e_mi})
     target, mi_s = rows["mitsuba"][-1]["relmse"], rows["mitsuba"][-1]["s"]
-    own_s, extrapolated = time_to_error([(r["s"], r["relmse"]) for r in rows["own"]], target)
+    own_s, how = time_to_error([(r["s"], r["relmse"]) for r in rows["own"]], target)
     benchmark.pedantic(lambda: None, rounds=1, iterations=1)
     benchmark.extra_info.update(rungs=rows, mitsuba_sampler=sampler, target_relmse=target,
                                 own_time_to_target_s=own_s, mitsuba_time_s=mi_s,
-                                ratio_own_over_mitsuba=own_s / mi_s, extrapolated=extrapolated)
+                                ratio_own_over_mitsuba=own_s / mi_s, how=how)
     own_txt = ", ".join(f"{r['spp']} spp {r['relmse']:.3g} in {r['s'] * 1e3:.0f} ms" for r in rows["own"])
     mi_txt = ", ".join(f"{r['spp']} spp {r['relmse']:.3g} in {r['s'] * 1e3:.0f} ms" for r in rows["mitsuba"])
     print(f"\n{tracer:8s} {scene:34s} own (sobol): {own_txt}; Mitsuba ({sampler}): {mi_txt}; "
-          f"to Mitsuba's {LADDER[-1]}-spp error: own/Mitsuba {'~' if extrapolated else ''}"
-          f"{own_s / mi_s:5.2f}")
+          f"to Mitsuba's {LADDER[-1]}-spp error: own/Mitsuba "
+          f"{ {'bound': '<=', 'extrapolated': '~'}.get(how, '')}{own_s / mi_s:.2f}")

@@ -60,7 +60,9 @@ shape            sphere (center/radius or to_world; gibench's own
 bsdf             diffuse, conductor, dielectric, roughconductor, roughdielectric, twosided,
                  plastic, roughplastic (diffuse_reflectance, specular_reflectance,
                  int_ior, ext_ior, nonlinear; alpha, distribution, sample_visible),
-                 normalmap / bumpmap around one bsdf (:attr:`Material.shading`);
+                 normalmap / bumpmap around one bsdf, inside or outside a
+                 twosided (:attr:`Material.shading`: the texture, scale,
+                 flip_invalid_normals, use_shadowing_function, the order);
                  thindielectric (int_ior, ext_ior, specular_reflectance,
                  specular_transmittance); mask (opacity, a float or texture,
                  outermost: :attr:`Material.opacity`); blendbsdf (weight, a
@@ -554,6 +556,8 @@ def _material(ctx, el, materials: list, cache: dict) -> int:
             raise ctx.error(inner[0], "nested twosided bsdf")
         if shading is None:
             p, shading = _shading_wrapper(ctx, p)
+        elif shading is not None:
+            shading["wraps_twosided"] = True         # normalmap(twosided(bsdf)), not the reverse
         twosided = True
     if p.type in _WRAPPERS:
         raise ctx.error(p.el, f"a {p.type} bsdf must wrap a plain bsdf (at most one normalmap or "
@@ -1134,7 +1138,9 @@ def _shading_wrapper(ctx, p):
     name, tex_el = texs[0]
     if p.type == "normalmap" and name != "normalmap":
         raise ctx.error(tex_el, f"the texture of a normalmap must be named 'normalmap', got '{name}'")
-    shading = {"type": p.type, "texture": _texture_element(ctx, tex_el)}
+    shading = {"type": p.type, "texture": _texture_element(ctx, tex_el),
+               "flip_invalid_normals": bool(p.get("flip_invalid_normals", True)),
+               "use_shadowing_function": bool(p.get("use_shadowing_function", True))}
     if p.type == "bumpmap":
         shading["scale"] = float(p.get("scale", 1.0))
     return _Plugin(ctx, inner[0], "bsdf"), shading

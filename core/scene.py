@@ -195,7 +195,11 @@ class Material:
     #: A ``normalmap`` or ``bumpmap`` wrapped around the BSDF, or None:
     #: ``{"type": "normalmap", "texture": tex}`` (tangent-space normals in [0, 1]³,
     #: Mitsuba's ``normalmap``) or ``{"type": "bumpmap", "texture": tex, "scale": s}``
-    #: (a height field; Mitsuba's ``bumpmap``).  ``kind``/``params`` are the wrapped BSDF's.
+    #: (a height field; Mitsuba's ``bumpmap``), both with Mitsuba's booleans
+    #: ``flip_invalid_normals`` and ``use_shadowing_function`` (default true), and
+    #: ``wraps_twosided`` true where the map wraps a ``twosided`` (absent: the map is
+    #: inside it, or the material is one-sided).
+    #: ``kind``/``params`` are the wrapped BSDF's.
     shading: dict | None = None
     #: A ``mask`` wrapped around the BSDF, or None: the opacity, ``{"type": "constant",
     #: "value": a}`` or a texture dict; Mitsuba's ``mask`` scatters by the wrapped BSDF

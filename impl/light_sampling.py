@@ -13,6 +13,7 @@ towards it:
   1 / (2π (1 − cos α_max)), cos α_max = √(1 − r²/d²) — the solid-angle
   sampling of Mitsuba's ``sphere``; from inside, uniform by area;
 * point and spot lights: the direction to the light, weight I·falloff / d²;
+  projectors (:mod:`impl.projector`): weight π·scale·E(uv) / (z_l² (−n·d));
   directional: the reverse of its direction, weight E (irradiance).
 
 The arrays here hold what :mod:`impl.scene_arrays` does not: sphere
@@ -32,7 +33,8 @@ from core.scene import Scene
 
 from .envmap import envmap_direction_pdf, envmap_draw
 from .lighting import sample_emitter, spot_falloff
-from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
+from .projector import projector_weight
+from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_PROJECTOR, LIGHT_SPOT, SceneArrays, flatten
 
 __all__ = ["LightArrays", "flatten_with_lights", "sample_sphere_cone", "sphere_cone_pdf",
            "sample_light", "emitter_pdf", "sample_uniform_sphere"]
@@ -183,13 +185,18 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
         wx, wy, wz = yx - px, yy - py, yz - pz
         d = math.sqrt(wx * wx + wy * wy + wz * wz)
         wx, wy, wz = wx / d, wy / d, wz / d
-        falloff = 1.0
+        fr = fg = fb = 1.0
         if kind == LIGHT_SPOT:
-            falloff = spot_falloff(-wx, -wy, -wz, A.light_local, i, A.light_cos_cutoff[i],
-                                   A.light_cos_beam[i], A.light_cutoff[i], A.light_inv_tw[i])
-        s = n * falloff / (d * d)
-        return (wx, wy, wz, d, yx, yy, yz, s * A.light_rad[i, 0], s * A.light_rad[i, 1],
-                s * A.light_rad[i, 2], 0.0, True, i)
+            fr = fg = fb = spot_falloff(-wx, -wy, -wz, A.light_local, i, A.light_cos_cutoff[i],
+                                        A.light_cos_beam[i], A.light_cutoff[i], A.light_inv_tw[i])
+        elif kind == LIGHT_PROJECTOR:
+            fr, fg, fb = projector_weight(A.light_local, i, yx, yy, yz, A.light_dir[i, 0],
+                                          A.light_dir[i, 1], A.light_dir[i, 2], A.light_proj[i],
+                                          A.light_tex[i], A.light_tex_uv[i], A.tex_data, px, py, pz,
+                                          wx, wy, wz)
+        s = n / (d * d)
+        return (wx, wy, wz, d, yx, yy, yz, s * fr * A.light_rad[i, 0], s * fg * A.light_rad[i, 1],
+                s * fb * A.light_rad[i, 2], 0.0, True, i)
     if i < nd + ne:
         e = i - nd
         sh = A.em_shape[e]

@@ -15,8 +15,9 @@ tree (thesis 2.2: the shadow rays of a hit point):
 * :func:`sample_emitter` — a uniform point on an area emitter, by area;
 * the light samples of the Phong model (thesis 1.4.1–1.4.2), one helper per
   kind of light, each on plain scalars (and the emitter's arrays): a delta
-  light (point, spot, directional: :func:`delta_sample`; a spot's cone
-  :func:`spot_falloff`, Mitsuba's, in the emitter's frame), a uniform-by-area
+  light (point, spot, directional, projector: :func:`delta_sample`; a spot's cone
+  :func:`spot_falloff`, Mitsuba's, in the emitter's frame; a projector's image
+  :func:`impl.projector.projector_weight`, applied by the callers), a uniform-by-area
   point of an area emitter (:func:`area_sample`), a cosine-weighted direction
   towards a ``constant`` environment emitter, or importance-sampled by an
   ``envmap``'s luminance (:func:`environment_sample`).
@@ -68,8 +69,9 @@ from .rays import RayConfig, hit, legacy_config, leave, occluded, refine, round_
 from .phong import attenuation, phong_brdf_cos
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
+from .projector import projector_weight
 from .samplers import DIM_INDEPENDENT, dim_2d
-from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays
+from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_PROJECTOR, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays
 from .textures import bitmap, checkerboard
 from .tracer import occluded_batch
 
@@ -265,9 +267,17 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
             vx, vy, vz, ks, shininess, c1, c2, c3, fclamp)
         if not ok:
             continue
-        cr = w * A.light_rad[li, 0] * (kd * rho_r + spec)
-        cg = w * A.light_rad[li, 1] * (kd * rho_g + spec)
-        cb = w * A.light_rad[li, 2] * (kd * rho_b + spec)
+        tr = tg = tb = 1.0
+        if kind == LIGHT_PROJECTOR:
+            tr, tg, tb = projector_weight(A.light_local, li, A.light_pos[li, 0], A.light_pos[li, 1],
+                                          A.light_pos[li, 2], A.light_dir[li, 0], A.light_dir[li, 1],
+                                          A.light_dir[li, 2], A.light_proj[li], A.light_tex[li],
+                                          A.light_tex_uv[li], A.tex_data, px, py, pz, lx, ly, lz)
+            if tr == 0.0 and tg == 0.0 and tb == 0.0:
+                continue
+        cr = w * tr * A.light_rad[li, 0] * (kd * rho_r + spec)
+        cg = w * tg * A.light_rad[li, 1] * (kd * rho_g + spec)
+        cb = w * tb * A.light_rad[li, 2] * (kd * rho_b + spec)
         if shadows:
             nshadow += 1
             if kind == LIGHT_DIRECTIONAL:
@@ -409,8 +419,10 @@ def delta_sample(kind, lpx, lpy, lpz, ldx, ldy, ldz, local, li, cos_cutoff, cos_
     the light; the light of radiant intensity I reflected by diffuse reflectance ρ is
     w I (kd ρ + spec).  Point and spot lights sit at ``lp``, attenuated
     by f_att(d); a directional light shines along ``ld``.  A spot (light ``li``) is
-    weighted by :func:`spot_falloff` (``local`` and the cone parameters as there).
-    ``lit`` is false where the light adds nothing (outside the cone, or the bracket
+    weighted by :func:`spot_falloff` (``local`` and the cone parameters as there).  A
+    projector is a point light here; its callers multiply by its image's RGB factor
+    (:func:`impl.projector.projector_weight`), which holds the d² that f_att's 1/d²
+    cancels.  ``lit`` is false where the light adds nothing (outside the cone, or the bracket
     is 0)."""
     z = 0.0
     if kind == LIGHT_DIRECTIONAL:
@@ -622,6 +634,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
         rr, rg, rb = A.light_rad[li, 0], A.light_rad[li, 1], A.light_rad[li, 2]
         cc, cb_, cut, itw = (A.light_cos_cutoff[li], A.light_cos_beam[li], A.light_cutoff[li],
                              A.light_inv_tw[li])
+        proj, ptex, puv, tex_data = A.light_proj[li], A.light_tex[li], A.light_tex_uv[li], A.tex_data
         m = 0
         for i in range(T.n):
             if not active[i]:
@@ -632,9 +645,15 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                 c2, c3, fclamp)
             if not ok:
                 continue
-            cr = w * rr * (kd * P[12, i] + spec)
-            cg = w * rg * (kd * P[13, i] + spec)
-            cb = w * rb * (kd * P[14, i] + spec)
+            tr = tg = tb = 1.0
+            if kind == LIGHT_PROJECTOR:
+                tr, tg, tb = projector_weight(local, li, lpx, lpy, lpz, ldx, ldy, ldz, proj, ptex, puv,
+                                              tex_data, P[0, i], P[1, i], P[2, i], lx, ly, lz)
+                if tr == 0.0 and tg == 0.0 and tb == 0.0:
+                    continue
+            cr = w * tr * rr * (kd * P[12, i] + spec)
+            cg = w * tg * rg * (kd * P[13, i] + spec)
+            cb = w * tb * rb * (kd * P[14, i] + spec)
             if not shadows:
                 L[0, i] += cr
                 L[1, i] += cg

@@ -142,6 +142,17 @@ def _mix32(x):
     return x
 
 
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+
+
+@njit(inline="always", cache=True)
+def _mix64(x):
+    """The SplitMix64 finaliser (Steele et al. 2014): a 64-bit bijective hash."""
+    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return x ^ (x >> np.uint64(31))
+
+
 @njit(inline="always", cache=True)
 def _hash2(a, b):
     """A 32-bit hash of two non-negative integers."""
@@ -230,23 +241,29 @@ def sample_1d(dim, index, seed):
 def sample_2d(pair, index, seed):
     """Padded 2D sample ``(u, v)``: Sobol dimensions (0, 1) with an index shuffle and two
     value scrambles seeded by ``(seed, pair)``.  For every ``pair`` and ``seed`` the
-    points ``index = 0 .. 2**m - 1`` are a scrambled (0, m, 2)-net."""
-    h = _hash2(seed, np.uint64(2) * np.uint64(pair) + np.uint64(1))
-    # The shuffled index i = rev(LK(rev(index))); dimension 0 of point i is rev(i), so
-    # the reversal pair cancels; dimension 1 from its byte tables.
-    li = _laine_karras(_reverse32(np.uint64(index)), _mix32(h))
+    points ``index = 0 .. 2**m - 1`` are a scrambled (0, m, 2)-net.
+
+    The three 32-bit scramble seeds are the two halves of one SplitMix64 hash of
+    ``(seed, pair)`` and the upper half of a second one (a short dependency chain: a
+    tracer draws a pair per pixel sample and light sample).  The shuffled index is
+    i = rev(LK(rev(index))); dimension 0 of point i is rev(i), so that reversal pair
+    cancels, and dimension 1 comes from byte tables."""
+    h = _mix64(np.uint64(seed) + (np.uint64(2) * np.uint64(pair) + np.uint64(1)) * _GOLDEN)
+    h2 = _mix64(h + _GOLDEN)
+    li = _laine_karras(_reverse32(np.uint64(index)), h & _MASK)
     i = _reverse32(li)
     x1 = (np.uint64(_T1[0, i & np.uint64(255)]) ^ np.uint64(_T1[1, (i >> np.uint64(8)) & np.uint64(255)])
           ^ np.uint64(_T1[2, (i >> np.uint64(16)) & np.uint64(255)]) ^ np.uint64(_T1[3, i >> np.uint64(24)]))
-    u = nested_uniform_scramble(li, _mix32(h + np.uint64(1)))
-    v = nested_uniform_scramble(x1, _mix32(h + np.uint64(2)))
+    u = _reverse32(_laine_karras(_reverse32(li), h >> np.uint64(32)))
+    v = _reverse32(_laine_karras(_reverse32(x1), h2 >> np.uint64(32)))
     return float(u) * _INV32, float(v) * _INV32
 
 
 @njit(inline="always", cache=True)
 def pixel_seed(x, y, seed):
-    """A per-pixel sequence seed: pixels draw decorrelated scrambles of one sequence."""
-    return _hash2(_hash2(seed, x), y)
+    """A per-pixel sequence seed (64 bits): pixels draw decorrelated scrambles of one
+    sequence.  Two SplitMix64 finaliser rounds over (seed, x, y)."""
+    return _mix64(_mix64(np.uint64(seed) * _GOLDEN + np.uint64(x)) + np.uint64(y) * _GOLDEN)
 
 
 @njit(cache=True)

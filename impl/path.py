@@ -31,7 +31,8 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   incremented, as Mitsuba): continue with q = min(max(throughput)·η², 0.95),
   η the product of the relative IORs crossed; survivors are divided by q.
 * Lights: area emitters (triangle meshes and spheres), point, spot and
-  directional lights; one light is picked uniformly per vertex.  A
+  directional lights, projectors (:mod:`impl.projector`, RGB only); one light
+  is picked uniformly per vertex.  A
   ``constant`` environment emitter is reached by BSDF sampling only: a ray
   that leaves the scene adds throughput · L_env with weight 1 (it is never
   light-sampled, so no MIS weight applies; unbiased, and noisier than
@@ -46,7 +47,10 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   conductors (``material="Au"``: Mitsuba's RGB indices,
   :func:`impl.materials.named_conductor`), ``plastic`` and ``roughplastic``
   (a textured ``diffuse_reflectance`` included: ρ(u, v) as for ``diffuse``);
-  two-sided opaque materials.
+  two-sided opaque materials; ``normalmap`` and ``bumpmap`` around any of them
+  on triangles with uvs (:mod:`impl.shading_frame`: the BSDF evaluated and
+  sampled in the perturbed frame, directions on opposite sides of the true
+  and the perturbed shading normal dropped, Estevez et al.'s shadowing term).
 
 Spectral mode (``spectral=true``, :mod:`impl.spectral`): each path carries
 three hero-rotated wavelengths instead of RGB; reflectances and emissions come
@@ -146,6 +150,7 @@ from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
+from .shading_frame import perturbed_normal, same_side, shadow_terminator
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
 from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
@@ -286,10 +291,22 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
             mat = A.shape_material[shape]
             delta = is_delta(B, mat)
             # A two-sided opaque BSDF is seen from the front on both sides.
-            if not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+            back = not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
+            # A normal or bump map: the BSDF's frame turns to the perturbed normal n.
+            shade = A.mat_shade[mat]
+            nx, ny, nz = sx, sy, sz
+            if shade != 0 and prim >= ns:
+                nx, ny, nz = perturbed_normal(shade, A.mat_shade_scale[mat], A.mat_shade_tex[mat],
+                                              A.mat_shade_uv[mat], A.tex_data, A.tri_v[prim - ns],
+                                              A.tri_uv[prim - ns], b1, b2, gx, gy, gz, sx, sy, sz, vx,
+                                              vy, vz, back)
+            if back:
                 gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-            fx, fy, fz, qx, qy, qz = frame(sx, sy, sz)
-            wix, wiy, wiz = to_local(fx, fy, fz, qx, qy, qz, sx, sy, sz, vx, vy, vz)
+                if shade == 0:
+                    nx, ny, nz = sx, sy, sz
+            terminator = shade != 0 and A.mat_shade_tex[mat, 6] != 0
+            fx, fy, fz, qx, qy, qz = frame(nx, ny, nz)
+            wix, wiy, wiz = to_local(fx, fy, fz, qx, qy, qz, nx, ny, nz, vx, vy, vz)
             if spectral:
                 rho_r = spectrum_at(S.mat_spec[mat], w0)
                 rho_g = spectrum_at(S.mat_spec[mat], w1)
@@ -313,10 +330,15 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                     er *= spectrum_at(S.light_spec[li], w0)
                     eg *= spectrum_at(S.light_spec[li], w1)
                     eb *= spectrum_at(S.light_spec[li], w2)
+                if shade != 0 and not same_side(nx, ny, nz, sx, sy, sz, lx, ly, lz):
+                    er = eg = eb = 0.0           # below the perturbed or the true horizon
                 if er > 0.0 or eg > 0.0 or eb > 0.0:
-                    wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, sx, sy, sz, lx, ly, lz)
+                    wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, nx, ny, nz, lx, ly, lz)
                     fr, fg, fb = bsdf_eval(B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox,
                                            woy, woz)
+                    if terminator:
+                        gt = shadow_terminator(nx, ny, nz, sx, sy, sz, lx, ly, lz)
+                        fr, fg, fb = fr * gt, fg * gt, fb * gt
                     if fr > 0.0 or fg > 0.0 or fb > 0.0:
                         counts[_C_SHADOW] += 1
                         side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
@@ -361,9 +383,15 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                 tr *= 3.0
                 tg = tb = 0.0
                 single = True
-            ndx, ndy, ndz = to_world(fx, fy, fz, qx, qy, qz, sx, sy, sz, wox, woy, woz)
+            ndx, ndy, ndz = to_world(fx, fy, fz, qx, qy, qz, nx, ny, nz, wox, woy, woz)
             inv = 1.0 / math.sqrt(ndx * ndx + ndy * ndy + ndz * ndz)
             ndx, ndy, ndz = ndx * inv, ndy * inv, ndz * inv
+            if shade != 0:
+                if not same_side(nx, ny, nz, sx, sy, sz, ndx, ndy, ndz):
+                    break
+                if terminator:
+                    gt = shadow_terminator(nx, ny, nz, sx, sy, sz, ndx, ndy, ndz)
+                    tr, tg, tb = tr * gt, tg * gt, tb * gt
             side = 1.0 if gx * ndx + gy * ndy + gz * ndz >= 0.0 else -1.0
             ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
             dx, dy, dz = ndx, ndy, ndz
@@ -444,6 +472,9 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
     if spectral and scene.environment is not None:
         raise UnsupportedError("path: spectral=true does not model the constant environment "
                                   "emitter (its radiance is RGB); render it with spectral=false")
+    if spectral and any(light.kind == "projector" for light in scene.lights):
+        raise UnsupportedError("path: spectral=true does not model the projector emitter (its "
+                               "irradiance image is RGB); render it with spectral=false")
     if spectral:
         S = spectral_arrays(scene, A, L)
         # Unit emission in A and L: the kernel scales light samples by S.light_spec.
@@ -481,5 +512,6 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap", "plastic", "roughplastic", "plastic texture"}),
+    models=frozenset({"envmap", "plastic", "roughplastic", "plastic texture", "normalmap", "bumpmap",
+                      "projector"}),
 )

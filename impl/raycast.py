@@ -3,7 +3,9 @@
 Thesis 1.3.3 (visible surfaces by ray casting: a ray from the eye through each
 pixel, the closest intersection wins) shaded with the Phong model of 1.4.2
 (:mod:`impl.phong`), with the light types of 1.4.1: point, directional, spot
-and area lights, each tested for visibility with a shadow ray.
+and area lights, and Mitsuba's ``projector`` (a point light whose intensity is
+its projected image, :mod:`impl.projector`), each tested for visibility with a
+shadow ray.
 
 What it computes: direct illumination only.  With the default parameters
 (k_a = k_s = 0, f_att = 1/d²) it estimates exactly what Mitsuba's ``direct``
@@ -234,5 +236,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap"}),
+    models=frozenset({"envmap", "projector"}),
 )

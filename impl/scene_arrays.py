@@ -3,7 +3,10 @@
 Primitives are numbered spheres first, then triangles; ``prim_shape`` maps a
 primitive to its shape (the index used for shape-id images).  Area emitters
 become per-emitter triangle lists with an area CDF for uniform area sampling.
-Light ``kind`` codes: 0 point, 1 directional, 2 spot.  Material ``kind``
+Light ``kind`` codes: 0 point, 1 directional, 2 spot, 3 projector (Mitsuba's
+``projector``: ``light_rad`` is π × scale × its constant irradiance, ``light_proj``
+its projection constants and ``light_tex_*`` its ``irradiance`` bitmap, evaluated
+by :func:`impl.projector.projector_weight`).  Material ``kind``
 codes: 0 diffuse, 1 conductor, 2 dielectric, 3 roughconductor, 4 roughdielectric, 5 plastic,
 6 roughplastic; an algorithm
 refuses the kinds it cannot model.  Textured diffuse reflectance: ``mat_tex``
@@ -16,6 +19,9 @@ emitter is ``env_image`` (the map times its scale; 0 rows without one) with its
 rotation ``env_frame`` and luminance sampling tables ``env_pdf`` / ``env_cdf``
 (:func:`impl.envmap.envmap_tables`, evaluated and sampled by
 :mod:`impl.envmap`'s inline functions).  The loader keeps at most one of the two.
+A ``normalmap`` or ``bumpmap`` around a material is ``mat_shade`` (code 0
+none, 1 normal map, 2 bump map) with its bitmap in ``tex_data``
+(``mat_shade_*``) and the bump ``scale`` (:mod:`impl.shading_frame`).
 """
 
 from __future__ import annotations
@@ -36,9 +42,11 @@ WRAP_CODES = {"repeat": WRAP_REPEAT, "clamp": WRAP_CLAMP, "mirror": WRAP_MIRROR}
 FILTER_CODES = {"bilinear": FILTER_BILINEAR, "nearest": FILTER_NEAREST}
 
 __all__ = ["SceneArrays", "diffuse_texture", "flatten", "flatten_cached", "scene_memo", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
+           "LIGHT_PROJECTOR", "SHADE_NONE", "SHADE_NORMALMAP", "SHADE_BUMPMAP",
            "TEX_NONE", "TEX_CHECKERBOARD", "TEX_BITMAP", "MATERIAL_CODES"]
 
-LIGHT_POINT, LIGHT_DIRECTIONAL, LIGHT_SPOT = 0, 1, 2
+LIGHT_POINT, LIGHT_DIRECTIONAL, LIGHT_SPOT, LIGHT_PROJECTOR = 0, 1, 2, 3
+SHADE_NONE, SHADE_NORMALMAP, SHADE_BUMPMAP = 0, 1, 2
 TEX_NONE, TEX_CHECKERBOARD, TEX_BITMAP = 0, 1, 2
 
 
@@ -87,6 +95,15 @@ class SceneArrays(NamedTuple):
     env_frame: np.ndarray       # (2, 3, 3) envmap world -> map and map -> world rotations
     env_pdf: np.ndarray         # (H, W + 1) envmap sampling density at the grid vertices
     env_cdf: np.ndarray         # ((H - 1) W,) envmap cumulative cell integrals (all 0: black map)
+    mat_shade: np.ndarray       # (M,) 0 none, 1 normalmap, 2 bumpmap (SHADE_*)
+    mat_shade_scale: np.ndarray  # (M,) bumpmap scale
+    mat_shade_tex: np.ndarray   # (M, 8) its bitmap: first texel in tex_data, width, height, wrap, filter;
+                                # then Mitsuba's flip_invalid_normals and use_shadowing_function, and
+                                # whether the map wraps a twosided (0/1)
+    mat_shade_uv: np.ndarray    # (M, 2, 3) its 2D affine to_uv map
+    light_proj: np.ndarray      # (L, 3) projector: cot(fov_x / 2), image aspect, |to_world · e_z|
+    light_tex: np.ndarray       # (L, 5) projector irradiance bitmap as mat_shade_tex (width 0: none)
+    light_tex_uv: np.ndarray    # (L, 2, 3) its to_uv map
 
     @property
     def n_spheres(self) -> int:
@@ -107,6 +124,17 @@ def diffuse_texture(m) -> dict | None:
     return None
 
 
+def projector_constants(light) -> tuple:
+    """``(cot(fov_x / 2), aspect, |to_world · e_z|)`` of a projector: Mitsuba's
+    ``projector`` maps a point in its frame to uv = (½ − ½ cot x/z, ½ − ½ aspect cot y/z)
+    (its camera-to-sample projection) and divides by z² (−n · d), n = to_world · e_z
+    not normalised."""
+    m = np.asarray(light.to_world, dtype=np.float64)
+    data = None if light.texture is None else light.texture.get("data")
+    aspect = 1.0 if data is None else data.shape[1] / data.shape[0]
+    return (1.0 / np.tan(0.5 * np.deg2rad(light.fov_x)), aspect, float(np.linalg.norm(m[:3, 2])))
+
+
 def _light_local(light) -> np.ndarray:
     """The linear map taking a world direction into the light's own frame, where a spot
     points along +z (Mitsuba's ``spot`` evaluates its cone there: the inverse of its
@@ -114,6 +142,8 @@ def _light_local(light) -> np.ndarray:
     shear in to_world makes the world-space cone elliptical).  A spot without a
     to_world gets an orthonormal frame whose third row is its axis; other lights the
     identity (unused)."""
+    if light.kind == "projector":
+        return np.linalg.inv(np.asarray(light.to_world, dtype=np.float64)[:3, :3])
     if light.kind != "spot":
         return np.eye(3)
     if light.to_world is not None:
@@ -192,6 +222,31 @@ def flatten(scene: Scene) -> SceneArrays:
             tex_filter.append(0)
     mat_tex_uv = [np.asarray(t["to_uv"])[:2] if t else np.eye(3)[:2] for t in texs]
 
+    def bitmap_record(t, role: str):
+        """(offset, width, height, wrap, filter) of bitmap ``t`` appended to the texels."""
+        nonlocal n_texels
+        if t is None:
+            return (0, 0, 0, 0, 0)
+        if t["type"] != "bitmap":
+            raise UnsupportedError(f"scene_arrays.flatten: a {t['type']} texture as {role} is not "
+                                   "modelled; only a bitmap is")
+        img = np.asarray(t["data"], dtype=np.float64)
+        rec = (n_texels, img.shape[1], img.shape[0], WRAP_CODES[t["wrap_mode"]], FILTER_CODES[t["filter_type"]])
+        texels.append(img.reshape(-1, 3))
+        n_texels += img.shape[0] * img.shape[1]
+        return rec
+
+    shade_codes = {"normalmap": SHADE_NORMALMAP, "bumpmap": SHADE_BUMPMAP}
+    mat_shade = [shade_codes[m.shading["type"]] if m.shading else SHADE_NONE for m in scene.materials]
+    mat_shade_tex = [bitmap_record(m.shading["texture"], f"the texture of a {m.shading['type']}")
+                     + (int(m.shading.get("flip_invalid_normals", True)),
+                        int(m.shading.get("use_shadowing_function", True)),
+                        int(m.shading.get("wraps_twosided", False)))
+                     if m.shading else (0,) * 8 for m in scene.materials]
+    mat_shade_uv = [np.asarray(m.shading["texture"]["to_uv"])[:2] if m.shading else np.eye(3)[:2]
+                    for m in scene.materials]
+    mat_shade_scale = [float(m.shading.get("scale", 1.0)) if m.shading else 0.0 for m in scene.materials]
+
     envmap = getattr(scene, "envmap", None)
     if envmap is not None:
         env = envmap_tables(envmap)
@@ -200,9 +255,18 @@ def flatten(scene: Scene) -> SceneArrays:
 
     lights = scene.lights
     f64 = lambda x, shape: np.asarray(x, dtype=np.float64).reshape(shape)  # noqa: E731
-    kinds = {"point": LIGHT_POINT, "directional": LIGHT_DIRECTIONAL, "spot": LIGHT_SPOT}
+    kinds = {"point": LIGHT_POINT, "directional": LIGHT_DIRECTIONAL, "spot": LIGHT_SPOT,
+             "projector": LIGHT_PROJECTOR}
     cutoff = np.deg2rad([l.cutoff_angle for l in lights])
     beam = np.deg2rad([l.beam_width for l in lights])
+    is_proj = [l.kind == "projector" for l in lights]
+    light_tex = [bitmap_record(l.texture, "a projector's irradiance") if p else (0, 0, 0, 0, 0)
+                 for l, p in zip(lights, is_proj)]
+    light_tex_uv = [np.asarray(l.texture["to_uv"])[:2] if p and l.texture is not None else np.eye(3)[:2]
+                    for l, p in zip(lights, is_proj)]
+    light_proj = [projector_constants(l) if p else (0.0, 0.0, 0.0) for l, p in zip(lights, is_proj)]
+    light_rad = [np.pi * l.scale * np.asarray(l.radiant) if p else l.radiant for l, p in zip(lights, is_proj)]
+    tex_data = np.ascontiguousarray(np.concatenate(texels) if texels else np.zeros((0, 3)), dtype=np.float64)
     return SceneArrays(
         sph_center=f64([s.center for s in spheres], (-1, 3)),
         sph_radius=f64([s.radius for s in spheres], (-1,)),
@@ -219,7 +283,7 @@ def flatten(scene: Scene) -> SceneArrays:
         light_kind=np.asarray([kinds[l.kind] for l in lights], dtype=np.int64),
         light_pos=f64([l.position if l.position is not None else np.zeros(3) for l in lights], (-1, 3)),
         light_dir=f64([l.direction if l.direction is not None else np.zeros(3) for l in lights], (-1, 3)),
-        light_rad=f64([l.radiant for l in lights], (-1, 3)),
+        light_rad=f64(light_rad, (-1, 3)),
         light_cos_cutoff=np.cos(cutoff).reshape(-1),
         light_cos_beam=np.cos(beam).reshape(-1),
         light_cutoff=cutoff.reshape(-1),
@@ -236,8 +300,7 @@ def flatten(scene: Scene) -> SceneArrays:
         mat_tex_c0=f64(mat_tex_c0, (-1, 3)),
         mat_tex_c1=f64(mat_tex_c1, (-1, 3)),
         mat_tex_uv=f64(mat_tex_uv, (-1, 2, 3)),
-        tex_data=np.ascontiguousarray(np.concatenate(texels) if texels else np.zeros((0, 3)),
-                                      dtype=np.float64),
+        tex_data=tex_data,
         mat_tex_offset=np.asarray(tex_offset, dtype=np.int64),
         mat_tex_size=np.asarray(tex_size, dtype=np.int64).reshape(-1, 2),
         mat_tex_wrap=np.asarray(tex_wrap, dtype=np.int64),
@@ -247,6 +310,13 @@ def flatten(scene: Scene) -> SceneArrays:
         env_frame=env[1],
         env_pdf=env[2],
         env_cdf=env[3],
+        mat_shade=np.asarray(mat_shade, dtype=np.int64),
+        mat_shade_scale=f64(mat_shade_scale, (-1,)),
+        mat_shade_tex=np.asarray(mat_shade_tex, dtype=np.int64).reshape(-1, 8),
+        mat_shade_uv=f64(mat_shade_uv, (-1, 2, 3)),
+        light_proj=f64(light_proj, (-1, 3)),
+        light_tex=np.asarray(light_tex, dtype=np.int64).reshape(-1, 5),
+        light_tex_uv=f64(light_tex_uv, (-1, 2, 3)),
     )
 
 

@@ -1,4 +1,5 @@
-"""Texture lookups for a diffuse reflectance: Mitsuba's ``checkerboard`` and ``bitmap``.
+"""Texture lookups: Mitsuba's ``checkerboard`` and ``bitmap`` (a diffuse reflectance, a
+normal or bump map, a projector's irradiance).
 
 What it computes
 ----------------
@@ -21,6 +22,9 @@ Mitsuba's ``raw = false`` does; float EXR as stored) by
 :mod:`core.loader`, concatenated into one texel array
 (:mod:`impl.scene_arrays`).
 
+:func:`bitmap_grad` is the gradient in uv of a bitmap's luminance (Mitsuba's
+``eval_1_grad``), which a ``bumpmap`` reads (:mod:`impl.shading_frame`).
+
 Leaves out: MIP-mapping and ray differentials (Mitsuba's bitmap does not
 filter over the pixel footprint either), the ``raw`` flag's effect on spectral
 upsampling (RGB only), alpha.
@@ -33,7 +37,7 @@ import math
 from numba import njit
 
 __all__ = ["WRAP_REPEAT", "WRAP_CLAMP", "WRAP_MIRROR", "FILTER_BILINEAR", "FILTER_NEAREST",
-           "checkerboard", "bitmap", "wrap_index"]
+           "checkerboard", "bitmap", "bitmap_grad", "luminance", "wrap_index"]
 
 WRAP_REPEAT, WRAP_CLAMP, WRAP_MIRROR = 0, 1, 2
 FILTER_BILINEAR, FILTER_NEAREST = 0, 1
@@ -90,3 +94,42 @@ def bitmap(data, offset, w, h, wrap, filt, u, v):
     g = w00 * data[k00, 1] + w10 * data[k10, 1] + w01 * data[k01, 1] + w11 * data[k11, 1]
     b = w00 * data[k00, 2] + w10 * data[k10, 2] + w01 * data[k01, 2] + w11 * data[k11, 2]
     return r, g, b
+
+
+@njit(inline="always", cache=True)
+def luminance(r, g, b):
+    """Mitsuba's ``luminance`` of a linear sRGB colour (the Y row of sRGB → XYZ)."""
+    return 0.212671 * r + 0.715160 * g + 0.072169 * b
+
+
+@njit(inline="always", cache=True)
+def bitmap_grad(data, offset, w, h, wrap, filt, m00, m01, m10, m11, u, v):
+    """The uv gradient of a bitmap's luminance at (u', v') = to_uv · (u, v, 1), as
+    Mitsuba's ``bitmap.eval_1_grad``: the bilinear interpolant's partial derivatives
+    in texel units, (∂f/∂x, ∂f/∂y) = ((1 − f_y)(f10 − f00) + f_y (f11 − f01),
+    (1 − f_x)(f01 − f00) + f_x (f11 − f10)), taken through the transpose of to_uv's
+    2×2 block ``m`` and then scaled by the resolution (w, h) — Mitsuba's order, which
+    equals the chain rule when to_uv is diagonal or w = h.  Zero for ``nearest``."""
+    if filt == FILTER_NEAREST:
+        return 0.0, 0.0
+    x = u * w - 0.5
+    y = v * h - 0.5
+    x0 = math.floor(x)
+    y0 = math.floor(y)
+    fx = x - x0
+    fy = y - y0
+    i0 = wrap_index(int(x0), w, wrap)
+    i1 = wrap_index(int(x0) + 1, w, wrap)
+    j0 = wrap_index(int(y0), h, wrap)
+    j1 = wrap_index(int(y0) + 1, h, wrap)
+    k00 = offset + j0 * w + i0
+    k10 = offset + j0 * w + i1
+    k01 = offset + j1 * w + i0
+    k11 = offset + j1 * w + i1
+    f00 = luminance(data[k00, 0], data[k00, 1], data[k00, 2])
+    f10 = luminance(data[k10, 0], data[k10, 1], data[k10, 2])
+    f01 = luminance(data[k01, 0], data[k01, 1], data[k01, 2])
+    f11 = luminance(data[k11, 0], data[k11, 1], data[k11, 2])
+    dfx = (1.0 - fy) * (f10 - f00) + fy * (f11 - f01)
+    dfy = (1.0 - fx) * (f01 - f00) + fx * (f11 - f10)
+    return w * (m00 * dfx + m10 * dfy), h * (m01 * dfx + m11 * dfy)

@@ -607,5 +607,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap"}),
+    models=frozenset({"envmap", "projector"}),
 )

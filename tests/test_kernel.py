@@ -13,7 +13,8 @@ import pytest
 from numba import njit
 from numba.core.errors import TypingError
 
-from impl import accel, bsdf, light_sampling, lighting, path, raycast, rays, spectral, tracer, whitted
+from impl import (accel, bsdf, light_sampling, lighting, path, projector, raycast, rays, shading_frame,
+                  spectral, textures, tracer, whitted)
 from impl.accel import wide
 from impl.kernel import batch_kernel
 
@@ -24,7 +25,9 @@ BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, whitte
 #: Called per ray from batch kernels: inlined (a call would pass every array of the scene,
 #: material or ray-configuration tuple it takes, member by member).
 PER_RAY = [bsdf.bsdf_sample, bsdf.bsdf_eval, bsdf.bsdf_pdf, light_sampling.sample_light,
-           light_sampling.emitter_pdf, rays.hit, rays.occluded, wide.wide_bind]
+           light_sampling.emitter_pdf, rays.hit, rays.occluded, wide.wide_bind,
+           shading_frame.perturbed_normal, shading_frame.same_side, shading_frame.shadow_terminator,
+           textures.bitmap_grad, projector.projector_weight]
 ALLOCATING = [tracer.closest_batch, tracer.occluded_batch, accel.closest, accel.any_hit,
               accel.closest_rays, accel.occluded_rays, bsdf._plastic_sample, bsdf._plastic_eval,
               bsdf._plastic_pdf]

@@ -32,9 +32,9 @@ def _scene_dir(d: Path) -> Path:
     _write(d, "a_good.xml", f'<scene version="3.0.0">{CAMERA}{light}{SPHERE.format(bsdf="diffuse")}\n'
                             '<emitter type="constant"><rgb name="radiance" value="0.3"/></emitter></scene>\n')
     _write(d, "b_malformed.xml", f'<scene version="3.0.0">{CAMERA}\n<shape type="sphere">\n</scene>\n')
-    _write(d, "c_projector.xml", f'<scene version="3.0.0">{CAMERA}{SPHERE.format(bsdf="diffuse")}\n'
-                                 '<emitter type="projector"><float name="fov" value="30"/></emitter>\n'
-                                 '</scene>\n')
+    _write(d, "c_mask.xml", f'<scene version="3.0.0">{CAMERA}{light}\n<shape type="sphere">'
+                            '<bsdf type="mask"><float name="opacity" value="0.5"/><bsdf type="diffuse"/>'
+                            '</bsdf></shape>\n</scene>\n')
     _write(d, "d_conductor.xml", f'<scene version="3.0.0">{CAMERA}{light}{SPHERE.format(bsdf="conductor")}'
                                  '</scene>\n')
     _write(d, "e_missing_mesh.xml", f'<scene version="3.0.0">{CAMERA}\n<shape type="obj">'
@@ -58,10 +58,9 @@ def test_directory_run_renders_the_good_file_and_lists_the_others(tmp_path, caps
     assert "1 rendered and compared, 0 failed checks, 4 skipped" in out
     skipped = {line.split(": ", 2)[1]: line.split(": ", 2)[2]
                for line in out.splitlines() if line.startswith("SKIPPED: ")}
-    assert set(skipped) == {"b_malformed.xml", "c_projector.xml", "d_conductor.xml", "e_missing_mesh.xml"}
+    assert set(skipped) == {"b_malformed.xml", "c_mask.xml", "d_conductor.xml", "e_missing_mesh.xml"}
     assert "b_malformed.xml:" in skipped["b_malformed.xml"] and "malformed XML" in skipped["b_malformed.xml"]
-    assert skipped["c_projector.xml"] == ("raycast: a projector emitter uses 'projector', which raycast "
-                                          "does not model")
+    assert skipped["c_mask.xml"] == "raycast: shape 'sphere' uses 'mask', which raycast does not model"
     assert "'conductor' BSDF" in skipped["d_conductor.xml"]
     assert "mesh file 'gone.obj' not found" in skipped["e_missing_mesh.xml"]
     assert all("\n" not in r for r in skipped.values())
@@ -107,7 +106,7 @@ def test_one_crashing_file_does_not_stop_the_run(tmp_path, monkeypatch):
     suite = scene_dir.directory_suite(d, "raycast")
     records, skipped = scene_dir.run_directory(suite, Store(), run_id="t", out_root=tmp_path,
                                                log=lambda *a: None)
-    assert calls == ["a_good.xml", "b_malformed.xml", "c_projector.xml", "d_conductor.xml",
+    assert calls == ["a_good.xml", "b_malformed.xml", "c_mask.xml", "d_conductor.xml",
                      "e_missing_mesh.xml"]
     assert skipped[0] == ("a_good.xml", "'boom'") and len(records) == 5
 

@@ -130,11 +130,11 @@ def test_instancing_hits_match_mitsuba(mitsuba, name):
 
 #: Of the files that load, those the path tracer renders (8x6 pixels, 1 spp,
 #: max_depth 3 here); the others are refused by name before rendering (textured
-#: parameters other than a plastic's diffuse reflectance, projector, normal/bump
-#: maps, a textured spot, anisotropic roughness, mask, blendbsdf, thindielectric).
-PATH_RENDERS = 46
+#: parameters other than a plastic's diffuse reflectance, a textured spot,
+#: anisotropic roughness, mask, blendbsdf, thindielectric).
+PATH_RENDERS = 54
 #: Of those, the scenes lit by an envmap and those with a plastic or roughplastic shape.
-ENVMAPS, PLASTICS = 32, 14
+ENVMAPS, PLASTICS = 38, 16
 
 
 def test_path_renders_or_refuses_by_name():
