@@ -88,10 +88,45 @@ while the five samples disagree by more than ``threshold``, depth limit
 ``adaptive_depth``, at most ``spp`` radiance samples per pixel); ``statistical``
 (4 stratified samples, then random ones until the ``confidence`` interval of
 the pixel mean is narrower than ±``tolerance`` or ``spp`` samples are spent).
+``sobol``: the first ``spp`` points of an Owen-scrambled Sobol sequence per
+pixel (:func:`impl.samplers.sobol_pattern`; a (0, m, 2)-net when spp = 2^m).
 For the fixed patterns ``spp`` is the number of samples per pixel (a square
 k² for ``uniform`` and ``jitter``); for ``adaptive`` and ``statistical`` it is
 the per-pixel cap, and the counter ``samples`` (÷ pixels = the mean spp
 actually spent) says what was used.
+
+The other dimensions of a sample (``dimensions``; thesis 2.5.8)
+-----------------------------------------------------------------
+Besides its film position a sample draws numbers for its lens point (2-D),
+shutter time (1-D), every light sample at every diffuse hit of its ray tree
+(2-D each) and every sampled BSDF direction (2-D, plus a 1-D lobe choice).
+
+* ``dimensions=independent`` (the default): independent hashed uniform
+  numbers per (pixel, sample, dimension); only the pixel position follows the
+  sampler's pattern.  With ``light_samples`` = q² the light samples of one
+  pixel sample are stratified among themselves (q×q).
+* ``dimensions=stratified`` (fixed-count samplers, square spp = k²): Cook's
+  shuffled strata (Cook 1986, §5): every 2-D dimension has its own k×k
+  jittered strata over the pixel's spp samples, every 1-D one spp strata, and
+  sample s takes the stratum π_d(s) of a pseudo-random permutation drawn per
+  pixel and dimension (:func:`impl.samplers.dim_2d`, ``dim_1d``), so each
+  dimension covers its strata once and is paired at random with the pixel
+  position and the other dimensions; the lens strata follow the pixel strata's
+  rows and columns (:func:`impl.samplers.lens_stratified`), so film × lens is
+  stratified along each axis, where an edge out of focus lies.  Light sample j at the tree's l-th
+  diffuse hit is its own dimension (not stratified against the pixel sample's
+  other light samples).
+* ``sampler=sobol``: the film position and the lens point from one
+  Owen-scrambled 4-D Sobol point per sample (:func:`impl.samplers.camera_sobol`),
+  every other dimension from the padded per-pixel Sobol sequence
+  (:data:`impl.samplers.DIM_SOBOL`; a scrambled (0, 2)-sequence per 2-D
+  dimension, a scrambled van der Corput sequence per 1-D one, each with its own
+  index shuffle; not an image-wide ZSobol sequence).
+
+Both keep each sample uniform in every dimension, so the estimate stays
+unbiased; the per-pixel variance (the sample variance / n) over-estimates the
+variance of their mean, so Z-tests stay conservative.  ``adaptive`` and
+``statistical`` draw independent numbers (their sample counts vary per pixel).
 
 Reconstruction (``rfilter``): ``film`` (default) uses the scene film's
 ``rfilter`` — ``box`` or Mitsuba's ``gaussian`` — so the own image estimates
@@ -106,7 +141,9 @@ name            type    default         meaning
 ==============  ======  ==============  ==========================================
 spp             int     16              samples per pixel (cap for adaptive ones)
 sampler         str     jitter          uniform | random | jitter | poisson |
-                                        adaptive | statistical
+                                        adaptive | statistical | sobol
+dimensions      str     independent     independent | stratified (lens, time,
+                                        light, BSDF numbers; see above)
 jitter          str     white           white (U[−γT, γT]) | gaussian (N(0, σ²T²))
 gamma           float   0.5             white-noise jitter amplitude γ
 sigma           float   0.1538          Gaussian jitter σ (thesis: T/6.5)
@@ -169,7 +206,8 @@ from .camera import camera_params, eye_ray_lens
 from .kernel import batch_kernel
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import diffuse_albedo, direct_light_rays, environment_radiance, spot_falloff, surface
+from .lighting import (diffuse_albedo, direct_light_dims, direct_light_rays, environment_radiance,
+                       spot_falloff, surface)
 from .bsdf import cook_torrance_sample, diffuse_transmission_sample
 from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIFFTRANS,
                         MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, material_arrays)
@@ -177,16 +215,20 @@ from .microfacet import G_SMITH, G_VCAVITY, conductor_sample, dielectric_sample
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
-from .rng import uniform
-from .samplers import (adaptive_children, adaptive_disagree, gaussian_jitter_pattern, jitter_pattern,
-                       poisson_disk_pattern, random_pattern, statistical_done, uniform_pattern)
+from .rng import uniform, uniform_from, uniform_prefix
+from .samplers import (DIM_INDEPENDENT, DIM_SOBOL, DIM_STRATIFIED, adaptive_children, adaptive_disagree,
+                       camera_sobol, lens_stratified,
+                       dim_1d, dim_2d, gaussian_jitter_pattern, jitter_pattern, poisson_disk_pattern,
+                       random_pattern, sobol_pattern, statistical_done, uniform_pattern)
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
 from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit, _push
 
 __all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS", "Motion", "motion_arrays"]
 
-SAMPLERS = ("uniform", "random", "jitter", "poisson", "adaptive", "statistical")
-SMP_UNIFORM, SMP_RANDOM, SMP_JITTER, SMP_POISSON, SMP_ADAPTIVE, SMP_STATISTICAL = range(6)
+SAMPLERS = ("uniform", "random", "jitter", "poisson", "adaptive", "statistical", "sobol")
+SMP_UNIFORM, SMP_RANDOM, SMP_JITTER, SMP_POISSON, SMP_ADAPTIVE, SMP_STATISTICAL, SMP_SOBOL = range(7)
+#: ``dimensions``: how the lens, time, light and BSDF numbers of a sample are drawn.
+DIMENSIONS = ("independent", "stratified")
 G_MODELS = {"smith": G_SMITH, "vcavity": G_VCAVITY}
 
 #: Per-pixel integer counters, in kernel order (whitted's, then the distributed ones).
@@ -202,6 +244,10 @@ _STREAM = 0x2545F491
 #: |k_dr + k_sr − 1| above this refuses a Hall parameter set.
 HALL_SUM_TOLERANCE = 1e-9
 _D_LENS, _D_TIME, _D_BSDF = 0, 2, 8  # dimensions of the stream: lens (2), time; bounce k: 8 + 3k ..
+#: Dimension numbers of :func:`impl.samplers.dim_2d` / ``dim_1d`` (stratified and Sobol
+#: modes): pixel 0, lens 1, time 2, bounce k's direction 3 + 2k and lobe choice 4 + 2k,
+#: light sample j at the ray tree's l-th diffuse hit (l + 1)·2^16 + j.
+_X_LENS, _X_TIME, _X_BSDF, _X_LIGHT = 1, 2, 3, 1 << 16
 
 
 class Motion(NamedTuple):
@@ -387,8 +433,8 @@ def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx
 @batch_kernel
 def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays, R: RayConfig, sph_c,
           tri64, trin64, hall, hall_ks, hall_n, hall_t, hall_tr, hall_kd, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
-          shadows, light_samples, seed, pixel, sample, spp, stack_f, stack_i, counts, cut_w, pre_t,
-          pre_prim, pre_b1, pre_b2):
+          shadows, light_samples, seed, pixel, sample, spp, dmode, stack_f, stack_i, counts, cut_w,
+          pre_t, pre_prim, pre_b1, pre_b2):
     """Radiance (r, g, b) of one eye ray: whitted's ray tree plus sampled glossy bounces.
     ``sph_c``, ``tri64``, ``trin64``: sphere centres, triangle vertices and shading
     normals (float64) at the sample's time, for shading.
@@ -508,11 +554,8 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
             wix = tx_ * vx + ty_ * vy + tz_ * vz
             wiy = bx * vx + by * vy + bz * vz
-            dim = _D_BSDF + 3 * bounce
+            u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
             bounce += 1
-            u0 = uniform(seed + _STREAM, pixel, sample, dim)
-            u1 = uniform(seed + _STREAM, pixel, sample, dim + 1)
-            u2 = uniform(seed + _STREAM, pixel, sample, dim + 2)
             lx, ly, lz, w, pdf, refl, _eti = dielectric_sample(S.alpha[mat], gmodel, S.visible[mat] == 1,
                                                               S.diel_eta[mat], wix, wiy, cos_v,
                                                               u0, u1, u2)
@@ -541,11 +584,8 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
             wix = tx_ * vx + ty_ * vy + tz_ * vz
             wiy = bx * vx + by * vy + bz * vz
-            dim = _D_BSDF + 3 * bounce
+            u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
             bounce += 1
-            u0 = uniform(seed + _STREAM, pixel, sample, dim)
-            u1 = uniform(seed + _STREAM, pixel, sample, dim + 1)
-            u2 = uniform(seed + _STREAM, pixel, sample, dim + 2)
             lx, ly, lz, w_r, w_g, w_b, pdf = diffuse_transmission_sample(
                 S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2], S.spec_trans[mat, 0],
                 S.spec_trans[mat, 1], S.spec_trans[mat, 2], wix, wiy, cos_v, u0, u1, u2)
@@ -573,11 +613,8 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
             wix = tx_ * vx + ty_ * vy + tz_ * vz
             wiy = bx * vx + by * vy + bz * vz
-            dim = _D_BSDF + 3 * bounce
+            u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
             bounce += 1
-            u0 = uniform(seed + _STREAM, pixel, sample, dim)
-            u1 = uniform(seed + _STREAM, pixel, sample, dim + 1)
-            u2 = uniform(seed + _STREAM, pixel, sample, dim + 2)
             lx, ly, lz, w_r, w_g, w_b, pdf = cook_torrance_sample(
                 S.spec_trans[mat, 0], S.spec_trans[mat, 1], S.cond_eta[mat], S.cond_k[mat], gmodel,
                 S.diel_eta[mat], S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2],
@@ -612,10 +649,8 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
             wix = tx_ * vx + ty_ * vy + tz_ * vz
             wiy = bx * vx + by * vy + bz * vz
-            dim = _D_BSDF + 3 * bounce
+            _u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
             bounce += 1
-            u1 = uniform(seed + _STREAM, pixel, sample, dim + 1)
-            u2 = uniform(seed + _STREAM, pixel, sample, dim + 2)
             lx, ly, lz, w, pdf, cos_ih = conductor_sample(S.alpha[mat], gmodel, S.visible[mat] == 1,
                                                           wix, wiy, cos_v, u1, u2)
             if w <= 0.0:
@@ -638,10 +673,16 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
         # Diffuse: direct light from every emitter (penumbra: area emitters sampled by area).
         rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
         amb = ambient * ka
-        lr, lg, lb, nsh = direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
-                                            rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3,
-                                            fclamp, shadows, light_samples, seed, pixel,
-                                            sample + leaf * spp, R)
+        if dmode == DIM_INDEPENDENT:
+            lr, lg, lb, nsh = direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+                                                rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3,
+                                                fclamp, shadows, light_samples, seed, pixel,
+                                                sample + leaf * spp, R)
+        else:
+            lr, lg, lb, nsh = direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+                                                rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3,
+                                                fclamp, shadows, light_samples, seed, pixel,
+                                                sample, R, (dmode, spp, _X_LIGHT * (leaf + 1)))
         leaf += 1
         counts[_C_SHADOW] += nsh
         counts[_C_DIFFUSE] += 1
@@ -652,15 +693,34 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
 
 
 @njit(inline="always", cache=True)
-def _eye(cam, seed, pixel, sample, fx, fy):
-    """The eye ray of pixel sample ``sample`` at film position (fx, fy), through its lens point."""
-    u1 = uniform(seed + _STREAM, pixel, sample, _D_LENS)
-    u2 = uniform(seed + _STREAM, pixel, sample, _D_LENS + 1)
+def _eye(cam, seed, pixel, sample, spp, dmode, fx, fy):
+    """The eye ray of pixel sample ``sample`` (of ``spp``) at film position (fx, fy),
+    through its lens point."""
+    if dmode == DIM_INDEPENDENT:
+        u1 = uniform(seed + _STREAM, pixel, sample, _D_LENS)
+        u2 = uniform(seed + _STREAM, pixel, sample, _D_LENS + 1)
+    elif dmode == DIM_SOBOL:
+        u1 = camera_sobol(seed, pixel, sample, 2)
+        u2 = camera_sobol(seed, pixel, sample, 3)
+    else:
+        u1, u2 = lens_stratified(seed, pixel, sample, spp, _X_LENS)
     return eye_ray_lens(cam, fx, fy, u1, u2)
 
 
+@njit(inline="always", cache=True)
+def _bsdf_u(dmode, seed, pixel, sample, spp, bounce):
+    """The three numbers (lobe choice, direction) of the ray tree's ``bounce``-th sampled
+    BSDF direction of pixel sample ``sample`` (of ``spp``)."""
+    if dmode == DIM_INDEPENDENT:
+        dim = _D_BSDF + 3 * bounce
+        h = uniform_prefix(seed + _STREAM, pixel, sample)
+        return uniform_from(h, dim), uniform_from(h, dim + 1), uniform_from(h, dim + 2)
+    u1, u2 = dim_2d(dmode, seed, pixel, sample, spp, _X_BSDF + 2 * bounce)
+    return dim_1d(dmode, seed, pixel, sample, spp, _X_BSDF + 1 + 2 * bounce), u1, u2
+
+
 @batch_kernel
-def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, fy, sample, spp, gmodel,
+def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, fy, sample, spp, dmode, gmodel,
               max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
               light_samples, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1,
               pre_b2):
@@ -676,11 +736,14 @@ def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, f
     ``pre_*``: the eye ray's hit traced in a packet (static scenes only), or
     ``pre_prim = NOT_TRACED``.
     """
-    ox, oy, oz, dx, dy, dz, tmin, tmax, _ = _eye(cam, seed, pixel, sample, fx, fy)
+    ox, oy, oz, dx, dy, dz, tmin, tmax, _ = _eye(cam, seed, pixel, sample, spp, dmode, fx, fy)
     counts[_C_SAMPLES] += 1
     if M.index.shape[0] > 0 or M.tri_index.shape[0] > 0 or M.cam[0] != 0.0:
-        tau = M.shutter[0] + (M.shutter[1] - M.shutter[0]) * uniform(seed + _STREAM, pixel, sample,
-                                                                     _D_TIME)
+        if dmode == DIM_INDEPENDENT:
+            ut = uniform(seed + _STREAM, pixel, sample, _D_TIME)
+        else:
+            ut = dim_1d(dmode, seed, pixel, sample, spp, _X_TIME)
+        tau = M.shutter[0] + (M.shutter[1] - M.shutter[0]) * ut
         for k in range(M.index.shape[0]):
             i = M.index[k]
             for c in range(3):
@@ -701,7 +764,8 @@ def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, f
                  HL[2], HL[3], HL[4], HL[5], gmodel,
                  max_depth, hall_threshold,
                  ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-                 pixel, sample, spp, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1, pre_b2)
+                 pixel, sample, spp, dmode, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1,
+                 pre_b2)
 
 
 @njit(cache=True)
@@ -725,8 +789,8 @@ def _store(rec, i, fx, fy, w, r, g, b):
 
 
 @njit(cache=True)
-def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
-           tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
+def _pixel(cam, A, S, R, M, HL, x, y, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
+           adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
            fclamp, shadows, light_samples, seed, rec, counts):
     """One pixel's sample records ``rec[:n] = (x, y, weight, r, g, b)``; returns n."""
     W = int(cam[14])
@@ -753,7 +817,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
         pos[3, 0], pos[3, 1] = 1.0, 1.0
         pos[4, 0], pos[4, 1] = 0.5, 0.5
         for i in range(5):
-            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pos[i, 0], y + pos[i, 1], i, cap, gmodel,
+            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pos[i, 0], y + pos[i, 1], i, cap, dmode, gmodel,
                                    max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
                                    fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
                                    counts, cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
@@ -773,7 +837,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
                 adaptive_children(x0, y0, size, pts)
                 for q in range(8):
                     pos[n + q, 0], pos[n + q, 1] = pts[q, 0], pts[q, 1]
-                    rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pts[q, 0], y + pts[q, 1], n + q, cap,
+                    rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pts[q, 0], y + pts[q, 1], n + q, cap, dmode,
                                            gmodel, max_depth, hall_threshold, ka, ambient, ks,
                                            shininess, c1, c2, c3, fclamp, shadows, light_samples,
                                            seed, pixel, stack_f, stack_i, counts, cut_w, 0.0,
@@ -823,7 +887,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
             else:
                 fx = uniform(seed + _STREAM, pixel, n, 6)
                 fy = uniform(seed + _STREAM, pixel, n, 7)
-            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + fx, y + fy, n, cap, gmodel, max_depth,
+            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + fx, y + fy, n, cap, dmode, gmodel, max_depth,
                                    hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
                                    shadows, light_samples, seed, pixel, stack_f, stack_i, counts,
                                    cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
@@ -844,7 +908,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, spp, jitter_gauss, gamma, sigma, 
     pts = np.zeros((spp, 2))
     n = _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts)
     for s in range(n):
-        rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pts[s, 0], y + pts[s, 1], s, n, gmodel, max_depth,
+        rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pts[s, 0], y + pts[s, 1], s, n, dmode, gmodel, max_depth,
                                hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
                                shadows, light_samples, seed, pixel, stack_f, stack_i, counts, cut_w,
                                0.0, np.int64(NOT_TRACED), 0.0, 0.0)
@@ -865,13 +929,15 @@ def _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts):
             n = gaussian_jitter_pattern(k, sigma, seed, pixel, pts)
         else:
             n = jitter_pattern(k, gamma, seed, pixel, pts)
+    elif sampler == SMP_SOBOL:
+        n = sobol_pattern(spp, seed, pixel, pts)
     else:
         n, _r = poisson_disk_pattern(spp, seed, pixel, pts)
     return n
 
 
 @njit(cache=True)
-def _tile(cam, A, S, R, M, HL, tile, sampler, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
+def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
           hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
           recs, nrec, counts, packet_counts):
     """One 8×8 tile of a fixed-count sampler: per sample index s, the eye rays of the
@@ -901,7 +967,7 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, spp, jitter_gauss, gamma, sigma, g
         for i in range(P):
             if s < npt[i]:
                 x, y = x0 + i % nx, y0 + i // nx
-                ox, oy, oz, dx, dy, dz, tmin, tmax, _ = _eye(cam, seed, y * W + x, s,
+                ox, oy, oz, dx, dy, dz, tmin, tmax, _ = _eye(cam, seed, y * W + x, s, npt[i], dmode,
                                                              x + pts[i, s, 0], y + pts[i, s, 1])
                 rays[m, 0], rays[m, 1], rays[m, 2] = ox, oy, oz
                 rays[m, 3], rays[m, 4], rays[m, 5] = dx, dy, dz
@@ -914,7 +980,7 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, spp, jitter_gauss, gamma, sigma, g
             x, y = x0 + i % nx, y0 + i // nx
             pixel = y * W + x
             fx, fy = x + pts[i, s, 0], y + pts[i, s, 1]
-            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, fx, fy, s, npt[i], gmodel,
+            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, fx, fy, s, npt[i], dmode, gmodel,
                                    max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
                                    fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
                                    counts[pixel], cut_w, hit_t[j], hit_p[j], hit_b[j, 0], hit_b[j, 1])
@@ -924,23 +990,23 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, spp, jitter_gauss, gamma, sigma, g
 
 
 @njit(parallel=True, cache=True)
-def _render_tiles(cam, A, S, R, M, HL, sampler, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
+def _render_tiles(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
                   hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
                   light_samples, seed, recs, nrec, counts, packet_counts):
     W, H = int(cam[14]), int(cam[15])
     for tile in prange(tile_count(W, H)):
-        _tile(cam, A, S, R, M, HL, tile, sampler, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
+        _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
               hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
               seed, recs, nrec, counts, packet_counts[tile])
 
 
 @njit(parallel=True, cache=True)
-def _render_kernel(cam, A, S, R, M, HL, sampler, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
+def _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
                    tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1,
                    c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts):
     W, H = int(cam[14]), int(cam[15])
     for pixel in prange(W * H):
-        nrec[pixel] = _pixel(cam, A, S, R, M, HL, pixel % W, pixel // W, sampler, spp, jitter_gauss, gamma,
+        nrec[pixel] = _pixel(cam, A, S, R, M, HL, pixel % W, pixel // W, sampler, dmode, spp, jitter_gauss, gamma,
                              sigma, threshold, adaptive_depth, tolerance, z, gmodel, max_depth,
                              hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
                              light_samples, seed, recs[pixel], counts[pixel])
@@ -961,6 +1027,16 @@ def _check(p: dict) -> None:
         raise ParamError(f"{name}: sampler=adaptive needs spp >= 5 (corners + centre), got {spp}")
     if sampler == "statistical" and spp < 4:
         raise ParamError(f"{name}: sampler=statistical needs spp >= 4, got {spp}")
+    if p.get("dimensions", "independent") == "stratified":
+        if sampler in ("adaptive", "statistical", "sobol"):
+            raise ParamError(f"{name}: dimensions=stratified shuffles k×k strata over a fixed sample "
+                             f"count (sampler uniform, random, jitter or poisson); sampler={sampler} "
+                             + ("draws every dimension from its own sequence already"
+                                if sampler == "sobol" else "chooses its sample count per pixel"))
+        k = int(round(math.sqrt(spp)))
+        if k * k != spp:
+            raise ParamError(f"{name}: dimensions=stratified needs a square spp (k×k strata per "
+                             f"dimension), got {spp}")
     if not 0.0 <= p["gamma"] <= 0.5:
         raise ParamError(f"{name}: gamma must be in [0, 0.5] (ζ within ±γT), got {p['gamma']}")
     if not p["sigma"] >= 0.0:
@@ -1002,6 +1078,8 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     fkind, stddev = film_filter(scene.camera.film, params["rfilter"])
     spp = params["spp"]
     sampler = SAMPLERS.index(params["sampler"])
+    dmode = (DIM_SOBOL if params["sampler"] == "sobol" else
+             DIM_STRATIFIED if params.get("dimensions", "independent") == "stratified" else DIM_INDEPENDENT)
     cap = max(spp, 5)
     recs = np.zeros((W * H, cap, 6))
     nrec = np.zeros(W * H, dtype=np.int64)
@@ -1010,7 +1088,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     packets = bool(params.get("packets", False))
     if packets and params["sampler"] in ("adaptive", "statistical"):
         raise ParamError(f"distributed: packets=true needs a fixed-count sampler (uniform, random, "
-                         f"jitter, poisson); sampler={params['sampler']} chooses each pixel's next "
+                         f"jitter, poisson, sobol); sampler={params['sampler']} chooses each pixel's next "
                          "sample from its previous ones, so a tile has no common sample to batch")
     moving_shapes = M.index.shape[0] > 0 or M.tri_index.shape[0] > 0
     if packets and (moving_shapes or M.cam[0] != 0.0):
@@ -1036,10 +1114,10 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
              params["light_samples"], seed, recs, nrec, counts)
     if packets:
         packet_counts = np.zeros((tile_count(W, H), 2), dtype=np.int64)
-        _render_tiles(cam, A, S, R, M, HL, sampler, spp, params["jitter"] == "gaussian",
+        _render_tiles(cam, A, S, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
                       float(params["gamma"]), float(params["sigma"]), *shade, packet_counts)
     else:
-        _render_kernel(cam, A, S, R, M, HL, sampler, spp, params["jitter"] == "gaussian",
+        _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
                        float(params["gamma"]), float(params["sigma"]), float(params["threshold"]),
                        int(params["adaptive_depth"]), float(params["tolerance"]), z, *shade)
     mean, var = reconstruct(recs, nrec, W, H, fkind, stddev)
@@ -1062,7 +1140,11 @@ ALGORITHM = Algorithm(
     transport="whitted",
     params=(
         Param("spp", int, 16, "samples per pixel (the cap for adaptive and statistical)"),
-        Param("sampler", str, "jitter", "pixel sampling pattern", choices=SAMPLERS),
+        Param("sampler", str, "jitter", "pixel sampling pattern (sobol: padded Owen-scrambled Sobol "
+              "points for the pixel and every other dimension)", choices=SAMPLERS),
+        Param("dimensions", str, "independent", "lens, time, light and BSDF numbers: independent "
+              "(hashed uniform) or stratified (k×k jittered strata per 2-D dimension, shuffled per "
+              "pixel and dimension)", choices=DIMENSIONS),
         Param("jitter", str, "white", "jitter kind: white-noise (gamma) or Gaussian (sigma)",
               choices=("white", "gaussian")),
         Param("gamma", float, 0.5, "white-noise jitter: ζ ~ U[-γT, γT]"),

@@ -70,12 +70,14 @@ from .phong import attenuation, phong_brdf_cos
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .projector import projector_weight
+from .samplers import DIM_INDEPENDENT, dim_2d
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_PROJECTOR, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays
 from .textures import bitmap, checkerboard
 from .tracer import occluded_batch
 
 __all__ = ["SHADOW_EPSILON", "surface", "diffuse_albedo", "sample_emitter", "direct_light",
-           "direct_light_rays", "spot_falloff", "delta_sample", "area_sample", "environment_sample",
+           "direct_light_rays", "direct_light_dims", "spot_falloff", "delta_sample", "area_sample",
+           "environment_sample",
            "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
            "environment_radiance", "sample_cosine_hemisphere", "shadow_filter", "SHADOW_MODES"]
 
@@ -211,11 +213,26 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
         return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
                                   rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
                                   light_samples, seed, pixel, sample, R, False, A.sph_radius,
-                                  A.mat_rho)
+                                  A.mat_rho, DIM_INDEPENDENT, 0, 0)
     return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
                               rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
                               light_samples, seed, pixel, sample, R, seta.shape[0] > 0, seta,
-                              strans)
+                              strans, DIM_INDEPENDENT, 0, 0)
+
+
+@njit(inline="always", cache=True)
+def direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
+                      A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
+                      seed, pixel, sample, R: RayConfig, dims):
+    """:func:`direct_light_rays` (opaque shadows) with the light samples' numbers of
+    pixel sample ``sample`` drawn by :func:`impl.samplers.dim_2d`: ``dims = (dmode,
+    dspp, ddim)``, light sample j is dimension ``ddim + j`` of ``dspp`` samples in mode
+    ``dmode`` (:func:`light_uv_dims`).  (One tuple: a call of an inlined function with
+    more than 30 arguments compiles to a star-args call, which numba cannot inline.)"""
+    dmode, dspp, ddim = dims
+    return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
+                              A, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
+                              pixel, sample, R, False, A.sph_radius, A.mat_rho, dmode, dspp, ddim)
 
 
 @njit(inline="always", cache=True)
@@ -236,7 +253,7 @@ def _through_shadow(R, A, ox, oy, oz, dx, dy, dz, t0, t1, through, seta, strans,
 @njit(cache=True)
 def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                        A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                       seed, pixel, sample, R: RayConfig, through, seta, strans):
+                       seed, pixel, sample, R: RayConfig, through, seta, strans, dmode, dspp, ddim):
     """The body of :func:`direct_light_rays`; ``through``: blocked samples pass the
     dielectrics of ``seta``/``strans`` (:func:`shadow_filter`)."""
     r = g = b = 0.0
@@ -288,7 +305,8 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
         scale = A.em_area[e] / light_samples
         er, eg, eb = A.shape_emit[sh, 0], A.shape_emit[sh, 1], A.shape_emit[sh, 2]
         for k in range(light_samples):
-            u1, u2 = light_uv(seed, pixel, sample, e * light_samples + k, k, q, stratified)
+            u1, u2 = light_uv_dims(seed, pixel, sample, e * light_samples + k, k, q, stratified, dmode,
+                                   dspp, ddim)
             ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
                 e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, px, py, pz,
                 sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, ks, shininess, c1, c2, c3, fclamp)
@@ -311,7 +329,8 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
             er, eg, eb = A.env_radiance[0, 0], A.env_radiance[0, 1], A.env_radiance[0, 2]
         img, frame, epdf, ecdf = A.env_image, A.env_frame, A.env_pdf, A.env_cdf
         for k in range(light_samples):
-            u1, u2 = light_uv(seed, pixel, sample, n_em * light_samples + k, k, q, stratified)
+            u1, u2 = light_uv_dims(seed, pixel, sample, n_em * light_samples + k, k, q, stratified,
+                                   dmode, dspp, ddim)
             ok, lx, ly, lz, cr, cg, cb = environment_sample(
                 u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, sx, sy, sz, vx, vy, vz,
                 rho_r, rho_g, rho_b, ks, shininess)
@@ -343,6 +362,16 @@ def light_uv(seed, pixel, sample, j, k, q, stratified):
         u1 = (k % q + u1) / q
         u2 = (k // q + u2) / q
     return u1, u2
+
+
+@njit(inline="always", cache=True)
+def light_uv_dims(seed, pixel, sample, j, k, q, stratified, dmode, dspp, ddim):
+    """:func:`light_uv`, or with ``dmode`` not ``DIM_INDEPENDENT`` dimension ``ddim + j``
+    of pixel sample ``sample`` of ``dspp`` (:func:`impl.samplers.dim_2d`: shuffled
+    strata or padded Sobol over the pixel's samples)."""
+    if dmode != DIM_INDEPENDENT:
+        return dim_2d(dmode, seed, pixel, sample, dspp, ddim + j)
+    return light_uv(seed, pixel, sample, j, k, q, stratified)
 
 
 @njit(inline="always", cache=True)

@@ -36,7 +36,8 @@ full-dimensional (unpadded) Sobol point, scrambled per dimension.
 Limits: 2**32 points per sequence; :data:`JOE_KUO` holds
 :data:`MAX_DIMENSIONS` dimensions (padding needs only two); points are float64
 with 32 significant bits.  The tracers draw from it with ``sampler=sobol``
-(pixel positions, light samples, path's BSDF samples).
+(pixel positions, light samples, path's BSDF samples; every dimension of
+``distributed``, through :mod:`impl.samplers`).
 
 References
 ----------

@@ -40,6 +40,37 @@ module holds their geometry and decision rules:
   (:func:`statistical_done`).  The sequential stopping rule has a small bias
   (it stops more readily after low-variance draws), measured in the
   convergence study rather than assumed away.
+
+The other dimensions of a pixel sample (lens, shutter time, light point, BSDF
+direction: thesis 2.5.8) draw from :func:`dim_1d` / :func:`dim_2d`, per
+dimension ``dim`` of pixel sample ``s`` of ``spp``:
+
+* :data:`DIM_STRATIFIED` — Cook's shuffled strata (Cook 1986, "Stochastic
+  sampling in computer graphics", ACM TOG 5(1), §5; the idea of pbrt's
+  stratified sampler): a 2-D dimension has its own k×k jittered strata
+  (spp = k²), a 1-D dimension spp strata, one uniform point per stratum;
+  sample s takes stratum π(s), π a pseudo-random permutation of the strata
+  drawn per pixel and per dimension (:func:`permute`).  So every dimension's
+  spp samples cover its strata once each, and the strata of one dimension
+  are paired at random with those of the pixel and of every other dimension
+  (no correlation between dimensions).  Each sample is uniform over its
+  dimension (π(s) is uniform over the strata), so estimates stay unbiased.
+  The lens is the exception (:func:`lens_stratified`): its strata follow the
+  pixel strata's rows and columns, so that film-x × lens-x and film-y × lens-y
+  are stratified too (an edge out of focus is a discontinuity along x + c·u
+  and y + c·v, which a random pairing leaves unstratified);
+* :data:`DIM_SOBOL` — padded Owen-scrambled Sobol points
+  (:func:`impl.lowdiscrepancy.sample_2d` / ``sample_1d``), one scrambled
+  (0, 2)-sequence per 2-D dimension and a scrambled van der Corput sequence
+  per 1-D dimension, all seeded per pixel (``pixel_seed(pixel, ...)``) and
+  decorrelated by their own index shuffles: the first 2^m samples of each
+  2-D dimension are a (0, m, 2)-net.  This is the padded per-pixel form
+  (Burley 2020 §4), not a sequence over the whole image (ZSobol).  The
+  camera's four dimensions — film position and lens point — are instead one
+  4-D Owen-scrambled Sobol point (:func:`camera_sobol`: dimensions 0–3 of
+  :func:`impl.lowdiscrepancy.sobol_point`, one index shuffle): an edge out
+  of focus is a discontinuity along a mix of film and lens coordinates,
+  which strata of each pair apart (padding, shuffling) do not stratify.
 """
 
 from __future__ import annotations
@@ -48,12 +79,16 @@ import math
 
 from numba import njit
 
-from .rng import uniform
+import numpy as np
+
+from .lowdiscrepancy import pixel_seed, sample_1d, sample_2d, sobol_point
+from .rng import uniform, uniform_from, uniform_prefix
 
 __all__ = ["uniform_pattern", "random_pattern", "jitter_pattern", "gaussian_jitter_pattern",
            "poisson_disk_pattern", "poisson_min_distance", "adaptive_disagree", "adaptive_children",
            "statistical_done", "normal_from_uniforms", "POISSON_FILL", "POISSON_TRIES",
-           "PATTERN_STREAM"]
+           "PATTERN_STREAM", "permute", "dim_1d", "dim_2d", "sobol_pattern", "DIM_INDEPENDENT",
+           "DIM_STRATIFIED", "DIM_SOBOL", "DIM_STREAM", "JITTER_STREAM", "camera_sobol", "lens_stratified"]
 
 #: Dart throwing starts at this fraction of the hexagonal-packing distance.
 POISSON_FILL = 0.75
@@ -61,6 +96,15 @@ POISSON_FILL = 0.75
 POISSON_TRIES = 30
 #: Seed offset of the pattern's random stream (apart from every other stream of the tracer).
 PATTERN_STREAM = 0x51ED2705
+
+#: :func:`dim_1d` / :func:`dim_2d` modes (``DIM_INDEPENDENT``: the tracer's own hashed numbers).
+DIM_INDEPENDENT, DIM_STRATIFIED, DIM_SOBOL = 0, 1, 2
+#: Seed offsets of the strata permutations and of the jitter inside the strata.
+DIM_STREAM = 0x3C6EF372
+JITTER_STREAM = 0x1B873593
+#: The second coordinate of :func:`impl.lowdiscrepancy.pixel_seed` for the Sobol dimensions.
+_SOBOL_ROW = 0x7F4A7C15
+_CAMERA_ROW = 0x2C1B3C6D
 
 
 @njit(cache=True)
@@ -204,3 +248,120 @@ def statistical_done(n, q0, q1, q2, z, tolerance):
     qmax = max(q0, q1, q2)
     s2 = qmax / (n - 1.0)
     return z * math.sqrt(s2 / n) < tolerance
+
+
+# ------------------------------------------------------- sample dimensions ---
+
+@njit(inline="always", cache=True)
+def permute(i, n, key):
+    """Element ``i`` (0 ≤ i < n) of a pseudo-random permutation of 0..n−1 chosen by the
+    64-bit ``key``.
+
+    A four-round balanced Feistel network on 2h-bit integers (2^2h ≥ n), each
+    round ``(L, R) → (R, L xor F(key, round, R))`` with F the low h bits of
+    :func:`impl.rng.uniform_prefix` (a bijection whatever F is; Luby & Rackoff
+    1988), restricted to [0, n) by cycle walking (re-applied until it lands below
+    n: a bijection of [0, 4^h) restricted this way is a bijection of [0, n); at
+    most four steps on average), then rotated by r = key mod n.  The rotation
+    makes each element land on every place with probability 1/n over keys,
+    exactly, whatever the network's quality on tiny domains (where its
+    permutations are far from uniform over all n! ones: pairs of elements are
+    not equally likely to land on every pair of places).
+    """
+    if n <= 1:
+        return 0
+    h = 1
+    while (1 << (2 * h)) < n:
+        h += 1
+    hmask = np.uint64((1 << h) - 1)
+    sh = np.uint64(h)
+    x = np.uint64(i)
+    nn = np.uint64(n)
+    while True:
+        left = x >> sh
+        right = x & hmask
+        for r in range(4):
+            f = uniform_prefix(key, r, right) & hmask
+            left, right = right, left ^ f
+        x = (left << sh) | right
+        if x < nn:
+            break
+    return int((x + np.uint64(key) % nn) % nn)
+
+
+@njit(inline="always", cache=True)
+def dim_2d(mode, seed, pixel, s, spp, dim):
+    """(u, v) in [0, 1)² of 2-D dimension ``dim`` of pixel sample ``s`` (of ``spp``).
+
+    :data:`DIM_STRATIFIED`: stratum π(s) of the k×k grid (spp = k², π the pixel's
+    and dimension's :func:`permute`), jittered uniformly in it; a sample beyond k²
+    (spp not a square) is uniform.  :data:`DIM_SOBOL`: padded Owen-scrambled Sobol
+    point s of pair ``dim``, scrambled per pixel.
+    """
+    if mode == DIM_SOBOL:
+        return sample_2d(dim, s, pixel_seed(pixel, _SOBOL_ROW, seed))
+    h = uniform_prefix(seed + JITTER_STREAM, pixel, s)
+    ju = uniform_from(h, 2 * dim)
+    jv = uniform_from(h, 2 * dim + 1)
+    k = int(math.sqrt(spp) + 0.5)
+    if s >= k * k:
+        return ju, jv
+    c = permute(s, k * k, uniform_prefix(seed + DIM_STREAM, pixel, 2 * dim))
+    return (c % k + ju) / k, (c // k + jv) / k
+
+
+@njit(inline="always", cache=True)
+def lens_stratified(seed, pixel, s, spp, dim):
+    """(u, v) of the lens (dimension ``dim``) of pixel sample ``s`` in
+    :data:`DIM_STRATIFIED` mode, spp = k².
+
+    Pixel sample s lies in film stratum (i, j) = (s mod k, s div k) (the jittered
+    and uniform patterns' order); its lens stratum is (P(j), Q(i)), P and Q
+    permutations of 0..k−1 drawn per pixel (:func:`permute`), jittered uniformly
+    in it.  (i, j) → (P(j), Q(i)) is a bijection, so the lens strata are covered
+    once each, and so are the k×k strata of film-x × lens-x (pairs (i, P(j))) and
+    of film-y × lens-y; film-x and lens-y are dependent (Q(i)), which the blur of
+    a thin lens, coupling x with u and y with v, does not see.  Each point is
+    uniform over the lens (P(j) and Q(i) are independent and uniform).  A sample
+    beyond k² (spp not a square) is uniform.
+    """
+    h = uniform_prefix(seed + JITTER_STREAM, pixel, s)
+    ju = uniform_from(h, 2 * dim)
+    jv = uniform_from(h, 2 * dim + 1)
+    k = int(math.sqrt(spp) + 0.5)
+    if s >= k * k:
+        return ju, jv
+    key = uniform_prefix(seed + DIM_STREAM, pixel, 2 * dim)
+    a = permute(s // k, k, key)
+    b = permute(s % k, k, uniform_prefix(key, 1, 2))
+    return (a + ju) / k, (b + jv) / k
+
+
+@njit(inline="always", cache=True)
+def dim_1d(mode, seed, pixel, s, spp, dim):
+    """u in [0, 1) of 1-D dimension ``dim`` of pixel sample ``s`` (of ``spp``):
+    stratum π(s) of spp equal strata, jittered (:data:`DIM_STRATIFIED`), or the
+    padded scrambled van der Corput point s (:data:`DIM_SOBOL`)."""
+    if mode == DIM_SOBOL:
+        return sample_1d(dim, s, pixel_seed(pixel, _SOBOL_ROW, seed))
+    c = permute(s, spp, uniform_prefix(seed + DIM_STREAM, pixel, 2 * dim + 1))
+    return (c + uniform(seed + JITTER_STREAM + 1, pixel, s, dim)) / spp
+
+
+@njit(inline="always", cache=True)
+def camera_sobol(seed, pixel, s, d):
+    """Dimension ``d`` (0, 1: film position; 2, 3: lens point) of the pixel's
+    Owen-scrambled 4-D Sobol point ``s`` (:func:`impl.lowdiscrepancy.sobol_point`
+    seeded per pixel).  Dimensions 0 and 1 are a (0, 2)-sequence: the first 2^m
+    points are a (0, m, 2)-net of the pixel."""
+    return sobol_point(s, d, pixel_seed(pixel, _CAMERA_ROW, seed))
+
+
+@njit(cache=True)
+def sobol_pattern(n, seed, pixel, out):
+    """The pixel positions of :data:`DIM_SOBOL`: dimensions 0 and 1 of
+    :func:`camera_sobol`; returns n."""
+    for s in range(n):
+        out[s, 0] = camera_sobol(seed, pixel, s, 0)
+        out[s, 1] = camera_sobol(seed, pixel, s, 1)
+    return n

@@ -41,13 +41,21 @@ def _ztest(ref, own, scale=1.0):
 # Scene, reference transport, own parameters (the suite's).
 EFFECTS = [
     ("distributed/penumbra.xml", "direct", {"spp": 64, "light_samples": 1}),
+    ("distributed/penumbra.xml", "direct", {"spp": 64, "light_samples": 1, "dimensions": "stratified"}),
+    ("distributed/penumbra.xml", "direct", {"spp": 64, "light_samples": 1, "sampler": "sobol"}),
+    ("distributed/dof.xml", "direct", {"spp": 256, "light_samples": 1, "dimensions": "stratified"}),
+    ("distributed/dof.xml", "direct", {"spp": 256, "light_samples": 1, "sampler": "sobol"}),
+    ("distributed/gloss.xml", "whitted", {"spp": 256, "light_samples": 1, "dimensions": "stratified"}),
+    ("distributed/gloss.xml", "whitted", {"spp": 256, "light_samples": 1, "sampler": "sobol"}),
     ("distributed/gloss.xml", "whitted", {"spp": 256, "light_samples": 1}),
     ("distributed/translucency.xml", "whitted", {"spp": 256, "light_samples": 1}),
 ]
 
 
 @pytest.mark.mitsuba
-@pytest.mark.parametrize("scene,transport,params", EFFECTS, ids=[e[0] for e in EFFECTS])
+@pytest.mark.parametrize("scene,transport,params", EFFECTS,
+                         ids=[e[0] + "".join(f"-{v}" for k, v in e[2].items() if k in ("dimensions", "sampler"))
+                              for e in EFFECTS])
 def test_effect_passes_the_ztest_against_its_matched_reference(scene, transport, params):
     from references.reference import get_reference
 
@@ -122,13 +130,16 @@ def test_adaptive_and_statistical_spend_samples_where_the_pixel_varies():
 
 
 @pytest.mark.parametrize("sampler,spp", [("uniform", 16), ("random", 10), ("jitter", 16), ("poisson", 12),
-                                         ("adaptive", 41), ("statistical", 32)])
+                                         ("adaptive", 41), ("statistical", 32), ("sobol", 16),
+                                         ("sobol", 12), ("stratified", 16)])
 def test_every_sampler_estimates_the_same_image(sampler, spp):
     """All samplers estimate the same box-filtered pixel integral: the mean over the
-    image agrees with a converged render within a few percent."""
+    image agrees with a converged render within a few percent (``stratified``:
+    jitter with ``dimensions=stratified``)."""
     scene = SUITES / "distributed/penumbra.xml"
     ref = render(scene, spp=256, light_samples=1, seed=5)
-    img = render(scene, sampler=sampler, spp=spp, light_samples=1)
+    extra = {"sampler": "jitter", "dimensions": "stratified"} if sampler == "stratified" else {"sampler": sampler}
+    img = render(scene, spp=spp, light_samples=1, **extra)
     assert img.image.mean() == pytest.approx(ref.image.mean(), rel=0.03)
     assert np.isfinite(img.image).all() and np.isfinite(img.variance).all()
 
@@ -138,11 +149,16 @@ def test_bad_parameters_and_materials_are_refused(tmp_path):
     for params, msg in [({"spp": 8}, "square spp"), ({"sampler": "adaptive", "spp": 4}, "spp >= 5"),
                         ({"gamma": 0.7}, r"gamma must be in \[0, 0.5\]"),
                         ({"confidence": 1.0}, r"confidence must be in \(0, 1\)"),
-                        ({"max_depth": 0}, "max_depth must be >= 1")]:
+                        ({"max_depth": 0}, "max_depth must be >= 1"),
+                        ({"dimensions": "stratified", "sampler": "sobol"}, "sampler=sobol draws every"),
+                        ({"dimensions": "stratified", "sampler": "adaptive", "spp": 16},
+                         "chooses its sample count per pixel"),
+                        ({"dimensions": "stratified", "sampler": "random", "spp": 10},
+                         r"dimensions=stratified needs a square spp")]:
         with pytest.raises(ValueError, match=msg):
             render(scene, **params)
     with pytest.raises(registry.ParamError, match="sampler' must be one of"):
-        DIST.parse_params({"sampler": "sobol"})
+        DIST.parse_params({"sampler": "halton"})
     text = (SUITES / "distributed/gloss.xml").read_text().replace(
         '<string name="distribution" value="beckmann"/>', '<string name="distribution" value="ggx"/>', 1)
     p = tmp_path / "ggx.xml"

@@ -139,6 +139,23 @@ def test_motion_blur_matches_the_exact_time_integral(tmp_path, case):
     assert not _ztest(half, res).passed
 
 
+@pytest.mark.parametrize("extra", [{"dimensions": "stratified"}, {"sampler": "sobol"}],
+                         ids=["stratified", "sobol"])
+@pytest.mark.parametrize("case", ["camera translation", "mesh rotation"])
+def test_stratified_and_sobol_shutter_times_give_the_exact_time_integral(tmp_path, case, extra):
+    """The shutter time as a stratified dimension (shuffled spp strata per pixel) or a
+    scrambled van der Corput dimension (sampler=sobol): the same exact integral
+    passes, the half-speed motion fails."""
+    motion = CASES[case]
+    scene = _scene(tmp_path, **motion)
+    res = DIST.render(scene, DIST.parse_params({"spp": SPP, "max_depth": 1, **extra}), seed=3)
+    z = _ztest(exact_image(scene.camera, **motion), res)
+    half = exact_image(scene.camera, **{k: tuple(0.5 * np.asarray(v)) for k, v in motion.items()})
+    print(f"{case} {extra}: {z}; half speed {_ztest(half, res).fraction:.4f}")
+    assert z.passed, f"{case} {extra}: {z}"
+    assert not _ztest(half, res).passed
+
+
 def test_motion_is_read_checked_and_refused_where_not_modelled(tmp_path):
     scene = _scene(tmp_path, cam_v=(1, 0, 0), mesh_w=(0, 0, 2))
     assert scene.camera.velocity.tolist() == [1, 0, 0] and scene.camera.angular_velocity is None

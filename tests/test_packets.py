@@ -39,6 +39,8 @@ CASES = [
     ("path", "cornell/cornell_box.xml", {"spp": 4, "max_depth": 4}),
     ("distributed", "spheres/rough_spheres.xml", {"spp": 4, "sampler": "jitter"}),
     ("distributed", "cornell/cornell_box.xml", {"spp": 5, "sampler": "poisson"}),
+    ("distributed", "spheres/rough_spheres.xml", {"spp": 4, "sampler": "sobol"}),
+    ("distributed", "cornell/cornell_box.xml", {"spp": 4, "dimensions": "stratified"}),
 ]
 
 
@@ -54,7 +56,9 @@ PRECISION_CASES = [(*case, "float64") for case in CASES] + [
 @pytest.mark.slow
 @pytest.mark.parametrize("accel", ["bvh-sah", "bvh-wide"])
 @pytest.mark.parametrize("tracer,scene,extra,precision", PRECISION_CASES,
-                         ids=[f"{t}-{Path(s).stem}-{pr}" for t, s, _, pr in PRECISION_CASES])
+                         ids=[f"{t}-{Path(s).stem}-{pr}" + "".join(f"-{v}" for k, v in e.items()
+                                                                   if v in ("sobol", "stratified"))
+                              for t, s, e, pr in PRECISION_CASES])
 def test_packets_render_the_single_ray_image_bit_for_bit(tracer, scene, extra, precision, accel):
     """packets=true vs packets=false through the same BVH (binary or wide): identical
     image, variance and counters (the packet counters aside), and the packets did the

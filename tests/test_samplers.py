@@ -178,3 +178,43 @@ def test_random_and_jittered_mse_slopes_on_edge_pixels():
     by = {(r["sampler"], r["spp"], r["seed"]): r["mse_edge"] for r in rows}
     for spp in (16, 64, 256):
         assert sum(by[("jitter", spp, s)] for s in range(3)) < sum(by[("random", spp, s)] for s in range(3))
+
+
+# Slopes of the samplers that stratify every dimension (thesis 2.5.8): on the soft
+# shadow and depth of field the pixel position is not the only dimension that varies,
+# so jittering it alone leaves the slope near -1; shuffled strata and Sobol points in
+# the light and lens dimensions steepen it.  Measured at 32x24, 3 seeds (edge pixels):
+# penumbra random -1.03, jitter -1.05, stratified -1.31, sobol -1.21; dof -1.00, -1.05,
+# -1.16, -1.23.  Each seed's own fit spreads by 0.03 (stratified) to 0.055 (sobol, dof)
+# standard deviation, so the 3-seed fit by about 0.02-0.03: the ceilings below leave
+# 3-10 of those (sobol on the penumbra is the closest, 0.06 from its ceiling).  Jitter
+# alone does not reach them (it must not: the test would not tell stratified
+# dimensions from jittered pixels).  The reference's own error counts: with 2 reference
+# seeds instead of 4 the dof slopes flattened to -1.12 (stratified) and -1.19 (sobol).
+STEEP = {"penumbra": -1.15, "dof": -1.10}
+
+
+@pytest.mark.slow
+def test_stratified_and_sobol_dimensions_steepen_soft_shadow_and_dof_slopes():
+    from gibench.studies.sampling import convergence, fit_slopes
+
+    rows = convergence(scenes=["distributed/penumbra.xml", "distributed/dof.xml"],
+                       samplers=("random", "jitter", "stratified", "sobol"), spps=(4, 16, 64, 256),
+                       seeds=3, adaptive_thresholds=(), statistical_tolerances=(), ref_spp=1024,
+                       ref_seeds=4, ref_sampler="stratified", size=(32, 24),
+                       params={"light_samples": 1})
+    slopes = {(r["scene"].split("/")[-1][:-4], r["sampler"]): r["slope_spp"]
+              for r in fit_slopes(rows) if r["pixels"] == "edge"}
+    print({k: round(v, 3) for k, v in slopes.items()})
+    for scene, ceiling in STEEP.items():
+        assert slopes[(scene, "random")] == pytest.approx(-1.0, abs=SLOPE_TOL), scene
+        assert slopes[(scene, "jitter")] > ceiling, scene
+        for sampler in ("stratified", "sobol"):
+            assert slopes[(scene, sampler)] <= ceiling, (scene, sampler)
+        # At 64 and 256 spp both beat jittered pixels alone at equal spp (3 seeds summed).
+        by = {(r["sampler"], r["spp"], r["seed"]): r["mse_edge"] for r in rows
+              if r["scene"].endswith(scene + ".xml")}
+        for spp in (64, 256):
+            jit = sum(by[("jitter", spp, s)] for s in range(3))
+            for sampler in ("stratified", "sobol"):
+                assert sum(by[(sampler, spp, s)] for s in range(3)) < jit, (scene, sampler, spp)

@@ -15,10 +15,20 @@ study                     what it measures
                           from the seed-averaged ``convergence`` rows
 ========================  =====================================================
 
-The reference of each scene is the same tracer with white-noise jittered
-sampling at ``ref_spp`` samples, averaged over ``ref_seeds`` seeds (its own
-MSE is ``ref_seeds`` × 1024^1.5 times below the 1-spp error of jittered
-sampling at edges, far below the smallest measured MSE).  *Edge pixels* are
+The reference of each scene is the same tracer with the ``ref_sampler``
+(white-noise jittered pixel positions by default; ``stratified`` also
+stratifies the lens, time, light and BSDF dimensions) at ``ref_spp``
+samples, averaged over ``ref_seeds`` seeds.  Its own MSE adds to every
+measured one: with jittered pixels only it falls as 1/spp where the light or
+lens dimension varies (the soft shadow, depth of field), about as fast as
+the stratified samplers' 256-spp error, which would flatten their fitted
+slopes; a ``stratified`` reference at 1024 spp keeps it far below.
+
+Sampler names: the fixed patterns of :mod:`impl.samplers` (``uniform``,
+``random``, ``jitter``, ``jitter-gaussian`` = Gaussian jitter, ``poisson``),
+``stratified`` (jittered pixel positions and ``dimensions=stratified``: every
+other 2-D dimension in shuffled k×k strata, thesis 2.5.8) and ``sobol``
+(padded Owen-scrambled Sobol points for every dimension).  *Edge pixels* are
 those whose reference sample variance (per-pixel variance of the mean × spp,
 largest channel) exceeds ``edge_variance``: where the pixel integrand is not
 constant — silhouettes, texture edges, shadow outlines.  Mitchell (1996,
@@ -66,11 +76,24 @@ def _scene(path, size):
     return scene
 
 
-def reference_image(scene, *, spp: int = 1024, seeds: int = 4, base: dict | None = None):
-    """(image, per-pixel sample variance) of the tracer's own converged render: jittered
-    sampling at ``spp``, mean over ``seeds`` seeds (seeds 1000, 1001, …)."""
+#: Tracer parameters of the sampler names that are not a ``sampler`` value alone.
+SAMPLER_PARAMS = {
+    "jitter": {"sampler": "jitter", "jitter": "white"},
+    "jitter-gaussian": {"sampler": "jitter", "jitter": "gaussian"},
+    "stratified": {"sampler": "jitter", "jitter": "white", "dimensions": "stratified"},
+}
+
+
+def _sampler_params(name: str) -> dict:
+    return SAMPLER_PARAMS.get(name, {"sampler": name})
+
+
+def reference_image(scene, *, spp: int = 1024, seeds: int = 4, base: dict | None = None,
+                    sampler: str = "jitter"):
+    """(image, per-pixel sample variance) of the tracer's own converged render: ``sampler``
+    (a study sampler name) at ``spp``, mean over ``seeds`` seeds (seeds 1000, 1001, …)."""
     algo = _algo()
-    p = algo.parse_params({**(base or {}), "spp": spp, "sampler": "jitter", "jitter": "white"})
+    p = algo.parse_params({**(base or {}), "spp": spp, **_sampler_params(sampler)})
     acc = np.zeros((scene.camera.film.height, scene.camera.film.width, 3))
     svar = np.zeros_like(acc)
     for s in range(seeds):
@@ -83,13 +106,15 @@ def reference_image(scene, *, spp: int = 1024, seeds: int = 4, base: dict | None
 def convergence(*, scenes, samplers=("uniform", "random", "jitter", "jitter-gaussian", "poisson"),
                 spps=(4, 16, 64, 256), seeds=3, adaptive_thresholds=(0.2, 0.1, 0.05, 0.02, 0.01),
                 adaptive_depth=3, adaptive_cap=145, statistical_tolerances=(0.1, 0.05, 0.02, 0.01, 0.005),
-                statistical_cap=256, ref_spp=1024, ref_seeds=4, edge_variance=1e-4, size=None,
-                params=None) -> list[dict]:
+                statistical_cap=256, ref_spp=1024, ref_seeds=4, ref_sampler="jitter", edge_variance=1e-4,
+                size=None, params=None) -> list[dict]:
     """Rows of MSE (all / edge pixels) and time per scene × sampler × spp × seed.
 
     ``scenes``: paths relative to ``suites/``; ``samplers``: names of the fixed
-    patterns (``jitter-gaussian`` = ``sampler=jitter, jitter=gaussian``); the
+    patterns (``jitter-gaussian`` = ``sampler=jitter, jitter=gaussian``,
+    ``stratified`` = jitter with ``dimensions=stratified``, ``sobol``); the
     adaptive and statistical samplers are run when their sweeps are non-empty.
+    ``ref_sampler``: the reference's sampler name (:func:`reference_image`).
     ``size``: optional (width, height) replacing the films'.  ``params``:
     further tracer parameters for every render.
     """
@@ -99,7 +124,7 @@ def convergence(*, scenes, samplers=("uniform", "random", "jitter", "jitter-gaus
     for rel in scenes:
         path = SUITES / rel
         scene = _scene(path, size)
-        ref, svar = reference_image(scene, spp=ref_spp, seeds=ref_seeds, base=base)
+        ref, svar = reference_image(scene, spp=ref_spp, seeds=ref_seeds, base=base, sampler=ref_sampler)
         edge = svar.max(axis=2) > edge_variance
         n_edge = int(edge.sum())
         if n_edge == 0:
@@ -109,11 +134,7 @@ def convergence(*, scenes, samplers=("uniform", "random", "jitter", "jitter-gaus
             algo.render(scene, algo.parse_params({**base, "spp": 16, "sampler": smp}), seed=0)
         runs = []
         for name in samplers:
-            extra = {"sampler": name}
-            if name == "jitter-gaussian":
-                extra = {"sampler": "jitter", "jitter": "gaussian"}
-            elif name == "jitter":
-                extra = {"sampler": "jitter", "jitter": "white"}
+            extra = _sampler_params(name)
             for spp in spps:
                 runs.append((name, spp, {**extra, "spp": spp}, "spp", spp))
         for thr in adaptive_thresholds:
@@ -179,18 +200,20 @@ def fit_slopes(rows: list[dict]) -> list[dict]:
 
 STUDIES = {s.name: s for s in (
     StudyInfo("convergence", "Sampler convergence: MSE vs samples per pixel and time",
-              "The distributed tracer's pixel samplers (uniform grid, random, white-noise and Gaussian "
-              "jitter, Poisson disk, Whitted adaptive, statistical) on edge-heavy scenes — a checkerboard "
-              "to the horizon with sphere silhouettes under a directional light, and a soft shadow — "
-              "against the tracer's own converged image (jittered, 4 × 1024 spp): MSE over all pixels "
-              "and over edge pixels, render time, mean spp actually spent.", convergence),
+              "The distributed tracer's samplers (uniform grid, random, white-noise and Gaussian "
+              "jitter, Poisson disk, Whitted adaptive, statistical; jitter with every other dimension "
+              "in shuffled strata; padded Owen-scrambled Sobol) on edge-heavy scenes — a checkerboard "
+              "to the horizon with sphere silhouettes under a directional light, a soft shadow, depth "
+              "of field — against the tracer's own converged image (4 × 1024 spp): MSE over all "
+              "pixels and over edge pixels, render time, mean spp actually spent.", convergence),
 )}
 
 TABLES = table_titles(STUDIES)
 TABLES["convergence_slopes"] = (
     "Sampler convergence: fitted log-log slopes",
     "Least-squares slope of log MSE against log spp (and log time) per scene, sampler and pixel set; "
-    "Mitchell 1996: random -1, jittered -1.5 on edge pixels.")
+    "Mitchell 1996: random -1, jittered -1.5 on edge pixels where the pixel position is the "
+    "only dimension that varies.")
 
 
 def load_config(path=None) -> dict:
