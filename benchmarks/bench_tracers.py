@@ -22,8 +22,9 @@ path     cornell_box, diffuse_room                    ``path``            full
   Mitsuba renders with its most efficient sampler on the scene (the choice
   :func:`gibench.ladder.choose_sampler` caches for the report), the own tracer
   with ``sampler=sobol`` (Sobol pixel, light and BSDF samples); both at the
-  spp of ``LADDER``, ``SEEDS`` seeds each, own and Mitsuba renders alternated
-  (each after :func:`gibench.interleave.settle`); error = relMSE against the
+  spp of ``LADDER`` (the own side also at ``OWN_EXTRA``), ``SEEDS`` seeds
+  each, own and Mitsuba renders alternated (each after
+  :func:`gibench.interleave.settle`); error = relMSE against the
   stored 1024-spp reference, the mean over the seeds; time = median.  The own
   time to Mitsuba's top-rung error is interpolated log-log between the own
   rungs (:func:`time_to_error`: an upper bound, ``<=``, when the own lowest
@@ -50,8 +51,11 @@ from core.loader import load_scene
 
 SUITES = Path(__file__).resolve().parent.parent / "suites"
 ROUNDS = 7
-#: Sample counts of the equal-error race (both sides); Mitsuba's last one is the target.
+#: Sample counts of the equal-error race; Mitsuba's last one is the target.  The own side
+#: also renders ``OWN_EXTRA`` spp (whitted's split trees reach Mitsuba's 64-spp error
+#: with fewer samples than Mitsuba's lowest rung).
 LADDER = (16, 64)
+OWN_EXTRA = (4,)
 SEEDS = (11, 12, 13)
 
 #: (tracer, scene, transport, own params at equal spp).  One shadow ray per emitter and
@@ -211,31 +215,34 @@ def bench_equal_error(benchmark, tracer, scene, transport, params):
     sampler = choose_sampler(SUITES / scene, transport=transport, reference=ref,
                              probe_spp=probe_spps(LADDER))["sampler"]
     rows = {"own": [], "mitsuba": []}
-    for spp in LADDER:
+    for spp in sorted(set(LADDER) | set(OWN_EXTRA)):
         algo = registry.get(tracer)
         sc = load_scene(SUITES / scene)
         p = algo.parse_params({**params, "spp": spp, "sampler": "sobol"})
         if tracer == "path":
             p["max_depth"] = _file_depth(scene)
-        mit = _mitsuba_seeded(scene, transport, spp, sampler)
+        mit = _mitsuba_seeded(scene, transport, spp, sampler) if spp in LADDER else None
         algo.render(sc, p, seed=SEEDS[0])                      # warm-up, both sides
-        mit(SEEDS[0])
+        if mit:
+            mit(SEEDS[0])
         t_own, t_mi, e_own, e_mi = [], [], [], []
         for seed in SEEDS:
             settle()
             t0 = time.perf_counter()
             res = algo.render(sc, p, seed=seed)
             t_own.append(time.perf_counter() - t0)
-            settle()
-            t0 = time.perf_counter()
-            img = mit(seed)
-            t_mi.append(time.perf_counter() - t0)
             e_own.append(relmse(ref.image, res.image))
-            e_mi.append(relmse(ref.image, img))
+            if mit:
+                settle()
+                t0 = time.perf_counter()
+                img = mit(seed)
+                t_mi.append(time.perf_counter() - t0)
+                e_mi.append(relmse(ref.image, img))
         rows["own"].append({"spp": spp, "s": statistics.median(t_own), "times_s": t_own,
                             "relmse": float(np.mean(e_own)), "relmse_seeds": e_own})
-        rows["mitsuba"].append({"spp": spp, "s": statistics.median(t_mi), "times_s": t_mi,
-                                "relmse": float(np.mean(e_mi)), "relmse_seeds": e_mi})
+        if mit:
+            rows["mitsuba"].append({"spp": spp, "s": statistics.median(t_mi), "times_s": t_mi,
+                                    "relmse": float(np.mean(e_mi)), "relmse_seeds": e_mi})
     target, mi_s = rows["mitsuba"][-1]["relmse"], rows["mitsuba"][-1]["s"]
     own_s, how = time_to_error([(r["s"], r["relmse"]) for r in rows["own"]], target)
     benchmark.pedantic(lambda: None, rounds=1, iterations=1)
