@@ -252,7 +252,7 @@ def statistical_done(n, q0, q1, q2, z, tolerance):
 
 # ------------------------------------------------------- sample dimensions ---
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def permute(i, n, key):
     """Element ``i`` (0 ≤ i < n) of a pseudo-random permutation of 0..n−1 chosen by the
     64-bit ``key``.
@@ -289,7 +289,7 @@ def permute(i, n, key):
     return int((x + np.uint64(key) % nn) % nn)
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def dim_2d(mode, seed, pixel, s, spp, dim):
     """(u, v) in [0, 1)² of 2-D dimension ``dim`` of pixel sample ``s`` (of ``spp``).
 
@@ -310,7 +310,7 @@ def dim_2d(mode, seed, pixel, s, spp, dim):
     return (c % k + ju) / k, (c // k + jv) / k
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def lens_stratified(seed, pixel, s, spp, dim):
     """(u, v) of the lens (dimension ``dim``) of pixel sample ``s`` in
     :data:`DIM_STRATIFIED` mode, spp = k².
@@ -337,7 +337,7 @@ def lens_stratified(seed, pixel, s, spp, dim):
     return (a + ju) / k, (b + jv) / k
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def dim_1d(mode, seed, pixel, s, spp, dim):
     """u in [0, 1) of 1-D dimension ``dim`` of pixel sample ``s`` (of ``spp``):
     stratum π(s) of spp equal strata, jittered (:data:`DIM_STRATIFIED`), or the
@@ -348,7 +348,7 @@ def dim_1d(mode, seed, pixel, s, spp, dim):
     return (c + uniform(seed + JITTER_STREAM + 1, pixel, s, dim)) / spp
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def camera_sobol(seed, pixel, s, d):
     """Dimension ``d`` (0, 1: film position; 2, 3: lens point) of the pixel's
     Owen-scrambled 4-D Sobol point ``s`` (:func:`impl.lowdiscrepancy.sobol_point`
