@@ -289,6 +289,14 @@ def permute(i, n, key):
     return int((x + np.uint64(key) % nn) % nn)
 
 
+@njit(inline="always", cache=True)
+def _stratum_jitter(seed, pixel, s, spp, dim):
+    """The jitter (u, v) in [0, 1)² of 2-D dimension ``dim`` of pixel sample ``s`` and
+    the grid size k = round(√spp) of the stratified modes."""
+    h = uniform_prefix(seed + JITTER_STREAM, pixel, s)
+    return uniform_from(h, 2 * dim), uniform_from(h, 2 * dim + 1), int(math.sqrt(spp) + 0.5)
+
+
 @njit(cache=True)
 def dim_2d(mode, seed, pixel, s, spp, dim):
     """(u, v) in [0, 1)² of 2-D dimension ``dim`` of pixel sample ``s`` (of ``spp``).
@@ -300,10 +308,7 @@ def dim_2d(mode, seed, pixel, s, spp, dim):
     """
     if mode == DIM_SOBOL:
         return sample_2d(dim, s, pixel_seed(pixel, _SOBOL_ROW, seed))
-    h = uniform_prefix(seed + JITTER_STREAM, pixel, s)
-    ju = uniform_from(h, 2 * dim)
-    jv = uniform_from(h, 2 * dim + 1)
-    k = int(math.sqrt(spp) + 0.5)
+    ju, jv, k = _stratum_jitter(seed, pixel, s, spp, dim)
     if s >= k * k:
         return ju, jv
     c = permute(s, k * k, uniform_prefix(seed + DIM_STREAM, pixel, 2 * dim))
@@ -325,10 +330,7 @@ def lens_stratified(seed, pixel, s, spp, dim):
     uniform over the lens (P(j) and Q(i) are independent and uniform).  A sample
     beyond k² (spp not a square) is uniform.
     """
-    h = uniform_prefix(seed + JITTER_STREAM, pixel, s)
-    ju = uniform_from(h, 2 * dim)
-    jv = uniform_from(h, 2 * dim + 1)
-    k = int(math.sqrt(spp) + 0.5)
+    ju, jv, k = _stratum_jitter(seed, pixel, s, spp, dim)
     if s >= k * k:
         return ju, jv
     key = uniform_prefix(seed + DIM_STREAM, pixel, 2 * dim)

@@ -65,13 +65,10 @@ def wrap_index(i, n, mode):
 
 
 @njit(inline="always", cache=True)
-def bitmap(data, offset, w, h, wrap, filt, u, v):
-    """RGB of a bitmap stored row-major at ``data[offset : offset + w h]`` at (u, v)."""
-    if filt == FILTER_NEAREST:
-        i = wrap_index(int(math.floor(u * w)), w, wrap)
-        j = wrap_index(int(math.floor(v * h)), h, wrap)
-        k = offset + j * w + i
-        return data[k, 0], data[k, 1], data[k, 2]
+def _bilinear_texels(offset, w, h, wrap, u, v):
+    """The bilinear footprint of (u, v) on a w×h bitmap stored row-major from ``offset``
+    (texel centres at half-integers, ``wrap`` at the borders): the fractions (f_x, f_y)
+    and the rows of the four texels (00, 10, 01, 11; first index along x)."""
     x = u * w - 0.5
     y = v * h - 0.5
     x0 = math.floor(x)
@@ -82,14 +79,23 @@ def bitmap(data, offset, w, h, wrap, filt, u, v):
     i1 = wrap_index(int(x0) + 1, w, wrap)
     j0 = wrap_index(int(y0), h, wrap)
     j1 = wrap_index(int(y0) + 1, h, wrap)
+    return (fx, fy, offset + j0 * w + i0, offset + j0 * w + i1, offset + j1 * w + i0,
+            offset + j1 * w + i1)
+
+
+@njit(inline="always", cache=True)
+def bitmap(data, offset, w, h, wrap, filt, u, v):
+    """RGB of a bitmap stored row-major at ``data[offset : offset + w h]`` at (u, v)."""
+    if filt == FILTER_NEAREST:
+        i = wrap_index(int(math.floor(u * w)), w, wrap)
+        j = wrap_index(int(math.floor(v * h)), h, wrap)
+        k = offset + j * w + i
+        return data[k, 0], data[k, 1], data[k, 2]
+    fx, fy, k00, k10, k01, k11 = _bilinear_texels(offset, w, h, wrap, u, v)
     w00 = (1.0 - fx) * (1.0 - fy)
     w10 = fx * (1.0 - fy)
     w01 = (1.0 - fx) * fy
     w11 = fx * fy
-    k00 = offset + j0 * w + i0
-    k10 = offset + j0 * w + i1
-    k01 = offset + j1 * w + i0
-    k11 = offset + j1 * w + i1
     r = w00 * data[k00, 0] + w10 * data[k10, 0] + w01 * data[k01, 0] + w11 * data[k11, 0]
     g = w00 * data[k00, 1] + w10 * data[k10, 1] + w01 * data[k01, 1] + w11 * data[k11, 1]
     b = w00 * data[k00, 2] + w10 * data[k10, 2] + w01 * data[k01, 2] + w11 * data[k11, 2]
@@ -112,20 +118,7 @@ def bitmap_grad(data, offset, w, h, wrap, filt, m00, m01, m10, m11, u, v):
     equals the chain rule when to_uv is diagonal or w = h.  Zero for ``nearest``."""
     if filt == FILTER_NEAREST:
         return 0.0, 0.0
-    x = u * w - 0.5
-    y = v * h - 0.5
-    x0 = math.floor(x)
-    y0 = math.floor(y)
-    fx = x - x0
-    fy = y - y0
-    i0 = wrap_index(int(x0), w, wrap)
-    i1 = wrap_index(int(x0) + 1, w, wrap)
-    j0 = wrap_index(int(y0), h, wrap)
-    j1 = wrap_index(int(y0) + 1, h, wrap)
-    k00 = offset + j0 * w + i0
-    k10 = offset + j0 * w + i1
-    k01 = offset + j1 * w + i0
-    k11 = offset + j1 * w + i1
+    fx, fy, k00, k10, k01, k11 = _bilinear_texels(offset, w, h, wrap, u, v)
     f00 = luminance(data[k00, 0], data[k00, 1], data[k00, 2])
     f10 = luminance(data[k10, 0], data[k10, 1], data[k10, 2])
     f01 = luminance(data[k01, 0], data[k01, 1], data[k01, 2])

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _regions import thirds_z
 
 from core.errors import UnsupportedError
 from core.loader import load_scene
@@ -58,18 +59,6 @@ def test_bitmap_grad_is_the_derivative_of_the_bilinear_luminance(wrap):
 
 
 # ------------------------------------------------------------ Z-tests ---
-
-def _thirds_z(ref, image, variance) -> np.ndarray:
-    """z of the difference of the image means over each third of the columns (3 x RGB)."""
-    H, W = ref.image.shape[:2]
-    out = []
-    for x0, x1 in ((0, W // 3), (W // 3, 2 * W // 3), (2 * W // 3, W)):
-        n = H * (x1 - x0)
-        diff = image[:, x0:x1].mean((0, 1)) - ref.image[:, x0:x1].mean((0, 1))
-        se = np.sqrt(variance[:, x0:x1].sum((0, 1)) + ref.variance[:, x0:x1].sum((0, 1))) / n
-        out.append(diff / se)
-    return np.array(out)
-
 
 _TRANSPORT = {"path": "full", "raycast": "direct", "whitted": "whitted"}
 
@@ -109,8 +98,8 @@ def test_scene_passes_the_ztest_against_mitsuba(algorithm, scene_path):
     z = _z(ref, own)
     print(f"\n{algorithm} {scene_path.name}: {z}")
     assert z.passed, z
-    zt = _thirds_z(ref, own.image, own.variance).astype(np.float64)
-    z3 = _thirds_z(ref, own.image * 1.03, own.variance).astype(np.float64)
+    zt = thirds_z(ref, own.image, own.variance).astype(np.float64)
+    z3 = thirds_z(ref, own.image * 1.03, own.variance).astype(np.float64)
     print(f"z of the thirds' means {np.round(zt, 2).tolist()}; with a 3 % exposure error "
           f"{np.round(z3, 1).tolist()}")
     assert np.all(np.abs(zt) < 4.0)

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _regions import thirds_z
 
 from core.errors import GibenchError, SceneError, UnsupportedError
 from core.loader import load_scene
@@ -221,18 +222,6 @@ def _ztest(scene_path: Path, *, spp: int = 256, image=None, seed: int = 0):
     return ref, own, z
 
 
-def _thirds_z(ref, image, variance) -> np.ndarray:
-    """z of the difference of the image means over each third of the columns (3 x RGB)."""
-    H, W = ref.image.shape[:2]
-    out = []
-    for x0, x1 in ((0, W // 3), (W // 3, 2 * W // 3), (2 * W // 3, W)):
-        n = H * (x1 - x0)
-        diff = image[:, x0:x1].mean((0, 1)) - ref.image[:, x0:x1].mean((0, 1))
-        se = np.sqrt(variance[:, x0:x1].sum((0, 1)) + ref.variance[:, x0:x1].sum((0, 1))) / n
-        out.append(diff / se)
-    return np.array(out)
-
-
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("scene_path", [CONDUCTORS, TEXTURED_PLASTIC, GGX_SCENE, DOF], ids=lambda p: p.stem)
 def test_scene_passes_the_ztest_against_mitsuba_path(scene_path):
@@ -242,8 +231,8 @@ def test_scene_passes_the_ztest_against_mitsuba_path(scene_path):
     ref, own, z = _ztest(scene_path)
     print(f"\n{scene_path.name}: {z}")
     assert z.passed, z
-    zt = _thirds_z(ref, own.image, own.variance).astype(np.float64)
-    z3 = _thirds_z(ref, own.image * 1.03, own.variance).astype(np.float64)
+    zt = thirds_z(ref, own.image, own.variance).astype(np.float64)
+    z3 = thirds_z(ref, own.image * 1.03, own.variance).astype(np.float64)
     print(f"z of the thirds' means {np.round(zt, 2).tolist()}; with a 3 % exposure error "
           f"{np.round(z3, 1).tolist()}")
     assert np.all(np.abs(zt) < 4.0)
