@@ -9,7 +9,7 @@
 #    (the report and its image viewer in a real browser) runs instead of skipping;
 #    GIBENCH_NO_CHROMIUM=1 skips it;
 #  - creates .venv with Python 3.11 and installs gibench with its test extras;
-#  - compiles the numba kernels the default and ci suites need (`gibench warmup`), so a
+#  - compiles the numba kernels the default, ci and hard suites need (`gibench warmup`), so a
 #    fresh clone's first render loads them from .numba_cache/ instead of compiling;
 #    GIBENCH_SKIP_WARMUP=1 skips it.
 set -euo pipefail
@@ -81,8 +81,8 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
     echo "$want" > "$stamp"
 fi
 if [ -z "${GIBENCH_SKIP_WARMUP:-}" ]; then
-    echo "setup: compiling the numba kernels of the default and ci suites (gibench warmup)"
-    .venv/bin/python -m gibench.cli warmup default ci --jobs 2 | tail -1 \
+    echo "setup: compiling the numba kernels of the default, ci and hard suites (gibench warmup)"
+    .venv/bin/python -m gibench.cli warmup default ci hard --jobs 2 | tail -1 \
         || echo "setup: warning: warm-up failed; the first renders will compile instead" >&2
 fi
 echo "setup: ready (.venv/bin/gibench)"

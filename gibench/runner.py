@@ -46,7 +46,7 @@ def render_timed(algorithm: Algorithm, scene: Scene, params: dict, *, seed: int 
 
 
 def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6), jobs: int = 1,
-            algorithms=None) -> list[dict]:
+            algorithms=None, precisions=None) -> list[dict]:
     """Compile (or load from numba's cache) every kernel the suites' cases use.
 
     Each distinct (scene, algorithm, parameters) of the suites renders once
@@ -54,11 +54,14 @@ def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6), jobs: int
     not per image size, so this fills ``.numba_cache/`` for the full-size
     runs at a fraction of their cost.  External algorithms (entry points,
     command renderers) are skipped: they compile nothing of gibench's.
-    ``algorithms`` (names) restricts it to those.  With ``jobs`` > 1 the
-    algorithms go to ``jobs`` worker processes as they free up, those with the
-    largest kernels first (:data:`_COMPILE_ORDER`): numba compiles on one core,
-    and the algorithms' kernels are apart (the shared ones compile in each
-    process that needs them; numba's cache writes are atomic).
+    ``algorithms`` (names) restricts it to those, ``precisions`` to the cases whose
+    ``precision`` parameter (None where the algorithm has none) is among them.  With
+    ``jobs`` > 1 each (algorithm, precision) pair goes to one of ``jobs`` worker
+    processes as they free up, those with the largest kernels first
+    (:data:`_COMPILE_ORDER`): numba compiles on one core and per argument type, so a
+    float32 ray configuration compiles a tracer's kernels again, apart from its
+    float64 ones (the shared ones compile in each process that needs them; numba's
+    cache writes are atomic).
     Returns one row per render: scene, algorithm, seconds, error.
     """
     if jobs > 1:
@@ -81,6 +84,8 @@ def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6), jobs: int
             if algorithms is not None and algo.name not in algorithms:
                 continue
             params = algo.parse_params(case.params)
+            if precisions is not None and params.get("precision") not in precisions:
+                continue
             key = (str(case.scene), algo.name, repr(sorted(params.items())))
             if key in seen:
                 continue
@@ -102,13 +107,14 @@ def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6), jobs: int
 
 
 #: The built-in algorithms with the largest kernels (longest cold compiles) first: the
-#: order in which :func:`warm_up` hands them to its worker processes.
+#: order in which :func:`warm_up` hands them to its worker processes (their default
+#: precision first, then the others' tasks in the same order).
 _COMPILE_ORDER = ("path", "distributed", "whitted", "raycast", "radiosity")
 
 
-def _warm_algorithm(suite_paths, size, name) -> list[dict]:
-    """:func:`warm_up` of one algorithm, silent (a worker process's task)."""
-    return warm_up(suite_paths, log=None, size=size, algorithms={name})
+def _warm_algorithm(suite_paths, size, name, precision) -> list[dict]:
+    """:func:`warm_up` of one algorithm at one precision, silent (a worker process's task)."""
+    return warm_up(suite_paths, log=None, size=size, algorithms={name}, precisions={precision})
 
 
 def _warm_up_parallel(suite_paths, size, jobs, log) -> list[dict]:
@@ -119,13 +125,18 @@ def _warm_up_parallel(suite_paths, size, jobs, log) -> list[dict]:
     from . import registry
     from .suite import load_suite
 
-    names = {registry.get(c.algorithm).name for p in suite_paths for c in load_suite(p).cases
-             if registry.origin(c.algorithm)["source"] == "builtin"}
+    tasks = set()
+    for p in suite_paths:
+        for c in load_suite(p).cases:
+            if registry.origin(c.algorithm)["source"] == "builtin":
+                algo = registry.get(c.algorithm)
+                tasks.add((algo.name, algo.parse_params(c.params).get("precision")))
     rank = {a: i for i, a in enumerate(_COMPILE_ORDER)}
-    names = sorted(names, key=lambda a: (rank.get(a, len(rank)), a))
+    tasks = sorted(tasks, key=lambda t: (t[1] not in (None, "float64"), rank.get(t[0], len(rank)),
+                                         t[0], str(t[1])))
     rows = []
     with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(_warm_algorithm, suite_paths, size, a) for a in names]
+        futures = [pool.submit(_warm_algorithm, suite_paths, size, a, prec) for a, prec in tasks]
         for f in futures:
             part = f.result()
             rows += part
