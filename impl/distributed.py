@@ -202,7 +202,7 @@ from core.scene import Scene
 from core.errors import ParamError, UnsupportedError
 
 from .accel.packets import NOT_TRACED, packet_buffers, packet_hits, tile_count, tile_rect
-from .camera import camera_params, eye_ray_lens
+from .camera import SENSOR_THINLENS, camera_params, eye_ray, eye_ray_lens
 from .kernel import batch_kernel
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
@@ -695,7 +695,9 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
 @njit(inline="always", cache=True)
 def _eye(cam, seed, pixel, sample, spp, dmode, fx, fy):
     """The eye ray of pixel sample ``sample`` (of ``spp``) at film position (fx, fy),
-    through its lens point."""
+    through its lens point (drawn only for a ``thinlens`` sensor)."""
+    if cam[18] != SENSOR_THINLENS:
+        return eye_ray(cam, fx, fy)
     if dmode == DIM_INDEPENDENT:
         u1 = uniform(seed + _STREAM, pixel, sample, _D_LENS)
         u2 = uniform(seed + _STREAM, pixel, sample, _D_LENS + 1)

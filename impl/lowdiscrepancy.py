@@ -216,25 +216,40 @@ _INV32 = 1.0 / 4294967296.0
 
 
 @njit(inline="always", cache=True)
+def _sobol1(i):
+    """Unscrambled Sobol dimension 1 of the 32-bit index ``i``, four byte-table lookups
+    (:data:`_T1`) instead of a loop over its bits."""
+    return (np.uint64(_T1[0, i & np.uint64(255)]) ^ np.uint64(_T1[1, (i >> np.uint64(8)) & np.uint64(255)])
+            ^ np.uint64(_T1[2, (i >> np.uint64(16)) & np.uint64(255)]) ^ np.uint64(_T1[3, i >> np.uint64(24)]))
+
+
+@njit(inline="always", cache=True)
 def sobol_point(index, dim, seed):
     """Dimension ``dim`` of Owen-scrambled Sobol point ``index`` (float64 in [0, 1)).
 
     One index shuffle for the whole point (seeded by ``seed``), one value
     scramble per dimension: all dimensions of a point share it, so this is the
-    full ``MAX_DIMENSIONS``-dimensional sequence.
+    full ``MAX_DIMENSIONS``-dimensional sequence.  Dimensions 0 and 1 are computed
+    as the bit reversal and from byte tables (the same values as the bit loop).
     """
     i = nested_uniform_scramble(np.uint64(index), _hash2(seed, 0xFFFFFFFF))
-    x = _sobol(_V, i, dim)
+    if dim == 0:
+        x = _reverse32(i)
+    elif dim == 1:
+        x = _sobol1(i)
+    else:
+        x = _sobol(_V, i, dim)
     return float(nested_uniform_scramble(x, _hash2(seed, dim))) * _INV32
 
 
 @njit(inline="always", cache=True)
 def sample_1d(dim, index, seed):
     """Padded 1D sample: the scrambled van der Corput point ``index`` of 1D dimension
-    ``dim`` (own index shuffle and scramble per ``(seed, dim)``)."""
+    ``dim`` (own index shuffle and scramble per ``(seed, dim)``).  Sobol dimension 0
+    of point i is the bit reversal of i, computed as such."""
     h = _hash2(seed, np.uint64(2) * np.uint64(dim) + np.uint64(0x10000))
     i = nested_uniform_scramble(np.uint64(index), h)
-    return float(nested_uniform_scramble(_sobol(_V, i, 0), _mix32(h + np.uint64(1)))) * _INV32
+    return float(nested_uniform_scramble(_reverse32(i), _mix32(h + np.uint64(1)))) * _INV32
 
 
 @njit(inline="always", cache=True)
@@ -252,8 +267,7 @@ def sample_2d(pair, index, seed):
     h2 = _mix64(h + _GOLDEN)
     li = _laine_karras(_reverse32(np.uint64(index)), h & _MASK)
     i = _reverse32(li)
-    x1 = (np.uint64(_T1[0, i & np.uint64(255)]) ^ np.uint64(_T1[1, (i >> np.uint64(8)) & np.uint64(255)])
-          ^ np.uint64(_T1[2, (i >> np.uint64(16)) & np.uint64(255)]) ^ np.uint64(_T1[3, i >> np.uint64(24)]))
+    x1 = _sobol1(i)
     u = _reverse32(_laine_karras(_reverse32(li), h >> np.uint64(32)))
     v = _reverse32(_laine_karras(_reverse32(x1), h2 >> np.uint64(32)))
     return float(u) * _INV32, float(v) * _INV32
