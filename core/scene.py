@@ -343,20 +343,27 @@ def scene_features(scene: Scene) -> dict[str, str]:
     if getattr(scene.camera, "moves", False):
         found["camera motion"] = "the sensor (gibench_velocity / gibench_angular_velocity)"
     for shape in scene.shapes:
-        m = scene.materials[shape.material]
         where = f"shape '{shape.name or shape.source}'"
         if shape.kind == "mesh" and shape.moves:
             found.setdefault("mesh motion", where)
-        if m.kind in ("plastic", "roughplastic", "blendbsdf", "thindielectric", "gibench_cooktorrance",
-                      "gibench_difftrans"):
-            found.setdefault(m.kind, where)
-        if m.opacity is not None:
-            found.setdefault("mask", where)
-        if m.shading is not None:
-            found.setdefault(m.shading["type"], where)
-        for name in m.textures:
-            if m.kind in ("plastic", "roughplastic") and name == "diffuse_reflectance":
-                found.setdefault("plastic texture", where)
-            else:
-                found.setdefault("textured parameter", f"{where} ('{name}' of its {m.kind} BSDF)")
+        _material_features(scene.materials[shape.material], where, found)
     return found
+
+
+def _material_features(m: Material, where: str, found: dict) -> None:
+    """Add material ``m``'s features (and its ``blendbsdf`` components') to ``found``.
+    A blendbsdf's ``weight`` texture belongs to the ``blendbsdf`` feature."""
+    if m.kind in ("plastic", "roughplastic", "blendbsdf", "thindielectric", "gibench_cooktorrance",
+                  "gibench_difftrans"):
+        found.setdefault(m.kind, where)
+    if m.opacity is not None:
+        found.setdefault("mask", where)
+    if m.shading is not None:
+        found.setdefault(m.shading["type"], where)
+    for name in m.textures:
+        if m.kind in ("plastic", "roughplastic") and name == "diffuse_reflectance":
+            found.setdefault("plastic texture", where)
+        elif not (m.kind == "blendbsdf" and name == "weight"):
+            found.setdefault("textured parameter", f"{where} ('{name}' of its {m.kind} BSDF)")
+    for c in m.components:
+        _material_features(c, where, found)

@@ -85,9 +85,10 @@ from core.scene import Scene
 from . import microfacet as mf
 from . import plastic as pl
 from .fresnel import fresnel_conductor, fresnel_dielectric
-from .materials import (MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_PLASTIC,
-                        MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MAT_ROUGHPLASTIC, MaterialArrays,
-                        PlasticArrays, distribution_codes, material_arrays, plastic_arrays)
+from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_PLASTIC,
+                        MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MAT_ROUGHPLASTIC, MAT_THINDIELECTRIC,
+                        MaterialArrays, PlasticArrays, WrapperArrays, distribution_codes,
+                        material_arrays, plastic_arrays, wrapper_arrays)
 
 __all__ = ["bsdf_arrays", "BsdfArrays", "with_plastic", "MODELLED", "frame", "to_local", "to_world", "sample_cosine_hemisphere",
            "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "is_delta",
@@ -97,7 +98,7 @@ __all__ = ["bsdf_arrays", "BsdfArrays", "with_plastic", "MODELLED", "frame", "to
 
 #: The Mitsuba BSDF plugins the path tracer models.
 MODELLED = ("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric", "plastic",
-            "roughplastic")
+            "roughplastic", "thindielectric", "blendbsdf")
 
 INV_PI = 1.0 / math.pi
 
@@ -126,12 +127,19 @@ class BsdfArrays(NamedTuple):
     pl_ext_t: np.ndarray        # (M, TABLE_RES) roughplastic: coat transmittance over cos θ
     pl_int_r: np.ndarray        # (M,) roughplastic: internal diffuse reflectance
     dist: np.ndarray            # (M,) int: microfacet distribution of the rough kinds (BECKMANN, GGX)
+    opacity: np.ndarray         # (M,) the wrappers of impl.materials.WrapperArrays: mask opacity,
+    comp: np.ndarray            # (M, 2) int blendbsdf components,
+    blend_w: np.ndarray         # (M,) blend weight,
+    ptex: np.ndarray            # (M, 2, 5) int their bitmaps (slot 0 opacity, 1 weight),
+    ptex_uv: np.ndarray         # (M, 2, 2, 3) to_uv maps,
+    ptex_data: np.ndarray       # (K, 3) texels
 
 
 def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None,
-                 dist: np.ndarray | None = None) -> BsdfArrays:
-    """``M``'s rows with ``P``'s plastic rows (none: rows of zeros, no plastic material)
-    and the distribution codes ``dist`` (none: Beckmann everywhere)."""
+                 dist: np.ndarray | None = None, W: WrapperArrays | None = None) -> BsdfArrays:
+    """``M``'s rows with ``P``'s plastic rows (none: rows of zeros, no plastic material),
+    the distribution codes ``dist`` (none: Beckmann everywhere) and the wrapper rows
+    ``W`` (none: no mask, no blendbsdf)."""
     n = M.kind.shape[0]
     if P is None:
         P = PlasticArrays(np.zeros(n, dtype=np.int64), np.ones(n), np.zeros((n, 3)), np.zeros((n, 3)),
@@ -140,8 +148,13 @@ def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None,
                           np.zeros(n))
     if dist is None:
         dist = np.zeros(n, dtype=np.int64)
+    if W is None:
+        uv = np.zeros((n, 2, 2, 3))
+        uv[:, :, 0, 0] = uv[:, :, 1, 1] = 1.0
+        W = WrapperArrays(np.ones(n), np.repeat(np.arange(n, dtype=np.int64)[:, None], 2, axis=1),
+                          np.zeros(n), np.zeros((n, 2, 5), dtype=np.int64), uv, np.zeros((0, 3)))
     return BsdfArrays(*M, P.eta, P.specular, P.spec_weight, P.nonlinear, P.alpha, P.visible,
-                      P.fdr_int, P.ext_t, P.int_r, np.asarray(dist, dtype=np.int64))
+                      P.fdr_int, P.ext_t, P.int_r, np.asarray(dist, dtype=np.int64), *W)
 
 
 def bsdf_arrays(scene: Scene, *, algorithm: str = "path") -> BsdfArrays:
@@ -156,7 +169,7 @@ def bsdf_arrays(scene: Scene, *, algorithm: str = "path") -> BsdfArrays:
     M = material_arrays(scene, algorithm=algorithm, model="the path tracer", kinds=MODELLED,
                         distributions=tuple(mf.DISTRIBUTIONS))
     return with_plastic(M, plastic_arrays(scene, algorithm=algorithm, distributions=tuple(mf.DISTRIBUTIONS)),
-                        distribution_codes(scene))
+                        distribution_codes(scene), wrapper_arrays(scene, algorithm=algorithm))
 
 
 # ------------------------------------------------------------------ frames ---
@@ -209,14 +222,23 @@ def cosine_hemisphere_pdf(z):
 
 @njit(inline="always", cache=True)
 def is_delta(B: MaterialArrays, mat):
+    """Whether every lobe of ``mat`` is a delta (no light samples); a blendbsdf is when
+    both its components are."""
     k = B.kind[mat]
-    return k == MAT_CONDUCTOR or k == MAT_DIELECTRIC
+    if k == MAT_BLEND:
+        k0 = B.kind[B.comp[mat, 0]]
+        k1 = B.kind[B.comp[mat, 1]]
+        return ((k0 == MAT_CONDUCTOR or k0 == MAT_DIELECTRIC or k0 == MAT_THINDIELECTRIC)
+                and (k1 == MAT_CONDUCTOR or k1 == MAT_DIELECTRIC or k1 == MAT_THINDIELECTRIC))
+    return k == MAT_CONDUCTOR or k == MAT_DIELECTRIC or k == MAT_THINDIELECTRIC
 
 
 @njit(inline="always", cache=True)
 def is_dielectric(B: MaterialArrays, mat):
+    """Whether ``mat`` has two sides of its own (dielectrics: the normal tells inside from
+    outside; a thin dielectric is symmetric)."""
     k = B.kind[mat]
-    return k == MAT_DIELECTRIC or k == MAT_ROUGHDIELECTRIC
+    return k == MAT_DIELECTRIC or k == MAT_ROUGHDIELECTRIC or k == MAT_THINDIELECTRIC
 
 
 @njit(inline="always", cache=True)
@@ -309,6 +331,17 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
         fr, fg, fb = _conductor_fresnel(B, mat, cos_ih)
         return ox, oy, oz, w * fr, w * fg, w * fb, pdf, False, 1.0
     eta = B.diel_eta[mat] * eta_scale
+    if k == MAT_THINDIELECTRIC:
+        # Mitsuba's thindielectric: R' = R + T²R / (1 − R²) = 2R / (1 + R) of the interface's
+        # Fresnel R at |cos θ_i| (both sides alike), reflection with probability R', else
+        # the ray goes straight through (−wi, a null event); weights the specular colours.
+        F, _, _, _ = fresnel_dielectric(abs(wiz), eta)
+        r = 2.0 * F / (1.0 + F)
+        if u0 <= r:
+            return (-wix, -wiy, wiz, B.spec_refl[mat, 0], B.spec_refl[mat, 1], B.spec_refl[mat, 2],
+                    r, True, 1.0)
+        return (-wix, -wiy, -wiz, B.spec_trans[mat, 0], B.spec_trans[mat, 1], B.spec_trans[mat, 2],
+                1.0 - r, True, 1.0)
     if k == MAT_ROUGHDIELECTRIC:
         ox, oy, oz, w, pdf, refl, eti = mf.dielectric_sample(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
                                                              B.visible[mat], eta, wix, wiy, wiz,
