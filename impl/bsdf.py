@@ -91,7 +91,8 @@ from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, M
                         material_arrays, plastic_arrays, wrapper_arrays)
 
 __all__ = ["bsdf_arrays", "BsdfArrays", "with_plastic", "MODELLED", "frame", "to_local", "to_world", "sample_cosine_hemisphere",
-           "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "is_delta",
+           "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "bsdf_sample_at",
+           "bsdf_eval_at", "bsdf_pdf_at", "is_delta",
            "is_dielectric", "cook_torrance_eval", "cook_torrance_pdf", "cook_torrance_sample",
            "diffuse_transmission_eval", "diffuse_transmission_pdf", "diffuse_transmission_sample",
            "check_cook_torrance"]
@@ -130,8 +131,9 @@ class BsdfArrays(NamedTuple):
     opacity: np.ndarray         # (M,) the wrappers of impl.materials.WrapperArrays: mask opacity,
     comp: np.ndarray            # (M, 2) int blendbsdf components,
     blend_w: np.ndarray         # (M,) blend weight,
-    ptex: np.ndarray            # (M, 2, 5) int their bitmaps (slot 0 opacity, 1 weight),
-    ptex_uv: np.ndarray         # (M, 2, 2, 3) to_uv maps,
+    ptex: np.ndarray            # (M, 3, 6) int their textures (slot 0 opacity, 1 weight, 2 alpha),
+    ptex_uv: np.ndarray         # (M, 3, 2, 3) to_uv maps,
+    ptex_c: np.ndarray          # (M, 3, 2) checkerboard values,
     ptex_data: np.ndarray       # (K, 3) texels
 
 
@@ -149,10 +151,11 @@ def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None,
     if dist is None:
         dist = np.zeros(n, dtype=np.int64)
     if W is None:
-        uv = np.zeros((n, 2, 2, 3))
+        uv = np.zeros((n, 3, 2, 3))
         uv[:, :, 0, 0] = uv[:, :, 1, 1] = 1.0
         W = WrapperArrays(np.ones(n), np.repeat(np.arange(n, dtype=np.int64)[:, None], 2, axis=1),
-                          np.zeros(n), np.zeros((n, 2, 5), dtype=np.int64), uv, np.zeros((0, 3)))
+                          np.zeros(n), np.zeros((n, 3, 6), dtype=np.int64), uv, np.zeros((n, 3, 2)),
+                          np.zeros((0, 3)))
     return BsdfArrays(*M, P.eta, P.specular, P.spec_weight, P.nonlinear, P.alpha, P.visible,
                       P.fdr_int, P.ext_t, P.int_r, np.asarray(dist, dtype=np.int64), *W)
 
@@ -302,13 +305,34 @@ def _plastic_pdf(B: MaterialArrays, mat, k, wix, wiy, wiz, wox, woy, woz):
 
 @njit(inline="always", cache=True)
 def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2):
+    """:func:`bsdf_sample_at` with the material's own roughness ``B.alpha[mat]``."""
+    return bsdf_sample_at(B, mat, B.alpha[mat], rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+
+
+@njit(inline="always", cache=True)
+def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz):
+    """:func:`bsdf_eval_at` with the material's own roughness ``B.alpha[mat]``."""
+    return bsdf_eval_at(B, mat, B.alpha[mat], rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz)
+
+
+@njit(inline="always", cache=True)
+def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
+    """:func:`bsdf_pdf_at` with the material's own roughness ``B.alpha[mat]``."""
+    return bsdf_pdf_at(B, mat, B.alpha[mat], eta_scale, wix, wiy, wiz, wox, woy, woz)
+
+
+@njit(inline="always", cache=True)
+def bsdf_sample_at(B: MaterialArrays, mat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1,
+                   u2):
     """Sample wo for material ``mat`` (diffuse albedo ρ given, textures resolved by the caller).
 
     ``eta_scale`` multiplies a dielectric's relative index (dispersion: the
     ratio n(λ)/n of the hero wavelength; 1 otherwise).  Returns
     ``(wox, woy, woz, w_r, w_g, w_b, pdf, delta, eta)`` with ``eta`` the
     relative index η_t/η_i crossed (1 unless transmitted, Mitsuba's
-    ``bs.eta``); a zero weight ends the path.
+    ``bs.eta``); a zero weight ends the path.  ``alpha`` is the roughness of a
+    roughconductor / roughdielectric at this point (``B.alpha[mat]``, or its texture's
+    value).
     """
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
@@ -324,7 +348,7 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
         fr, fg, fb = _conductor_fresnel(B, mat, wiz)
         return -wix, -wiy, wiz, fr, fg, fb, 1.0, True, 1.0
     if k == MAT_ROUGHCONDUCTOR:
-        ox, oy, oz, w, pdf, cos_ih = mf.conductor_sample(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
+        ox, oy, oz, w, pdf, cos_ih = mf.conductor_sample(mf.clamp_alpha(alpha), mf.G_SMITH,
                                                          B.visible[mat], wix, wiy, wiz, u1, u2, B.dist[mat])
         if w <= 0.0 or pdf <= 0.0:
             return ox, oy, oz, 0.0, 0.0, 0.0, 0.0, False, 1.0
@@ -343,7 +367,7 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
         return (-wix, -wiy, -wiz, B.spec_trans[mat, 0], B.spec_trans[mat, 1], B.spec_trans[mat, 2],
                 1.0 - r, True, 1.0)
     if k == MAT_ROUGHDIELECTRIC:
-        ox, oy, oz, w, pdf, refl, eti = mf.dielectric_sample(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
+        ox, oy, oz, w, pdf, refl, eti = mf.dielectric_sample(mf.clamp_alpha(alpha), mf.G_SMITH,
                                                              B.visible[mat], eta, wix, wiy, wiz,
                                                              u0, u1, u2, B.dist[mat])
         if w <= 0.0 or pdf <= 0.0:
@@ -365,8 +389,10 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
 
 
 @njit(inline="always", cache=True)
-def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz):
-    """f(wi, wo)·|cos θ_o| (RGB) of the non-delta lobes; 0 for delta BSDFs."""
+def bsdf_eval_at(B: MaterialArrays, mat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy,
+                 woz):
+    """f(wi, wo)·|cos θ_o| (RGB) of the non-delta lobes; 0 for delta BSDFs (``alpha`` as
+    for :func:`bsdf_sample_at`)."""
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
         if wiz > 0.0 and woz > 0.0:
@@ -376,14 +402,14 @@ def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, 
     if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
         return _plastic_eval(B, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, wox, woy, woz)
     if k == MAT_ROUGHCONDUCTOR:
-        v, cos_ih = mf.conductor_eval(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH, wix, wiy, wiz,
+        v, cos_ih = mf.conductor_eval(mf.clamp_alpha(alpha), mf.G_SMITH, wix, wiy, wiz,
                                       wox, woy, woz, B.dist[mat])
         if v <= 0.0:
             return 0.0, 0.0, 0.0
         fr, fg, fb = _conductor_fresnel(B, mat, cos_ih)
         return v * fr, v * fg, v * fb
     if k == MAT_ROUGHDIELECTRIC:
-        v, refl = mf.dielectric_eval(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
+        v, refl = mf.dielectric_eval(mf.clamp_alpha(alpha), mf.G_SMITH,
                                      B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz, B.dist[mat])
         if refl:
             return v * B.spec_refl[mat, 0], v * B.spec_refl[mat, 1], v * B.spec_refl[mat, 2]
@@ -392,18 +418,18 @@ def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, 
 
 
 @njit(inline="always", cache=True)
-def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
-    """Solid-angle pdf of :func:`bsdf_sample` producing wo (0 for delta lobes)."""
+def bsdf_pdf_at(B: MaterialArrays, mat, alpha, eta_scale, wix, wiy, wiz, wox, woy, woz):
+    """Solid-angle pdf of :func:`bsdf_sample_at` producing wo (0 for delta lobes)."""
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
         return cosine_hemisphere_pdf(woz) if wiz > 0.0 else 0.0
     if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
         return _plastic_pdf(B, mat, k, wix, wiy, wiz, wox, woy, woz)
     if k == MAT_ROUGHCONDUCTOR:
-        return mf.conductor_pdf(mf.clamp_alpha(B.alpha[mat]), B.visible[mat], wix, wiy, wiz,
+        return mf.conductor_pdf(mf.clamp_alpha(alpha), B.visible[mat], wix, wiy, wiz,
                                 wox, woy, woz, B.dist[mat])
     if k == MAT_ROUGHDIELECTRIC:
-        return mf.dielectric_pdf(mf.clamp_alpha(B.alpha[mat]), B.visible[mat],
+        return mf.dielectric_pdf(mf.clamp_alpha(alpha), B.visible[mat],
                                  B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz, B.dist[mat])
     return 0.0
 

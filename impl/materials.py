@@ -298,6 +298,11 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             spec_trans[i] = _rgb_param(p, "specular_transmittance", 1.0, where)
         if m.kind in ("roughconductor", "roughdielectric"):
             alpha[i], visible[i] = _roughness(p, where, distributions)
+            if "alpha_u" in m.textures or "alpha_v" in m.textures:
+                raise UnsupportedError(f"{where}: anisotropic roughness (textured 'alpha_u'/'alpha_v') "
+                                       "is not modelled; give one 'alpha'")
+            if "alpha" in m.textures:               # the value where no uv: the texture's mean
+                alpha[i] = _scalar_texture_mean(m.textures["alpha"])
         elif m.kind == "gibench_cooktorrance":
             spec_refl[i] = _rgb_param(p, "reflectance", 0.5, where)
             kd, ks = float(p.get("kd", 0.5)), float(p.get("ks", 0.5))
@@ -320,6 +325,16 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             spec_refl[i], spec_trans[i] = rho, tau
     return MaterialArrays(spec_refl, spec_trans, cond_eta, cond_k, diel_eta, diel_int, diel_ext,
                           kind, alpha, visible)
+
+
+_LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
+
+
+def _scalar_texture_mean(tex: dict) -> float:
+    """The mean of a texture read as Mitsuba's ``eval_1`` (the luminance of its RGB)."""
+    if tex["type"] == "bitmap":
+        return float((np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3) @ _LUMINANCE).mean())
+    return float(0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"])) @ _LUMINANCE)
 
 
 def expand_components(scene: Scene, *, algorithm: str = "path") -> Scene:
@@ -356,16 +371,19 @@ def expand_components(scene: Scene, *, algorithm: str = "path") -> Scene:
 
 
 class WrapperArrays(NamedTuple):
-    """Per-material rows of the wrappers ``mask`` and ``blendbsdf`` (one row per material
-    of a scene after :func:`expand_components`).  Slot 0 of the scalar textures is the
-    mask's opacity, slot 1 the blend weight."""
+    """Per-material rows of the wrappers ``mask`` and ``blendbsdf`` and of a textured
+    roughness (one row per material of a scene after :func:`expand_components`).  The
+    scalar textures' slots: 0 the mask's opacity, 1 the blend weight, 2 the ``alpha`` of
+    a roughconductor / roughdielectric."""
 
     opacity: np.ndarray         # (M,) mask opacity (1: no mask; a texture's mean when textured)
     comp: np.ndarray            # (M, 2) int: a blendbsdf's component rows (else the row itself)
     blend_w: np.ndarray         # (M,) blend weight of the second component (a texture's mean when textured)
-    ptex: np.ndarray            # (M, 2, 5) int: a slot's bitmap (first texel in ptex_data, width,
-                                # height, wrap, filter); width 0: the constant
-    ptex_uv: np.ndarray         # (M, 2, 2, 3) its 2D affine to_uv map
+    ptex: np.ndarray            # (M, 3, 6) int: a slot's texture: code (scene_arrays TEX_*: 0 none,
+                                # 1 checkerboard, 2 bitmap), first texel in ptex_data, width, height,
+                                # wrap, filter
+    ptex_uv: np.ndarray         # (M, 3, 2, 3) its 2D affine to_uv map
+    ptex_c: np.ndarray          # (M, 3, 2) a checkerboard's two values (luminance of color0, color1)
     ptex_data: np.ndarray       # (K, 3) linear RGB texels of those bitmaps, row-major, concatenated
 
 
@@ -379,32 +397,38 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
     UnsupportedError
         A texture other than a bitmap as opacity or blend weight.
     """
-    from .scene_arrays import FILTER_CODES, WRAP_CODES
+    from .scene_arrays import FILTER_CODES, TEX_BITMAP, TEX_CHECKERBOARD, WRAP_CODES
 
     M = len(scene.materials)
     index = {id(m): i for i, m in enumerate(scene.materials)}
     opacity, blend_w = np.ones(M), np.zeros(M)
     comp = np.repeat(np.arange(M, dtype=np.int64)[:, None], 2, axis=1)
-    ptex = np.zeros((M, 2, 5), dtype=np.int64)
-    ptex_uv = np.zeros((M, 2, 2, 3))
+    ptex = np.zeros((M, 3, 6), dtype=np.int64)
+    ptex_uv = np.zeros((M, 3, 2, 3))
     ptex_uv[:, :, 0, 0] = ptex_uv[:, :, 1, 1] = 1.0
+    ptex_c = np.zeros((M, 3, 2))
     texels, n = [], 0
-    lum = np.array([0.212671, 0.715160, 0.072169])
 
     def scalar(i, slot, value, role):
+        """Record texture ``value`` in ``slot`` of row i; its constant or mean value."""
         nonlocal n
         if value["type"] == "constant":
             return float(value["value"])
+        ptex_uv[i, slot] = np.asarray(value["to_uv"])[:2]
+        if value["type"] == "checkerboard":
+            ptex[i, slot, 0] = TEX_CHECKERBOARD
+            ptex_c[i, slot] = (np.asarray(value["color0"]) @ _LUMINANCE,
+                               np.asarray(value["color1"]) @ _LUMINANCE)
+            return _scalar_texture_mean(value)
         if value["type"] != "bitmap":
             raise UnsupportedError(f"{algorithm}: material '{scene.materials[i].name or i}': a "
-                                   f"{value['type']} texture as {role} is not modelled; only a bitmap is")
+                                   f"{value['type']} texture as {role} is not modelled")
         img = np.asarray(value["data"], dtype=np.float64)
-        ptex[i, slot] = (n, img.shape[1], img.shape[0], WRAP_CODES[value["wrap_mode"]],
+        ptex[i, slot] = (TEX_BITMAP, n, img.shape[1], img.shape[0], WRAP_CODES[value["wrap_mode"]],
                          FILTER_CODES[value["filter_type"]])
-        ptex_uv[i, slot] = np.asarray(value["to_uv"])[:2]
         texels.append(img.reshape(-1, 3))
         n += img.shape[0] * img.shape[1]
-        return float(np.clip(img.reshape(-1, 3) @ lum, 0.0, 1.0).mean())
+        return _scalar_texture_mean(value)
 
     for i, m in enumerate(scene.materials):
         if m.opacity is not None:
@@ -416,9 +440,11 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
             comp[i] = [index[id(c)] for c in m.components]
             w = m.textures.get("weight", {"type": "constant", "value": m.params.get("weight", 0.5)})
             blend_w[i] = scalar(i, 1, w, "a blendbsdf's weight")
+        if m.kind in ("roughconductor", "roughdielectric") and "alpha" in m.textures:
+            scalar(i, 2, m.textures["alpha"], "a roughness")
     opacity, blend_w = np.clip(opacity, 0.0, 1.0), np.clip(blend_w, 0.0, 1.0)
     data = np.ascontiguousarray(np.concatenate(texels) if texels else np.zeros((0, 3)), dtype=np.float64)
-    return WrapperArrays(opacity, comp, blend_w, ptex, ptex_uv, data)
+    return WrapperArrays(opacity, comp, blend_w, ptex, ptex_uv, ptex_c, data)
 
 
 def distribution_codes(scene: Scene) -> np.ndarray:

@@ -135,7 +135,7 @@ from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
 from core.errors import ParamError, UnsupportedError
 
-from .bsdf import bsdf_arrays, bsdf_eval, bsdf_pdf, bsdf_sample, frame, is_delta, is_dielectric
+from .bsdf import bsdf_arrays, bsdf_eval_at, bsdf_pdf_at, bsdf_sample_at, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
 from .materials import MAT_BLEND, MaterialArrays, expand_components
 from .accel.packets import NOT_TRACED
@@ -151,7 +151,7 @@ from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
 from .shading_frame import perturbed_normal, same_side, shadow_terminator
-from .textures import bitmap, luminance
+from .textures import bitmap, checkerboard, luminance
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
 from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
@@ -182,23 +182,41 @@ def _power(a, b):
     return a2 / s if s > 0.0 and math.isfinite(s) else (1.0 if math.isinf(a) else 0.0)
 
 
-@njit(inline="always", cache=True)
-def _scalar_param(B, mat, slot, value, ns, prim, tri_uv, b1, b2):
-    """A mask's opacity (slot 0) or a blend weight (slot 1) of ``mat`` at a hit: its bitmap
-    read as Mitsuba's ``eval_1`` (the luminance of the bilinear RGB) at the triangle's
-    interpolated uv through the texture's to_uv, clipped to [0, 1]; ``value`` (the
-    constant, or the texture's mean on spheres) without a bitmap."""
-    if B.ptex[mat, slot, 1] == 0 or prim < ns:
-        return value
-    t = tri_uv[prim - ns]
+@njit(cache=True)
+def _scalar_texture(rec, m, c0, c1, data, t, b1, b2, clip):
+    """A scalar texture at a triangle's point: ``rec`` its record (code 1 checkerboard of
+    the values c0 / c1, 2 bitmap: first texel in ``data``, width, height, wrap, filter),
+    ``m`` its to_uv map, ``t`` the triangle's vertex uvs, (b1, b2) the barycentrics.  Read
+    as Mitsuba's ``eval_1`` (a bitmap: the luminance of the bilinear RGB; a checkerboard:
+    c0 on the squares where its colour lookup gives color1, as Mitsuba), clipped to
+    [0, 1] when ``clip``.  A plain call with a few arguments, not inlined: it runs only
+    at points whose material has a texture there."""
     b0 = 1.0 - b1 - b2
     u = b0 * t[0, 0] + b1 * t[1, 0] + b2 * t[2, 0]
     v = b0 * t[0, 1] + b1 * t[1, 1] + b2 * t[2, 1]
-    m = B.ptex_uv[mat, slot]
-    r, g, b = bitmap(B.ptex_data, B.ptex[mat, slot, 0], B.ptex[mat, slot, 1], B.ptex[mat, slot, 2],
-                     B.ptex[mat, slot, 3], B.ptex[mat, slot, 4], m[0, 0] * u + m[0, 1] * v + m[0, 2],
-                     m[1, 0] * u + m[1, 1] * v + m[1, 2])
-    return min(max(luminance(r, g, b), 0.0), 1.0)
+    uu = m[0, 0] * u + m[0, 1] * v + m[0, 2]
+    vv = m[1, 0] * u + m[1, 1] * v + m[1, 2]
+    if rec[0] == 1:                  # checkerboard (impl.scene_arrays.TEX_CHECKERBOARD)
+        # Mitsuba 3.9.1's checkerboard.eval_1 takes color0 where its colour eval takes
+        # color1 (src/textures/checkerboard.cpp: the two tests are negations of each
+        # other); a scalar checkerboard follows eval_1.
+        x = c1 if checkerboard(uu, vv) else c0
+    else:
+        r, g, b = bitmap(data, rec[1], rec[2], rec[3], rec[4], rec[5], uu, vv)
+        x = luminance(r, g, b)
+    return min(max(x, 0.0), 1.0) if clip else x
+
+
+@njit(inline="always", cache=True)
+def _scalar_param(B, mat, slot, value, ns, prim, tri_uv, b1, b2):
+    """A scalar parameter of ``mat`` at a hit: slot 0 a mask's opacity, 1 a blend weight
+    (both clipped to [0, 1], as Mitsuba), 2 a roughness; its texture's value
+    (:func:`_scalar_texture`) on triangles, ``value`` (the constant, or the texture's
+    mean on spheres) without a texture."""
+    if B.ptex[mat, slot, 0] == 0 or prim < ns:
+        return value
+    return _scalar_texture(B.ptex[mat, slot], B.ptex_uv[mat, slot], B.ptex_c[mat, slot, 0],
+                           B.ptex_c[mat, slot, 1], B.ptex_data, tri_uv[prim - ns], b1, b2, slot < 2)
 
 
 @njit(cache=True)
@@ -215,11 +233,12 @@ def _blend_eval_pdf(A: SceneArrays, B: MaterialArrays, mat, w, skip, prim, b1, b
         c = B.comp[mat, k]
         wk = w if k == 1 else 1.0 - w
         rr, rg, rb = diffuse_albedo(A, c, prim, b1, b2)
-        er, eg, eb = bsdf_eval(B, c, rr, rg, rb, eta_scale, wix, wiy, wiz, wox, woy, woz)
+        al = _scalar_param(B, c, 2, B.alpha[c], A.sph_radius.shape[0], prim, A.tri_uv, b1, b2)
+        er, eg, eb = bsdf_eval_at(B, c, al, rr, rg, rb, eta_scale, wix, wiy, wiz, wox, woy, woz)
         fr += wk * er
         fg += wk * eg
         fb += wk * eb
-        pdf += wk * bsdf_pdf(B, c, eta_scale, wix, wiy, wiz, wox, woy, woz)
+        pdf += wk * bsdf_pdf_at(B, c, al, eta_scale, wix, wiy, wiz, wox, woy, woz)
     return fr, fg, fb, pdf
 
 
@@ -351,6 +370,9 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                 else:
                     smat = B.comp[mat, 1]
                     ck = 1
+            alpha = B.alpha[smat]            # a textured roughness: its value here
+            if B.ptex[smat, 2, 0] != 0:
+                alpha = _scalar_param(B, smat, 2, alpha, ns, prim, A.tri_uv, b1, b2)
             # A two-sided opaque BSDF is seen from the front on both sides.
             back = not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
             # A normal or bump map: the BSDF's frame turns to the perturbed normal n.
@@ -399,8 +421,8 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                         fr, fg, fb, bpdf = _blend_eval_pdf(A, B, mat, bw, -1, prim, b1, b2, eta_scale,
                                                            wix, wiy, wiz, wox, woy, woz)
                     else:
-                        fr, fg, fb = bsdf_eval(B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox,
-                                               woy, woz)
+                        fr, fg, fb = bsdf_eval_at(B, mat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy,
+                                                  wiz, wox, woy, woz)
                     if opac < 1.0:               # a mask scatters by its BSDF with probability opac
                         fr, fg, fb = fr * opac, fg * opac, fb * opac
                     if terminator:
@@ -422,7 +444,8 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                             w = 1.0
                             if not ldelta and mis:
                                 if not blend:
-                                    bpdf = bsdf_pdf(B, mat, eta_scale, wix, wiy, wiz, wox, woy, woz)
+                                    bpdf = bsdf_pdf_at(B, mat, alpha, eta_scale, wix, wiy, wiz, wox, woy,
+                                                       woz)
                                 bpdf *= opac
                                 if bias == _BIAS_MIS:   # debug: the classic swapped-argument bug
                                     w = _power(bpdf, lpdf)
@@ -450,8 +473,8 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                     u0 = u0 / opac
                 if blend:                    # rescaled for the chosen component
                     u0 = (u0 - bw) / (1.0 - bw) if ck == 0 else (u0 / bw if bw > 0.0 else 0.0)
-                wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample(
-                    B, smat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+                wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample_at(
+                    B, smat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
                 if blend and pdf > 0.0:
                     # Mitsuba's blendbsdf.sample: the mixture's pdf, and the weight
                     # (w_k f_k cos / 1 + the other's weighted f cos) / that pdf.
@@ -617,5 +640,5 @@ ALGORITHM = Algorithm(
     ),
     render=render,
     models=frozenset({"envmap", "plastic", "roughplastic", "plastic texture", "normalmap", "bumpmap",
-                      "projector", "thindielectric", "blendbsdf", "mask"}),
+                      "projector", "thindielectric", "blendbsdf", "mask", "textured roughness"}),
 )

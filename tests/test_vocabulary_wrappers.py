@@ -1,13 +1,16 @@
-"""Mitsuba's ``thindielectric``, ``blendbsdf`` and ``mask`` in the path tracer.
+"""Mitsuba's ``thindielectric``, ``blendbsdf``, ``mask`` and a textured roughness in
+the path tracer.
 
-* Each of ``suites/vocabulary/thindielectric.xml``, ``blendbsdf.xml`` and
-  ``mask.xml`` passes the per-pixel Z-test against Mitsuba's ``path`` (own 256
+* Each of ``suites/vocabulary/thindielectric.xml``, ``blendbsdf.xml``,
+  ``mask.xml`` and ``textured_roughness.xml`` passes the per-pixel Z-test against Mitsuba's ``path`` (own 256
   spp against 1024 spp × 8 passes), and the mean of each third of the image
   lies within 4 standard errors of Mitsuba's.
 * Negative controls: the same renders with the feature ignored or mis-modelled
   fail the Z-test — the thin dielectrics drawn as solid ``dielectric``\\ s, the
-  blend weights swapped (w ↔ 1 − w), the masks ignored (opacity 1).
-* The other algorithms still refuse the three by name.
+  blend weights swapped (w ↔ 1 − w), the masks ignored (opacity 1), the
+  roughness textures replaced by their means.
+* The other algorithms still refuse the four by name; anisotropic textured
+  roughness is refused by name.
 * The thin dielectric's reflection probability is Mitsuba's 2R/(1 + R).
 """
 
@@ -26,7 +29,8 @@ from core.loader import load_scene
 from gibench import registry
 
 VOCAB = Path(__file__).resolve().parent.parent / "suites" / "vocabulary"
-SCENES = {name: VOCAB / f"{name}.xml" for name in ("thindielectric", "blendbsdf", "mask")}
+SCENES = {name: VOCAB / f"{name}.xml" for name in ("thindielectric", "blendbsdf", "mask",
+                                                    "textured_roughness")}
 
 
 def _thin_as_dielectric(m):
@@ -41,8 +45,18 @@ def _mask_ignored(m):
     return dataclasses.replace(m, opacity=None)
 
 
+def _roughness_as_mean(m):
+    from impl.materials import _scalar_texture_mean
+
+    if "alpha" not in m.textures:
+        return m
+    return dataclasses.replace(m, textures={}, params={**m.params,
+                                                      "alpha": _scalar_texture_mean(m.textures["alpha"])})
+
+
 #: Per scene, the mis-modelling the Z-test must reject.
-WRONG = {"thindielectric": _thin_as_dielectric, "blendbsdf": _weights_swapped, "mask": _mask_ignored}
+WRONG = {"thindielectric": _thin_as_dielectric, "blendbsdf": _weights_swapped, "mask": _mask_ignored,
+         "textured_roughness": _roughness_as_mean}
 
 
 def _render_and_test(name: str, change=None):
@@ -87,13 +101,24 @@ def test_the_ztest_rejects_the_feature_mis_modelled(name):
 
 
 @pytest.mark.parametrize("name, feature", [("thindielectric", "thindielectric"),
-                                           ("blendbsdf", "blendbsdf"), ("mask", "mask")])
+                                           ("blendbsdf", "blendbsdf"), ("mask", "mask"),
+                                           ("textured_roughness", "textured roughness")])
 def test_other_algorithms_refuse_them_by_name(name, feature):
     scene = load_scene(SCENES[name])
     for algo_name in ("raycast", "whitted", "distributed", "zbuffer", "radiosity"):
         algo = registry.get(algo_name)
         with pytest.raises(UnsupportedError, match=f"uses '{feature}', which {algo_name} does not model"):
             algo.render(scene, algo.parse_params({}))
+
+
+def test_anisotropic_textured_roughness_is_refused_by_name(tmp_path):
+    p = tmp_path / "s.xml"
+    p.write_text(SCENES["textured_roughness"].read_text()
+                 .replace('<texture name="alpha" type="bitmap">', '<texture name="alpha_u" type="bitmap">')
+                 .replace('textures/ramp.png', str(VOCAB / "textures" / "ramp.png")))
+    algo = registry.get("path")
+    with pytest.raises(UnsupportedError, match="anisotropic roughness \\(textured 'alpha_u'/'alpha_v'\\)"):
+        algo.render(load_scene(p), algo.parse_params({"spp": 1}))
 
 
 @pytest.mark.parametrize("cos_i", [1.0, 0.6, 0.2, -0.5])
