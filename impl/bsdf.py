@@ -32,6 +32,16 @@ sampling by default): Mitsuba's microfacet BSDFs of :mod:`impl.microfacet`
 (Walter et al. 2007), with the conductor Fresnel term at the sampled
 microfacet and ``specular_reflectance`` / ``specular_transmittance``.
 
+``thindielectric`` (Mitsuba's): a thin slab of dielectric, both sides alike;
+reflection with probability R' = R + T²R/(1 − R²) = 2R/(1 + R) (R the
+interface's Fresnel reflectance at |cos θ_i|, T = 1 − R: the multiple internal
+reflections summed), else straight through (−wi, η 1); weights
+``specular_reflectance`` / ``specular_transmittance``.  Delta.
+
+``blendbsdf``: a row whose two components are rows of their own
+(:func:`impl.materials.expand_components`); :func:`is_delta` when both are, the
+mixture itself is resolved by the caller (:mod:`impl.path`).
+
 ``plastic`` and ``roughplastic``: Mitsuba's diffuse base under a dielectric
 coat, the functions of :mod:`impl.plastic` (``nonlinear`` included); the
 diffuse reflectance is the caller's ρ (the material's, as for ``diffuse``).

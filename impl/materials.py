@@ -12,14 +12,19 @@ defaults) into a :class:`MaterialArrays` named tuple, one row per material of
   derive from its measured spectra, stored in ``impl/data/conductors_rgb.json``
   (:func:`named_conductor`; written from Mitsuba by
   ``references/conductor_table.py``, which records the version).
-* ``dielectric`` / ``roughdielectric``: ``int_ior`` (default BK7),
+* ``dielectric`` / ``roughdielectric`` / ``thindielectric``: ``int_ior`` (default BK7),
   ``ext_ior`` (default air), ``specular_reflectance``,
   ``specular_transmittance``.
 * ``roughconductor`` / ``roughdielectric``: ``alpha`` (default 0.1, Mitsuba's),
   ``distribution`` (``beckmann``, the default; ``ggx`` only where the caller
   lists it in ``distributions``: :func:`distribution_codes` gives the rows),
   ``sample_visible`` (default true).  Anisotropic ``alpha_u``/``alpha_v`` are
-  accepted only when equal.
+  accepted only when equal and constant; a textured ``alpha`` gets its mean here
+  and its texture in :func:`wrapper_arrays`.
+
+:func:`expand_components` gives a ``blendbsdf``'s components rows of their own;
+:func:`wrapper_arrays` decodes ``mask`` opacities, blend weights and textured
+roughness into :class:`WrapperArrays`.
 
 The microfacet functions these rows feed are in :mod:`impl.microfacet`.
 

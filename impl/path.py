@@ -47,7 +47,19 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   conductors (``material="Au"``: Mitsuba's RGB indices,
   :func:`impl.materials.named_conductor`), ``plastic`` and ``roughplastic``
   (a textured ``diffuse_reflectance`` included: ρ(u, v) as for ``diffuse``);
-  two-sided opaque materials; ``normalmap`` and ``bumpmap`` around any of them
+  two-sided opaque materials; ``thindielectric`` (:mod:`impl.bsdf`); a
+  ``blendbsdf`` of two of these (the component sampled by u0 against the weight,
+  the weight and pdf of the mixture as Mitsuba 3.9.1's ``blendbsdf.sample``:
+  the other component's f·cos and pdf at the sampled direction are added, also
+  when the sampled one is a delta; light samples see the weighted sum); a
+  ``mask`` around any of them (with probability 1 − opacity a null event: the
+  ray goes straight on, weight 1, counted as a delta bounce and a depth step,
+  as Mitsuba's ``path`` counts it; the nested BSDF's f and pdf times the
+  opacity); opacity, blend weight and the ``alpha`` of a roughconductor /
+  roughdielectric may be a constant, a bitmap or (alpha) a checkerboard, read as
+  Mitsuba's ``eval_1``.  Shadow rays stop at any surface, masks and thin
+  dielectrics included (Mitsuba's ``path`` tests visibility with
+  ``ray_test``); ``normalmap`` and ``bumpmap`` around any of them
   on triangles with uvs (:mod:`impl.shading_frame`: the BSDF evaluated and
   sampled in the perturbed frame, directions on opposite sides of the true
   and the perturbed shading normal dropped, Estevez et al.'s shadowing term).
