@@ -16,8 +16,10 @@ instance's shapes in world space, as ordinary shapes.
 
 Parts of the vocabulary that not every algorithm models (``plastic``, an
 ``envmap``, a ``projector``, normal and bump maps, textures on parameters other
-than a diffuse reflectance, a plastic's textured ``diffuse_reflectance``
-(``plastic texture``), ``mask``, ``blendbsdf``, ``thindielectric``) are named by :func:`scene_features`; an algorithm
+than a diffuse reflectance, a rough conductor's or dielectric's textured ``alpha``
+(``textured roughness``), a plastic's textured ``diffuse_reflectance``
+(``plastic texture``), ``mask``, ``blendbsdf``, ``thindielectric``) are named by
+:func:`scene_features`; an algorithm
 renders a scene only if it models every feature the scene has
 (:class:`core.algorithm.Algorithm` ``models``), so none of them is silently
 rendered as something else.
@@ -322,8 +324,8 @@ class Scene:
 #: The features :func:`scene_features` names: parts of the scene vocabulary an
 #: algorithm must model explicitly (``Algorithm.models``) to render a scene that has them.
 FEATURES = ("envmap", "projector", "spot texture", "plastic", "roughplastic", "normalmap", "bumpmap",
-            "textured parameter", "plastic texture", "camera motion", "mesh motion", "mask", "blendbsdf",
-            "thindielectric", "gibench_cooktorrance", "gibench_difftrans")
+            "textured parameter", "textured roughness", "plastic texture", "camera motion", "mesh motion",
+            "mask", "blendbsdf", "thindielectric", "gibench_cooktorrance", "gibench_difftrans")
 
 
 def scene_features(scene: Scene) -> dict[str, str]:
@@ -343,20 +345,29 @@ def scene_features(scene: Scene) -> dict[str, str]:
     if getattr(scene.camera, "moves", False):
         found["camera motion"] = "the sensor (gibench_velocity / gibench_angular_velocity)"
     for shape in scene.shapes:
-        m = scene.materials[shape.material]
         where = f"shape '{shape.name or shape.source}'"
         if shape.kind == "mesh" and shape.moves:
             found.setdefault("mesh motion", where)
-        if m.kind in ("plastic", "roughplastic", "blendbsdf", "thindielectric", "gibench_cooktorrance",
-                      "gibench_difftrans"):
-            found.setdefault(m.kind, where)
-        if m.opacity is not None:
-            found.setdefault("mask", where)
-        if m.shading is not None:
-            found.setdefault(m.shading["type"], where)
-        for name in m.textures:
-            if m.kind in ("plastic", "roughplastic") and name == "diffuse_reflectance":
-                found.setdefault("plastic texture", where)
-            else:
-                found.setdefault("textured parameter", f"{where} ('{name}' of its {m.kind} BSDF)")
+        _material_features(scene.materials[shape.material], where, found)
     return found
+
+
+def _material_features(m: Material, where: str, found: dict) -> None:
+    """Add material ``m``'s features (and its ``blendbsdf`` components') to ``found``.
+    A blendbsdf's ``weight`` texture belongs to the ``blendbsdf`` feature."""
+    if m.kind in ("plastic", "roughplastic", "blendbsdf", "thindielectric", "gibench_cooktorrance",
+                  "gibench_difftrans"):
+        found.setdefault(m.kind, where)
+    if m.opacity is not None:
+        found.setdefault("mask", where)
+    if m.shading is not None:
+        found.setdefault(m.shading["type"], where)
+    for name in m.textures:
+        if m.kind in ("plastic", "roughplastic") and name == "diffuse_reflectance":
+            found.setdefault("plastic texture", where)
+        elif m.kind in ("roughconductor", "roughdielectric") and name in ("alpha", "alpha_u", "alpha_v"):
+            found.setdefault("textured roughness", f"{where} ('{name}' of its {m.kind} BSDF)")
+        elif not (m.kind == "blendbsdf" and name == "weight"):
+            found.setdefault("textured parameter", f"{where} ('{name}' of its {m.kind} BSDF)")
+    for c in m.components:
+        _material_features(c, where, found)

@@ -32,6 +32,16 @@ sampling by default): Mitsuba's microfacet BSDFs of :mod:`impl.microfacet`
 (Walter et al. 2007), with the conductor Fresnel term at the sampled
 microfacet and ``specular_reflectance`` / ``specular_transmittance``.
 
+``thindielectric`` (Mitsuba's): a thin slab of dielectric, both sides alike;
+reflection with probability R' = R + T²R/(1 − R²) = 2R/(1 + R) (R the
+interface's Fresnel reflectance at |cos θ_i|, T = 1 − R: the multiple internal
+reflections summed), else straight through (−wi, η 1); weights
+``specular_reflectance`` / ``specular_transmittance``.  Delta.
+
+``blendbsdf``: a row whose two components are rows of their own
+(:func:`impl.materials.expand_components`); :func:`is_delta` when both are, the
+mixture itself is resolved by the caller (:mod:`impl.path`).
+
 ``plastic`` and ``roughplastic``: Mitsuba's diffuse base under a dielectric
 coat, the functions of :mod:`impl.plastic` (``nonlinear`` included); the
 diffuse reflectance is the caller's ρ (the material's, as for ``diffuse``).
@@ -85,19 +95,21 @@ from core.scene import Scene
 from . import microfacet as mf
 from . import plastic as pl
 from .fresnel import fresnel_conductor, fresnel_dielectric
-from .materials import (MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_PLASTIC,
-                        MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MAT_ROUGHPLASTIC, MaterialArrays,
-                        PlasticArrays, distribution_codes, material_arrays, plastic_arrays)
+from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_PLASTIC,
+                        MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MAT_ROUGHPLASTIC, MAT_THINDIELECTRIC,
+                        MaterialArrays, PlasticArrays, WrapperArrays, distribution_codes,
+                        material_arrays, plastic_arrays, wrapper_arrays)
 
 __all__ = ["bsdf_arrays", "BsdfArrays", "with_plastic", "MODELLED", "frame", "to_local", "to_world", "sample_cosine_hemisphere",
-           "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "is_delta",
+           "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "bsdf_sample_at",
+           "bsdf_eval_at", "bsdf_pdf_at", "is_delta",
            "is_dielectric", "cook_torrance_eval", "cook_torrance_pdf", "cook_torrance_sample",
            "diffuse_transmission_eval", "diffuse_transmission_pdf", "diffuse_transmission_sample",
            "check_cook_torrance"]
 
 #: The Mitsuba BSDF plugins the path tracer models.
 MODELLED = ("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric", "plastic",
-            "roughplastic")
+            "roughplastic", "thindielectric", "blendbsdf")
 
 INV_PI = 1.0 / math.pi
 
@@ -126,12 +138,20 @@ class BsdfArrays(NamedTuple):
     pl_ext_t: np.ndarray        # (M, TABLE_RES) roughplastic: coat transmittance over cos θ
     pl_int_r: np.ndarray        # (M,) roughplastic: internal diffuse reflectance
     dist: np.ndarray            # (M,) int: microfacet distribution of the rough kinds (BECKMANN, GGX)
+    opacity: np.ndarray         # (M,) the wrappers of impl.materials.WrapperArrays: mask opacity,
+    comp: np.ndarray            # (M, 2) int blendbsdf components,
+    blend_w: np.ndarray         # (M,) blend weight,
+    ptex: np.ndarray            # (M, 3, 6) int their textures (slot 0 opacity, 1 weight, 2 alpha),
+    ptex_uv: np.ndarray         # (M, 3, 2, 3) to_uv maps,
+    ptex_c: np.ndarray          # (M, 3, 2) checkerboard values,
+    ptex_data: np.ndarray       # (K, 3) texels
 
 
 def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None,
-                 dist: np.ndarray | None = None) -> BsdfArrays:
-    """``M``'s rows with ``P``'s plastic rows (none: rows of zeros, no plastic material)
-    and the distribution codes ``dist`` (none: Beckmann everywhere)."""
+                 dist: np.ndarray | None = None, W: WrapperArrays | None = None) -> BsdfArrays:
+    """``M``'s rows with ``P``'s plastic rows (none: rows of zeros, no plastic material),
+    the distribution codes ``dist`` (none: Beckmann everywhere) and the wrapper rows
+    ``W`` (none: no mask, no blendbsdf)."""
     n = M.kind.shape[0]
     if P is None:
         P = PlasticArrays(np.zeros(n, dtype=np.int64), np.ones(n), np.zeros((n, 3)), np.zeros((n, 3)),
@@ -140,8 +160,14 @@ def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None,
                           np.zeros(n))
     if dist is None:
         dist = np.zeros(n, dtype=np.int64)
+    if W is None:
+        uv = np.zeros((n, 3, 2, 3))
+        uv[:, :, 0, 0] = uv[:, :, 1, 1] = 1.0
+        W = WrapperArrays(np.ones(n), np.repeat(np.arange(n, dtype=np.int64)[:, None], 2, axis=1),
+                          np.zeros(n), np.zeros((n, 3, 6), dtype=np.int64), uv, np.zeros((n, 3, 2)),
+                          np.zeros((0, 3)))
     return BsdfArrays(*M, P.eta, P.specular, P.spec_weight, P.nonlinear, P.alpha, P.visible,
-                      P.fdr_int, P.ext_t, P.int_r, np.asarray(dist, dtype=np.int64))
+                      P.fdr_int, P.ext_t, P.int_r, np.asarray(dist, dtype=np.int64), *W)
 
 
 def bsdf_arrays(scene: Scene, *, algorithm: str = "path") -> BsdfArrays:
@@ -156,7 +182,7 @@ def bsdf_arrays(scene: Scene, *, algorithm: str = "path") -> BsdfArrays:
     M = material_arrays(scene, algorithm=algorithm, model="the path tracer", kinds=MODELLED,
                         distributions=tuple(mf.DISTRIBUTIONS))
     return with_plastic(M, plastic_arrays(scene, algorithm=algorithm, distributions=tuple(mf.DISTRIBUTIONS)),
-                        distribution_codes(scene))
+                        distribution_codes(scene), wrapper_arrays(scene, algorithm=algorithm))
 
 
 # ------------------------------------------------------------------ frames ---
@@ -209,14 +235,23 @@ def cosine_hemisphere_pdf(z):
 
 @njit(inline="always", cache=True)
 def is_delta(B: MaterialArrays, mat):
+    """Whether every lobe of ``mat`` is a delta (no light samples); a blendbsdf is when
+    both its components are."""
     k = B.kind[mat]
-    return k == MAT_CONDUCTOR or k == MAT_DIELECTRIC
+    if k == MAT_BLEND:
+        k0 = B.kind[B.comp[mat, 0]]
+        k1 = B.kind[B.comp[mat, 1]]
+        return ((k0 == MAT_CONDUCTOR or k0 == MAT_DIELECTRIC or k0 == MAT_THINDIELECTRIC)
+                and (k1 == MAT_CONDUCTOR or k1 == MAT_DIELECTRIC or k1 == MAT_THINDIELECTRIC))
+    return k == MAT_CONDUCTOR or k == MAT_DIELECTRIC or k == MAT_THINDIELECTRIC
 
 
 @njit(inline="always", cache=True)
 def is_dielectric(B: MaterialArrays, mat):
+    """Whether ``mat`` has two sides of its own (dielectrics: the normal tells inside from
+    outside; a thin dielectric is symmetric)."""
     k = B.kind[mat]
-    return k == MAT_DIELECTRIC or k == MAT_ROUGHDIELECTRIC
+    return k == MAT_DIELECTRIC or k == MAT_ROUGHDIELECTRIC or k == MAT_THINDIELECTRIC
 
 
 @njit(inline="always", cache=True)
@@ -280,13 +315,34 @@ def _plastic_pdf(B: MaterialArrays, mat, k, wix, wiy, wiz, wox, woy, woz):
 
 @njit(inline="always", cache=True)
 def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2):
+    """:func:`bsdf_sample_at` with the material's own roughness ``B.alpha[mat]``."""
+    return bsdf_sample_at(B, mat, B.alpha[mat], rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+
+
+@njit(inline="always", cache=True)
+def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz):
+    """:func:`bsdf_eval_at` with the material's own roughness ``B.alpha[mat]``."""
+    return bsdf_eval_at(B, mat, B.alpha[mat], rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz)
+
+
+@njit(inline="always", cache=True)
+def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
+    """:func:`bsdf_pdf_at` with the material's own roughness ``B.alpha[mat]``."""
+    return bsdf_pdf_at(B, mat, B.alpha[mat], eta_scale, wix, wiy, wiz, wox, woy, woz)
+
+
+@njit(inline="always", cache=True)
+def bsdf_sample_at(B: MaterialArrays, mat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1,
+                   u2):
     """Sample wo for material ``mat`` (diffuse albedo ρ given, textures resolved by the caller).
 
     ``eta_scale`` multiplies a dielectric's relative index (dispersion: the
     ratio n(λ)/n of the hero wavelength; 1 otherwise).  Returns
     ``(wox, woy, woz, w_r, w_g, w_b, pdf, delta, eta)`` with ``eta`` the
     relative index η_t/η_i crossed (1 unless transmitted, Mitsuba's
-    ``bs.eta``); a zero weight ends the path.
+    ``bs.eta``); a zero weight ends the path.  ``alpha`` is the roughness of a
+    roughconductor / roughdielectric at this point (``B.alpha[mat]``, or its texture's
+    value).
     """
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
@@ -302,15 +358,26 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
         fr, fg, fb = _conductor_fresnel(B, mat, wiz)
         return -wix, -wiy, wiz, fr, fg, fb, 1.0, True, 1.0
     if k == MAT_ROUGHCONDUCTOR:
-        ox, oy, oz, w, pdf, cos_ih = mf.conductor_sample(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
+        ox, oy, oz, w, pdf, cos_ih = mf.conductor_sample(mf.clamp_alpha(alpha), mf.G_SMITH,
                                                          B.visible[mat], wix, wiy, wiz, u1, u2, B.dist[mat])
         if w <= 0.0 or pdf <= 0.0:
             return ox, oy, oz, 0.0, 0.0, 0.0, 0.0, False, 1.0
         fr, fg, fb = _conductor_fresnel(B, mat, cos_ih)
         return ox, oy, oz, w * fr, w * fg, w * fb, pdf, False, 1.0
     eta = B.diel_eta[mat] * eta_scale
+    if k == MAT_THINDIELECTRIC:
+        # Mitsuba's thindielectric: R' = R + T²R / (1 − R²) = 2R / (1 + R) of the interface's
+        # Fresnel R at |cos θ_i| (both sides alike), reflection with probability R', else
+        # the ray goes straight through (−wi, a null event); weights the specular colours.
+        F, _, _, _ = fresnel_dielectric(abs(wiz), eta)
+        r = 2.0 * F / (1.0 + F)
+        if u0 <= r:
+            return (-wix, -wiy, wiz, B.spec_refl[mat, 0], B.spec_refl[mat, 1], B.spec_refl[mat, 2],
+                    r, True, 1.0)
+        return (-wix, -wiy, -wiz, B.spec_trans[mat, 0], B.spec_trans[mat, 1], B.spec_trans[mat, 2],
+                1.0 - r, True, 1.0)
     if k == MAT_ROUGHDIELECTRIC:
-        ox, oy, oz, w, pdf, refl, eti = mf.dielectric_sample(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
+        ox, oy, oz, w, pdf, refl, eti = mf.dielectric_sample(mf.clamp_alpha(alpha), mf.G_SMITH,
                                                              B.visible[mat], eta, wix, wiy, wiz,
                                                              u0, u1, u2, B.dist[mat])
         if w <= 0.0 or pdf <= 0.0:
@@ -332,8 +399,10 @@ def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy
 
 
 @njit(inline="always", cache=True)
-def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz):
-    """f(wi, wo)·|cos θ_o| (RGB) of the non-delta lobes; 0 for delta BSDFs."""
+def bsdf_eval_at(B: MaterialArrays, mat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy,
+                 woz):
+    """f(wi, wo)·|cos θ_o| (RGB) of the non-delta lobes; 0 for delta BSDFs (``alpha`` as
+    for :func:`bsdf_sample_at`)."""
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
         if wiz > 0.0 and woz > 0.0:
@@ -343,14 +412,14 @@ def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, 
     if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
         return _plastic_eval(B, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, wox, woy, woz)
     if k == MAT_ROUGHCONDUCTOR:
-        v, cos_ih = mf.conductor_eval(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH, wix, wiy, wiz,
+        v, cos_ih = mf.conductor_eval(mf.clamp_alpha(alpha), mf.G_SMITH, wix, wiy, wiz,
                                       wox, woy, woz, B.dist[mat])
         if v <= 0.0:
             return 0.0, 0.0, 0.0
         fr, fg, fb = _conductor_fresnel(B, mat, cos_ih)
         return v * fr, v * fg, v * fb
     if k == MAT_ROUGHDIELECTRIC:
-        v, refl = mf.dielectric_eval(mf.clamp_alpha(B.alpha[mat]), mf.G_SMITH,
+        v, refl = mf.dielectric_eval(mf.clamp_alpha(alpha), mf.G_SMITH,
                                      B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz, B.dist[mat])
         if refl:
             return v * B.spec_refl[mat, 0], v * B.spec_refl[mat, 1], v * B.spec_refl[mat, 2]
@@ -359,18 +428,18 @@ def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, 
 
 
 @njit(inline="always", cache=True)
-def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
-    """Solid-angle pdf of :func:`bsdf_sample` producing wo (0 for delta lobes)."""
+def bsdf_pdf_at(B: MaterialArrays, mat, alpha, eta_scale, wix, wiy, wiz, wox, woy, woz):
+    """Solid-angle pdf of :func:`bsdf_sample_at` producing wo (0 for delta lobes)."""
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
         return cosine_hemisphere_pdf(woz) if wiz > 0.0 else 0.0
     if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
         return _plastic_pdf(B, mat, k, wix, wiy, wiz, wox, woy, woz)
     if k == MAT_ROUGHCONDUCTOR:
-        return mf.conductor_pdf(mf.clamp_alpha(B.alpha[mat]), B.visible[mat], wix, wiy, wiz,
+        return mf.conductor_pdf(mf.clamp_alpha(alpha), B.visible[mat], wix, wiy, wiz,
                                 wox, woy, woz, B.dist[mat])
     if k == MAT_ROUGHDIELECTRIC:
-        return mf.dielectric_pdf(mf.clamp_alpha(B.alpha[mat]), B.visible[mat],
+        return mf.dielectric_pdf(mf.clamp_alpha(alpha), B.visible[mat],
                                  B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz, B.dist[mat])
     return 0.0
 

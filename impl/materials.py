@@ -12,14 +12,19 @@ defaults) into a :class:`MaterialArrays` named tuple, one row per material of
   derive from its measured spectra, stored in ``impl/data/conductors_rgb.json``
   (:func:`named_conductor`; written from Mitsuba by
   ``references/conductor_table.py``, which records the version).
-* ``dielectric`` / ``roughdielectric``: ``int_ior`` (default BK7),
+* ``dielectric`` / ``roughdielectric`` / ``thindielectric``: ``int_ior`` (default BK7),
   ``ext_ior`` (default air), ``specular_reflectance``,
   ``specular_transmittance``.
 * ``roughconductor`` / ``roughdielectric``: ``alpha`` (default 0.1, Mitsuba's),
   ``distribution`` (``beckmann``, the default; ``ggx`` only where the caller
   lists it in ``distributions``: :func:`distribution_codes` gives the rows),
   ``sample_visible`` (default true).  Anisotropic ``alpha_u``/``alpha_v`` are
-  accepted only when equal.
+  accepted only when equal and constant; a textured ``alpha`` gets its mean here
+  and its texture in :func:`wrapper_arrays`.
+
+:func:`expand_components` gives a ``blendbsdf``'s components rows of their own;
+:func:`wrapper_arrays` decodes ``mask`` opacities, blend weights and textured
+roughness into :class:`WrapperArrays`.
 
 The microfacet functions these rows feed are in :mod:`impl.microfacet`.
 
@@ -49,8 +54,9 @@ from .scene_arrays import MATERIAL_CODES
 
 __all__ = ["named_conductor", "distribution_codes", "CONDUCTOR_TABLE", "MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "MAT_PLASTIC",
-           "MAT_ROUGHPLASTIC", "MAT_COOKTORRANCE", "MAT_DIFFTRANS", "MAX_LOBES", "KIND_CODES",
-           "DEFAULT_ALPHA"]
+           "MAT_ROUGHPLASTIC", "MAT_COOKTORRANCE", "MAT_DIFFTRANS", "MAT_THINDIELECTRIC", "MAT_BLEND",
+           "MAX_LOBES", "KIND_CODES", "DEFAULT_ALPHA", "expand_components", "WrapperArrays",
+           "wrapper_arrays"]
 
 MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
 MAT_CONDUCTOR = MATERIAL_CODES["conductor"]
@@ -61,6 +67,8 @@ MAT_PLASTIC = MATERIAL_CODES["plastic"]
 MAT_ROUGHPLASTIC = MATERIAL_CODES["roughplastic"]
 MAT_COOKTORRANCE = MATERIAL_CODES["gibench_cooktorrance"]
 MAT_DIFFTRANS = MATERIAL_CODES["gibench_difftrans"]
+MAT_THINDIELECTRIC = MATERIAL_CODES["thindielectric"]
+MAT_BLEND = MATERIAL_CODES["blendbsdf"]
 #: Most roughness lobes of a ``gibench_cooktorrance`` mixture (its row holds them in
 #: ``cond_eta`` / ``cond_k``).
 MAX_LOBES = 3
@@ -68,7 +76,8 @@ MAX_LOBES = 3
 KIND_CODES = {"diffuse": MAT_DIFFUSE, "conductor": MAT_CONDUCTOR, "dielectric": MAT_DIELECTRIC,
               "roughconductor": MAT_ROUGHCONDUCTOR, "roughdielectric": MAT_ROUGHDIELECTRIC,
               "plastic": MAT_PLASTIC, "roughplastic": MAT_ROUGHPLASTIC,
-              "gibench_cooktorrance": MAT_COOKTORRANCE, "gibench_difftrans": MAT_DIFFTRANS}
+              "gibench_cooktorrance": MAT_COOKTORRANCE, "gibench_difftrans": MAT_DIFFTRANS,
+              "thindielectric": MAT_THINDIELECTRIC, "blendbsdf": MAT_BLEND}
 
 #: Mitsuba's default roughness of roughconductor / roughdielectric.
 DEFAULT_ALPHA = 0.1
@@ -121,7 +130,16 @@ SpecularArrays = MaterialArrays
 
 
 def _rgb_param(params: dict, name: str, default: float, where: str) -> np.ndarray:
+    """Parameter ``name`` as RGB.  A ``<spectrum>`` of (wavelength, value) pairs becomes
+    linear sRGB as Mitsuba's RGB variants pre-integrate it (D65-weighted CIE 1931,
+    :meth:`core.scene.Spectrum.to_rgb`), clipped to [0, 1] except for the unbounded
+    ``eta`` and ``k``, which are only kept >= 0."""
+    from core.scene import Spectrum
+
     v = params.get(name, default)
+    if isinstance(v, Spectrum):
+        rgb = v.to_rgb(emitter=False)
+        return np.maximum(rgb, 0.0) if name in ("eta", "k") else np.clip(rgb, 0.0, 1.0)
     a = np.asarray(v, dtype=np.float64).reshape(-1)
     if a.shape == (1,):
         a = np.repeat(a, 3)
@@ -238,6 +256,11 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
     users = {}
     for shape in scene.shapes:
         users.setdefault(shape.material, shape.name or shape.source)
+    index = {id(m): i for i, m in enumerate(scene.materials)}
+    for i, m in enumerate(scene.materials):      # a blendbsdf's components (expand_components)
+        for c in m.components:
+            if i in users and id(c) in index:
+                users.setdefault(index[id(c)], users[i])
     for i, m in enumerate(scene.materials):
         if m.kind in KIND_CODES:
             kind[i] = KIND_CODES[m.kind]
@@ -263,7 +286,7 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
                 cond_eta[i] = _rgb_param(p, "eta", 0.0, where)
                 cond_k[i] = _rgb_param(p, "k", 1.0, where)
             spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
-        elif m.kind in ("dielectric", "roughdielectric"):
+        elif m.kind in ("dielectric", "roughdielectric", "thindielectric"):
             if m.twosided:
                 raise UnsupportedError(f"{where}: a two-sided dielectric is not modelled")
             # Mitsuba's defaults: BK7 glass inside, air outside.
@@ -280,6 +303,11 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             spec_trans[i] = _rgb_param(p, "specular_transmittance", 1.0, where)
         if m.kind in ("roughconductor", "roughdielectric"):
             alpha[i], visible[i] = _roughness(p, where, distributions)
+            if "alpha_u" in m.textures or "alpha_v" in m.textures:
+                raise UnsupportedError(f"{where}: anisotropic roughness (textured 'alpha_u'/'alpha_v') "
+                                       "is not modelled; give one 'alpha'")
+            if "alpha" in m.textures:               # the value where no uv: the texture's mean
+                alpha[i] = _scalar_texture_mean(m.textures["alpha"])
         elif m.kind == "gibench_cooktorrance":
             spec_refl[i] = _rgb_param(p, "reflectance", 0.5, where)
             kd, ks = float(p.get("kd", 0.5)), float(p.get("ks", 0.5))
@@ -302,6 +330,126 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             spec_refl[i], spec_trans[i] = rho, tau
     return MaterialArrays(spec_refl, spec_trans, cond_eta, cond_k, diel_eta, diel_int, diel_ext,
                           kind, alpha, visible)
+
+
+_LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
+
+
+def _scalar_texture_mean(tex: dict) -> float:
+    """The mean of a texture read as Mitsuba's ``eval_1`` (the luminance of its RGB)."""
+    if tex["type"] == "bitmap":
+        return float((np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3) @ _LUMINANCE).mean())
+    return float(0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"])) @ _LUMINANCE)
+
+
+def expand_components(scene: Scene, *, algorithm: str = "path") -> Scene:
+    """``scene`` with the two components of every ``blendbsdf`` appended to its materials
+    (so that each component has its own row in every per-material array; shapes keep
+    their indices), or ``scene`` itself without a blendbsdf.  The blendbsdf's own row
+    takes its components' ``twosided`` (which must agree).
+
+    Raises
+    ------
+    UnsupportedError
+        A component that is itself a blendbsdf, has a mask or a normal / bump map, or
+        components that differ in ``twosided``.
+    """
+    import dataclasses
+
+    if not any(m.components for m in scene.materials):
+        return scene
+    mats = list(scene.materials)
+    for i, m in enumerate(scene.materials):
+        if not m.components:
+            continue
+        where = f"{algorithm}: blendbsdf '{m.name or i}'"
+        for c in m.components:
+            if c.components or c.opacity is not None or c.shading is not None:
+                raise UnsupportedError(f"{where}: a nested blendbsdf, mask, normalmap or bumpmap inside "
+                                       "a blendbsdf is not modelled")
+        sides = {c.twosided for c in m.components}
+        if len(sides) != 1:
+            raise UnsupportedError(f"{where}: one two-sided and one one-sided component is not modelled")
+        mats[i] = dataclasses.replace(m, twosided=sides.pop())
+        mats.extend(m.components)
+    return dataclasses.replace(scene, materials=mats)
+
+
+class WrapperArrays(NamedTuple):
+    """Per-material rows of the wrappers ``mask`` and ``blendbsdf`` and of a textured
+    roughness (one row per material of a scene after :func:`expand_components`).  The
+    scalar textures' slots: 0 the mask's opacity, 1 the blend weight, 2 the ``alpha`` of
+    a roughconductor / roughdielectric."""
+
+    opacity: np.ndarray         # (M,) mask opacity (1: no mask; a texture's mean when textured)
+    comp: np.ndarray            # (M, 2) int: a blendbsdf's component rows (else the row itself)
+    blend_w: np.ndarray         # (M,) blend weight of the second component (a texture's mean when textured)
+    ptex: np.ndarray            # (M, 3, 6) int: a slot's texture: code (scene_arrays TEX_*: 0 none,
+                                # 1 checkerboard, 2 bitmap), first texel in ptex_data, width, height,
+                                # wrap, filter
+    ptex_uv: np.ndarray         # (M, 3, 2, 3) its 2D affine to_uv map
+    ptex_c: np.ndarray          # (M, 3, 2) a checkerboard's two values (luminance of color0, color1)
+    ptex_data: np.ndarray       # (K, 3) linear RGB texels of those bitmaps, row-major, concatenated
+
+
+def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
+    """:class:`WrapperArrays` of ``scene`` (expanded by :func:`expand_components`).  A
+    scalar texture is read as Mitsuba's ``eval_1``: the luminance of the bitmap's linear
+    RGB (a grey image's value), clipped to [0, 1] where used.
+
+    Raises
+    ------
+    UnsupportedError
+        A texture other than a bitmap as opacity or blend weight.
+    """
+    from .scene_arrays import FILTER_CODES, TEX_BITMAP, TEX_CHECKERBOARD, WRAP_CODES
+
+    M = len(scene.materials)
+    index = {id(m): i for i, m in enumerate(scene.materials)}
+    opacity, blend_w = np.ones(M), np.zeros(M)
+    comp = np.repeat(np.arange(M, dtype=np.int64)[:, None], 2, axis=1)
+    ptex = np.zeros((M, 3, 6), dtype=np.int64)
+    ptex_uv = np.zeros((M, 3, 2, 3))
+    ptex_uv[:, :, 0, 0] = ptex_uv[:, :, 1, 1] = 1.0
+    ptex_c = np.zeros((M, 3, 2))
+    texels, n = [], 0
+
+    def scalar(i, slot, value, role):
+        """Record texture ``value`` in ``slot`` of row i; its constant or mean value."""
+        nonlocal n
+        if value["type"] == "constant":
+            return float(value["value"])
+        ptex_uv[i, slot] = np.asarray(value["to_uv"])[:2]
+        if value["type"] == "checkerboard":
+            ptex[i, slot, 0] = TEX_CHECKERBOARD
+            ptex_c[i, slot] = (np.asarray(value["color0"]) @ _LUMINANCE,
+                               np.asarray(value["color1"]) @ _LUMINANCE)
+            return _scalar_texture_mean(value)
+        if value["type"] != "bitmap":
+            raise UnsupportedError(f"{algorithm}: material '{scene.materials[i].name or i}': a "
+                                   f"{value['type']} texture as {role} is not modelled")
+        img = np.asarray(value["data"], dtype=np.float64)
+        ptex[i, slot] = (TEX_BITMAP, n, img.shape[1], img.shape[0], WRAP_CODES[value["wrap_mode"]],
+                         FILTER_CODES[value["filter_type"]])
+        texels.append(img.reshape(-1, 3))
+        n += img.shape[0] * img.shape[1]
+        return _scalar_texture_mean(value)
+
+    for i, m in enumerate(scene.materials):
+        if m.opacity is not None:
+            opacity[i] = scalar(i, 0, m.opacity, "a mask's opacity")
+        if m.kind == "blendbsdf":
+            if any(id(c) not in index for c in m.components):
+                raise ValueError("wrapper_arrays: the scene's blendbsdf components have no rows; "
+                                 "expand it with expand_components first")
+            comp[i] = [index[id(c)] for c in m.components]
+            w = m.textures.get("weight", {"type": "constant", "value": m.params.get("weight", 0.5)})
+            blend_w[i] = scalar(i, 1, w, "a blendbsdf's weight")
+        if m.kind in ("roughconductor", "roughdielectric") and "alpha" in m.textures:
+            scalar(i, 2, m.textures["alpha"], "a roughness")
+    opacity, blend_w = np.clip(opacity, 0.0, 1.0), np.clip(blend_w, 0.0, 1.0)
+    data = np.ascontiguousarray(np.concatenate(texels) if texels else np.zeros((0, 3)), dtype=np.float64)
+    return WrapperArrays(opacity, comp, blend_w, ptex, ptex_uv, ptex_c, data)
 
 
 def distribution_codes(scene: Scene) -> np.ndarray:

@@ -47,7 +47,19 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   conductors (``material="Au"``: Mitsuba's RGB indices,
   :func:`impl.materials.named_conductor`), ``plastic`` and ``roughplastic``
   (a textured ``diffuse_reflectance`` included: ρ(u, v) as for ``diffuse``);
-  two-sided opaque materials; ``normalmap`` and ``bumpmap`` around any of them
+  two-sided opaque materials; ``thindielectric`` (:mod:`impl.bsdf`); a
+  ``blendbsdf`` of two of these (the component sampled by u0 against the weight,
+  the weight and pdf of the mixture as Mitsuba 3.9.1's ``blendbsdf.sample``:
+  the other component's f·cos and pdf at the sampled direction are added, also
+  when the sampled one is a delta; light samples see the weighted sum); a
+  ``mask`` around any of them (with probability 1 − opacity a null event: the
+  ray goes straight on, weight 1, counted as a delta bounce and a depth step,
+  as Mitsuba's ``path`` counts it; the nested BSDF's f and pdf times the
+  opacity); opacity, blend weight and the ``alpha`` of a roughconductor /
+  roughdielectric may be a constant, a bitmap or (alpha) a checkerboard, read as
+  Mitsuba's ``eval_1``.  Shadow rays stop at any surface, masks and thin
+  dielectrics included (Mitsuba's ``path`` tests visibility with
+  ``ray_test``); ``normalmap`` and ``bumpmap`` around any of them
   on triangles with uvs (:mod:`impl.shading_frame`: the BSDF evaluated and
   sampled in the perturbed frame, directions on opposite sides of the true
   and the perturbed shading normal dropped, Estevez et al.'s shadowing term).
@@ -135,9 +147,9 @@ from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
 from core.errors import ParamError, UnsupportedError
 
-from .bsdf import bsdf_arrays, bsdf_eval, bsdf_pdf, bsdf_sample, frame, is_delta, is_dielectric
+from .bsdf import bsdf_arrays, bsdf_eval_at, bsdf_pdf_at, bsdf_sample_at, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
-from .materials import MaterialArrays
+from .materials import MAT_BLEND, MaterialArrays, expand_components
 from .accel.packets import NOT_TRACED
 from .camera import camera_params
 from .kernel import batch_kernel
@@ -151,6 +163,7 @@ from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
 from .shading_frame import perturbed_normal, same_side, shadow_terminator
+from .textures import bitmap, checkerboard, luminance
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
 from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
@@ -179,6 +192,66 @@ def _power(a, b):
     a2 = a * a
     s = a2 + b * b
     return a2 / s if s > 0.0 and math.isfinite(s) else (1.0 if math.isinf(a) else 0.0)
+
+
+@njit(cache=True)
+def _scalar_texture(rec, m, c0, c1, data, t, b1, b2, clip):
+    """A scalar texture at a triangle's point: ``rec`` its record (code 1 checkerboard of
+    the values c0 / c1, 2 bitmap: first texel in ``data``, width, height, wrap, filter),
+    ``m`` its to_uv map, ``t`` the triangle's vertex uvs, (b1, b2) the barycentrics.  Read
+    as Mitsuba's ``eval_1`` (a bitmap: the luminance of the bilinear RGB; a checkerboard:
+    c0 on the squares where its colour lookup gives color1, as Mitsuba), clipped to
+    [0, 1] when ``clip``.  A plain call with a few arguments, not inlined: it runs only
+    at points whose material has a texture there."""
+    b0 = 1.0 - b1 - b2
+    u = b0 * t[0, 0] + b1 * t[1, 0] + b2 * t[2, 0]
+    v = b0 * t[0, 1] + b1 * t[1, 1] + b2 * t[2, 1]
+    uu = m[0, 0] * u + m[0, 1] * v + m[0, 2]
+    vv = m[1, 0] * u + m[1, 1] * v + m[1, 2]
+    if rec[0] == 1:                  # checkerboard (impl.scene_arrays.TEX_CHECKERBOARD)
+        # Mitsuba 3.9.1's checkerboard.eval_1 takes color0 where its colour eval takes
+        # color1 (src/textures/checkerboard.cpp: the two tests are negations of each
+        # other); a scalar checkerboard follows eval_1.
+        x = c1 if checkerboard(uu, vv) else c0
+    else:
+        r, g, b = bitmap(data, rec[1], rec[2], rec[3], rec[4], rec[5], uu, vv)
+        x = luminance(r, g, b)
+    return min(max(x, 0.0), 1.0) if clip else x
+
+
+@njit(inline="always", cache=True)
+def _scalar_param(B, mat, slot, value, ns, prim, tri_uv, b1, b2):
+    """A scalar parameter of ``mat`` at a hit: slot 0 a mask's opacity, 1 a blend weight
+    (both clipped to [0, 1], as Mitsuba), 2 a roughness; its texture's value
+    (:func:`_scalar_texture`) on triangles, ``value`` (the constant, or the texture's
+    mean on spheres) without a texture."""
+    if B.ptex[mat, slot, 0] == 0 or prim < ns:
+        return value
+    return _scalar_texture(B.ptex[mat, slot], B.ptex_uv[mat, slot], B.ptex_c[mat, slot, 0],
+                           B.ptex_c[mat, slot, 1], B.ptex_data, tri_uv[prim - ns], b1, b2, slot < 2)
+
+
+@njit(cache=True)
+def _blend_eval_pdf(A: SceneArrays, B: MaterialArrays, mat, w, skip, prim, b1, b2, eta_scale,
+                    wix, wiy, wiz, wox, woy, woz):
+    """A blendbsdf's f·|cos θ_o| (RGB) and pdf at (wi, wo): (1 − w) × those of its first
+    component + w × those of its second (Mitsuba's ``blendbsdf.eval_pdf``), leaving out
+    component ``skip`` (0 or 1; −1 none).  A plain call, not inlined: it holds a second
+    copy of the BSDF dispatch, run only at blendbsdf vertices."""
+    fr = fg = fb = pdf = 0.0
+    for k in range(2):
+        if k == skip:
+            continue
+        c = B.comp[mat, k]
+        wk = w if k == 1 else 1.0 - w
+        rr, rg, rb = diffuse_albedo(A, c, prim, b1, b2)
+        al = _scalar_param(B, c, 2, B.alpha[c], A.sph_radius.shape[0], prim, A.tri_uv, b1, b2)
+        er, eg, eb = bsdf_eval_at(B, c, al, rr, rg, rb, eta_scale, wix, wiy, wiz, wox, woy, woz)
+        fr += wk * er
+        fg += wk * eg
+        fb += wk * eb
+        pdf += wk * bsdf_pdf_at(B, c, al, eta_scale, wix, wiy, wiz, wox, woy, woz)
+    return fr, fg, fb, pdf
 
 
 class PathConfig(NamedTuple):
@@ -290,6 +363,28 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                 break
             mat = A.shape_material[shape]
             delta = is_delta(B, mat)
+            dim = 2 + _DIMS_PER_VERTEX * depth
+            # A mask: its opacity here; a blendbsdf: its weight, and the component the BSDF
+            # sample will come from (Mitsuba: the second when u0 <= w), u0 rescaled for it.
+            u0s = uniform_from(h, dim + 3)
+            opac = B.opacity[mat]
+            if opac < 1.0:
+                opac = _scalar_param(B, mat, 0, opac, ns, prim, A.tri_uv, b1, b2)
+            smat = mat
+            blend = B.kind[mat] == MAT_BLEND
+            bw = 0.0
+            ck = 0
+            if blend:
+                bw = _scalar_param(B, mat, 1, B.blend_w[mat], ns, prim, A.tri_uv, b1, b2)
+                us = u0s / opac if opac < 1.0 else u0s     # the nested BSDF's share of u0
+                if us > bw:
+                    smat = B.comp[mat, 0]
+                else:
+                    smat = B.comp[mat, 1]
+                    ck = 1
+            alpha = B.alpha[smat]            # a textured roughness: its value here
+            if B.ptex[smat, 2, 0] != 0:
+                alpha = _scalar_param(B, smat, 2, alpha, ns, prim, A.tri_uv, b1, b2)
             # A two-sided opaque BSDF is seen from the front on both sides.
             back = not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
             # A normal or bump map: the BSDF's frame turns to the perturbed normal n.
@@ -312,8 +407,7 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                 rho_g = spectrum_at(S.mat_spec[mat], w1)
                 rho_b = spectrum_at(S.mat_spec[mat], w2)
             else:
-                rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
-            dim = 2 + _DIMS_PER_VERTEX * depth
+                rho_r, rho_g, rho_b = diffuse_albedo(A, smat, prim, b1, b2)
             eta_scale = eta_scale_at(S, mat, w0) if spectral else 1.0
 
             # Next-event estimation: one light sample, shadow ray, MIS weight.
@@ -334,8 +428,15 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                     er = eg = eb = 0.0           # below the perturbed or the true horizon
                 if er > 0.0 or eg > 0.0 or eb > 0.0:
                     wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, nx, ny, nz, lx, ly, lz)
-                    fr, fg, fb = bsdf_eval(B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox,
-                                           woy, woz)
+                    bpdf = 0.0
+                    if blend:
+                        fr, fg, fb, bpdf = _blend_eval_pdf(A, B, mat, bw, -1, prim, b1, b2, eta_scale,
+                                                           wix, wiy, wiz, wox, woy, woz)
+                    else:
+                        fr, fg, fb = bsdf_eval_at(B, mat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy,
+                                                  wiz, wox, woy, woz)
+                    if opac < 1.0:               # a mask scatters by its BSDF with probability opac
+                        fr, fg, fb = fr * opac, fg * opac, fb * opac
                     if terminator:
                         gt = shadow_terminator(nx, ny, nz, sx, sy, sz, lx, ly, lz)
                         fr, fg, fb = fr * gt, fg * gt, fb * gt
@@ -354,7 +455,10 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                         if not blocked:
                             w = 1.0
                             if not ldelta and mis:
-                                bpdf = bsdf_pdf(B, mat, eta_scale, wix, wiy, wiz, wox, woy, woz)
+                                if not blend:
+                                    bpdf = bsdf_pdf_at(B, mat, alpha, eta_scale, wix, wiy, wiz, wox, woy,
+                                                       woz)
+                                bpdf *= opac
                                 if bias == _BIAS_MIS:   # debug: the classic swapped-argument bug
                                     w = _power(bpdf, lpdf)
                                 else:
@@ -363,35 +467,61 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                             g += tg * w * fg * eg
                             b += tb * w * fb * eb
 
-            # BSDF sampling: the next direction.
-            u0 = uniform_from(h, dim + 3)
+            # BSDF sampling: the next direction.  A mask lets the ray pass straight on with
+            # probability 1 − opacity (Mitsuba's null event: weight 1, a delta "bounce").
+            u0 = u0s
             if sobol:
                 u1, u2 = _vertex_uv(ps, sample, 2 + 2 * depth)
             else:
                 u1 = uniform_from(h, dim + 4)
                 u2 = uniform_from(h, dim + 5)
-            wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample(
-                B, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
-            if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
-                break
-            tr *= wr
-            tg *= wg
-            tb *= wb
-            eta *= seta
-            if eta_scale != 1.0 and not single:
-                # Dispersion: the direction is the hero wavelength's; drop the others.
-                tr *= 3.0
-                tg = tb = 0.0
-                single = True
-            ndx, ndy, ndz = to_world(fx, fy, fz, qx, qy, qz, nx, ny, nz, wox, woy, woz)
-            inv = 1.0 / math.sqrt(ndx * ndx + ndy * ndy + ndz * ndz)
-            ndx, ndy, ndz = ndx * inv, ndy * inv, ndz * inv
-            if shade != 0:
-                if not same_side(nx, ny, nz, sx, sy, sz, ndx, ndy, ndz):
+            if opac < 1.0 and u0 >= opac:
+                ndx, ndy, ndz = dx, dy, dz
+                pdf = 1.0 - opac
+                sdelta = True
+                seta = 1.0
+            else:
+                if opac < 1.0:
+                    u0 = u0 / opac
+                if blend:                    # rescaled for the chosen component
+                    u0 = (u0 - bw) / (1.0 - bw) if ck == 0 else (u0 / bw if bw > 0.0 else 0.0)
+                wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample_at(
+                    B, smat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+                if blend and pdf > 0.0:
+                    # Mitsuba's blendbsdf.sample: the mixture's pdf, and the weight
+                    # (w_k f_k cos / 1 + the other's weighted f cos) / that pdf.
+                    orr, org, orb, opdf = _blend_eval_pdf(A, B, mat, bw, ck, prim, b1, b2, eta_scale,
+                                                          wix, wiy, wiz, wox, woy, woz)
+                    wk = bw if ck == 1 else 1.0 - bw
+                    mix = wk * pdf + opdf
+                    if mix > 0.0:
+                        wr = (orr + wk * wr * pdf) / mix
+                        wg = (org + wk * wg * pdf) / mix
+                        wb = (orb + wk * wb * pdf) / mix
+                    else:
+                        wr = wg = wb = 0.0
+                    pdf = mix
+                pdf *= opac
+                if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
                     break
-                if terminator:
-                    gt = shadow_terminator(nx, ny, nz, sx, sy, sz, ndx, ndy, ndz)
-                    tr, tg, tb = tr * gt, tg * gt, tb * gt
+                tr *= wr
+                tg *= wg
+                tb *= wb
+                eta *= seta
+                if eta_scale != 1.0 and not single:
+                    # Dispersion: the direction is the hero wavelength's; drop the others.
+                    tr *= 3.0
+                    tg = tb = 0.0
+                    single = True
+                ndx, ndy, ndz = to_world(fx, fy, fz, qx, qy, qz, nx, ny, nz, wox, woy, woz)
+                inv = 1.0 / math.sqrt(ndx * ndx + ndy * ndy + ndz * ndz)
+                ndx, ndy, ndz = ndx * inv, ndy * inv, ndz * inv
+                if shade != 0:
+                    if not same_side(nx, ny, nz, sx, sy, sz, ndx, ndy, ndz):
+                        break
+                    if terminator:
+                        gt = shadow_terminator(nx, ny, nz, sx, sy, sz, ndx, ndy, ndz)
+                        tr, tg, tb = tr * gt, tg * gt, tb * gt
             side = 1.0 if gx * ndx + gy * ndy + gz * ndz >= 0.0 else -1.0
             ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
             dx, dy, dz = ndx, ndy, ndz
@@ -462,8 +592,14 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
         raise ParamError(f"path: debug_bias must be one of {', '.join(DEBUG_BIAS)}, got {debug_bias!r}")
     t0 = time.perf_counter()
     _check(params)
-    B = scene_memo(scene, "path.bsdf", lambda: bsdf_arrays(scene, algorithm="path"))
-    A, L = scene_memo(scene, "path.lights", lambda: flatten_with_lights(scene))
+    # A blendbsdf's components get rows of their own in A and B (kept alive by the memo).
+    def expanded():              # None without a blendbsdf: the memo must not hold the scene itself
+        e = expand_components(scene, algorithm="path")
+        return None if e is scene else e
+
+    full = scene_memo(scene, "path.expanded", expanded) or scene
+    B = scene_memo(scene, "path.bsdf", lambda: bsdf_arrays(full, algorithm="path"))
+    A, L = scene_memo(scene, "path.lights", lambda: flatten_with_lights(full))
     cam = camera_params(scene.camera, lens=True)
     H, W = scene.camera.film.height, scene.camera.film.width
     spp = params["spp"]
@@ -475,8 +611,11 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
     if spectral and any(light.kind == "projector" for light in scene.lights):
         raise UnsupportedError("path: spectral=true does not model the projector emitter (its "
                                "irradiance image is RGB); render it with spectral=false")
+    if spectral and any(m.kind == "blendbsdf" for m in full.materials):
+        raise UnsupportedError("path: spectral=true does not model the blendbsdf BSDF (its "
+                               "components' reflectances are RGB here); render it with spectral=false")
     if spectral:
-        S = spectral_arrays(scene, A, L)
+        S = spectral_arrays(full, A, L)
         # Unit emission in A and L: the kernel scales light samples by S.light_spec.
         L = L._replace(shape_emit=(L.shape_emit > 0.0).any(axis=1)[:, None] * np.ones((1, 3)))
         A = A._replace(light_rad=np.ones_like(A.light_rad))
@@ -513,5 +652,5 @@ ALGORITHM = Algorithm(
     ),
     render=render,
     models=frozenset({"envmap", "plastic", "roughplastic", "plastic texture", "normalmap", "bumpmap",
-                      "projector"}),
+                      "projector", "thindielectric", "blendbsdf", "mask", "textured roughness"}),
 )

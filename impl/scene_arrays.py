@@ -8,7 +8,7 @@ Light ``kind`` codes: 0 point, 1 directional, 2 spot, 3 projector (Mitsuba's
 its projection constants and ``light_tex_*`` its ``irradiance`` bitmap, evaluated
 by :func:`impl.projector.projector_weight`).  Material ``kind``
 codes: 0 diffuse, 1 conductor, 2 dielectric, 3 roughconductor, 4 roughdielectric, 5 plastic,
-6 roughplastic; an algorithm
+6 roughplastic, 9 thindielectric, 10 blendbsdf; an algorithm
 refuses the kinds it cannot model.  Textured diffuse reflectance: ``mat_tex``
 code 0 none, 1 checkerboard (colours and the 2x3 ``to_uv`` map per material),
 2 bitmap (texels of every image concatenated in ``tex_data``, row-major, with
@@ -111,7 +111,8 @@ class SceneArrays(NamedTuple):
 
 
 MATERIAL_CODES = {"diffuse": 0, "conductor": 1, "dielectric": 2, "roughconductor": 3, "roughdielectric": 4,
-                  "plastic": 5, "roughplastic": 6, "gibench_cooktorrance": 7, "gibench_difftrans": 8}
+                  "plastic": 5, "roughplastic": 6, "gibench_cooktorrance": 7, "gibench_difftrans": 8,
+                  "thindielectric": 9, "blendbsdf": 10}
 
 
 def diffuse_texture(m) -> dict | None:

@@ -2,7 +2,8 @@
 
 * Loading: ``mask``, ``blendbsdf`` and ``thindielectric`` are read into the scene
   model (:attr:`core.scene.Material.opacity`, ``components``, the kind) and
-  refused by name by every algorithm, as a feature it does not model.
+  refused by name by every algorithm but ``path`` (which models them:
+  ``tests/test_vocabulary_wrappers.py``), as a feature it does not model.
 * Named conductors (``material="Au"``): the stored RGB table equals what the
   installed Mitsuba gives, and ``suites/vocabulary/named_conductors.xml`` passes
   the Z-test against Mitsuba's ``path``.
@@ -60,7 +61,7 @@ def _write(tmp_path, bsdf: str, name: str = "s.xml") -> Path:
 
 # ------------------------------------------------------------------ loading ---
 
-def test_mask_loads_with_its_opacity_and_is_refused_by_name(tmp_path):
+def test_mask_loads_with_its_opacity_and_is_refused_by_name_except_by_path(tmp_path):
     p = _write(tmp_path, '<bsdf type="mask"><float name="opacity" value="0.3"/>'
                          '<bsdf type="twosided"><bsdf type="diffuse"><rgb name="reflectance" '
                          'value="0.2, 0.4, 0.6"/></bsdf></bsdf></bsdf>')
@@ -69,7 +70,7 @@ def test_mask_loads_with_its_opacity_and_is_refused_by_name(tmp_path):
     assert (m.kind, m.twosided, m.opacity) == ("diffuse", True, {"type": "constant", "value": 0.3})
     assert m.reflectance == pytest.approx((0.2, 0.4, 0.6))
     assert "mask" in scene_features(scene)
-    for name in ("raycast", "whitted", "distributed", "path", "zbuffer", "radiosity"):
+    for name in ("raycast", "whitted", "distributed", "zbuffer", "radiosity"):
         algo = registry.get(name)
         with pytest.raises(UnsupportedError, match=f"{name}: shape 'rectangle' uses 'mask', which {name} "
                                                    "does not model"):
@@ -78,7 +79,7 @@ def test_mask_loads_with_its_opacity_and_is_refused_by_name(tmp_path):
     assert default.materials[0].opacity == {"type": "constant", "value": 0.5}     # Mitsuba's default
 
 
-def test_blendbsdf_and_thindielectric_load_and_are_refused_by_name(tmp_path):
+def test_blendbsdf_and_thindielectric_load_and_are_refused_by_name_except_by_path(tmp_path):
     scene = load_scene(_write(tmp_path, '<bsdf type="blendbsdf"><float name="weight" value="0.25"/>'
                                         '<bsdf type="diffuse"><rgb name="reflectance" value="0.8"/></bsdf>'
                                         '<bsdf type="conductor"/></bsdf>'))
@@ -90,8 +91,8 @@ def test_blendbsdf_and_thindielectric_load_and_are_refused_by_name(tmp_path):
     assert thin.materials[0].kind == "thindielectric"
     for sc, feature in ((scene, "blendbsdf"), (thin, "thindielectric")):
         assert feature in scene_features(sc)
-        with pytest.raises(UnsupportedError, match=f"uses '{feature}', which path does not model"):
-            registry.get("path").render(sc, registry.get("path").parse_params({}))
+        with pytest.raises(UnsupportedError, match=f"uses '{feature}', which whitted does not model"):
+            registry.get("whitted").render(sc, registry.get("whitted").parse_params({}))
 
 
 @pytest.mark.parametrize("bsdf, why", [

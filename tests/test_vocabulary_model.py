@@ -161,7 +161,7 @@ def test_refused_by_name(tmp_path, extra, why):
     ("tests/scenes/projector/test_projector_constant_direct.xml", "projector"),
     ("docs/scenes/emitter_spot_texture.xml", "spot texture"),
     ("tests/scenes/bsdf_spheres/test_normalmap_path.xml", "normalmap"),
-    ("docs/scenes/bsdf_roughconductor_textured_carbon.xml", "textured parameter"),
+    ("docs/scenes/bsdf_roughconductor_textured_carbon.xml", "textured roughness"),
 ])
 @pytest.mark.parametrize("algorithm", ["raycast", "path", "whitted", "distributed", "radiosity",
                                        "zbuffer"])
