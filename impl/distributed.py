@@ -203,7 +203,7 @@ from core.errors import ParamError, UnsupportedError
 
 from .accel.packets import NOT_TRACED, packet_buffers, packet_hits, tile_count, tile_rect
 from .camera import SENSOR_THINLENS, camera_params, eye_ray, eye_ray_lens
-from .kernel import batch_kernel
+from .kernel import batch_kernel, interleaved, task_stride
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import (diffuse_albedo, direct_light_dims, direct_light_rays, environment_radiance,
@@ -996,10 +996,13 @@ def _render_tiles(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma,
                   hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
                   light_samples, seed, recs, nrec, counts, packet_counts):
     W, H = int(cam[14]), int(cam[15])
-    for tile in prange(tile_count(W, H)):
-        _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
-              hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-              seed, recs, nrec, counts, packet_counts[tile])
+    n = tile_count(W, H)
+    stride = task_stride(n)
+    for c in prange(n):
+        tile = interleaved(c, n, stride)
+        _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel,
+              max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+              light_samples, seed, recs, nrec, counts, packet_counts[tile])
 
 
 @njit(parallel=True, cache=True)
@@ -1007,7 +1010,9 @@ def _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma
                    tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1,
                    c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts):
     W, H = int(cam[14]), int(cam[15])
-    for pixel in prange(W * H):
+    stride = task_stride(W * H)
+    for c in prange(W * H):
+        pixel = interleaved(c, W * H, stride)
         nrec[pixel] = _pixel(cam, A, S, R, M, HL, pixel % W, pixel // W, sampler, dmode, spp, jitter_gauss, gamma,
                              sigma, threshold, adaptive_depth, tolerance, z, gmodel, max_depth,
                              hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,

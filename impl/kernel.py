@@ -40,9 +40,11 @@ batch kernels, whichever caller compiles them first.
 
 from __future__ import annotations
 
+import math
+
 from numba import njit
 
-__all__ = ["batch_kernel"]
+__all__ = ["batch_kernel", "interleaved", "task_stride"]
 
 
 def batch_kernel(fn=None, **options):
@@ -53,3 +55,29 @@ def batch_kernel(fn=None, **options):
     if fn is None:
         return njit(**opts)
     return njit(**opts)(fn)
+
+
+
+@njit(cache=True)
+def task_stride(n):
+    """A stride s, coprime with ``n``, near n/φ (φ the golden ratio): iteration c of
+    ``prange(n)`` runs task c·s mod n (:func:`interleaved`), a bijection of 0..n−1.
+
+    numba's default schedule hands each thread one contiguous block of the iterations;
+    with tasks in image order (tiles, pixels, chunks of eye rays) one thread would get the
+    top of the image — often the cheap sky — and another the bottom.  The golden-ratio
+    stride (a Weyl sequence) spreads every run of consecutive iterations over the whole
+    image, whatever the thread count.  Each task's result does not depend on the thread
+    that runs it."""
+    if n <= 2:
+        return 1
+    s = int(n * 0.6180339887498949)
+    while s > 1 and math.gcd(s, n) != 1:
+        s -= 1
+    return max(s, 1)
+
+
+@njit(inline="always", cache=True)
+def interleaved(c, n, stride):
+    """The task of iteration ``c`` of ``prange(n)`` with :func:`task_stride`'s ``stride``."""
+    return (c * stride) % n

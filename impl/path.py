@@ -152,7 +152,7 @@ from .bsdf import to_local, to_world
 from .materials import MAT_BLEND, MaterialArrays, expand_components
 from .accel.packets import NOT_TRACED
 from .camera import camera_params
-from .kernel import batch_kernel
+from .kernel import batch_kernel, interleaved, task_stride
 from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_with_lights,
                              sample_light)
 from .lighting import diffuse_albedo, environment_radiance, surface
@@ -567,7 +567,10 @@ def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, 
 @njit(parallel=True, cache=True)
 def _render_kernel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
                    S: SpectralArrays, P: PathConfig, film: Film, spp, seed):
-    for tile in prange(film.packet.shape[0]):
+    n = film.packet.shape[0]
+    stride = task_stride(n)
+    for c in prange(n):
+        tile = interleaved(c, n, stride)
         _tile(cam, A, L, B, R, S, P, film, tile, spp, seed)
 
 

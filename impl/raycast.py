@@ -87,7 +87,7 @@ from core.errors import ParamError, UnsupportedError
 
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
-from .kernel import batch_kernel
+from .kernel import batch_kernel, interleaved, task_stride
 from .lighting import (SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo, direct_batch,
                        environment_radiance, local_model, surface)
 from .phong import PHONG_PARAMS
@@ -166,7 +166,10 @@ def _tile(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, tile, sp
 
 @njit(parallel=True, cache=True)
 def _render_kernel(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, spp, seed):
-    for tile in prange(film.packet.shape[0]):
+    n = film.packet.shape[0]
+    stride = task_stride(n)
+    for c in prange(n):
+        tile = interleaved(c, n, stride)
         _tile(cam, A, R, M, film, tile, spp, seed)
 
 

@@ -191,7 +191,7 @@ from core.scene import Scene
 from core.errors import ParamError
 
 from .camera import camera_params
-from .kernel import batch_kernel
+from .kernel import batch_kernel, interleaved, task_stride
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import (SHADOW_MODES, SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo,
                        direct_batch, direct_light_rays, environment_radiance, local_model, surface)
@@ -509,7 +509,10 @@ def _light_leaves(A: SceneArrays, R: RayConfig, M: LocalModel, P: Batch, lw, lco
 @njit(parallel=True, cache=True)
 def _render_kernel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
                    hall_threshold, film: Film, spp, seed, cut):
-    for tile in prange(film.packet.shape[0]):
+    n = film.packet.shape[0]
+    stride = task_stride(n)
+    for c in prange(n):
+        tile = interleaved(c, n, stride)
         _tile(cam, A, S, R, M, max_depth, hall_threshold, film, tile, spp, seed, cut)
 
 

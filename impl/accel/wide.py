@@ -118,7 +118,7 @@ from numba import njit, prange, types
 from numba.extending import intrinsic
 
 from ..intersect import like, ray_sphere_form
-from ..kernel import batch_kernel
+from ..kernel import batch_kernel, interleaved, task_stride
 from .primitives import _slab64, box_enter, closer, prim_test_arrays as _prim, ulp_above
 from .tree import STACK, _alloca_f64, _alloca_i64
 
@@ -725,7 +725,10 @@ CHUNK = 256
 def wide_closest_batch(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2):
     """:func:`wide_closest_rays` in parallel (chunks of :data:`CHUNK` rays)."""
     n = ox.shape[0]
-    for c in prange((n + CHUNK - 1) // CHUNK):
+    chunks = (n + CHUNK - 1) // CHUNK
+    stride = task_stride(chunks)
+    for it in prange(chunks):
+        c = interleaved(it, chunks, stride)
         a, e = c * CHUNK, min(n, (c + 1) * CHUNK)
         wide_closest_rays(R, ox[a:e], oy[a:e], oz[a:e], dx[a:e], dy[a:e], dz[a:e], tmin[a:e],
                           tmax[a:e], out_t[a:e], out_prim[a:e], out_b1[a:e], out_b2[a:e])
@@ -735,7 +738,10 @@ def wide_closest_batch(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, o
 def wide_occluded_batch(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
     """:func:`wide_occluded_rays` in parallel (chunks of :data:`CHUNK` rays)."""
     n = ox.shape[0]
-    for c in prange((n + CHUNK - 1) // CHUNK):
+    chunks = (n + CHUNK - 1) // CHUNK
+    stride = task_stride(chunks)
+    for it in prange(chunks):
+        c = interleaved(it, chunks, stride)
         a, e = c * CHUNK, min(n, (c + 1) * CHUNK)
         wide_occluded_rays(R, ox[a:e], oy[a:e], oz[a:e], dx[a:e], dy[a:e], dz[a:e], tmin[a:e],
                            tmax[a:e], out_hit[a:e])
