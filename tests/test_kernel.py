@@ -69,3 +69,21 @@ def test_a_batch_kernel_computes_what_the_runtime_version_does():
     batch_kernel(cache=False)(body)(x, a)
     njit(body)(x, b)
     np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7, 12, 64, 300, 19200, 65536])
+def test_strided_task_order_visits_every_task_once_and_spreads_each_half(n):
+    """The parallel loops' task order (``impl.kernel.task_stride``): a bijection of
+    0..n−1, and each contiguous half of the iterations (what numba's static schedule
+    gives one of two threads) takes tasks from both halves of the image about evenly —
+    the image order (stride 1) gives one thread all of the top half."""
+    from impl.kernel import interleaved, task_stride
+
+    s = task_stride(n)
+    order = np.array([interleaved(c, n, s) for c in range(n)])
+    assert sorted(order) == list(range(n))
+    if n >= 64:
+        first = order[: n // 2]
+        assert abs((first < n // 2).mean() - 0.5) < 0.05
+        naive = np.array([interleaved(c, n, 1) for c in range(n // 2)])   # image order
+        assert (naive < n // 2).mean() == 1.0
