@@ -57,7 +57,6 @@ def batch_kernel(fn=None, **options):
     return njit(**opts)(fn)
 
 
-
 @njit(cache=True)
 def task_stride(n):
     """A stride s, coprime with ``n``, near n/φ (φ the golden ratio): iteration c of
