@@ -98,7 +98,7 @@ from .fresnel import fresnel_conductor, fresnel_dielectric
 from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_PLASTIC,
                         MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MAT_ROUGHPLASTIC, MAT_THINDIELECTRIC,
                         MaterialArrays, PlasticArrays, WrapperArrays, distribution_codes,
-                        material_arrays, plastic_arrays, wrapper_arrays)
+                        material_arrays, no_wrappers, plastic_arrays, wrapper_arrays)
 
 __all__ = ["bsdf_arrays", "BsdfArrays", "with_plastic", "MODELLED", "frame", "to_local", "to_world", "sample_cosine_hemisphere",
            "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "bsdf_sample_at",
@@ -161,11 +161,7 @@ def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None,
     if dist is None:
         dist = np.zeros(n, dtype=np.int64)
     if W is None:
-        uv = np.zeros((n, 3, 2, 3))
-        uv[:, :, 0, 0] = uv[:, :, 1, 1] = 1.0
-        W = WrapperArrays(np.ones(n), np.repeat(np.arange(n, dtype=np.int64)[:, None], 2, axis=1),
-                          np.zeros(n), np.zeros((n, 3, 6), dtype=np.int64), uv, np.zeros((n, 3, 2)),
-                          np.zeros((0, 3)))
+        W = no_wrappers(n)
     return BsdfArrays(*M, P.eta, P.specular, P.spec_weight, P.nonlinear, P.alpha, P.visible,
                       P.fdr_int, P.ext_t, P.int_r, np.asarray(dist, dtype=np.int64), *W)
 

@@ -50,13 +50,14 @@ from core.errors import SceneError, UnsupportedError
 
 from .fresnel import lookup_ior
 from .microfacet import DISTRIBUTIONS
+from .envmap import LUMINANCE
 from .scene_arrays import MATERIAL_CODES
 
 __all__ = ["named_conductor", "distribution_codes", "CONDUCTOR_TABLE", "MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "MAT_PLASTIC",
            "MAT_ROUGHPLASTIC", "MAT_COOKTORRANCE", "MAT_DIFFTRANS", "MAT_THINDIELECTRIC", "MAT_BLEND",
            "MAX_LOBES", "KIND_CODES", "DEFAULT_ALPHA", "expand_components", "WrapperArrays",
-           "wrapper_arrays"]
+           "no_wrappers", "wrapper_arrays"]
 
 MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
 MAT_CONDUCTOR = MATERIAL_CODES["conductor"]
@@ -332,14 +333,11 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
                           kind, alpha, visible)
 
 
-_LUMINANCE = np.array([0.212671, 0.715160, 0.072169])
-
-
 def _scalar_texture_mean(tex: dict) -> float:
     """The mean of a texture read as Mitsuba's ``eval_1`` (the luminance of its RGB)."""
     if tex["type"] == "bitmap":
-        return float((np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3) @ _LUMINANCE).mean())
-    return float(0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"])) @ _LUMINANCE)
+        return float((np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3) @ LUMINANCE).mean())
+    return float(0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"])) @ LUMINANCE)
 
 
 def expand_components(scene: Scene, *, algorithm: str = "path") -> Scene:
@@ -392,6 +390,17 @@ class WrapperArrays(NamedTuple):
     ptex_data: np.ndarray       # (K, 3) linear RGB texels of those bitmaps, row-major, concatenated
 
 
+def no_wrappers(n: int) -> WrapperArrays:
+    """:class:`WrapperArrays` of ``n`` materials without a mask, a blendbsdf or a
+    textured roughness: opacity 1, each row its own components, no textures (identity
+    ``to_uv`` maps)."""
+    uv = np.zeros((n, 3, 2, 3))
+    uv[:, :, 0, 0] = uv[:, :, 1, 1] = 1.0
+    return WrapperArrays(np.ones(n), np.repeat(np.arange(n, dtype=np.int64)[:, None], 2, axis=1),
+                         np.zeros(n), np.zeros((n, 3, 6), dtype=np.int64), uv, np.zeros((n, 3, 2)),
+                         np.zeros((0, 3)))
+
+
 def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
     """:class:`WrapperArrays` of ``scene`` (expanded by :func:`expand_components`).  A
     scalar texture is read as Mitsuba's ``eval_1``: the luminance of the bitmap's linear
@@ -404,14 +413,8 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
     """
     from .scene_arrays import FILTER_CODES, TEX_BITMAP, TEX_CHECKERBOARD, WRAP_CODES
 
-    M = len(scene.materials)
     index = {id(m): i for i, m in enumerate(scene.materials)}
-    opacity, blend_w = np.ones(M), np.zeros(M)
-    comp = np.repeat(np.arange(M, dtype=np.int64)[:, None], 2, axis=1)
-    ptex = np.zeros((M, 3, 6), dtype=np.int64)
-    ptex_uv = np.zeros((M, 3, 2, 3))
-    ptex_uv[:, :, 0, 0] = ptex_uv[:, :, 1, 1] = 1.0
-    ptex_c = np.zeros((M, 3, 2))
+    opacity, comp, blend_w, ptex, ptex_uv, ptex_c, _ = no_wrappers(len(scene.materials))
     texels, n = [], 0
 
     def scalar(i, slot, value, role):
@@ -422,8 +425,8 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
         ptex_uv[i, slot] = np.asarray(value["to_uv"])[:2]
         if value["type"] == "checkerboard":
             ptex[i, slot, 0] = TEX_CHECKERBOARD
-            ptex_c[i, slot] = (np.asarray(value["color0"]) @ _LUMINANCE,
-                               np.asarray(value["color1"]) @ _LUMINANCE)
+            ptex_c[i, slot] = (np.asarray(value["color0"]) @ LUMINANCE,
+                               np.asarray(value["color1"]) @ LUMINANCE)
             return _scalar_texture_mean(value)
         if value["type"] != "bitmap":
             raise UnsupportedError(f"{algorithm}: material '{scene.materials[i].name or i}': a "
