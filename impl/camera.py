@@ -31,7 +31,9 @@ from numba import njit
 from core.scene import Camera
 from core.errors import UnsupportedError
 
-__all__ = ["camera_params", "eye_ray", "eye_ray_lens", "concentric_disk", "SENSOR_CODES",
+from .intersect import like
+
+__all__ = ["camera_params", "eye_ray", "pinhole_rays", "eye_ray_lens", "concentric_disk", "SENSOR_CODES",
            "SENSOR_PERSPECTIVE", "SENSOR_THINLENS", "SENSOR_ORTHOGRAPHIC"]
 
 SENSOR_PERSPECTIVE, SENSOR_THINLENS, SENSOR_ORTHOGRAPHIC = 0, 1, 2
@@ -86,16 +88,48 @@ def eye_ray(cam, px, py):
         oz = cam[2] * x + cam[5] * y + cam[8] * z + cam[11]
         inv = 1.0 / math.sqrt(cam[6] * cam[6] + cam[7] * cam[7] + cam[8] * cam[8])
         return ox, oy, oz, cam[6] * inv, cam[7] * inv, cam[8] * inv, 0.0, cam[17] - cam[16], 1.0
-    cx = (1.0 - 2.0 * u) * cam[12]
-    cy = (1.0 - 2.0 * v) * cam[12] / cam[13]
+    return _pinhole(u, v, cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6], cam[7], cam[8],
+                    cam[9], cam[10], cam[11], cam[12], cam[13], cam[16], cam[17])
+
+
+@njit(inline="always", cache=True)
+def _pinhole(u, v, x0, x1, x2, y0, y1, y2, z0, z1, z2, px, py, pz, tx, aspect, near, far):
+    """The perspective eye ray at film coordinates (u, v) of the camera whose to_world
+    columns are x, y, z and origin p, tan(fov_x/2) ``tx`` and clip range (near, far):
+    :func:`eye_ray`'s result, from scalars (so a loop over rays can hold the camera
+    in registers)."""
+    cx = (1.0 - 2.0 * u) * tx
+    cy = (1.0 - 2.0 * v) * tx / aspect
     inv = 1.0 / math.sqrt(cx * cx + cy * cy + 1.0)
     cx *= inv
     cy *= inv
     cz = inv
-    dx = cam[0] * cx + cam[3] * cy + cam[6] * cz
-    dy = cam[1] * cx + cam[4] * cy + cam[7] * cz
-    dz = cam[2] * cx + cam[5] * cy + cam[8] * cz
-    return cam[9], cam[10], cam[11], dx, dy, dz, cam[16] / cz, cam[17] / cz, cz
+    dx = x0 * cx + y0 * cy + z0 * cz
+    dy = x1 * cx + y1 * cy + z1 * cz
+    dz = x2 * cx + y2 * cy + z2 * cz
+    return px, py, pz, dx, dy, dz, near / cz, far / cz, cz
+
+
+@njit(cache=True, error_model="numpy", _nrt=False)
+def pinhole_rays(cam, g, fx, fy, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """:func:`eye_ray` of a perspective camera through film positions (fx[i], fy[i]) (pixels)
+    for every i, the origin and direction rounded to the precision of ``g`` (a float32
+    or float64 array) and stored as float64, one output array per component.
+
+    The same arithmetic as :func:`eye_ray`, ray for ray (hence the same bits), with the
+    camera read into registers before the loop and every array a separate argument,
+    so the loop has no branch and no possible store-to-camera dependence: LLVM
+    vectorises it over the rays, divisions and square roots included.
+    """
+    x0, x1, x2, y0, y1, y2 = cam[0], cam[1], cam[2], cam[3], cam[4], cam[5]
+    z0, z1, z2, px, py, pz = cam[6], cam[7], cam[8], cam[9], cam[10], cam[11]
+    tx, aspect, w, h, near, far = cam[12], cam[13], cam[14], cam[15], cam[16], cam[17]
+    for i in range(fx.shape[0]):
+        a, b, c, d, e, f, t0, t1, _ = _pinhole(fx[i] / w, fy[i] / h, x0, x1, x2, y0, y1, y2, z0, z1,
+                                               z2, px, py, pz, tx, aspect, near, far)
+        ox[i], oy[i], oz[i] = float(like(g, a)), float(like(g, b)), float(like(g, c))
+        dx[i], dy[i], dz[i] = float(like(g, d)), float(like(g, e)), float(like(g, f))
+        tmin[i], tmax[i] = t0, t1
 
 
 @njit(inline="always", cache=True)

@@ -761,7 +761,8 @@ def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, f
             dx, dy, dz = _rotate(C[7], C[8], C[9], tau, dx, dy, dz)
     # The structure (if any) is static: render() traces scenes with moving shapes by brute force.
     Rt = RayConfig(R.form, R.strategy, R.eps, R.shrink_point, R.shrink_area, cen, R.sph_radius, tri,
-                   R.accel, R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx, R.acc_f, R.acc_i)
+                   R.accel, R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx, R.acc_f, R.acc_i,
+                   R.batch_brute)
     return _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, Rt, cen64, tri64, trin64, HL[0] > 0.0, HL[1],
                  HL[2], HL[3], HL[4], HL[5], gmodel,
                  max_depth, hall_threshold,

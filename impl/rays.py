@@ -143,6 +143,16 @@ AUTO_ACCEL = "bvh-wide"
 #: (Cornell box with a mirror and a glass sphere, whitted) and wins from 24 on
 #: (thin_gap, cornell_point, raycast).
 AUTO_MIN_PRIMS = 16
+#: ``accel=auto`` answers the tracers' *batch* queries (a tile's eye rays, a light
+#: sample's shadow rays: :func:`impl.tracer.closest_batch`, ``occluded_batch``) by
+#: brute force on scenes of fewer primitives than this per SIMD lane count (float64:
+#: 4 lanes; float32: 8), whatever the structure the per-ray queries use: the
+#: brute-force batch loops test several rays per instruction and have no traversal,
+#: so (with the batch's culling bounds, :func:`impl.tracer._cull`) they beat the wide
+#: BVH's per-ray traversal on larger scenes than the scalar queries do.  Measured on
+#: whole ray-cast renders (single-thread CPU, float64): brute force ahead on the 34-
+#: and 36-triangle Cornell boxes, behind on the 43-primitive instancing scene.
+AUTO_BATCH_PRIMS_PER_LANE = 10
 
 #: The parameter-table rows of the ray tracers that take a ray configuration.
 PARAMS = (
@@ -198,6 +208,7 @@ class RayConfig(NamedTuple):
     prim_idx: np.ndarray
     acc_f: np.ndarray
     acc_i: np.ndarray
+    batch_brute: bool = False   # batch queries (impl.tracer) by brute force despite the structure
 
 
 def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
@@ -213,9 +224,13 @@ def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
     tri_v = np.ascontiguousarray(A.tri_v, dtype=F)
     name = params.get("accel", "auto")
     packets = bool(params.get("packets", False))
+    prims = len(sph_radius) + len(tri_v)
+    batch_brute = False
     if name == "auto":
-        big = len(sph_radius) + len(tri_v) >= AUTO_MIN_PRIMS
-        name = AUTO_ACCEL if packets or (params["intersect"] == "stable" and big) else "none"
+        stable = params["intersect"] == "stable"
+        name = AUTO_ACCEL if packets or (stable and prims >= AUTO_MIN_PRIMS) else "none"
+        lanes = 8 if single else 4
+        batch_brute = stable and not packets and prims < AUTO_BATCH_PRIMS_PER_LANE * lanes
     if name not in _accel.ACCELS:
         raise ParamError(f"{algorithm}: unknown accel {name!r} (valid: auto, {', '.join(_accel.ACCELS)})")
     if packets and name not in PACKET_ACCELS:
@@ -231,7 +246,7 @@ def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
                        grid_current_voxel=bool(params.get("grid_current_voxel", True)))
     return RayConfig(SPHERE_FORMS.index(params["intersect"]), _OFFSET_CODE[params["offset"]], eps,
                      1e-4 if single else 1e-9, 1e-4 if single else 1e-7,
-                     sph_center, sph_radius, tri_v, *acc)
+                     sph_center, sph_radius, tri_v, *acc, batch_brute)
 
 
 @njit(cache=True)
@@ -240,7 +255,7 @@ def legacy_config(A, eps):
     z2 = np.empty((0, 3))
     zi = np.empty(0, dtype=np.int64)
     return RayConfig(2, _SCALED, eps, 1e-9, 1e-7, A.sph_center, A.sph_radius, A.tri_v,
-                     0, z2, z2, zi, zi, zi, np.empty(0), zi)
+                     0, z2, z2, zi, zi, zi, np.empty(0), zi, False)
 
 
 @njit(inline="always", cache=True)

@@ -31,7 +31,7 @@ from core.errors import ParamError
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 
-__all__ = ["check_spp", "strata", "pixel_sample", "welford_add", "variance_of_mean",
+__all__ = ["check_spp", "strata", "pixel_sample", "jittered_film", "welford_add", "variance_of_mean",
            "PIXEL_JITTER", "PIXEL_SOBOL", "PIXEL_SAMPLERS", "SAMPLER_PARAM", "sampler_code"]
 
 #: :func:`pixel_sample` sampler codes, and their names (index = code).
@@ -82,6 +82,25 @@ def pixel_sample(spp, k, s, seed, pixel, sampler=PIXEL_JITTER, x=0, y=0):
         return sample_2d(PIXEL_PAIR, s, pixel_seed(x, y, seed))
     h = uniform_prefix(seed, pixel, s)
     return (s % k + uniform_from(h, 0)) / k, (s // k + uniform_from(h, 1)) / k
+
+
+@njit(cache=True, _nrt=False)
+def jittered_film(spp, k, s, seed, pixel, x, y, fx, fy):
+    """Film positions (pixels) of sample ``s`` of :data:`PIXEL_JITTER` for every pixel i of
+    a batch: ``x[i] + offset``, ``y[i] + offset`` with :func:`pixel_sample`'s offset
+    (same arithmetic, same bits) — the pixel's integer coordinates ``x``, ``y`` (float64)
+    and index ``pixel`` (int64).  Every array a separate argument and no branch in the
+    loop: LLVM vectorises the hashing and the divisions over the pixels."""
+    if spp == 1:
+        for i in range(pixel.shape[0]):
+            fx[i] = x[i] + 0.5
+            fy[i] = y[i] + 0.5
+        return
+    sx, sy = s % k, s // k
+    for i in range(pixel.shape[0]):
+        h = uniform_prefix(seed, pixel[i], s)
+        fx[i] = x[i] + (sx + uniform_from(h, 0)) / k
+        fy[i] = y[i] + (sy + uniform_from(h, 1)) / k
 
 
 @njit(inline="always", cache=True)

@@ -33,7 +33,15 @@ for every ray: the branchy scalar loop that rejects most triangles after a
 few operations costs about as much per ray on scenes of tens of triangles.
 They compute exactly what :func:`impl.intersect.closest_hit_form` / ``any_hit_form`` compute for each
 ray (same arithmetic, same tie rule: the first primitive of smallest ``t``),
-so the image does not depend on the path taken.  The algebraic and geometric
+so the image does not depend on the path taken.  Before the loops, a batch's rays are
+bounded (:func:`_cull`: the cone of rays from one origin, or the box of the segments)
+and only the primitives inside the bound are tested; ``accel=auto`` answers batch
+queries this way on small scenes even where its per-ray queries use the wide BVH
+(:data:`impl.rays.AUTO_BATCH_PRIMS_PER_LANE`).  The loops are functions of their own
+taking every array as a separate argument: inlined with rows of one 2-D array as
+outputs, LLVM left them scalar.  The same holds for the eye rays of a pinhole camera
+(:func:`impl.sampling.jittered_film`, :func:`impl.camera.pinhole_rays`) and the
+Welford update (:func:`_welford`).  The algebraic and geometric
 forms and every acceleration structure go to :func:`impl.accel.closest_rays` /
 :func:`impl.accel.occluded_rays`: one call per batch that binds R's arrays
 once and loops over the rays (the wide BVH's and the binary trees' traversals
@@ -55,12 +63,12 @@ from core.algorithm import RenderResult
 
 from .accel import closest_rays, occluded_rays
 from .accel.packets import TILE, packet_hits
-from .camera import SENSOR_THINLENS, eye_ray, eye_ray_lens
+from .camera import SENSOR_PERSPECTIVE, SENSOR_THINLENS, eye_ray, eye_ray_lens, pinhole_rays
 from .intersect import like
 from .kernel import batch_kernel
 from .rng import uniform_from, uniform_prefix
 from .rays import PARAMS as RAY_PARAMS, RayConfig, ray_config
-from .sampling import pixel_sample, strata, variance_of_mean
+from .sampling import PIXEL_JITTER, jittered_film, pixel_sample, strata, variance_of_mean
 from .scene_arrays import scene_memo
 
 #: The random dimensions of a thin lens's aperture sample (beyond any tracer's own).
@@ -119,6 +127,8 @@ class Batch(NamedTuple):
     q: np.ndarray               # (8, n) rays in the intersection precision
     qt: np.ndarray              # (3, n) t, b1, b2 in the intersection precision
     qp: np.ndarray              # (n,) int32 primitive (int32: the loops then vectorise in float32 too)
+    film: np.ndarray            # (2, n) film positions (pixels) of the eye rays
+    xy: np.ndarray              # (2, n) float64 pixel coordinates (x, y) of each column
 
 
 #: The parameters :func:`impl.rays.ray_config` reads (its parameter table).
@@ -191,14 +201,16 @@ def new_batch(film: Film, R: RayConfig, tile):
     P = n if film.packets else 0
     F = R.sph_radius.dtype
     pixel = np.empty(n, np.int64)
+    xy = np.empty((2, n))
     for i in range(n):
         pixel[i] = (y0 + i // nx) * W + x0 + i % nx
+        xy[0, i], xy[1, i] = x0 + i % nx, y0 + i // nx
     return Batch(x0, y0, nx, n, np.empty((8, n)), np.empty(n), np.empty(n, np.int64),
                  np.empty((2, n)), np.zeros((3, n)), np.zeros((6, n)), np.zeros((n, C), np.int64),
                  film.packet[tile], np.empty((P, 8)), np.empty((P, 2)), pixel,
                  np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
-                 np.empty((3, n), F), np.empty(n, np.int32))
+                 np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, n)), xy)
 
 
 @njit(cache=True)
@@ -213,7 +225,7 @@ def new_points(n, R: RayConfig, counters=0):
                  np.zeros(2, np.int64), np.empty((0, 8)), np.empty((0, 2)), np.zeros(n, np.int64),
                  np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
-                 np.empty((3, n), F), np.empty(n, np.int32))
+                 np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, 0)), np.empty((2, 0)))
 
 
 @batch_kernel
@@ -227,21 +239,35 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     k = strata(spp)
     g = R.sph_radius
     ray = T.ray
-    lens = cam[18] == SENSOR_THINLENS     # a lens point (camera_params(..., lens=True) only)
-    i = 0
-    for y in range(T.y0, T.y0 + T.n // T.nx):
-        for x in range(T.x0, T.x0 + T.nx):
-            fx, fy = pixel_sample(spp, k, s, seed, T.pixel[i], sampler, x, y)
-            if lens:
-                h = uniform_prefix(seed, T.pixel[i], s)
-                ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray_lens(
-                    cam, x + fx, y + fy, uniform_from(h, DIM_LENS), uniform_from(h, DIM_LENS + 1))
-            else:
-                ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-            ray[OX, i], ray[OY, i], ray[OZ, i] = float(like(g, ox)), float(like(g, oy)), float(like(g, oz))
-            ray[DX, i], ray[DY, i], ray[DZ, i] = float(like(g, dx)), float(like(g, dy)), float(like(g, dz))
-            ray[TMIN, i], ray[TMAX, i] = tmin, tmax
-            i += 1
+    sensor = cam[18]
+    n = T.n
+    pinhole = sensor == SENSOR_PERSPECTIVE
+    if pinhole and (spp == 1 or sampler == PIXEL_JITTER):     # every step a vector loop
+        jittered_film(spp, k, s, seed, T.pixel[:n], T.xy[0, :n], T.xy[1, :n], T.film[0, :n],
+                      T.film[1, :n])
+    else:
+        i = 0
+        for y in range(T.y0, T.y0 + T.n // T.nx):
+            for x in range(T.x0, T.x0 + T.nx):
+                fx, fy = pixel_sample(spp, k, s, seed, T.pixel[i], sampler, x, y)
+                if pinhole:                     # film position now, the rays below at once
+                    T.film[0, i], T.film[1, i] = x + fx, y + fy
+                else:
+                    if sensor == SENSOR_THINLENS:   # a lens point (camera_params(..., lens=True))
+                        h = uniform_prefix(seed, T.pixel[i], s)
+                        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray_lens(
+                            cam, x + fx, y + fy, uniform_from(h, DIM_LENS), uniform_from(h, DIM_LENS + 1))
+                    else:
+                        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
+                    ray[OX, i], ray[OY, i], ray[OZ, i] = (float(like(g, ox)), float(like(g, oy)),
+                                                          float(like(g, oz)))
+                    ray[DX, i], ray[DY, i], ray[DZ, i] = (float(like(g, dx)), float(like(g, dy)),
+                                                          float(like(g, dz)))
+                    ray[TMIN, i], ray[TMAX, i] = tmin, tmax
+                i += 1
+    if pinhole:
+        pinhole_rays(cam, g, T.film[0, :n], T.film[1, :n], ray[OX, :n], ray[OY, :n], ray[OZ, :n],
+                     ray[DX, :n], ray[DY, :n], ray[DZ, :n], ray[TMIN, :n], ray[TMAX, :n])
     if packets:
         for i in range(T.n):
             for c in range(8):
@@ -258,7 +284,7 @@ def closest_batch(R: RayConfig, ray, n, t, prim, b, q, qt, qp):
     """Closest hits of the first ``n`` rays of ``ray`` (8, ≥n) in R's form, precision and
     structure: ``t`` (float64), ``prim`` (-1 on a miss), ``b`` (2, n) barycentrics.
     ``q`` (8, ≥n), ``qt`` (3, ≥n) in R's precision and ``qp`` (≥n,) int32 are scratch."""
-    if R.accel == 0 and R.form == 2:
+    if (R.accel == 0 or R.batch_brute) and R.form == 2:
         _closest_brute(R, ray, n, t, prim, b, q, qt, qp)
         return
     closest_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
@@ -270,7 +296,7 @@ def occluded_batch(R: RayConfig, ray, n, blocked, q):
     """Whether anything lies on each of the first ``n`` rays of ``ray`` (8, ≥n) within
     (tmin, tmax), in R's form, precision and structure; ``q`` (8, ≥n) in R's precision
     is scratch."""
-    if R.accel == 0 and R.form == 2:
+    if (R.accel == 0 or R.batch_brute) and R.form == 2:
         _occluded_brute(R, ray, n, blocked, q)
         return
     occluded_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
@@ -323,30 +349,192 @@ def _triangle_t(ox, oy, oz, dx, dy, dz, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, 
     return t, b1, b2, ok
 
 
-@njit(inline="always", cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=True)
 def _closest_brute(R: RayConfig, ray, n, t, prim, b, q, qt, bp):
-    """Brute-force closest hits, primitive-outer / ray-inner (the inner loops vectorise)."""
+    """Brute-force closest hits: the rays in R's precision, the primitives that can lie on
+    them (:func:`_cull`), then :func:`_closest_loops` over those."""
     _in_precision(ray, n, q)
-    g = R.sph_radius
-    best, b1s, b2s = qt[0], qt[1], qt[2]
+    best, b1s, b2s = qt[0, :n], qt[1, :n], qt[2, :n]
+    sph, tri = _candidates(R)
+    ns, nt = _cull(R, q, n, sph, tri)
+    _closest_loops(R.sph_center, R.sph_radius, R.tri_v, sph[:ns], tri[:nt], q[OX, :n], q[OY, :n],
+                   q[OZ, :n], q[DX, :n], q[DY, :n], q[DZ, :n], q[TMIN, :n], q[TMAX, :n], best, bp[:n],
+                   b1s, b2s)
+    for i in range(n):
+        t[i] = float(best[i])
+        prim[i] = bp[i]
+        b[0, i] = float(b1s[i])
+        b[1, i] = float(b2s[i])
+
+
+@njit(inline="always", cache=True)
+def _candidates(R: RayConfig):
+    """Scratch lists for the candidate spheres and triangles of :func:`_cull`."""
+    return np.empty(R.sph_radius.shape[0], np.int64), np.empty(R.tri_v.shape[0], np.int64)
+
+
+#: Relative padding of the culling bounds (the cone's angles, the box): far above the
+#: rounding of the bounds' arithmetic and of the float32 hit tests, so that no
+#: primitive a ray's test could report is culled.
+_CULL_PAD = 1e-5
+#: Scenes of fewer primitives are not culled: the bounds cost about as much per ray
+#: as the tests of a few primitives.
+_CULL_MIN_PRIMS = 8
+
+
+@njit(cache=True, error_model="numpy")
+def _cull(R: RayConfig, q, n, sph, tri):
+    """The spheres and triangles (indices into ``sph`` and ``tri``, in scene order; their
+    counts returned) that may meet a segment o + t·d, tmin < t < tmax, of the batch's
+    rays ``q`` (8, ≥n): a conservative culling, so the brute-force loops that follow
+    return exactly what they return over every primitive.
+
+    Rays from one origin (a pinhole camera's eye rays): a cone from that origin about
+    the mean direction containing every ray (the tile's frustum; Wald et al. 2001's
+    packets, Reshetov et al. 2005's frustum culling), against each primitive's bounding
+    sphere: kept when the angle between the cone's axis and the sphere's centre is at
+    most the cone's half-angle plus the sphere's angular radius.  Otherwise: the
+    bounding box of the segments against each primitive's box (a shaft's box, Haines
+    and Wallace 1994), e.g. a light sample's shadow rays from one tile's points.
+    Without a bound (a cone of half-angle 90° or more, segments of unbounded length:
+    a directional light's), every primitive is kept."""
+    C, g, V = R.sph_center, R.sph_radius, R.tri_v
+    if g.shape[0] + V.shape[0] < _CULL_MIN_PRIMS:
+        return _keep_all(sph, tri)
+    ox0, oy0, oz0 = float(q[OX, 0]), float(q[OY, 0]), float(q[OZ, 0])
+    shared = True
+    for i in range(n):
+        shared &= (q[OX, i] == q[OX, 0]) & (q[OY, i] == q[OY, 0]) & (q[OZ, i] == q[OZ, 0])
+    if shared:
+        ax = ay = az = 0.0
+        for i in range(n):
+            ax += q[DX, i]
+            ay += q[DY, i]
+            az += q[DZ, i]
+        norm = math.sqrt(ax * ax + ay * ay + az * az)
+        cos_t = 1.0
+        if norm > 0.0:
+            ax, ay, az = ax / norm, ay / norm, az / norm
+            for i in range(n):
+                dx, dy, dz = float(q[DX, i]), float(q[DY, i]), float(q[DZ, i])
+                c = (ax * dx + ay * dy + az * dz) / math.sqrt(dx * dx + dy * dy + dz * dz)
+                cos_t = min(cos_t, c)
+        if norm > 0.0 and cos_t > 0.0:
+            sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+            # Pad the half-angle: cos(θ + δ) ≈ cos θ − δ sin θ − δ²/2.
+            cos_t, sin_t = cos_t - _CULL_PAD * sin_t - _CULL_PAD, min(1.0, sin_t + _CULL_PAD)
+            m = 0
+            for s in range(g.shape[0]):
+                if _in_cone(ox0, oy0, oz0, ax, ay, az, cos_t, sin_t, C[s, 0], C[s, 1], C[s, 2], g[s]):
+                    sph[m] = s
+                    m += 1
+            k = 0
+            for j in range(V.shape[0]):
+                cx, cy, cz, r = _tri_sphere(V, j)
+                if _in_cone(ox0, oy0, oz0, ax, ay, az, cos_t, sin_t, cx, cy, cz, r):
+                    tri[k] = j
+                    k += 1
+            return m, k
+    lo_x = lo_y = lo_z = math.inf
+    hi_x = hi_y = hi_z = -math.inf
+    bounded = True
+    for i in range(n):
+        for tt in (q[TMIN, i], q[TMAX, i]):
+            t = float(tt)
+            x = float(q[OX, i]) + t * float(q[DX, i])
+            y = float(q[OY, i]) + t * float(q[DY, i])
+            z = float(q[OZ, i]) + t * float(q[DZ, i])
+            bounded &= math.isfinite(x) & math.isfinite(y) & math.isfinite(z)
+            lo_x, lo_y, lo_z = min(lo_x, x), min(lo_y, y), min(lo_z, z)
+            hi_x, hi_y, hi_z = max(hi_x, x), max(hi_y, y), max(hi_z, z)
+    if not bounded:
+        return _keep_all(sph, tri)
+    pad = _CULL_PAD * (1.0 + max(abs(lo_x), abs(lo_y), abs(lo_z), abs(hi_x), abs(hi_y), abs(hi_z)))
+    lo_x, lo_y, lo_z, hi_x, hi_y, hi_z = lo_x - pad, lo_y - pad, lo_z - pad, hi_x + pad, hi_y + pad, hi_z + pad
+    m = 0
+    for s in range(g.shape[0]):
+        r = float(g[s])
+        if (C[s, 0] + r >= lo_x and C[s, 0] - r <= hi_x and C[s, 1] + r >= lo_y and C[s, 1] - r <= hi_y
+                and C[s, 2] + r >= lo_z and C[s, 2] - r <= hi_z):
+            sph[m] = s
+            m += 1
+    k = 0
+    for j in range(V.shape[0]):
+        if (max(V[j, 0, 0], V[j, 1, 0], V[j, 2, 0]) >= lo_x and min(V[j, 0, 0], V[j, 1, 0], V[j, 2, 0]) <= hi_x
+                and max(V[j, 0, 1], V[j, 1, 1], V[j, 2, 1]) >= lo_y
+                and min(V[j, 0, 1], V[j, 1, 1], V[j, 2, 1]) <= hi_y
+                and max(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]) >= lo_z
+                and min(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]) <= hi_z):
+            tri[k] = j
+            k += 1
+    return m, k
+
+
+@njit(inline="always", cache=True)
+def _keep_all(sph, tri):
+    """Every sphere and triangle as candidates: the lists 0, 1, … and their lengths."""
+    for s in range(sph.shape[0]):
+        sph[s] = s
+    for j in range(tri.shape[0]):
+        tri[j] = j
+    return sph.shape[0], tri.shape[0]
+
+
+@njit(inline="always", cache=True)
+def _tri_sphere(V, j):
+    """A bounding sphere of triangle j of V: its box's centre, the farthest vertex's
+    distance, padded (float64)."""
+    cx = 0.5 * (min(V[j, 0, 0], V[j, 1, 0], V[j, 2, 0]) + max(V[j, 0, 0], V[j, 1, 0], V[j, 2, 0]))
+    cy = 0.5 * (min(V[j, 0, 1], V[j, 1, 1], V[j, 2, 1]) + max(V[j, 0, 1], V[j, 1, 1], V[j, 2, 1]))
+    cz = 0.5 * (min(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]) + max(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]))
+    r2 = 0.0
+    for v in range(3):
+        ex, ey, ez = V[j, v, 0] - cx, V[j, v, 1] - cy, V[j, v, 2] - cz
+        r2 = max(r2, ex * ex + ey * ey + ez * ez)
+    return cx, cy, cz, math.sqrt(r2)
+
+
+@njit(inline="always", cache=True)
+def _in_cone(ox, oy, oz, ax, ay, az, cos_t, sin_t, cx, cy, cz, r):
+    """Whether the sphere (c, r), padded, may meet the cone from o about unit axis a of
+    half-angle θ (cos θ, sin θ): angle(c − o, a) ≤ θ + asin(r / |c − o|), in cosines."""
+    r = float(r) * (1.0 + _CULL_PAD) + _CULL_PAD
+    vx, vy, vz = float(cx) - ox, float(cy) - oy, float(cz) - oz
+    d = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if d <= r:
+        return True
+    sin_b = r / d
+    cos_b = math.sqrt(1.0 - sin_b * sin_b)
+    cos_tb = cos_t * cos_b - sin_t * sin_b          # cos(θ + β); θ + β ≥ π/2 keeps all ahead
+    return ax * vx + ay * vy + az * vz >= d * cos_tb
+
+
+@batch_kernel(error_model="numpy")
+def _closest_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, best, bp, b1s, b2s):
+    """Closest hits of the rays (ox..tmax, one array per component) among spheres
+    ``sph`` of (C, g) and triangles ``tri`` of V (index lists in scene order), primitive-outer / ray-inner: the inner loops have no
+    branch, so LLVM vectorises them over the rays.  Writes the hit distance ``best``,
+    primitive ``bp`` (-1 on a miss) and barycentrics ``b1s``, ``b2s``.
+
+    A function of its own, every array a separate argument: inlined into its caller,
+    where the outputs were rows of one 2-D array, LLVM kept the loops scalar (it
+    could not separate the stores to the rows from the loads)."""
+    n = ox.shape[0]
     zero = like(g, 0.0)
     for i in range(n):
-        best[i] = q[TMAX, i]
+        best[i] = tmax[i]
         bp[i] = -1
         b1s[i] = zero
         b2s[i] = zero
-    ox, oy, oz, dx, dy, dz, tmin = q[OX], q[OY], q[OZ], q[DX], q[DY], q[DZ], q[TMIN]
     ns = g.shape[0]
-    C = R.sph_center
-    for s in range(ns):
+    for s in sph:
         cx, cy, cz, r = C[s, 0], C[s, 1], C[s, 2], g[s]
         for i in range(n):
             tt, ok = _sphere_t(ox[i], oy[i], oz[i], dx[i], dy[i], dz[i], cx, cy, cz, r, tmin[i],
                                best[i])
             best[i] = tt if ok else best[i]
             bp[i] = s if ok else bp[i]
-    V = R.tri_v
-    for j in range(V.shape[0]):
+    for j in tri:
         v0x, v0y, v0z = V[j, 0, 0], V[j, 0, 1], V[j, 0, 2]
         e1x, e1y, e1z = V[j, 1, 0] - v0x, V[j, 1, 1] - v0y, V[j, 1, 2] - v0z
         e2x, e2y, e2z = V[j, 2, 0] - v0x, V[j, 2, 1] - v0y, V[j, 2, 2] - v0z
@@ -358,30 +546,33 @@ def _closest_brute(R: RayConfig, ray, n, t, prim, b, q, qt, bp):
             bp[i] = pj if ok else bp[i]
             b1s[i] = c1 if ok else b1s[i]
             b2s[i] = c2 if ok else b2s[i]
-    for i in range(n):
-        t[i] = float(best[i])
-        prim[i] = bp[i]
-        b[0, i] = float(b1s[i])
-        b[1, i] = float(b2s[i])
 
 
-@njit(inline="always", cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=True)
 def _occluded_brute(R: RayConfig, ray, n, hitm, q):
-    """Brute-force any-hit, primitive-outer / ray-inner (the inner loops vectorise)."""
+    """Brute-force any-hit: the rays in R's precision, the primitives that can lie on them
+    (:func:`_cull`), then :func:`_occluded_loops` over those."""
     _in_precision(ray, n, q)
-    g = R.sph_radius
+    sph, tri = _candidates(R)
+    ns, nt = _cull(R, q, n, sph, tri)
+    _occluded_loops(R.sph_center, R.sph_radius, R.tri_v, sph[:ns], tri[:nt], q[OX, :n], q[OY, :n], q[OZ, :n], q[DX, :n],
+                    q[DY, :n], q[DZ, :n], q[TMIN, :n], q[TMAX, :n], hitm[:n])
+
+
+@batch_kernel(error_model="numpy")
+def _occluded_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, hitm):
+    """Whether any sphere ``sph`` of (C, g) or triangle ``tri`` of V lies on each ray within (tmin, tmax),
+    primitive-outer / ray-inner with branch-free inner loops (vectorised over the rays)."""
+    n = ox.shape[0]
     for i in range(n):
         hitm[i] = False
-    ox, oy, oz, dx, dy, dz, tmin, tmax = q[OX], q[OY], q[OZ], q[DX], q[DY], q[DZ], q[TMIN], q[TMAX]
-    C = R.sph_center
-    for s in range(g.shape[0]):
+    for s in sph:
         cx, cy, cz, r = C[s, 0], C[s, 1], C[s, 2], g[s]
         for i in range(n):
             _, ok = _sphere_t(ox[i], oy[i], oz[i], dx[i], dy[i], dz[i], cx, cy, cz, r, tmin[i],
                               tmax[i])
             hitm[i] = hitm[i] | ok
-    V = R.tri_v
-    for j in range(V.shape[0]):
+    for j in tri:
         v0x, v0y, v0z = V[j, 0, 0], V[j, 0, 1], V[j, 0, 2]
         e1x, e1y, e1z = V[j, 1, 0] - v0x, V[j, 1, 1] - v0y, V[j, 1, 2] - v0z
         e2x, e2y, e2z = V[j, 2, 0] - v0x, V[j, 2, 1] - v0y, V[j, 2, 2] - v0z
@@ -394,13 +585,25 @@ def _occluded_brute(R: RayConfig, ray, n, hitm, q):
 @njit(inline="always", cache=True)
 def accumulate(T: Batch, s):
     """Add sample ``s`` (0-based; radiance ``T.L``) to every pixel's Welford state."""
-    c = s + 1.0
-    for k in range(3):
-        for i in range(T.n):
-            x = T.L[k, i]
-            d = x - T.acc[k, i]
-            T.acc[k, i] += d / c
-            T.acc[3 + k, i] += d * (x - T.acc[k, i])
+    A, L = T.acc, T.L
+    _welford(s + 1.0, L[0], L[1], L[2], A[0], A[1], A[2], A[3], A[4], A[5])
+
+
+@batch_kernel
+def _welford(c, x0, x1, x2, m0, m1, m2, q0, q1, q2):
+    """Welford's update with sample number ``c`` (1-based) of values x per column: the
+    running means m and squared-deviation sums q, one array each (a loop LLVM
+    vectorises, divisions included)."""
+    for i in range(x0.shape[0]):
+        d = x0[i] - m0[i]
+        m0[i] += d / c
+        q0[i] += d * (x0[i] - m0[i])
+        d = x1[i] - m1[i]
+        m1[i] += d / c
+        q1[i] += d * (x1[i] - m1[i])
+        d = x2[i] - m2[i]
+        m2[i] += d / c
+        q2[i] += d * (x2[i] - m2[i])
 
 
 @njit(cache=True)

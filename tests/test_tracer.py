@@ -77,16 +77,126 @@ def test_brute_force_batch_loops_vectorise():
     c, r, v, shape = random_scene(rng, 3, 3)
     R = config(c, r, v, shape, "none", np.float32)
     o, d = random_rays(rng, 64)
-    ray = _batch(o, d)
     n = len(o)
-    closest = njit(error_model="numpy")(tracer.closest_batch.py_func)
-    occluded = njit(error_model="numpy")(tracer.occluded_batch.py_func)
-    closest(R, ray, n, np.empty(n), np.empty(n, np.int64), np.empty((2, n)),
-            np.empty((8, n), np.float32), np.empty((3, n), np.float32), np.empty(n, np.int32))
-    occluded(R, ray, n, np.empty(n, np.bool_), np.empty((8, n), np.float32))
-    for name, kernel in (("closest_batch", closest), ("occluded_batch", occluded)):
+    cols = [np.ascontiguousarray(x, np.float32) for x in (*o.T, *d.T)]
+    lo, hi = np.zeros(n, np.float32), np.full(n, np.inf, np.float32)
+    sph, tri = np.arange(len(r)), np.arange(len(v))
+    closest = njit(error_model="numpy")(tracer._closest_loops.py_func)
+    occluded = njit(error_model="numpy")(tracer._occluded_loops.py_func)
+    closest(R.sph_center, R.sph_radius, R.tri_v, sph, tri, *cols, lo, hi, np.empty(n, np.float32),
+            np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
+    occluded(R.sph_center, R.sph_radius, R.tri_v, sph, tri, *cols, lo, hi, np.empty(n, np.bool_))
+    for name, kernel in (("closest", closest), ("occluded", occluded)):
         asm = "\n".join(kernel.inspect_asm().values())
-        assert re.search(r"vsqrtps\s+%ymm", asm) and re.search(r"vcmp\w*ps\s+%ymm", asm), name
+        assert re.search(r"vsqrtps\s+%[yz]mm", asm) and re.search(r"vcmp\w*ps\s+%[yz]mm", asm), name
+
+
+@pytest.mark.skipif(not _avx2(), reason="the host has no AVX2")
+def test_eye_rays_and_welford_loops_vectorise():
+    """The pinhole eye rays of a batch (divisions and square roots) and the Welford
+    update (divisions) compile to packed float64 arithmetic in 256-bit or wider registers."""
+    from impl.camera import pinhole_rays
+    n = 64
+    f = [np.empty(n) for _ in range(12)]
+    eye = njit(error_model="numpy")(pinhole_rays.py_func)
+    eye(np.ones(21), np.ones(1), *f[:10])
+    welford = njit(error_model="numpy")(tracer._welford.py_func)
+    welford(2.0, *f[:9])
+    from impl.sampling import jittered_film
+    jitter = njit(jittered_film.py_func)
+    jitter(16, 4, 5, 1, np.arange(n), *f[:4])
+    asm = "\n".join(jitter.inspect_asm().values())
+    assert re.search(r"vdivpd\s+%[yz]mm", asm), "jittered film positions"
+    asm = "\n".join(eye.inspect_asm().values())
+    assert re.search(r"vsqrtpd\s+%[yz]mm", asm) and re.search(r"vdivpd\s+%[yz]mm", asm)
+    asm = "\n".join(welford.inspect_asm().values())
+    assert re.search(r"vdivpd\s+%[yz]mm", asm)
+
+
+def test_pinhole_batch_rays_equal_eye_ray_bit_for_bit():
+    """pinhole_rays computes eye_ray's arithmetic: the same bits, float64 and rounded to
+    float32, on a rotated, off-centre camera."""
+    from impl.camera import camera_params, eye_ray, pinhole_rays
+    sc = load_scene(SUITES / "cornell/cornell_box.xml")
+    cam = camera_params(sc.camera)
+    cam[:9] = np.linalg.qr(np.random.default_rng(SEED).normal(size=(3, 3)))[0].T.ravel()
+    rng = np.random.default_rng(SEED)
+    fx, fy = rng.uniform(0, cam[14], 500), rng.uniform(0, cam[15], 500)
+    for g in (np.ones(1), np.ones(1, np.float32)):
+        out = [np.empty(500) for _ in range(8)]
+        pinhole_rays(cam, g, fx, fy, *out)
+        for i in range(500):
+            want = list(eye_ray(cam, fx[i], fy[i])[:8])
+            want[:6] = [float(g.dtype.type(x)) for x in want[:6]]
+            assert [o[i] for o in out] == want, i
+
+
+def test_jittered_film_equals_pixel_sample_bit_for_bit():
+    from impl.sampling import PIXEL_JITTER, jittered_film, pixel_sample
+    rng = np.random.default_rng(SEED)
+    pixel = rng.integers(0, 1 << 20, 300)
+    x, y = (pixel % 640).astype(float), (pixel // 640).astype(float)
+    for spp, s in ((1, 0), (16, 0), (16, 7), (64, 63)):
+        k = int(round(np.sqrt(spp)))
+        fx, fy = np.empty(300), np.empty(300)
+        jittered_film(spp, k, s, 9, pixel, x, y, fx, fy)
+        for i in range(300):
+            ox, oy = pixel_sample(spp, k, s, 9, pixel[i], PIXEL_JITTER, int(x[i]), int(y[i]))
+            assert (fx[i], fy[i]) == (x[i] + ox, y[i] + oy), (spp, s, i)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+@pytest.mark.parametrize("batch", ["shared_origin", "to_a_point", "parallel"])
+def test_culled_batches_equal_the_per_ray_queries(batch, dtype):
+    """Coherent batches — a narrow fan of rays from one origin (a tile's eye rays), rays
+    from scattered points to one point (a light sample's shadow rays), parallel rays
+    with an unbounded range (a directional light's) — get, ray for ray, the scalar
+    queries' answers from the brute-force batch queries that test only the primitives
+    their bounds (:func:`impl.tracer._cull`) keep; and those bounds do cull."""
+    rng = np.random.default_rng(SEED + 3)
+    c, r, v, shape = random_scene(rng, 40, 60)
+    R = config(c, r, v, shape, "none", dtype)
+    n = 256
+    if batch == "shared_origin":
+        o = np.tile([0.1, 0.2, 3.0], (n, 1))
+        d = np.stack([rng.uniform(-0.12, 0.08, n), rng.uniform(-0.1, 0.1, n), -np.ones(n)], 1)
+        tmin, tmax = 1e-3, 1e4
+    elif batch == "to_a_point":
+        p = np.stack([rng.uniform(-0.6, -0.2, n), np.full(n, -0.999), rng.uniform(0.1, 0.5, n)], 1)
+        light = np.array([0.3, 0.9, -0.1])
+        d = light - p
+        tmax = np.linalg.norm(d, axis=1) * (1 - 1e-7)
+        o, tmin = p, 1e-6
+    else:
+        o = np.stack([rng.uniform(-1.5, 1.5, n), np.full(n, 1.5), rng.uniform(-1.5, 1.5, n)], 1)
+        d = np.tile([0.2, -1.0, 0.1], (n, 1))
+        tmin, tmax = 1e-6, np.inf
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    o, d = o.astype(dtype).astype(np.float64), d.astype(dtype).astype(np.float64)
+    ray = _batch(o, d, tmin, tmax)
+    t, prim, b = np.empty(n), np.empty(n, np.int64), np.empty((2, n))
+    q, qt, qp = np.empty((8, n), dtype), np.empty((3, n), dtype), np.empty(n, np.int32)
+    tracer.closest_batch(R, ray, n, t, prim, b, q, qt, qp)
+    blocked = np.empty(n, np.bool_)
+    tracer.occluded_batch(R, ray, n, blocked, q)
+    te, pe, be, he = np.empty(n), np.empty(n, np.int64), np.empty((2, n)), np.empty(n, np.bool_)
+    _per_ray(R, ray, te, pe, be, he)
+    np.testing.assert_array_equal(prim, pe)
+    np.testing.assert_array_equal(t, te)
+    np.testing.assert_array_equal(b, be)
+    np.testing.assert_array_equal(blocked, he)
+    assert (prim >= 0).sum() > n // 8 and blocked.sum() > n // 8, "the rays do hit"
+    sph, tri = np.empty(len(r), np.int64), np.empty(len(v), np.int64)
+    tracer._in_precision(ray, n, q)
+    ns, nt = tracer._cull(R, q, n, sph, tri)
+    kept = ns + nt
+    if batch == "parallel":
+        assert kept == len(r) + len(v)                  # unbounded segments: nothing culled
+    else:
+        assert 0 < kept < (len(r) + len(v)) // 2, kept
+        hit_prims = set(prim[prim >= 0].tolist())
+        kept_ids = set(sph[:ns].tolist()) | {len(r) + j for j in tri[:nt].tolist()}
+        assert hit_prims <= kept_ids
 
 
 def test_scene_memo_reuses_and_rebuilds():
