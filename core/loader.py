@@ -572,6 +572,8 @@ def _material(ctx, el, materials: list, cache: dict) -> int:
         textures = {}
     else:
         textures = _param_textures(ctx, p)
+    if p.type in ("roughconductor", "roughdielectric"):
+        _check_roughness(ctx, p, textures)
     if texture is not None and texture["type"] == "bitmap":
         refl = tuple(float(x) for x in texture["data"].reshape(-1, 3).mean(axis=0))
     elif texture is not None:
@@ -1212,6 +1214,18 @@ def _param_textures(ctx, p) -> dict:
             raise ctx.error(c, f"'{name}' is given twice (a value or texture already)")
         out[name] = _texture_element(ctx, c)
     return out
+
+
+def _check_roughness(ctx, p, textures: dict) -> None:
+    """Mitsuba's rule for a rough BSDF's roughness: ``alpha`` or both of
+    ``alpha_u``/``alpha_v`` (each a value or a texture), not both forms."""
+    given = set(p.props) | set(textures)
+    uv = {"alpha_u", "alpha_v"} & given
+    if uv and "alpha" in given:
+        raise ctx.error(p.el, "give either 'alpha' or 'alpha_u'/'alpha_v' (as Mitsuba requires)")
+    if len(uv) == 1:
+        raise ctx.error(p.el, f"'{uv.pop()}' needs its partner: both 'alpha_u' and 'alpha_v' must be "
+                              "given (as Mitsuba requires)")
 
 
 def _texture_mean(tex: dict) -> np.ndarray:

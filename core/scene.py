@@ -324,7 +324,8 @@ class Scene:
 #: The features :func:`scene_features` names: parts of the scene vocabulary an
 #: algorithm must model explicitly (``Algorithm.models``) to render a scene that has them.
 FEATURES = ("envmap", "projector", "spot texture", "plastic", "roughplastic", "normalmap", "bumpmap",
-            "textured parameter", "textured roughness", "plastic texture", "camera motion", "mesh motion",
+            "textured parameter", "textured roughness", "anisotropic roughness", "plastic texture",
+            "camera motion", "mesh motion",
             "mask", "blendbsdf", "thindielectric", "gibench_cooktorrance", "gibench_difftrans")
 
 
@@ -362,6 +363,8 @@ def _material_features(m: Material, where: str, found: dict) -> None:
         found.setdefault("mask", where)
     if m.shading is not None:
         found.setdefault(m.shading["type"], where)
+    if m.kind in ("roughconductor", "roughdielectric") and _anisotropic(m):
+        found.setdefault("anisotropic roughness", f"{where} ('alpha_u'/'alpha_v' of its {m.kind} BSDF)")
     for name in m.textures:
         if m.kind in ("plastic", "roughplastic") and name == "diffuse_reflectance":
             found.setdefault("plastic texture", where)
@@ -371,3 +374,15 @@ def _material_features(m: Material, where: str, found: dict) -> None:
             found.setdefault("textured parameter", f"{where} ('{name}' of its {m.kind} BSDF)")
     for c in m.components:
         _material_features(c, where, found)
+
+
+def _anisotropic(m: Material) -> bool:
+    """Whether rough BSDF ``m`` has anisotropic roughness: a textured ``alpha_u`` or
+    ``alpha_v``, or two different constants."""
+    if "alpha_u" in m.textures or "alpha_v" in m.textures:
+        return True
+    p = m.params
+    try:
+        return "alpha_u" in p and "alpha_v" in p and float(p["alpha_u"]) != float(p["alpha_v"])
+    except (TypeError, ValueError):
+        return False

@@ -57,9 +57,13 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   as Mitsuba's ``path`` counts it; the nested BSDF's f and pdf times the
   opacity); opacity, blend weight and the ``alpha`` of a roughconductor /
   roughdielectric may be a constant, a bitmap or (alpha) a checkerboard, read as
-  Mitsuba's ``eval_1``.  Shadow rays stop at any surface, masks and thin
-  dielectrics included (Mitsuba's ``path`` tests visibility with
-  ``ray_test``); ``normalmap`` and ``bumpmap`` around any of them
+  Mitsuba's ``eval_1``; anisotropic roughness (``alpha_u``/``alpha_v``, each a
+  constant or such a texture; Beckmann and GGX, :mod:`impl.microfacet`) in
+  Mitsuba's shading frame, s along the surface's ∂p/∂u
+  (:func:`impl.shading_frame.tangent`), not under a normal or bump map.  Shadow
+  rays stop at any surface, masks and thin dielectrics included (Mitsuba's
+  ``path`` tests visibility with ``ray_test``); ``normalmap`` and ``bumpmap``
+  around any of them
   on triangles with uvs (:mod:`impl.shading_frame`: the BSDF evaluated and
   sampled in the perturbed frame, directions on opposite sides of the true
   and the perturbed shading normal dropped, Estevez et al.'s shadowing term).
@@ -162,7 +166,7 @@ from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
-from .shading_frame import perturbed_normal, same_side, shadow_terminator
+from .shading_frame import perturbed_normal, same_side, shadow_terminator, tangent
 from .textures import bitmap, checkerboard, luminance
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
@@ -222,13 +226,28 @@ def _scalar_texture(rec, m, c0, c1, data, t, b1, b2, clip):
 @njit(inline="always", cache=True)
 def _scalar_param(B, mat, slot, value, ns, prim, tri_uv, b1, b2):
     """A scalar parameter of ``mat`` at a hit: slot 0 a mask's opacity, 1 a blend weight
-    (both clipped to [0, 1], as Mitsuba), 2 a roughness; its texture's value
+    (both clipped to [0, 1], as Mitsuba), 2 a roughness (α_u), 3 α_v; its texture's value
     (:func:`_scalar_texture`) on triangles, ``value`` (the constant, or the texture's
     mean on spheres) without a texture."""
     if B.ptex[mat, slot, 0] == 0 or prim < ns:
         return value
     return _scalar_texture(B.ptex[mat, slot], B.ptex_uv[mat, slot], B.ptex_c[mat, slot, 0],
                            B.ptex_c[mat, slot, 1], B.ptex_data, tri_uv[prim - ns], b1, b2, slot < 2)
+
+
+@njit(inline="always", cache=True)
+def _roughness(B, mat, ns, prim, tri_uv, b1, b2):
+    """(α_u, α_v) of ``mat`` at a hit: the constants or their textures' values
+    (:func:`_scalar_param`, slots 2 and 3); α_v = α_u unless the row is anisotropic."""
+    alpha = B.alpha[mat]
+    if B.ptex[mat, 2, 0] != 0:
+        alpha = _scalar_param(B, mat, 2, alpha, ns, prim, tri_uv, b1, b2)
+    alpha_v = alpha
+    if B.aniso[mat] != 0:
+        alpha_v = B.alpha_v[mat]
+        if B.ptex[mat, 3, 0] != 0:
+            alpha_v = _scalar_param(B, mat, 3, alpha_v, ns, prim, tri_uv, b1, b2)
+    return alpha, alpha_v
 
 
 @njit(cache=True)
@@ -245,12 +264,12 @@ def _blend_eval_pdf(A: SceneArrays, B: MaterialArrays, mat, w, skip, prim, b1, b
         c = B.comp[mat, k]
         wk = w if k == 1 else 1.0 - w
         rr, rg, rb = diffuse_albedo(A, c, prim, b1, b2)
-        al = _scalar_param(B, c, 2, B.alpha[c], A.sph_radius.shape[0], prim, A.tri_uv, b1, b2)
-        er, eg, eb = bsdf_eval_at(B, c, al, rr, rg, rb, eta_scale, wix, wiy, wiz, wox, woy, woz)
+        al, av = _roughness(B, c, A.sph_radius.shape[0], prim, A.tri_uv, b1, b2)
+        er, eg, eb = bsdf_eval_at(B, c, al, av, rr, rg, rb, eta_scale, wix, wiy, wiz, wox, woy, woz)
         fr += wk * er
         fg += wk * eg
         fb += wk * eb
-        pdf += wk * bsdf_pdf_at(B, c, al, eta_scale, wix, wiy, wiz, wox, woy, woz)
+        pdf += wk * bsdf_pdf_at(B, c, al, av, eta_scale, wix, wiy, wiz, wox, woy, woz)
     return fr, fg, fb, pdf
 
 
@@ -382,9 +401,7 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                 else:
                     smat = B.comp[mat, 1]
                     ck = 1
-            alpha = B.alpha[smat]            # a textured roughness: its value here
-            if B.ptex[smat, 2, 0] != 0:
-                alpha = _scalar_param(B, smat, 2, alpha, ns, prim, A.tri_uv, b1, b2)
+            alpha, alpha_v = _roughness(B, smat, ns, prim, A.tri_uv, b1, b2)   # textured: its value here
             # A two-sided opaque BSDF is seen from the front on both sides.
             back = not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
             # A normal or bump map: the BSDF's frame turns to the perturbed normal n.
@@ -395,12 +412,22 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                                               A.mat_shade_uv[mat], A.tex_data, A.tri_v[prim - ns],
                                               A.tri_uv[prim - ns], b1, b2, gx, gy, gz, sx, sy, sz, vx,
                                               vy, vz, back)
+            # Anisotropic roughness: Mitsuba's frame, s along ∂p/∂u and t = n × s, kept on
+            # the back of a two-sided BSDF (Mitsuba's twosided negates the local z only).
+            aniso = B.aniso[mat] != 0
+            if aniso:
+                fx, fy, fz = tangent(prim, ns, b1, b2, px, py, pz, A.sph_center, A.tri_v, A.tri_uv,
+                                     A.tri_has_uv, gx, gy, gz, sx, sy, sz)
+                qx, qy, qz = sy * fz - sz * fy, sz * fx - sx * fz, sx * fy - sy * fx
+            else:
+                fx = fy = fz = qx = qy = qz = 0.0
             if back:
                 gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
                 if shade == 0:
                     nx, ny, nz = sx, sy, sz
             terminator = shade != 0 and A.mat_shade_tex[mat, 6] != 0
-            fx, fy, fz, qx, qy, qz = frame(nx, ny, nz)
+            if not aniso:
+                fx, fy, fz, qx, qy, qz = frame(nx, ny, nz)
             wix, wiy, wiz = to_local(fx, fy, fz, qx, qy, qz, nx, ny, nz, vx, vy, vz)
             if spectral:
                 rho_r = spectrum_at(S.mat_spec[mat], w0)
@@ -433,8 +460,8 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                         fr, fg, fb, bpdf = _blend_eval_pdf(A, B, mat, bw, -1, prim, b1, b2, eta_scale,
                                                            wix, wiy, wiz, wox, woy, woz)
                     else:
-                        fr, fg, fb = bsdf_eval_at(B, mat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy,
-                                                  wiz, wox, woy, woz)
+                        fr, fg, fb = bsdf_eval_at(B, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale,
+                                                  wix, wiy, wiz, wox, woy, woz)
                     if opac < 1.0:               # a mask scatters by its BSDF with probability opac
                         fr, fg, fb = fr * opac, fg * opac, fb * opac
                     if terminator:
@@ -456,8 +483,8 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                             w = 1.0
                             if not ldelta and mis:
                                 if not blend:
-                                    bpdf = bsdf_pdf_at(B, mat, alpha, eta_scale, wix, wiy, wiz, wox, woy,
-                                                       woz)
+                                    bpdf = bsdf_pdf_at(B, mat, alpha, alpha_v, eta_scale, wix, wiy, wiz, wox,
+                                                       woy, woz)
                                 bpdf *= opac
                                 if bias == _BIAS_MIS:   # debug: the classic swapped-argument bug
                                     w = _power(bpdf, lpdf)
@@ -486,7 +513,7 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                 if blend:                    # rescaled for the chosen component
                     u0 = (u0 - bw) / (1.0 - bw) if ck == 0 else (u0 / bw if bw > 0.0 else 0.0)
                 wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample_at(
-                    B, smat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+                    B, smat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
                 if blend and pdf > 0.0:
                     # Mitsuba's blendbsdf.sample: the mixture's pdf, and the weight
                     # (w_k f_k cos / 1 + the other's weighted f cos) / that pdf.
@@ -655,5 +682,6 @@ ALGORITHM = Algorithm(
     ),
     render=render,
     models=frozenset({"envmap", "plastic", "roughplastic", "plastic texture", "normalmap", "bumpmap",
-                      "projector", "thindielectric", "blendbsdf", "mask", "textured roughness"}),
+                      "projector", "thindielectric", "blendbsdf", "mask", "textured roughness",
+                      "anisotropic roughness"}),
 )
