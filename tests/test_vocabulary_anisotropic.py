@@ -1,15 +1,16 @@
-"""Anisotropic roughness in the path tracer.
+"""Anisotropic roughness and a spot's texture in the path tracer.
 
 * ``suites/vocabulary/anisotropic.xml`` (constant ``alpha_u`` ≠ ``alpha_v``: Beckmann
   and GGX, roughconductor and roughdielectric, visible-normal sampling on and off, on a
-  rectangle, an OBJ without uvs and spheres) and ``anisotropic_textured.xml`` (bitmap
-  and checkerboard ``alpha_u`` / ``alpha_v``) pass the per-pixel Z-test against Mitsuba's ``path`` (own 256 spp
+  rectangle, an OBJ without uvs and spheres), ``anisotropic_textured.xml`` (bitmap and
+  checkerboard ``alpha_u`` / ``alpha_v``) and ``spot_texture.xml`` (a spot whose beam
+  is a bitmap) pass the per-pixel Z-test against Mitsuba's ``path`` (own 256 spp
   against 1024 spp × 8 passes), and the mean of each third of the image lies within 4
   standard errors of Mitsuba's.
 * Negative controls fail the Z-test: the roughness along the tangent and the bitangent
   swapped (the tangent turned by 90°), the anisotropic roughness replaced by an
-  isotropic one (√(α_u α_v)).
-* The other algorithms refuse it by name; a lone ``alpha_u`` is refused with its
+  isotropic one (√(α_u α_v)), the spot's texture ignored or mirrored in u.
+* The other algorithms refuse both by name; a lone ``alpha_u`` is refused with its
   file and line, as Mitsuba refuses it.
 """
 
@@ -28,7 +29,7 @@ from core.loader import load_scene
 from gibench import registry
 
 VOCAB = Path(__file__).resolve().parent.parent / "suites" / "vocabulary"
-SCENES = {name: VOCAB / f"{name}.xml" for name in ("anisotropic", "anisotropic_textured")}
+SCENES = {name: VOCAB / f"{name}.xml" for name in ("anisotropic", "anisotropic_textured", "spot_texture")}
 
 
 def _swap_uv(m):
@@ -49,9 +50,22 @@ def _isotropic(m):
     return dataclasses.replace(m, params={**q, "alpha": math.sqrt(p["alpha_u"] * p["alpha_v"])})
 
 
+def _spot_plain(light):
+    return dataclasses.replace(light, texture=None)
+
+
+def _spot_mirrored(light):
+    if light.texture is None:
+        return light
+    to_uv = np.asarray(light.texture["to_uv"], dtype=np.float64) @ np.array(
+        [[-1.0, 0.0, 1.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    return dataclasses.replace(light, texture={**light.texture, "to_uv": to_uv})
+
+
 #: Per scene, the mis-modellings the Z-test must reject (materials or lights changed).
 WRONG = {"anisotropic": [("materials", _swap_uv), ("materials", _isotropic)],
-         "anisotropic_textured": [("materials", _swap_uv)]}
+         "anisotropic_textured": [("materials", _swap_uv)],
+         "spot_texture": [("lights", _spot_plain), ("lights", _spot_mirrored)]}
 
 
 def _render_and_test(name: str, change=None):
@@ -87,15 +101,16 @@ def test_scene_passes_the_ztest_against_mitsuba_path(name):
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("name,k", [(n, k) for n, changes in WRONG.items() for k in range(len(changes))])
 def test_the_ztest_rejects_the_feature_mis_modelled(name, k):
-    """alpha_u and alpha_v swapped, anisotropy replaced by an isotropic alpha: the Z-test
-    fails."""
+    """alpha_u and alpha_v swapped, anisotropy replaced by an isotropic alpha, the spot's
+    texture ignored or mirrored: the Z-test fails."""
     ref, own, z = _render_and_test(name, WRONG[name][k])
     print(f"\n{name} ({WRONG[name][k][1].__name__}): {z}")
     assert not z.passed
 
 
 @pytest.mark.parametrize("name, feature", [("anisotropic", "anisotropic roughness"),
-                                           ("anisotropic_textured", "anisotropic roughness")])
+                                           ("anisotropic_textured", "anisotropic roughness"),
+                                           ("spot_texture", "spot texture")])
 def test_other_algorithms_refuse_them_by_name(name, feature):
     scene = load_scene(SCENES[name])
     for algo_name in ("raycast", "whitted", "distributed", "zbuffer", "radiosity"):
@@ -111,6 +126,13 @@ def test_a_lone_alpha_u_is_refused_with_file_and_line(tmp_path):
     line = next(i for i, s in enumerate(text.splitlines(), 1) if 'value="0.04"' in s) - 1
     with pytest.raises(SceneError, match=f"s.xml:{line}: .*'alpha_u' needs its partner"):
         load_scene(p)
+
+
+def test_spectral_path_refuses_the_spot_texture():
+    algo = registry.get("path")
+    with pytest.raises(UnsupportedError, match="spot's texture"):
+        scene = dataclasses.replace(load_scene(SCENES["spot_texture"]), environment=None)
+        algo.render(scene, algo.parse_params({"spp": 1, "spectral": True}))
 
 
 def test_anisotropic_roughness_under_a_normal_map_is_refused_by_name(tmp_path):
