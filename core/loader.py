@@ -127,7 +127,7 @@ from lxml import etree
 from . import transforms as tf
 from .meshes import (MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_uvs, load_serialized,
                      rectangle)
-from .scene import Camera, EnvMap, Film, Light, Material, Scene, Shape, Spectrum
+from .scene import Camera, EnvMap, Film, Light, Material, Scene, Shape, Spectrum, anisotropic_roughness
 from .errors import SceneError
 from .xmlscene import Document, _snake_case, resolve, short  # noqa: F401  (_snake_case: tests)
 
@@ -718,6 +718,11 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
             raise ctx.error(el, "sphere to_world must be a similarity transform (uniform scale)")
         if not (np.isfinite(radius * s) and radius * s > 0.0):
             raise ctx.error(el, f"sphere radius in world units must be finite and > 0, got {radius * s}")
+        z = tf.transform_vectors(m, [0.0, 0.0, 1.0]) / s
+        if anisotropic_roughness(materials[mat]) and abs(z[2]) < 1.0 - 1e-9:
+            raise ctx.error(el, "anisotropic roughness on a sphere whose to_world turns its z axis is "
+                                "not supported: the scene model keeps no sphere rotation, and the "
+                                "tangent runs about the sphere's z axis (Mitsuba's)")
         velocity = _velocity(ctx, el, p)
         return Shape(kind="sphere", material=mat, name=name, source="sphere",
                      center=tf.transform_points(m, center), radius=radius * s,

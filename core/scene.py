@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["Film", "Camera", "Material", "Shape", "Light", "Scene", "Spectrum", "EnvMap", "cie_tables",
-           "scene_features", "FEATURES"]
+           "scene_features", "FEATURES", "anisotropic_roughness"]
 
 
 @dataclass(frozen=True)
@@ -363,7 +363,7 @@ def _material_features(m: Material, where: str, found: dict) -> None:
         found.setdefault("mask", where)
     if m.shading is not None:
         found.setdefault(m.shading["type"], where)
-    if m.kind in ("roughconductor", "roughdielectric") and _anisotropic(m):
+    if m.kind in ("roughconductor", "roughdielectric") and anisotropic_roughness(m):
         found.setdefault("anisotropic roughness", f"{where} ('alpha_u'/'alpha_v' of its {m.kind} BSDF)")
     for name in m.textures:
         if m.kind in ("plastic", "roughplastic") and name == "diffuse_reflectance":
@@ -376,9 +376,14 @@ def _material_features(m: Material, where: str, found: dict) -> None:
         _material_features(c, where, found)
 
 
-def _anisotropic(m: Material) -> bool:
-    """Whether rough BSDF ``m`` has anisotropic roughness: a textured ``alpha_u`` or
-    ``alpha_v``, or two different constants."""
+def anisotropic_roughness(m: Material) -> bool:
+    """Whether material ``m`` (or a blendbsdf component of it) is a rough BSDF with
+    anisotropic roughness: a textured ``alpha_u`` or ``alpha_v``, or two different
+    constants."""
+    if any(anisotropic_roughness(c) for c in m.components):
+        return True
+    if m.kind not in ("roughconductor", "roughdielectric"):
+        return False
     if "alpha_u" in m.textures or "alpha_v" in m.textures:
         return True
     p = m.params

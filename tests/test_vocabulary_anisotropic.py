@@ -147,3 +147,20 @@ def test_anisotropic_roughness_under_a_normal_map_is_refused_by_name(tmp_path):
     algo = registry.get("path")
     with pytest.raises(UnsupportedError, match="anisotropic roughness under a normalmap is not modelled"):
         algo.render(load_scene(p), algo.parse_params({"spp": 1}))
+
+
+@pytest.mark.parametrize("axis, refused", [("x", True), ("z", False)])
+def test_an_anisotropic_sphere_turned_off_its_z_axis_is_refused(tmp_path, axis, refused):
+    """The scene model keeps no sphere rotation; the tangent runs about world z, which is
+    Mitsuba's only while to_world keeps the sphere's z axis (a turn about z is fine)."""
+    text = SCENES["anisotropic"].read_text()
+    old = '<float name="radius" value="0.55"/>'
+    assert text.count(old) == 1
+    p = tmp_path / "s.xml"
+    p.write_text(text.replace(old, old + f'<transform name="to_world"><rotate {axis}="1" angle="30"/></transform>')
+                 .replace("meshes/quad_box.obj", str(VOCAB / "meshes" / "quad_box.obj")))
+    if refused:
+        with pytest.raises(SceneError, match="s.xml:.*anisotropic roughness on a sphere whose to_world turns"):
+            load_scene(p)
+    else:
+        assert len(load_scene(p).shapes) == len(load_scene(SCENES["anisotropic"]).shapes)
