@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["Film", "Camera", "Material", "Shape", "Light", "Scene", "Spectrum", "EnvMap", "cie_tables",
-           "scene_features", "FEATURES", "anisotropic_roughness"]
+           "scene_features", "FEATURES", "SPECULAR_TEXTURED", "anisotropic_roughness"]
 
 
 @dataclass(frozen=True)
@@ -324,9 +324,15 @@ class Scene:
 #: The features :func:`scene_features` names: parts of the scene vocabulary an
 #: algorithm must model explicitly (``Algorithm.models``) to render a scene that has them.
 FEATURES = ("envmap", "projector", "spot texture", "plastic", "roughplastic", "normalmap", "bumpmap",
-            "textured parameter", "textured roughness", "anisotropic roughness", "plastic texture",
+            "textured parameter", "textured roughness", "anisotropic roughness",
+            "textured specular reflectance", "plastic texture",
             "camera motion", "mesh motion",
             "mask", "blendbsdf", "thindielectric", "gibench_cooktorrance", "gibench_difftrans")
+
+
+#: The BSDFs whose textured ``specular_reflectance`` is the feature "textured specular
+#: reflectance" (on the others it is a "textured parameter").
+SPECULAR_TEXTURED = ("conductor", "roughconductor", "dielectric")
 
 
 def scene_features(scene: Scene) -> dict[str, str]:
@@ -370,6 +376,8 @@ def _material_features(m: Material, where: str, found: dict) -> None:
             found.setdefault("plastic texture", where)
         elif m.kind in ("roughconductor", "roughdielectric") and name in ("alpha", "alpha_u", "alpha_v"):
             found.setdefault("textured roughness", f"{where} ('{name}' of its {m.kind} BSDF)")
+        elif m.kind in SPECULAR_TEXTURED and name == "specular_reflectance":
+            found.setdefault("textured specular reflectance", f"{where} ('{name}' of its {m.kind} BSDF)")
         elif not (m.kind == "blendbsdf" and name == "weight"):
             found.setdefault("textured parameter", f"{where} ('{name}' of its {m.kind} BSDF)")
     for c in m.components:

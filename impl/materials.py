@@ -58,7 +58,8 @@ from .scene_arrays import MATERIAL_CODES
 __all__ = ["named_conductor", "distribution_codes", "CONDUCTOR_TABLE", "MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "MAT_PLASTIC",
            "MAT_ROUGHPLASTIC", "MAT_COOKTORRANCE", "MAT_DIFFTRANS", "MAT_THINDIELECTRIC", "MAT_BLEND",
-           "MAX_LOBES", "KIND_CODES", "DEFAULT_ALPHA", "expand_components", "WrapperArrays",
+           "MAX_LOBES", "KIND_CODES", "DEFAULT_ALPHA", "expand_components", "with_specular_textures",
+           "WrapperArrays",
            "N_SLOTS", "no_wrappers", "wrapper_arrays"]
 
 MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
@@ -352,6 +353,37 @@ def _scalar_texture_mean(tex: dict) -> float:
     if tex["type"] == "bitmap":
         return float((np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3) @ LUMINANCE).mean())
     return float(0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"])) @ LUMINANCE)
+
+
+def with_specular_textures(scene: Scene) -> Scene:
+    """``scene`` with the textured ``specular_reflectance`` of every conductor,
+    roughconductor and dielectric (a blendbsdf's components included) moved to the
+    material's ``texture`` (so that :func:`impl.lighting.diffuse_albedo` reads it at a
+    hit; its mean as ``reflectance``), the constant ``specular_reflectance`` then
+    Mitsuba's default 1; or ``scene`` itself without one.  The caller multiplies the
+    reflected weights by that value (:mod:`impl.path`), as Mitsuba's ``conductor``,
+    ``roughconductor`` and ``dielectric`` multiply by their texture's ``eval``."""
+    import dataclasses
+
+    from core.scene import SPECULAR_TEXTURED
+
+    def moved(m):
+        if m.components:
+            comps = tuple(moved(c) for c in m.components)
+            return m if all(a is b for a, b in zip(comps, m.components)) else \
+                dataclasses.replace(m, components=comps)
+        if m.kind not in SPECULAR_TEXTURED or "specular_reflectance" not in m.textures:
+            return m
+        tex = m.textures["specular_reflectance"]
+        mean = (np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3).mean(axis=0)
+                if tex["type"] == "bitmap" else 0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"])))
+        rest = {k: v for k, v in m.textures.items() if k != "specular_reflectance"}
+        return dataclasses.replace(m, texture=tex, reflectance=tuple(float(x) for x in mean), textures=rest)
+
+    mats = [moved(m) for m in scene.materials]
+    if all(a is b for a, b in zip(mats, scene.materials)):
+        return scene
+    return dataclasses.replace(scene, materials=mats)
 
 
 def expand_components(scene: Scene, *, algorithm: str = "path") -> Scene:

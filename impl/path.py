@@ -61,7 +61,10 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   Mitsuba's ``eval_1``; anisotropic roughness (``alpha_u``/``alpha_v``, each a
   constant or such a texture; Beckmann and GGX, :mod:`impl.microfacet`) in
   Mitsuba's shading frame, s along the surface's ∂p/∂u
-  (:func:`impl.shading_frame.tangent`), not under a normal or bump map.  Shadow
+  (:func:`impl.shading_frame.tangent`), not under a normal or bump map; a
+  textured ``specular_reflectance`` of a conductor, roughconductor or dielectric
+  (RGB; its value multiplies the reflected weights and, for the roughconductor,
+  f, as Mitsuba's, :func:`impl.materials.with_specular_textures`).  Shadow
   rays stop at any surface, masks and thin dielectrics included (Mitsuba's
   ``path`` tests visibility with ``ray_test``); ``normalmap`` and ``bumpmap``
   around any of them
@@ -149,12 +152,13 @@ import numpy as np
 from numba import njit, prange
 
 from core.algorithm import Algorithm, Param, RenderResult
-from core.scene import Scene
+from core.scene import Scene, scene_features
 from core.errors import ParamError, UnsupportedError
 
 from .bsdf import bsdf_arrays, bsdf_eval_at, bsdf_pdf_at, bsdf_sample_at, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
-from .materials import MAT_BLEND, MaterialArrays, expand_components
+from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MaterialArrays,
+                        expand_components, with_specular_textures)
 from .accel.packets import NOT_TRACED
 from .camera import camera_params
 from .kernel import batch_kernel, interleaved, task_stride
@@ -252,6 +256,15 @@ def _roughness(B, mat, ns, prim, tri_uv, b1, b2):
     return alpha, alpha_v
 
 
+@njit(inline="always", cache=True)
+def _specular_texture(A: SceneArrays, B: MaterialArrays, mat):
+    """Whether ``mat`` is a conductor, roughconductor or dielectric whose
+    ``specular_reflectance`` is a texture (:func:`impl.materials.with_specular_textures`
+    moved it to the diffuse texture slot: ρ at the hit is its value)."""
+    k = B.kind[mat]
+    return A.mat_tex[mat] != 0 and (k == MAT_CONDUCTOR or k == MAT_ROUGHCONDUCTOR or k == MAT_DIELECTRIC)
+
+
 @njit(cache=True)
 def _blend_eval_pdf(A: SceneArrays, B: MaterialArrays, mat, w, skip, prim, b1, b2, eta_scale,
                     wix, wiy, wiz, wox, woy, woz):
@@ -268,6 +281,8 @@ def _blend_eval_pdf(A: SceneArrays, B: MaterialArrays, mat, w, skip, prim, b1, b
         rr, rg, rb = diffuse_albedo(A, c, prim, b1, b2)
         al, av = _roughness(B, c, A.sph_radius.shape[0], prim, A.tri_uv, b1, b2)
         er, eg, eb = bsdf_eval_at(B, c, al, av, rr, rg, rb, eta_scale, wix, wiy, wiz, wox, woy, woz)
+        if _specular_texture(A, B, c):
+            er, eg, eb = er * rr, eg * rg, eb * rb
         fr += wk * er
         fg += wk * eg
         fb += wk * eb
@@ -438,6 +453,7 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
             else:
                 rho_r, rho_g, rho_b = diffuse_albedo(A, smat, prim, b1, b2)
             eta_scale = eta_scale_at(S, mat, w0) if spectral else 1.0
+            spec_tex = _specular_texture(A, B, smat)
 
             # Next-event estimation: one light sample, shadow ray, MIS weight.
             if not delta and L.n_lights > 0:
@@ -470,6 +486,8 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                     else:
                         fr, fg, fb = bsdf_eval_at(B, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale,
                                                   wix, wiy, wiz, wox, woy, woz)
+                        if spec_tex:             # a textured specular_reflectance
+                            fr, fg, fb = fr * rho_r, fg * rho_g, fb * rho_b
                     if opac < 1.0:               # a mask scatters by its BSDF with probability opac
                         fr, fg, fb = fr * opac, fg * opac, fb * opac
                     if terminator:
@@ -522,6 +540,8 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                     u0 = (u0 - bw) / (1.0 - bw) if ck == 0 else (u0 / bw if bw > 0.0 else 0.0)
                 wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample_at(
                     B, smat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+                if spec_tex and woz * wiz > 0.0:   # reflected: a textured specular_reflectance
+                    wr, wg, wb = wr * rho_r, wg * rho_g, wb * rho_b
                 if blend and pdf > 0.0:
                     # Mitsuba's blendbsdf.sample: the mixture's pdf, and the weight
                     # (w_k f_k cos / 1 + the other's weighted f cos) / that pdf.
@@ -632,7 +652,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
     _check(params)
     # A blendbsdf's components get rows of their own in A and B (kept alive by the memo).
     def expanded():              # None without a blendbsdf: the memo must not hold the scene itself
-        e = expand_components(scene, algorithm="path")
+        e = expand_components(with_specular_textures(scene), algorithm="path")
         return None if e is scene else e
 
     full = scene_memo(scene, "path.expanded", expanded) or scene
@@ -656,6 +676,9 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
     if spectral and any(light.kind == "spot" and light.texture is not None for light in scene.lights):
         raise UnsupportedError("path: spectral=true does not model a spot's texture (an RGB image); "
                                "render it with spectral=false")
+    if spectral and "textured specular reflectance" in scene_features(scene):
+        raise UnsupportedError("path: spectral=true does not model a textured specular_reflectance "
+                               "(an RGB texture); render it with spectral=false")
     if spectral and any(m.kind == "blendbsdf" for m in full.materials):
         raise UnsupportedError("path: spectral=true does not model the blendbsdf BSDF (its "
                                "components' reflectances are RGB here); render it with spectral=false")
@@ -698,5 +721,5 @@ ALGORITHM = Algorithm(
     render=render,
     models=frozenset({"envmap", "plastic", "roughplastic", "plastic texture", "normalmap", "bumpmap",
                       "projector", "thindielectric", "blendbsdf", "mask", "textured roughness",
-                      "anisotropic roughness", "spot texture"}),
+                      "anisotropic roughness", "spot texture", "textured specular reflectance"}),
 )
