@@ -25,8 +25,10 @@ defaults) into a :class:`MaterialArrays` named tuple, one row per material of
   gets its mean here and its texture in :func:`wrapper_arrays`.
 
 :func:`expand_components` gives a ``blendbsdf``'s components rows of their own;
-:func:`wrapper_arrays` decodes ``mask`` opacities, blend weights and textured
-roughness into :class:`WrapperArrays`.
+:func:`wrapper_arrays` decodes ``mask`` opacities, blend weights and textured or
+anisotropic roughness into :class:`WrapperArrays`; :func:`with_specular_textures`
+moves a conductor's, roughconductor's or dielectric's textured
+``specular_reflectance`` to the material's texture, for the path tracer.
 
 The microfacet functions these rows feed are in :mod:`impl.microfacet`.
 
@@ -59,8 +61,7 @@ __all__ = ["named_conductor", "distribution_codes", "CONDUCTOR_TABLE", "Material
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "MAT_PLASTIC",
            "MAT_ROUGHPLASTIC", "MAT_COOKTORRANCE", "MAT_DIFFTRANS", "MAT_THINDIELECTRIC", "MAT_BLEND",
            "MAX_LOBES", "KIND_CODES", "DEFAULT_ALPHA", "expand_components", "with_specular_textures",
-           "WrapperArrays",
-           "N_SLOTS", "no_wrappers", "wrapper_arrays"]
+           "WrapperArrays", "N_SLOTS", "no_wrappers", "wrapper_arrays"]
 
 MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
 MAT_CONDUCTOR = MATERIAL_CODES["conductor"]

@@ -462,7 +462,8 @@ def test_equal_alphas_reduce_to_the_isotropic_functions(dist):
                             mf.dielectric_pdf(a, vis, 1.5, *wi, *w, dist))
             assert same(mf.dielectric_sample(a, mf.G_SMITH, vis, 1.5, *wi, u0, u1, u2, dist, a),
                         mf.dielectric_sample(a, mf.G_SMITH, vis, 1.5, *wi, u0, u1, u2, dist))
-        assert same(mf.conductor_eval(a, mf.G_SMITH, *wi, *wo, dist, a), mf.conductor_eval(a, mf.G_SMITH, *wi, *wo, dist))
+        assert same(mf.conductor_eval(a, mf.G_SMITH, *wi, *wo, dist, a),
+                    mf.conductor_eval(a, mf.G_SMITH, *wi, *wo, dist))
         for w in (wo, wt):
             assert same(mf.dielectric_eval(a, mf.G_SMITH, 1.5, *wi, *w, dist, a),
                         mf.dielectric_eval(a, mf.G_SMITH, 1.5, *wi, *w, dist))
