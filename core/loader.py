@@ -127,7 +127,7 @@ from lxml import etree
 from . import transforms as tf
 from .meshes import (MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_uvs, load_serialized,
                      rectangle)
-from .scene import Camera, EnvMap, Film, Light, Material, Scene, Shape, Spectrum
+from .scene import Camera, EnvMap, Film, Light, Material, Scene, Shape, Spectrum, anisotropic_roughness
 from .errors import SceneError
 from .xmlscene import Document, _snake_case, resolve, short  # noqa: F401  (_snake_case: tests)
 
@@ -572,6 +572,8 @@ def _material(ctx, el, materials: list, cache: dict) -> int:
         textures = {}
     else:
         textures = _param_textures(ctx, p)
+    if p.type in ("roughconductor", "roughdielectric"):
+        _check_roughness(ctx, p, textures)
     if texture is not None and texture["type"] == "bitmap":
         refl = tuple(float(x) for x in texture["data"].reshape(-1, 3).mean(axis=0))
     elif texture is not None:
@@ -716,6 +718,11 @@ def _shape(ctx, el, materials, cache, default_mat) -> Shape:
             raise ctx.error(el, "sphere to_world must be a similarity transform (uniform scale)")
         if not (np.isfinite(radius * s) and radius * s > 0.0):
             raise ctx.error(el, f"sphere radius in world units must be finite and > 0, got {radius * s}")
+        z = tf.transform_vectors(m, [0.0, 0.0, 1.0]) / s
+        if anisotropic_roughness(materials[mat]) and abs(z[2]) < 1.0 - 1e-9:
+            raise ctx.error(el, "anisotropic roughness on a sphere whose to_world turns its z axis is "
+                                "not supported: the scene model keeps no sphere rotation, and the "
+                                "tangent runs about the sphere's z axis (Mitsuba's)")
         velocity = _velocity(ctx, el, p)
         return Shape(kind="sphere", material=mat, name=name, source="sphere",
                      center=tf.transform_points(m, center), radius=radius * s,
@@ -1212,6 +1219,18 @@ def _param_textures(ctx, p) -> dict:
             raise ctx.error(c, f"'{name}' is given twice (a value or texture already)")
         out[name] = _texture_element(ctx, c)
     return out
+
+
+def _check_roughness(ctx, p, textures: dict) -> None:
+    """Mitsuba's rule for a rough BSDF's roughness: ``alpha`` or both of
+    ``alpha_u``/``alpha_v`` (each a value or a texture), not both forms."""
+    given = set(p.props) | set(textures)
+    uv = {"alpha_u", "alpha_v"} & given
+    if uv and "alpha" in given:
+        raise ctx.error(p.el, "give either 'alpha' or 'alpha_u'/'alpha_v' (as Mitsuba requires)")
+    if len(uv) == 1:
+        raise ctx.error(p.el, f"'{uv.pop()}' needs its partner: both 'alpha_u' and 'alpha_v' must be "
+                              "given (as Mitsuba requires)")
 
 
 def _texture_mean(tex: dict) -> np.ndarray:

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["Film", "Camera", "Material", "Shape", "Light", "Scene", "Spectrum", "EnvMap", "cie_tables",
-           "scene_features", "FEATURES"]
+           "scene_features", "FEATURES", "SPECULAR_TEXTURED", "anisotropic_roughness"]
 
 
 @dataclass(frozen=True)
@@ -324,8 +324,15 @@ class Scene:
 #: The features :func:`scene_features` names: parts of the scene vocabulary an
 #: algorithm must model explicitly (``Algorithm.models``) to render a scene that has them.
 FEATURES = ("envmap", "projector", "spot texture", "plastic", "roughplastic", "normalmap", "bumpmap",
-            "textured parameter", "textured roughness", "plastic texture", "camera motion", "mesh motion",
+            "textured parameter", "textured roughness", "anisotropic roughness",
+            "textured specular reflectance", "plastic texture",
+            "camera motion", "mesh motion",
             "mask", "blendbsdf", "thindielectric", "gibench_cooktorrance", "gibench_difftrans")
+
+
+#: The BSDFs whose textured ``specular_reflectance`` is the feature "textured specular
+#: reflectance" (on the others it is a "textured parameter").
+SPECULAR_TEXTURED = ("conductor", "roughconductor", "dielectric")
 
 
 def scene_features(scene: Scene) -> dict[str, str]:
@@ -362,12 +369,33 @@ def _material_features(m: Material, where: str, found: dict) -> None:
         found.setdefault("mask", where)
     if m.shading is not None:
         found.setdefault(m.shading["type"], where)
+    if m.kind in ("roughconductor", "roughdielectric") and anisotropic_roughness(m):
+        found.setdefault("anisotropic roughness", f"{where} ('alpha_u'/'alpha_v' of its {m.kind} BSDF)")
     for name in m.textures:
         if m.kind in ("plastic", "roughplastic") and name == "diffuse_reflectance":
             found.setdefault("plastic texture", where)
         elif m.kind in ("roughconductor", "roughdielectric") and name in ("alpha", "alpha_u", "alpha_v"):
             found.setdefault("textured roughness", f"{where} ('{name}' of its {m.kind} BSDF)")
+        elif m.kind in SPECULAR_TEXTURED and name == "specular_reflectance":
+            found.setdefault("textured specular reflectance", f"{where} ('{name}' of its {m.kind} BSDF)")
         elif not (m.kind == "blendbsdf" and name == "weight"):
             found.setdefault("textured parameter", f"{where} ('{name}' of its {m.kind} BSDF)")
     for c in m.components:
         _material_features(c, where, found)
+
+
+def anisotropic_roughness(m: Material) -> bool:
+    """Whether material ``m`` (or a blendbsdf component of it) is a rough BSDF with
+    anisotropic roughness: a textured ``alpha_u`` or ``alpha_v``, or two different
+    constants."""
+    if any(anisotropic_roughness(c) for c in m.components):
+        return True
+    if m.kind not in ("roughconductor", "roughdielectric"):
+        return False
+    if "alpha_u" in m.textures or "alpha_v" in m.textures:
+        return True
+    p = m.params
+    try:
+        return "alpha_u" in p and "alpha_v" in p and float(p["alpha_u"]) != float(p["alpha_v"])
+    except (TypeError, ValueError):
+        return False

@@ -30,7 +30,9 @@ construction (the normal points outward; cos θ_i < 0 is inside).
 ``roughconductor`` and ``roughdielectric`` (Beckmann or GGX, Smith G, visible-normal
 sampling by default): Mitsuba's microfacet BSDFs of :mod:`impl.microfacet`
 (Walter et al. 2007), with the conductor Fresnel term at the sampled
-microfacet and ``specular_reflectance`` / ``specular_transmittance``.
+microfacet and ``specular_reflectance`` / ``specular_transmittance``; anisotropic
+with α_u ≠ α_v (``alpha`` along the local x axis, ``alpha_v`` along y: the caller's
+frame must then be the surface's tangent frame, :func:`impl.shading_frame.tangent`).
 
 ``thindielectric`` (Mitsuba's): a thin slab of dielectric, both sides alike;
 reflection with probability R' = R + T²R/(1 − R²) = 2R/(1 + R) (R the
@@ -141,17 +143,20 @@ class BsdfArrays(NamedTuple):
     opacity: np.ndarray         # (M,) the wrappers of impl.materials.WrapperArrays: mask opacity,
     comp: np.ndarray            # (M, 2) int blendbsdf components,
     blend_w: np.ndarray         # (M,) blend weight,
-    ptex: np.ndarray            # (M, 3, 6) int their textures (slot 0 opacity, 1 weight, 2 alpha),
-    ptex_uv: np.ndarray         # (M, 3, 2, 3) to_uv maps,
-    ptex_c: np.ndarray          # (M, 3, 2) checkerboard values,
-    ptex_data: np.ndarray       # (K, 3) texels
+    ptex: np.ndarray            # (M, 4, 6) int their textures (slot 0 opacity, 1 weight, 2 alpha
+                                # or alpha_u, 3 alpha_v),
+    ptex_uv: np.ndarray         # (M, 4, 2, 3) to_uv maps,
+    ptex_c: np.ndarray          # (M, 4, 2) checkerboard values,
+    ptex_data: np.ndarray       # (K, 3) texels,
+    alpha_v: np.ndarray         # (M,) roughness along the tangent t (= alpha when isotropic),
+    aniso: np.ndarray           # (M,) int 1: anisotropic roughness (a blendbsdf: either component)
 
 
 def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None,
                  dist: np.ndarray | None = None, W: WrapperArrays | None = None) -> BsdfArrays:
     """``M``'s rows with ``P``'s plastic rows (none: rows of zeros, no plastic material),
     the distribution codes ``dist`` (none: Beckmann everywhere) and the wrapper rows
-    ``W`` (none: no mask, no blendbsdf)."""
+    ``W`` (none: no mask, no blendbsdf, isotropic roughness)."""
     n = M.kind.shape[0]
     if P is None:
         P = PlasticArrays(np.zeros(n, dtype=np.int64), np.ones(n), np.zeros((n, 3)), np.zeros((n, 3)),
@@ -161,7 +166,7 @@ def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None,
     if dist is None:
         dist = np.zeros(n, dtype=np.int64)
     if W is None:
-        W = no_wrappers(n)
+        W = no_wrappers(n, M.alpha)
     return BsdfArrays(*M, P.eta, P.specular, P.spec_weight, P.nonlinear, P.alpha, P.visible,
                       P.fdr_int, P.ext_t, P.int_r, np.asarray(dist, dtype=np.int64), *W)
 
@@ -176,7 +181,7 @@ def bsdf_arrays(scene: Scene, *, algorithm: str = "path") -> BsdfArrays:
         A BSDF kind not modelled, naming the shape (and see ``material_arrays``).
     """
     M = material_arrays(scene, algorithm=algorithm, model="the path tracer", kinds=MODELLED,
-                        distributions=tuple(mf.DISTRIBUTIONS))
+                        distributions=tuple(mf.DISTRIBUTIONS), anisotropic=True)
     return with_plastic(M, plastic_arrays(scene, algorithm=algorithm, distributions=tuple(mf.DISTRIBUTIONS)),
                         distribution_codes(scene), wrapper_arrays(scene, algorithm=algorithm))
 
@@ -311,34 +316,37 @@ def _plastic_pdf(B: MaterialArrays, mat, k, wix, wiy, wiz, wox, woy, woz):
 
 @njit(inline="always", cache=True)
 def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2):
-    """:func:`bsdf_sample_at` with the material's own roughness ``B.alpha[mat]``."""
-    return bsdf_sample_at(B, mat, B.alpha[mat], rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+    """:func:`bsdf_sample_at` with the material's own roughness ``B.alpha[mat]``, ``B.alpha_v[mat]``."""
+    return bsdf_sample_at(B, mat, B.alpha[mat], B.alpha_v[mat], rho_r, rho_g, rho_b, eta_scale, wix, wiy,
+                          wiz, u0, u1, u2)
 
 
 @njit(inline="always", cache=True)
 def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz):
-    """:func:`bsdf_eval_at` with the material's own roughness ``B.alpha[mat]``."""
-    return bsdf_eval_at(B, mat, B.alpha[mat], rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz)
+    """:func:`bsdf_eval_at` with the material's own roughness ``B.alpha[mat]``, ``B.alpha_v[mat]``."""
+    return bsdf_eval_at(B, mat, B.alpha[mat], B.alpha_v[mat], rho_r, rho_g, rho_b, eta_scale, wix, wiy,
+                        wiz, wox, woy, woz)
 
 
 @njit(inline="always", cache=True)
 def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
-    """:func:`bsdf_pdf_at` with the material's own roughness ``B.alpha[mat]``."""
-    return bsdf_pdf_at(B, mat, B.alpha[mat], eta_scale, wix, wiy, wiz, wox, woy, woz)
+    """:func:`bsdf_pdf_at` with the material's own roughness ``B.alpha[mat]``, ``B.alpha_v[mat]``."""
+    return bsdf_pdf_at(B, mat, B.alpha[mat], B.alpha_v[mat], eta_scale, wix, wiy, wiz, wox, woy, woz)
 
 
 @njit(inline="always", cache=True)
-def bsdf_sample_at(B: MaterialArrays, mat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1,
-                   u2):
+def bsdf_sample_at(B: MaterialArrays, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz,
+                   u0, u1, u2):
     """Sample wo for material ``mat`` (diffuse albedo ρ given, textures resolved by the caller).
 
     ``eta_scale`` multiplies a dielectric's relative index (dispersion: the
     ratio n(λ)/n of the hero wavelength; 1 otherwise).  Returns
     ``(wox, woy, woz, w_r, w_g, w_b, pdf, delta, eta)`` with ``eta`` the
     relative index η_t/η_i crossed (1 unless transmitted, Mitsuba's
-    ``bs.eta``); a zero weight ends the path.  ``alpha`` is the roughness of a
-    roughconductor / roughdielectric at this point (``B.alpha[mat]``, or its texture's
-    value).
+    ``bs.eta``); a zero weight ends the path.  ``alpha`` and ``alpha_v`` are the
+    roughness α_u, α_v of a roughconductor / roughdielectric at this point
+    (``B.alpha[mat]`` and ``B.alpha_v[mat]``, or their textures' values; equal when
+    isotropic).
     """
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
@@ -355,7 +363,8 @@ def bsdf_sample_at(B: MaterialArrays, mat, alpha, rho_r, rho_g, rho_b, eta_scale
         return -wix, -wiy, wiz, fr, fg, fb, 1.0, True, 1.0
     if k == MAT_ROUGHCONDUCTOR:
         ox, oy, oz, w, pdf, cos_ih = mf.conductor_sample(mf.clamp_alpha(alpha), mf.G_SMITH,
-                                                         B.visible[mat], wix, wiy, wiz, u1, u2, B.dist[mat])
+                                                         B.visible[mat], wix, wiy, wiz, u1, u2, B.dist[mat],
+                                                         alpha_v)
         if w <= 0.0 or pdf <= 0.0:
             return ox, oy, oz, 0.0, 0.0, 0.0, 0.0, False, 1.0
         fr, fg, fb = _conductor_fresnel(B, mat, cos_ih)
@@ -375,7 +384,7 @@ def bsdf_sample_at(B: MaterialArrays, mat, alpha, rho_r, rho_g, rho_b, eta_scale
     if k == MAT_ROUGHDIELECTRIC:
         ox, oy, oz, w, pdf, refl, eti = mf.dielectric_sample(mf.clamp_alpha(alpha), mf.G_SMITH,
                                                              B.visible[mat], eta, wix, wiy, wiz,
-                                                             u0, u1, u2, B.dist[mat])
+                                                             u0, u1, u2, B.dist[mat], alpha_v)
         if w <= 0.0 or pdf <= 0.0:
             return ox, oy, oz, 0.0, 0.0, 0.0, 0.0, False, 1.0
         if refl:
@@ -395,10 +404,10 @@ def bsdf_sample_at(B: MaterialArrays, mat, alpha, rho_r, rho_g, rho_b, eta_scale
 
 
 @njit(inline="always", cache=True)
-def bsdf_eval_at(B: MaterialArrays, mat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy,
-                 woz):
-    """f(wi, wo)·|cos θ_o| (RGB) of the non-delta lobes; 0 for delta BSDFs (``alpha`` as
-    for :func:`bsdf_sample_at`)."""
+def bsdf_eval_at(B: MaterialArrays, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz,
+                 wox, woy, woz):
+    """f(wi, wo)·|cos θ_o| (RGB) of the non-delta lobes; 0 for delta BSDFs (``alpha``,
+    ``alpha_v`` as for :func:`bsdf_sample_at`)."""
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
         if wiz > 0.0 and woz > 0.0:
@@ -409,14 +418,15 @@ def bsdf_eval_at(B: MaterialArrays, mat, alpha, rho_r, rho_g, rho_b, eta_scale, 
         return _plastic_eval(B, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, wox, woy, woz)
     if k == MAT_ROUGHCONDUCTOR:
         v, cos_ih = mf.conductor_eval(mf.clamp_alpha(alpha), mf.G_SMITH, wix, wiy, wiz,
-                                      wox, woy, woz, B.dist[mat])
+                                      wox, woy, woz, B.dist[mat], alpha_v)
         if v <= 0.0:
             return 0.0, 0.0, 0.0
         fr, fg, fb = _conductor_fresnel(B, mat, cos_ih)
         return v * fr, v * fg, v * fb
     if k == MAT_ROUGHDIELECTRIC:
         v, refl = mf.dielectric_eval(mf.clamp_alpha(alpha), mf.G_SMITH,
-                                     B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz, B.dist[mat])
+                                     B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz, B.dist[mat],
+                                     alpha_v)
         if refl:
             return v * B.spec_refl[mat, 0], v * B.spec_refl[mat, 1], v * B.spec_refl[mat, 2]
         return v * B.spec_trans[mat, 0], v * B.spec_trans[mat, 1], v * B.spec_trans[mat, 2]
@@ -424,7 +434,7 @@ def bsdf_eval_at(B: MaterialArrays, mat, alpha, rho_r, rho_g, rho_b, eta_scale, 
 
 
 @njit(inline="always", cache=True)
-def bsdf_pdf_at(B: MaterialArrays, mat, alpha, eta_scale, wix, wiy, wiz, wox, woy, woz):
+def bsdf_pdf_at(B: MaterialArrays, mat, alpha, alpha_v, eta_scale, wix, wiy, wiz, wox, woy, woz):
     """Solid-angle pdf of :func:`bsdf_sample_at` producing wo (0 for delta lobes)."""
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
@@ -433,10 +443,11 @@ def bsdf_pdf_at(B: MaterialArrays, mat, alpha, eta_scale, wix, wiy, wiz, wox, wo
         return _plastic_pdf(B, mat, k, wix, wiy, wiz, wox, woy, woz)
     if k == MAT_ROUGHCONDUCTOR:
         return mf.conductor_pdf(mf.clamp_alpha(alpha), B.visible[mat], wix, wiy, wiz,
-                                wox, woy, woz, B.dist[mat])
+                                wox, woy, woz, B.dist[mat], alpha_v)
     if k == MAT_ROUGHDIELECTRIC:
         return mf.dielectric_pdf(mf.clamp_alpha(alpha), B.visible[mat],
-                                 B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz, B.dist[mat])
+                                 B.diel_eta[mat] * eta_scale, wix, wiy, wiz, wox, woy, woz, B.dist[mat],
+                                 alpha_v)
     return 0.0
 
 

@@ -16,7 +16,9 @@ tree (thesis 2.2: the shadow rays of a hit point):
 * the light samples of the Phong model (thesis 1.4.1–1.4.2), one helper per
   kind of light, each on plain scalars (and the emitter's arrays): a delta
   light (point, spot, directional, projector: :func:`delta_sample`; a spot's cone
-  :func:`spot_falloff`, Mitsuba's, in the emitter's frame; a projector's image
+  :func:`spot_falloff`, Mitsuba's, in the emitter's frame, and a spot's ``texture``
+  :func:`spot_texture` (only the path tracer applies it, with the rows of
+  :func:`with_spot_textures`); a projector's image
   :func:`impl.projector.projector_weight`, applied by the callers), a uniform-by-area
   point of an area emitter (:func:`area_sample`), a cosine-weighted direction
   towards a ``constant`` environment emitter, or importance-sampled by an
@@ -386,6 +388,54 @@ def light_uv_sobol(seed, pixel, sample, light, k, light_samples):
     the nets; pbrt-v4's padded Sobol sampler for pairing dimensions by independent
     scrambles).  Each point stays uniform, so the estimate stays unbiased."""
     return sample_2d(1 + light, sample * light_samples + k, pixel_seed(pixel, 0, seed))
+
+
+def with_spot_textures(A: SceneArrays, lights) -> SceneArrays:
+    """``A`` with the ``texture`` bitmap of every textured spot of ``lights`` (the
+    scene's, in ``A``'s light order) in ``light_tex`` / ``light_tex_uv`` (records as a
+    projector's: offset, width, height, wrap, filter; its texels appended to
+    ``tex_data``), or ``A`` itself without one.  Raises UnsupportedError for a texture
+    other than a bitmap (Mitsuba requires a spatially varying one)."""
+    from core.errors import UnsupportedError
+
+    from .scene_arrays import FILTER_CODES, WRAP_CODES
+
+    textured = [i for i, l in enumerate(lights) if l.kind == "spot" and l.texture is not None]
+    if not textured:
+        return A
+    tex, uv = A.light_tex.copy(), A.light_tex_uv.copy()
+    data, n = [A.tex_data], A.tex_data.shape[0]
+    for i in textured:
+        t = lights[i].texture
+        if t["type"] != "bitmap":
+            raise UnsupportedError(f"spot emitter '{lights[i].name or i}': a {t['type']} texture is not "
+                                   "modelled; only a bitmap is")
+        img = np.asarray(t["data"], dtype=np.float64)
+        tex[i] = (n, img.shape[1], img.shape[0], WRAP_CODES[t["wrap_mode"]], FILTER_CODES[t["filter_type"]])
+        uv[i] = np.asarray(t["to_uv"])[:2]
+        data.append(img.reshape(-1, 3))
+        n += img.shape[0] * img.shape[1]
+    return A._replace(light_tex=tex, light_tex_uv=uv,
+                      tex_data=np.ascontiguousarray(np.concatenate(data), dtype=np.float64))
+
+
+@njit(inline="always", cache=True)
+def spot_texture(wx, wy, wz, local, li, tan_cutoff, tex, uvm, data):
+    """The RGB factor of spot ``li``'s ``texture`` towards the world direction w (from
+    the light to the lit point; any length), as Mitsuba 3's ``spot``
+    (``src/emitters/spot.cpp``, ``direction_to_uv``): w in the light's frame
+    (``local[li]``, as :func:`spot_falloff`) gives uv = (½ + ½ x / (z tan cutoff),
+    ½ + ½ y / (z tan cutoff)), then the texture's to_uv ``uvm`` and its bitmap record
+    ``tex`` (offset, width, height, wrap, filter) into ``data``.  Only meaningful
+    inside the cone (z > 0), where the callers apply it."""
+    ax = local[li, 0, 0] * wx + local[li, 0, 1] * wy + local[li, 0, 2] * wz
+    ay = local[li, 1, 0] * wx + local[li, 1, 1] * wy + local[li, 1, 2] * wz
+    az = local[li, 2, 0] * wx + local[li, 2, 1] * wy + local[li, 2, 2] * wz
+    u = 0.5 + 0.5 * ax / (az * tan_cutoff)
+    v = 0.5 + 0.5 * ay / (az * tan_cutoff)
+    uu = uvm[0, 0] * u + uvm[0, 1] * v + uvm[0, 2]
+    vv = uvm[1, 0] * u + uvm[1, 1] * v + uvm[1, 2]
+    return bitmap(data, tex[0], tex[1], tex[2], tex[3], tex[4], uu, vv)
 
 
 @njit(inline="always", cache=True)

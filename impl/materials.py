@@ -18,13 +18,17 @@ defaults) into a :class:`MaterialArrays` named tuple, one row per material of
 * ``roughconductor`` / ``roughdielectric``: ``alpha`` (default 0.1, Mitsuba's),
   ``distribution`` (``beckmann``, the default; ``ggx`` only where the caller
   lists it in ``distributions``: :func:`distribution_codes` gives the rows),
-  ``sample_visible`` (default true).  Anisotropic ``alpha_u``/``alpha_v`` are
-  accepted only when equal and constant; a textured ``alpha`` gets its mean here
-  and its texture in :func:`wrapper_arrays`.
+  ``sample_visible`` (default true).  Anisotropic ``alpha_u``/``alpha_v`` (each a
+  constant or a texture, as Mitsuba) only where the caller passes
+  ``anisotropic=True``: ``alpha`` then holds α_u and :func:`wrapper_arrays` α_v;
+  otherwise they are accepted only when equal and constant.  A textured roughness
+  gets its mean here and its texture in :func:`wrapper_arrays`.
 
 :func:`expand_components` gives a ``blendbsdf``'s components rows of their own;
-:func:`wrapper_arrays` decodes ``mask`` opacities, blend weights and textured
-roughness into :class:`WrapperArrays`.
+:func:`wrapper_arrays` decodes ``mask`` opacities, blend weights and textured or
+anisotropic roughness into :class:`WrapperArrays`; :func:`with_specular_textures`
+moves a conductor's, roughconductor's or dielectric's textured
+``specular_reflectance`` to the material's texture, for the path tracer.
 
 The microfacet functions these rows feed are in :mod:`impl.microfacet`.
 
@@ -56,8 +60,8 @@ from .scene_arrays import MATERIAL_CODES
 __all__ = ["named_conductor", "distribution_codes", "CONDUCTOR_TABLE", "MaterialArrays", "SpecularArrays", "material_arrays", "PlasticArrays", "plastic_arrays", "MAT_DIFFUSE", "MAT_CONDUCTOR",
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "MAT_PLASTIC",
            "MAT_ROUGHPLASTIC", "MAT_COOKTORRANCE", "MAT_DIFFTRANS", "MAT_THINDIELECTRIC", "MAT_BLEND",
-           "MAX_LOBES", "KIND_CODES", "DEFAULT_ALPHA", "expand_components", "WrapperArrays",
-           "no_wrappers", "wrapper_arrays"]
+           "MAX_LOBES", "KIND_CODES", "DEFAULT_ALPHA", "expand_components", "with_specular_textures",
+           "WrapperArrays", "N_SLOTS", "no_wrappers", "wrapper_arrays"]
 
 MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
 MAT_CONDUCTOR = MATERIAL_CODES["conductor"]
@@ -154,33 +158,43 @@ def _and_list(items) -> str:
     return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
 
 
-def _roughness(p: dict, where: str, distributions: tuple[str, ...] = ("beckmann",)) -> tuple[float, int]:
-    """(alpha, sample_visible) of a rough BSDF, Mitsuba's defaults and checks; its
-    ``distribution`` must be one of ``distributions``."""
+def _roughness(p: dict, where: str, distributions: tuple[str, ...] = ("beckmann",),
+               textured: tuple[str, ...] = (), anisotropic: bool = False) -> tuple[float, float, int]:
+    """(alpha_u, alpha_v, sample_visible) of a rough BSDF, Mitsuba's defaults and checks
+    (``textured``: the names of its parameters given as textures, whose values here
+    are placeholders); its ``distribution`` must be one of ``distributions``.  Unequal
+    or textured ``alpha_u``/``alpha_v`` are refused unless ``anisotropic``."""
     dist = str(p.get("distribution", "beckmann")).lower()
     if dist not in DISTRIBUTIONS:
         raise SceneError(f"{where}: invalid distribution '{dist}' (Mitsuba accepts 'beckmann' or 'ggx')")
     if dist not in distributions:
         raise UnsupportedError(f"{where}: distribution '{dist}' is not modelled; only 'beckmann' "
                                   "(the thesis's Cook-Torrance D) is")
-    has_uv = "alpha_u" in p or "alpha_v" in p
-    if "alpha" in p and has_uv:
+    given = set(p) | set(textured)
+    has_uv = "alpha_u" in given or "alpha_v" in given
+    if "alpha" in given and has_uv:
         raise SceneError(f"{where}: give either 'alpha' or 'alpha_u'/'alpha_v' (as Mitsuba requires)")
     if has_uv:
-        if "alpha_u" not in p or "alpha_v" not in p:
+        if "alpha_u" not in given or "alpha_v" not in given:
             raise SceneError(f"{where}: both 'alpha_u' and 'alpha_v' must be given")
-        if float(p["alpha_u"]) != float(p["alpha_v"]):
+        tex_uv = "alpha_u" in textured or "alpha_v" in textured
+        if not anisotropic and tex_uv:
+            raise UnsupportedError(f"{where}: anisotropic roughness (textured 'alpha_u'/'alpha_v') "
+                                   "is not modelled; give one 'alpha'")
+        alpha = DEFAULT_ALPHA if "alpha_u" in textured else float(p["alpha_u"])
+        alpha_v = DEFAULT_ALPHA if "alpha_v" in textured else float(p["alpha_v"])
+        if not anisotropic and alpha != alpha_v:
             raise UnsupportedError(f"{where}: anisotropic roughness (alpha_u={p['alpha_u']}, "
                                       f"alpha_v={p['alpha_v']}) is not modelled; give one 'alpha'")
-        alpha = float(p["alpha_u"])
     else:
-        alpha = p.get("alpha", DEFAULT_ALPHA)
+        alpha = DEFAULT_ALPHA if "alpha" in textured else p.get("alpha", DEFAULT_ALPHA)
         if not isinstance(alpha, int | float):
             raise SceneError(f"{where}: 'alpha' must be a float, got {alpha!r}")
-        alpha = float(alpha)
-    if not alpha >= 0.0:
-        raise SceneError(f"{where}: 'alpha' must be >= 0, got {alpha}")
-    return alpha, int(bool(p.get("sample_visible", True)))
+        alpha = alpha_v = float(alpha)
+    for name, a in (("alpha_u" if has_uv else "alpha", alpha), ("alpha_v", alpha_v)):
+        if not a >= 0.0:
+            raise SceneError(f"{where}: '{name}' must be >= 0, got {a}")
+    return alpha, alpha_v, int(bool(p.get("sample_visible", True)))
 
 
 def _mixture(p: dict, where: str) -> tuple[np.ndarray, np.ndarray]:
@@ -213,7 +227,8 @@ def _mixture(p: dict, where: str) -> tuple[np.ndarray, np.ndarray]:
 def material_arrays(scene: Scene, *, algorithm: str = "whitted",
                     model: str = "the Whitted ray tracer",
                     kinds: tuple[str, ...] = ("diffuse", "conductor", "dielectric"),
-                    distributions: tuple[str, ...] = ("beckmann",)) -> MaterialArrays:
+                    distributions: tuple[str, ...] = ("beckmann",),
+                    anisotropic: bool = False) -> MaterialArrays:
     """Check every used material against ``kinds`` and decode its BSDF parameters.
 
     Parameters
@@ -228,13 +243,16 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
     distributions
         The microfacet distributions the caller models (``beckmann``, ``ggx``);
         the rows' codes are :func:`distribution_codes`'s.
+    anisotropic
+        Whether the caller models anisotropic roughness (``alpha`` then holds α_u;
+        α_v is in :func:`wrapper_arrays`).
 
     Raises
     ------
     NotImplementedError
         A material the algorithm does not model (naming the shape and the
         material), a two-sided
-        dielectric, a GGX distribution, anisotropic roughness.
+        dielectric, a GGX distribution, anisotropic roughness (unless ``anisotropic``).
     ValueError
         Conflicting or malformed parameters (e.g. both ``material`` and
         ``eta`` on a conductor, an unknown IOR or conductor name, equal indices on a
@@ -303,12 +321,10 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
             spec_trans[i] = _rgb_param(p, "specular_transmittance", 1.0, where)
         if m.kind in ("roughconductor", "roughdielectric"):
-            alpha[i], visible[i] = _roughness(p, where, distributions)
-            if "alpha_u" in m.textures or "alpha_v" in m.textures:
-                raise UnsupportedError(f"{where}: anisotropic roughness (textured 'alpha_u'/'alpha_v') "
-                                       "is not modelled; give one 'alpha'")
-            if "alpha" in m.textures:               # the value where no uv: the texture's mean
-                alpha[i] = _scalar_texture_mean(m.textures["alpha"])
+            alpha[i], _, visible[i] = _roughness(p, where, distributions, tuple(m.textures), anisotropic)
+            for name in ("alpha", "alpha_u"):
+                if name in m.textures:              # the value where no uv: the texture's mean
+                    alpha[i] = _scalar_texture_mean(m.textures[name])
         elif m.kind == "gibench_cooktorrance":
             spec_refl[i] = _rgb_param(p, "reflectance", 0.5, where)
             kd, ks = float(p.get("kd", 0.5)), float(p.get("ks", 0.5))
@@ -338,6 +354,37 @@ def _scalar_texture_mean(tex: dict) -> float:
     if tex["type"] == "bitmap":
         return float((np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3) @ LUMINANCE).mean())
     return float(0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"])) @ LUMINANCE)
+
+
+def with_specular_textures(scene: Scene) -> Scene:
+    """``scene`` with the textured ``specular_reflectance`` of every conductor,
+    roughconductor and dielectric (a blendbsdf's components included) moved to the
+    material's ``texture`` (so that :func:`impl.lighting.diffuse_albedo` reads it at a
+    hit; its mean as ``reflectance``), the constant ``specular_reflectance`` then
+    Mitsuba's default 1; or ``scene`` itself without one.  The caller multiplies the
+    reflected weights by that value (:mod:`impl.path`), as Mitsuba's ``conductor``,
+    ``roughconductor`` and ``dielectric`` multiply by their texture's ``eval``."""
+    import dataclasses
+
+    from core.scene import SPECULAR_TEXTURED
+
+    def moved(m):
+        if m.components:
+            comps = tuple(moved(c) for c in m.components)
+            return m if all(a is b for a, b in zip(comps, m.components)) else \
+                dataclasses.replace(m, components=comps)
+        if m.kind not in SPECULAR_TEXTURED or "specular_reflectance" not in m.textures:
+            return m
+        tex = m.textures["specular_reflectance"]
+        mean = (np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3).mean(axis=0)
+                if tex["type"] == "bitmap" else 0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"])))
+        rest = {k: v for k, v in m.textures.items() if k != "specular_reflectance"}
+        return dataclasses.replace(m, texture=tex, reflectance=tuple(float(x) for x in mean), textures=rest)
+
+    mats = [moved(m) for m in scene.materials]
+    if all(a is b for a, b in zip(mats, scene.materials)):
+        return scene
+    return dataclasses.replace(scene, materials=mats)
 
 
 def expand_components(scene: Scene, *, algorithm: str = "path") -> Scene:
@@ -374,47 +421,59 @@ def expand_components(scene: Scene, *, algorithm: str = "path") -> Scene:
 
 
 class WrapperArrays(NamedTuple):
-    """Per-material rows of the wrappers ``mask`` and ``blendbsdf`` and of a textured
-    roughness (one row per material of a scene after :func:`expand_components`).  The
-    scalar textures' slots: 0 the mask's opacity, 1 the blend weight, 2 the ``alpha`` of
-    a roughconductor / roughdielectric."""
+    """Per-material rows of the wrappers ``mask`` and ``blendbsdf`` and of a textured or
+    anisotropic roughness (one row per material of a scene after
+    :func:`expand_components`).  The scalar textures' slots: 0 the mask's opacity, 1 the
+    blend weight, 2 the ``alpha`` (or ``alpha_u``) and 3 the ``alpha_v`` of a
+    roughconductor / roughdielectric."""
 
     opacity: np.ndarray         # (M,) mask opacity (1: no mask; a texture's mean when textured)
     comp: np.ndarray            # (M, 2) int: a blendbsdf's component rows (else the row itself)
     blend_w: np.ndarray         # (M,) blend weight of the second component (a texture's mean when textured)
-    ptex: np.ndarray            # (M, 3, 6) int: a slot's texture: code (scene_arrays TEX_*: 0 none,
+    ptex: np.ndarray            # (M, 4, 6) int: a slot's texture: code (scene_arrays TEX_*: 0 none,
                                 # 1 checkerboard, 2 bitmap), first texel in ptex_data, width, height,
                                 # wrap, filter
-    ptex_uv: np.ndarray         # (M, 3, 2, 3) its 2D affine to_uv map
-    ptex_c: np.ndarray          # (M, 3, 2) a checkerboard's two values (luminance of color0, color1)
+    ptex_uv: np.ndarray         # (M, 4, 2, 3) its 2D affine to_uv map
+    ptex_c: np.ndarray          # (M, 4, 2) a checkerboard's two values (luminance of color0, color1)
     ptex_data: np.ndarray       # (K, 3) linear RGB texels of those bitmaps, row-major, concatenated
+    alpha_v: np.ndarray         # (M,) roughness α_v along the tangent t (= alpha when isotropic; a
+                                # texture's mean when textured)
+    aniso: np.ndarray           # (M,) int 1: anisotropic (α_u ≠ α_v or either textured); a
+                                # blendbsdf's row when either component is
 
 
-def no_wrappers(n: int) -> WrapperArrays:
+#: Scalar texture slots of :class:`WrapperArrays`.
+N_SLOTS = 4
+
+
+def no_wrappers(n: int, alpha: np.ndarray | None = None) -> WrapperArrays:
     """:class:`WrapperArrays` of ``n`` materials without a mask, a blendbsdf or a
-    textured roughness: opacity 1, each row its own components, no textures (identity
-    ``to_uv`` maps)."""
-    uv = np.zeros((n, 3, 2, 3))
+    textured or anisotropic roughness: opacity 1, each row its own components, no
+    textures (identity ``to_uv`` maps), α_v = ``alpha`` (zeros when not given)."""
+    uv = np.zeros((n, N_SLOTS, 2, 3))
     uv[:, :, 0, 0] = uv[:, :, 1, 1] = 1.0
+    alpha_v = np.zeros(n) if alpha is None else np.array(alpha, dtype=np.float64)
     return WrapperArrays(np.ones(n), np.repeat(np.arange(n, dtype=np.int64)[:, None], 2, axis=1),
-                         np.zeros(n), np.zeros((n, 3, 6), dtype=np.int64), uv, np.zeros((n, 3, 2)),
-                         np.zeros((0, 3)))
+                         np.zeros(n), np.zeros((n, N_SLOTS, 6), dtype=np.int64), uv,
+                         np.zeros((n, N_SLOTS, 2)), np.zeros((0, 3)), alpha_v, np.zeros(n, dtype=np.int64))
 
 
 def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
     """:class:`WrapperArrays` of ``scene`` (expanded by :func:`expand_components`).  A
     scalar texture is read as Mitsuba's ``eval_1``: the luminance of the bitmap's linear
-    RGB (a grey image's value), clipped to [0, 1] where used.
+    RGB (a grey image's value), clipped to [0, 1] where used (opacity, weight; not a
+    roughness).
 
     Raises
     ------
     UnsupportedError
-        A texture other than a bitmap as opacity or blend weight.
+        A texture other than a bitmap as opacity or blend weight; anisotropic roughness
+        under a normal or bump map (the perturbed frame's tangent is not modelled).
     """
     from .scene_arrays import FILTER_CODES, TEX_BITMAP, TEX_CHECKERBOARD, WRAP_CODES
 
     index = {id(m): i for i, m in enumerate(scene.materials)}
-    opacity, comp, blend_w, ptex, ptex_uv, ptex_c, _ = no_wrappers(len(scene.materials))
+    opacity, comp, blend_w, ptex, ptex_uv, ptex_c, _, alpha_v, aniso = no_wrappers(len(scene.materials))
     texels, n = [], 0
 
     def scalar(i, slot, value, role):
@@ -448,11 +507,32 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
             comp[i] = [index[id(c)] for c in m.components]
             w = m.textures.get("weight", {"type": "constant", "value": m.params.get("weight", 0.5)})
             blend_w[i] = scalar(i, 1, w, "a blendbsdf's weight")
-        if m.kind in ("roughconductor", "roughdielectric") and "alpha" in m.textures:
-            scalar(i, 2, m.textures["alpha"], "a roughness")
+        if m.kind in ("roughconductor", "roughdielectric"):
+            where = f"{algorithm}: material '{m.name or i}'"
+            au, alpha_v[i], _ = _roughness(m.params, where, tuple(DISTRIBUTIONS), tuple(m.textures), True)
+            for slot, name in ((2, "alpha"), (2, "alpha_u"), (3, "alpha_v")):
+                if name in m.textures:
+                    mean = scalar(i, slot, m.textures[name], "a roughness")
+                    if slot == 3:
+                        alpha_v[i] = mean
+                    else:
+                        au = mean
+            if "alpha" in m.textures:
+                alpha_v[i] = au
+            aniso[i] = int(au != alpha_v[i] or "alpha_u" in m.textures or "alpha_v" in m.textures)
+            if aniso[i] and m.shading is not None:
+                raise UnsupportedError(f"{where}: anisotropic roughness under a {m.shading['type']} is "
+                                       "not modelled (the perturbed frame's tangent)")
+    for i, m in enumerate(scene.materials):
+        if m.kind == "blendbsdf":
+            aniso[i] = max(aniso[comp[i, 0]], aniso[comp[i, 1]])
+            if aniso[i] and m.shading is not None:
+                raise UnsupportedError(f"{algorithm}: material '{m.name or i}': anisotropic roughness "
+                                       f"under a {m.shading['type']} is not modelled (the perturbed "
+                                       "frame's tangent)")
     opacity, blend_w = np.clip(opacity, 0.0, 1.0), np.clip(blend_w, 0.0, 1.0)
     data = np.ascontiguousarray(np.concatenate(texels) if texels else np.zeros((0, 3)), dtype=np.float64)
-    return WrapperArrays(opacity, comp, blend_w, ptex, ptex_uv, ptex_c, data)
+    return WrapperArrays(opacity, comp, blend_w, ptex, ptex_uv, ptex_c, data, alpha_v, aniso)
 
 
 def distribution_codes(scene: Scene) -> np.ndarray:

@@ -26,9 +26,13 @@ Conventions (Mitsuba's)
 * ``wi`` points *away* from the surface towards where the light goes to (the
   viewer, in radiance transport), ``wo`` away from the surface towards where it
   comes from; ``m`` is a microfacet normal with ``m_z > 0``.
-* Roughness ``alpha`` is Mitsuba's (isotropic) ``alpha`` = the RMS slope,
-  which is the ``m`` of the thesis's formulas; Mitsuba clamps it below at 1e-4
-  (:func:`clamp_alpha`).
+* Roughness ``alpha`` is Mitsuba's ``alpha`` = the RMS slope, which is the
+  ``m`` of the thesis's formulas; Mitsuba clamps it below at 1e-4
+  (:func:`clamp_alpha`).  Anisotropic roughness: every function that depends on
+  the distribution takes a trailing ``alpha_v`` (negative, the default: equal to
+  ``alpha``); ``alpha`` is then Mitsuba's ``alpha_u``, the roughness along the
+  local x axis (the shading frame's ``s``, the surface's ∂p/∂u), ``alpha_v``
+  along y.
 * ``gmodel``: :data:`G_SMITH` (0) or :data:`G_VCAVITY` (1).
 
 Distributions
@@ -110,7 +114,20 @@ exact Smith ``G1 = 2 / (1 + √(1 + α² tan²θ))``, ``D cos`` sampling
 hemisphere seen from wi; E. Heitz, "A simpler and exact sampling routine for
 the GGX distribution of visible normals", 2017).  For GGX the pdf's G1 is exact.
 
-Leaves out: anisotropic roughness.
+Anisotropic roughness
+---------------------
+Mitsuba's ``MicrofacetDistribution`` with ``alpha_u`` ≠ ``alpha_v``
+(``include/mitsuba/render/microfacet.h``): Beckmann
+``D = exp(−((m_x/α_u)² + (m_y/α_v)²)/cos²θ_m) / (π α_u α_v cos⁴θ_m)``, GGX
+``D = 1 / (π α_u α_v ((m_x/α_u)² + (m_y/α_v)² + m_z²)²)``, both still with
+``∫ D cos θ_m dω = 1``; Smith G1 with ``α² tan²θ`` replaced by
+``((α_u v_x)² + (α_v v_y)²) / v_z²``; visible normals by stretching wi to
+``(α_u wi_x, α_v wi_y, wi_z)``, sampling the α = 1 slopes and scaling them back
+by (α_u, α_v); ``D cos`` sampling (``sample_visible=false``) draws the azimuth
+from ``tan φ = (α_v/α_u) tan 2π u2`` (quadrant kept) and the elevation with
+``α² = 1 / (cos²φ/α_u² + sin²φ/α_v²)``.  The squared terms are written as
+``α_u α_v (x² α_v/α_u + y² α_u/α_v)`` and the like, so that ``alpha_v = alpha``
+gives the isotropic values bit for bit.
 """
 
 from __future__ import annotations
@@ -147,6 +164,13 @@ _MI_SIN2_EPS = 4.0 * 2.0 ** -24
 @njit(inline="always", cache=True)
 def clamp_alpha(alpha):
     return max(alpha, ALPHA_MIN)
+
+
+@njit(inline="always", cache=True)
+def _alphas(alpha, alpha_v):
+    """(α_u, α_v), clamped; ``alpha_v < 0``: isotropic, α_v = α_u."""
+    a = clamp_alpha(alpha)
+    return a, (a if alpha_v < 0.0 else clamp_alpha(alpha_v))
 
 
 # ------------------------------------------------------------------ erfinv ---
@@ -196,34 +220,36 @@ def erfinv(y):
 # ------------------------------------------------------------ distributions ---
 
 @njit(cache=True)
-def beckmann_d(alpha, mx, my, mz):
-    """Mitsuba's normalised Beckmann D(m) = exp(−tan²θ/α²) / (π α² cos⁴θ) (0 for m_z ≤ 0)."""
-    a = clamp_alpha(alpha)
+def beckmann_d(alpha, mx, my, mz, alpha_v=-1.0):
+    """Mitsuba's normalised Beckmann D(m) = exp(−tan²θ/α²) / (π α² cos⁴θ) (0 for m_z ≤ 0);
+    anisotropic with ``alpha_v`` (module doc)."""
+    a, b = _alphas(alpha, alpha_v)
     c2 = mz * mz
     if mz <= 0.0:
         return 0.0
-    d = math.exp(-(mx * mx + my * my) / (a * a) / c2) / (math.pi * a * a * c2 * c2)
+    d = math.exp(-(mx * mx * (b / a) + my * my * (a / b)) / (a * b) / c2) / (math.pi * a * b * c2 * c2)
     return d if d * mz > 1e-20 else 0.0
 
 
 @njit(cache=True)
-def ggx_d(alpha, mx, my, mz):
-    """Mitsuba's GGX D(m) = 1 / (π α² cos⁴θ (1 + tan²θ/α²)²) (0 for m_z ≤ 0)."""
-    a = clamp_alpha(alpha)
+def ggx_d(alpha, mx, my, mz, alpha_v=-1.0):
+    """Mitsuba's GGX D(m) = 1 / (π α² cos⁴θ (1 + tan²θ/α²)²) (0 for m_z ≤ 0); anisotropic
+    with ``alpha_v`` (module doc)."""
+    a, b = _alphas(alpha, alpha_v)
     if mz <= 0.0:
         return 0.0
     c2 = mz * mz
-    t = 1.0 + (mx * mx + my * my) / (a * a * c2)
-    d = 1.0 / (math.pi * a * a * c2 * c2 * t * t)
+    t = 1.0 + (mx * mx * (b / a) + my * my * (a / b)) / (a * b * c2)
+    d = 1.0 / (math.pi * a * b * c2 * c2 * t * t)
     return d if d * mz > 1e-20 else 0.0
 
 
 @njit(inline="always", cache=True)
-def microfacet_d(dist, alpha, mx, my, mz):
+def microfacet_d(dist, alpha, mx, my, mz, alpha_v=-1.0):
     """D(m) of distribution ``dist`` (:data:`BECKMANN` or :data:`GGX`)."""
     if dist == GGX:
-        return ggx_d(alpha, mx, my, mz)
-    return beckmann_d(alpha, mx, my, mz)
+        return ggx_d(alpha, mx, my, mz, alpha_v)
+    return beckmann_d(alpha, mx, my, mz, alpha_v)
 
 
 @njit(cache=True)
@@ -263,13 +289,14 @@ def gaussian_d_normalisation(m: float) -> float:
 # ----------------------------------------------------- masking and shadowing ---
 
 @njit(cache=True)
-def smith_g1(alpha, vx, vy, vz, mx, my, mz, dist=BECKMANN):
+def smith_g1(alpha, vx, vy, vz, mx, my, mz, dist=BECKMANN, alpha_v=-1.0):
     """Smith's G1(v, m): for Beckmann Mitsuba's rational approximation, for GGX the exact
-    2 / (1 + √(1 + α² tan²θ)) (see module doc)."""
-    a_ = clamp_alpha(alpha)
+    2 / (1 + √(1 + α² tan²θ)) (see module doc; anisotropic: α² tan²θ =
+    ((α_u v_x)² + (α_v v_y)²) / v_z²)."""
+    a_, b_ = _alphas(alpha, alpha_v)
     if (vx * mx + vy * my + vz * mz) * vz <= 0.0:
         return 0.0                           # the back of the facet is not visible from v
-    xy_alpha_2 = a_ * a_ * (vx * vx + vy * vy)
+    xy_alpha_2 = a_ * b_ * (vx * vx * (a_ / b_) + vy * vy * (b_ / a_))
     if xy_alpha_2 == 0.0:
         return 1.0
     if dist == GGX:
@@ -282,12 +309,13 @@ def smith_g1(alpha, vx, vy, vz, mx, my, mz, dist=BECKMANN):
 
 
 @njit(cache=True)
-def smith_g1_exact(alpha, vx, vy, vz, mx, my, mz):
-    """Exact Smith G1 for Beckmann: 1 / (1 + Λ(a)), a = 1/(α tan θ) (same orientation rule)."""
-    a_ = clamp_alpha(alpha)
+def smith_g1_exact(alpha, vx, vy, vz, mx, my, mz, alpha_v=-1.0):
+    """Exact Smith G1 for Beckmann: 1 / (1 + Λ(a)), a = 1/(α tan θ) (same orientation rule;
+    anisotropic as :func:`smith_g1`)."""
+    a_, b_ = _alphas(alpha, alpha_v)
     if (vx * mx + vy * my + vz * mz) * vz <= 0.0:
         return 0.0
-    xy = a_ * a_ * (vx * vx + vy * vy)
+    xy = a_ * b_ * (vx * vx * (a_ / b_) + vy * vy * (b_ / a_))
     if xy == 0.0:
         return 1.0
     a = abs(vz) / math.sqrt(xy)
@@ -296,9 +324,10 @@ def smith_g1_exact(alpha, vx, vy, vz, mx, my, mz):
 
 
 @njit(cache=True)
-def smith_g(alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist=BECKMANN):
+def smith_g(alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist=BECKMANN, alpha_v=-1.0):
     """Separable Smith G = G1(wi, m) G1(wo, m) (Mitsuba's ``MicrofacetDistribution::G``)."""
-    return smith_g1(alpha, ix, iy, iz, mx, my, mz, dist) * smith_g1(alpha, ox, oy, oz, mx, my, mz, dist)
+    return (smith_g1(alpha, ix, iy, iz, mx, my, mz, dist, alpha_v)
+            * smith_g1(alpha, ox, oy, oz, mx, my, mz, dist, alpha_v))
 
 
 @njit(cache=True)
@@ -316,24 +345,26 @@ def vcavity_g(ix, iy, iz, ox, oy, oz, mx, my, mz):
 
 
 @njit(inline="always", cache=True)
-def masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist=BECKMANN):
+def masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist=BECKMANN, alpha_v=-1.0):
     """G of the chosen model: :data:`G_SMITH` (of distribution ``dist``) or :data:`G_VCAVITY`."""
     if gmodel == G_VCAVITY:
         return vcavity_g(ix, iy, iz, ox, oy, oz, mx, my, mz)
-    return smith_g(alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist)
+    return smith_g(alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist, alpha_v)
 
 
 # ------------------------------------------------------ sampling the normal ---
 
 @njit(cache=True)
-def sample_normal(alpha, u1, u2, dist=BECKMANN):
+def sample_normal(alpha, u1, u2, dist=BECKMANN, alpha_v=-1.0):
     """m ~ D(m) cos θ_m: ``(mx, my, mz, pdf)`` (Mitsuba, ``sample_visible=false``).
 
     Inverting the CDF of tan²θ_m: Beckmann ``cos θ_m = 1/√(1 − α² ln(1 − u1))``,
     pdf ``(1 − u1) / (π α² cos³θ_m)`` = D(m) cos θ_m; GGX ``tan²θ_m = α² u1 / (1 − u1)``,
-    pdf D(m) cos θ_m; ``φ = 2π u2``.
+    pdf D(m) cos θ_m; ``φ = 2π u2``.  Anisotropic (α_v ≠ α_u): :func:`_sample_normal_aniso`.
     """
-    a = clamp_alpha(alpha)
+    a, b = _alphas(alpha, alpha_v)
+    if b != a:
+        return _sample_normal_aniso(a, b, u1, u2, dist)
     phi = 2.0 * math.pi * u2
     if dist == GGX:
         cos_t = 1.0 / math.sqrt(1.0 + a * a * u1 / (1.0 - u1))
@@ -348,9 +379,28 @@ def sample_normal(alpha, u1, u2, dist=BECKMANN):
 
 
 @njit(cache=True)
-def normal_pdf(alpha, mx, my, mz, dist=BECKMANN):
+def _sample_normal_aniso(a, b, u1, u2, dist):
+    """:func:`sample_normal` for α_u = a ≠ α_v = b, as Mitsuba's ``sample`` with
+    ``sample_visible=false``: φ from tan φ = (b/a) tan 2π u2 in the quadrant of 2π u2,
+    then the elevation with α² = 1 / (cos²φ/a² + sin²φ/b²); pdf D(m) cos θ_m."""
+    tmp = (b / a) * math.tan(2.0 * math.pi * u2)
+    cos_phi = 1.0 / math.sqrt(tmp * tmp + 1.0)
+    cos_phi = math.copysign(cos_phi, abs(u2 - 0.5) - 0.25)
+    sin_phi = cos_phi * tmp
+    alpha_2 = 1.0 / ((cos_phi / a) ** 2 + (sin_phi / b) ** 2)
+    if dist == GGX:
+        cos_t = 1.0 / math.sqrt(1.0 + alpha_2 * u1 / (1.0 - u1))
+    else:
+        cos_t = 1.0 / math.sqrt(1.0 - alpha_2 * math.log(1.0 - u1))
+    sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
+    mx, my = cos_phi * sin_t, sin_phi * sin_t
+    return mx, my, cos_t, microfacet_d(dist, a, mx, my, cos_t, b) * cos_t
+
+
+@njit(cache=True)
+def normal_pdf(alpha, mx, my, mz, dist=BECKMANN, alpha_v=-1.0):
     """Density D(m) cos θ_m of :func:`sample_normal` (solid angle of m)."""
-    return microfacet_d(dist, alpha, mx, my, mz) * mz
+    return microfacet_d(dist, alpha, mx, my, mz, alpha_v) * mz
 
 
 @njit(cache=True)
@@ -401,17 +451,18 @@ def _visible_slopes(cos_theta_i, u1, u2):
 
 
 @njit(cache=True)
-def sample_visible_normal(alpha, ix, iy, iz, u1, u2, dist=BECKMANN):
+def sample_visible_normal(alpha, ix, iy, iz, u1, u2, dist=BECKMANN, alpha_v=-1.0):
     """m ~ the visible normals seen from wi (``iz > 0``): ``(mx, my, mz, pdf)``.
 
     Heitz–d'Eon 2014 with Jakob's Beckmann inversion, as Mitsuba's
     ``MicrofacetDistribution::sample`` (``sample_visible=true``): stretch wi by
     α, sample the α = 1 slopes, rotate to wi's azimuth, scale by α, and
     m = normalise(−slope_x, −slope_y, 1).  ``pdf`` is Mitsuba's
-    :func:`visible_normal_pdf` (rational G1).
+    :func:`visible_normal_pdf` (rational G1).  Anisotropic: the stretch and the
+    scaling by (α_u, α_v).
     """
-    a = clamp_alpha(alpha)
-    sx, sy, sz = a * ix, a * iy, iz
+    a, b = _alphas(alpha, alpha_v)
+    sx, sy, sz = a * ix, b * iy, iz
     inv = 1.0 / math.sqrt(sx * sx + sy * sy + sz * sz)
     sx *= inv
     sy *= inv
@@ -428,41 +479,41 @@ def sample_visible_normal(alpha, ix, iy, iz, u1, u2, dist=BECKMANN):
     else:
         s1, s2 = _visible_slopes(sz, u1, u2)
     px = (cos_phi * s1 - sin_phi * s2) * a
-    py = (sin_phi * s1 + cos_phi * s2) * a
+    py = (sin_phi * s1 + cos_phi * s2) * b
     n = 1.0 / math.sqrt(px * px + py * py + 1.0)
     mx, my, mz = -px * n, -py * n, n
-    return mx, my, mz, visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, False, dist)
+    return mx, my, mz, visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, False, dist, alpha_v)
 
 
 @njit(cache=True)
-def visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, exact, dist=BECKMANN):
+def visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, exact, dist=BECKMANN, alpha_v=-1.0):
     """D_wi(m) = D(m) G1(wi, m) |wi·m| / cos θ_i; Beckmann's G1 rational (Mitsuba) or
     ``exact``; GGX's G1 is exact either way."""
     if iz <= 0.0:
         return 0.0
-    g1 = smith_g1_exact(alpha, ix, iy, iz, mx, my, mz) if exact and dist == BECKMANN else \
-        smith_g1(alpha, ix, iy, iz, mx, my, mz, dist)
-    return microfacet_d(dist, alpha, mx, my, mz) * g1 * abs(ix * mx + iy * my + iz * mz) / iz
+    g1 = smith_g1_exact(alpha, ix, iy, iz, mx, my, mz, alpha_v) if exact and dist == BECKMANN else \
+        smith_g1(alpha, ix, iy, iz, mx, my, mz, dist, alpha_v)
+    return microfacet_d(dist, alpha, mx, my, mz, alpha_v) * g1 * abs(ix * mx + iy * my + iz * mz) / iz
 
 
 @njit(inline="always", cache=True)
-def _m_pdf(alpha, visible, ix, iy, iz, mx, my, mz, dist):
+def _m_pdf(alpha, visible, ix, iy, iz, mx, my, mz, dist, alpha_v):
     if visible:
-        return visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, False, dist)
-    return normal_pdf(alpha, mx, my, mz, dist)
+        return visible_normal_pdf(alpha, ix, iy, iz, mx, my, mz, False, dist, alpha_v)
+    return normal_pdf(alpha, mx, my, mz, dist, alpha_v)
 
 
 @njit(inline="always", cache=True)
-def _sample_m(alpha, visible, ix, iy, iz, u1, u2, dist):
+def _sample_m(alpha, visible, ix, iy, iz, u1, u2, dist, alpha_v):
     if visible:
-        return sample_visible_normal(alpha, ix, iy, iz, u1, u2, dist)
-    return sample_normal(alpha, u1, u2, dist)
+        return sample_visible_normal(alpha, ix, iy, iz, u1, u2, dist, alpha_v)
+    return sample_normal(alpha, u1, u2, dist, alpha_v)
 
 
 # ------------------------------------------------------- rough conductor ---
 
 @njit(cache=True)
-def conductor_eval(alpha, gmodel, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
+def conductor_eval(alpha, gmodel, ix, iy, iz, ox, oy, oz, dist=BECKMANN, alpha_v=-1.0):
     """``roughconductor`` f·cos θ_o without Fresnel: ``(D G / (4 cos θ_i), cos_ih)``.
 
     0 unless both directions are above the surface (one-sided, as Mitsuba).
@@ -476,15 +527,15 @@ def conductor_eval(alpha, gmodel, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
     hx *= n
     hy *= n
     hz *= n
-    d = microfacet_d(dist, alpha, hx, hy, hz)
+    d = microfacet_d(dist, alpha, hx, hy, hz, alpha_v)
     if d == 0.0:
         return 0.0, 1.0
-    g = masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, hx, hy, hz, dist)
+    g = masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, hx, hy, hz, dist, alpha_v)
     return d * g / (4.0 * iz), ix * hx + iy * hy + iz * hz
 
 
 @njit(cache=True)
-def conductor_pdf(alpha, visible, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
+def conductor_pdf(alpha, visible, ix, iy, iz, ox, oy, oz, dist=BECKMANN, alpha_v=-1.0):
     """Solid-angle density of wo from :func:`conductor_sample`."""
     if iz <= 0.0 or oz <= 0.0:
         return 0.0
@@ -496,24 +547,24 @@ def conductor_pdf(alpha, visible, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
     do = ox * hx + oy * hy + oz * hz
     if (ix * hx + iy * hy + iz * hz) <= 0.0 or do <= 0.0:
         return 0.0
-    return _m_pdf(alpha, visible, ix, iy, iz, hx, hy, hz, dist) / (4.0 * do)
+    return _m_pdf(alpha, visible, ix, iy, iz, hx, hy, hz, dist, alpha_v) / (4.0 * do)
 
 
 @njit(cache=True)
-def conductor_sample(alpha, gmodel, visible, ix, iy, iz, u1, u2, dist=BECKMANN):
+def conductor_sample(alpha, gmodel, visible, ix, iy, iz, u1, u2, dist=BECKMANN, alpha_v=-1.0):
     """Sample wo: ``(ox, oy, oz, weight, pdf, cos_ih)``; weight = f cos θ_o / pdf without F.
 
     weight = 0 (and pdf 0) for an invalid sample (wo below the surface).
     """
     if iz <= 0.0:
         return 0.0, 0.0, 1.0, 0.0, 0.0, 1.0
-    mx, my, mz, pm = _sample_m(alpha, visible, ix, iy, iz, u1, u2, dist)
+    mx, my, mz, pm = _sample_m(alpha, visible, ix, iy, iz, u1, u2, dist, alpha_v)
     dim = ix * mx + iy * my + iz * mz
     ox, oy, oz = 2.0 * dim * mx - ix, 2.0 * dim * my - iy, 2.0 * dim * mz - iz
     if pm == 0.0 or oz <= 0.0 or dim <= 0.0:
         return ox, oy, oz, 0.0, 0.0, dim
     pdf = pm / (4.0 * dim)
-    val, _ = conductor_eval(alpha, gmodel, ix, iy, iz, ox, oy, oz, dist)
+    val, _ = conductor_eval(alpha, gmodel, ix, iy, iz, ox, oy, oz, dist, alpha_v)
     return ox, oy, oz, val / pdf, pdf, dim
 
 
@@ -535,7 +586,7 @@ def _dielectric_half(eta, ix, iy, iz, ox, oy, oz):
 
 
 @njit(cache=True)
-def dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
+def dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz, dist=BECKMANN, alpha_v=-1.0):
     """``roughdielectric`` f·|cos θ_o| (radiance transport), without specular_reflectance/transmittance.
 
     ``eta = int_ior / ext_ior``.  Returns ``(value, reflect)``.  Reflection:
@@ -551,9 +602,9 @@ def dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
         return 0.0, reflect
     dim = ix * mx + iy * my + iz * mz
     dom = ox * mx + oy * my + oz * mz
-    d = microfacet_d(dist, alpha, mx, my, mz)
+    d = microfacet_d(dist, alpha, mx, my, mz, alpha_v)
     F, _, _, _ = fresnel_dielectric(dim, eta)
-    g = masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist)
+    g = masking(gmodel, alpha, ix, iy, iz, ox, oy, oz, mx, my, mz, dist, alpha_v)
     if reflect:
         return F * d * g / (4.0 * abs(iz)), True
     denom = dim + e * dom
@@ -564,7 +615,7 @@ def dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
 
 
 @njit(cache=True)
-def dielectric_pdf(alpha, visible, eta, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
+def dielectric_pdf(alpha, visible, eta, ix, iy, iz, ox, oy, oz, dist=BECKMANN, alpha_v=-1.0):
     """Solid-angle density of wo from :func:`dielectric_sample` (lobe chosen with prob. F)."""
     if iz == 0.0:
         return 0.0
@@ -581,13 +632,13 @@ def dielectric_pdf(alpha, visible, eta, ix, iy, iz, ox, oy, oz, dist=BECKMANN):
         den = dim + e * dom
         jac = e * e * dom / (den * den)
     sgn = 1.0 if iz > 0.0 else -1.0
-    pm = _m_pdf(alpha, visible, sgn * ix, sgn * iy, sgn * iz, mx, my, mz, dist)
+    pm = _m_pdf(alpha, visible, sgn * ix, sgn * iy, sgn * iz, mx, my, mz, dist, alpha_v)
     F, _, _, _ = fresnel_dielectric(dim, eta)
     return pm * (F if reflect else 1.0 - F) * abs(jac)
 
 
 @njit(cache=True)
-def dielectric_sample(alpha, gmodel, visible, eta, ix, iy, iz, u0, u1, u2, dist=BECKMANN):
+def dielectric_sample(alpha, gmodel, visible, eta, ix, iy, iz, u0, u1, u2, dist=BECKMANN, alpha_v=-1.0):
     """Sample wo: ``(ox, oy, oz, weight, pdf, reflect, eta_ti)``.
 
     As Mitsuba's ``roughdielectric::sample``: a microfacet normal from the
@@ -599,7 +650,7 @@ def dielectric_sample(alpha, gmodel, visible, eta, ix, iy, iz, u0, u1, u2, dist=
     if iz == 0.0:
         return 0.0, 0.0, 1.0, 0.0, 0.0, True, 1.0
     sgn = 1.0 if iz > 0.0 else -1.0
-    mx, my, mz, pm = _sample_m(alpha, visible, sgn * ix, sgn * iy, sgn * iz, u1, u2, dist)
+    mx, my, mz, pm = _sample_m(alpha, visible, sgn * ix, sgn * iy, sgn * iz, u1, u2, dist, alpha_v)
     dim = ix * mx + iy * my + iz * mz
     F, cos_t, eta_it, eta_ti = fresnel_dielectric(dim, eta)
     if pm == 0.0:
@@ -616,8 +667,8 @@ def dielectric_sample(alpha, gmodel, visible, eta, ix, iy, iz, u0, u1, u2, dist=
     # A sample on the wrong side of the macro-surface for its lobe is invalid.
     if (iz * oz > 0.0) != reflect:
         return ox, oy, oz, 0.0, 0.0, reflect, eti
-    val, _ = dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz, dist)
-    pdf = dielectric_pdf(alpha, visible, eta, ix, iy, iz, ox, oy, oz, dist)
+    val, _ = dielectric_eval(alpha, gmodel, eta, ix, iy, iz, ox, oy, oz, dist, alpha_v)
+    pdf = dielectric_pdf(alpha, visible, eta, ix, iy, iz, ox, oy, oz, dist, alpha_v)
     if pdf <= 0.0 or val <= 0.0:
         return ox, oy, oz, 0.0, 0.0, reflect, eti
     return ox, oy, oz, val / pdf, pdf, reflect, eti

@@ -31,8 +31,9 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   incremented, as Mitsuba): continue with q = min(max(throughput)·η², 0.95),
   η the product of the relative IORs crossed; survivors are divided by q.
 * Lights: area emitters (triangle meshes and spheres), point, spot and
-  directional lights, projectors (:mod:`impl.projector`, RGB only); one light
-  is picked uniformly per vertex.  A
+  directional lights, projectors (:mod:`impl.projector`, RGB only), a spot's
+  bitmap ``texture`` (:func:`impl.lighting.spot_texture`, Mitsuba's uv, RGB only);
+  one light is picked uniformly per vertex.  A
   ``constant`` environment emitter is reached by BSDF sampling only: a ray
   that leaves the scene adds throughput · L_env with weight 1 (it is never
   light-sampled, so no MIS weight applies; unbiased, and noisier than
@@ -57,9 +58,16 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   as Mitsuba's ``path`` counts it; the nested BSDF's f and pdf times the
   opacity); opacity, blend weight and the ``alpha`` of a roughconductor /
   roughdielectric may be a constant, a bitmap or (alpha) a checkerboard, read as
-  Mitsuba's ``eval_1``.  Shadow rays stop at any surface, masks and thin
-  dielectrics included (Mitsuba's ``path`` tests visibility with
-  ``ray_test``); ``normalmap`` and ``bumpmap`` around any of them
+  Mitsuba's ``eval_1``; anisotropic roughness (``alpha_u``/``alpha_v``, each a
+  constant or such a texture; Beckmann and GGX, :mod:`impl.microfacet`) in
+  Mitsuba's shading frame, s along the surface's ∂p/∂u
+  (:func:`impl.shading_frame.tangent`), not under a normal or bump map; a
+  textured ``specular_reflectance`` of a conductor, roughconductor or dielectric
+  (RGB; its value multiplies the reflected weights and, for the roughconductor,
+  f, as Mitsuba's, :func:`impl.materials.with_specular_textures`).  Shadow
+  rays stop at any surface, masks and thin dielectrics included (Mitsuba's
+  ``path`` tests visibility with ``ray_test``); ``normalmap`` and ``bumpmap``
+  around any of them
   on triangles with uvs (:mod:`impl.shading_frame`: the BSDF evaluated and
   sampled in the perturbed frame, directions on opposite sides of the true
   and the perturbed shading normal dropped, Estevez et al.'s shadowing term).
@@ -144,25 +152,27 @@ import numpy as np
 from numba import njit, prange
 
 from core.algorithm import Algorithm, Param, RenderResult
-from core.scene import Scene
+from core.scene import Scene, scene_features
 from core.errors import ParamError, UnsupportedError
 
 from .bsdf import bsdf_arrays, bsdf_eval_at, bsdf_pdf_at, bsdf_sample_at, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
-from .materials import MAT_BLEND, MaterialArrays, expand_components
+from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MaterialArrays,
+                        expand_components, with_specular_textures)
 from .accel.packets import NOT_TRACED
 from .camera import camera_params
 from .kernel import batch_kernel, interleaved, task_stride
 from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_with_lights,
                              sample_light)
-from .lighting import diffuse_albedo, environment_radiance, surface
+from .lighting import diffuse_albedo, environment_radiance, spot_texture, surface, with_spot_textures
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, occluded, refine, round_ray
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
-from .shading_frame import perturbed_normal, same_side, shadow_terminator
+from .scene_arrays import LIGHT_SPOT
+from .shading_frame import perturbed_normal, same_side, shadow_terminator, tangent
 from .textures import bitmap, checkerboard, luminance
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
@@ -222,13 +232,37 @@ def _scalar_texture(rec, m, c0, c1, data, t, b1, b2, clip):
 @njit(inline="always", cache=True)
 def _scalar_param(B, mat, slot, value, ns, prim, tri_uv, b1, b2):
     """A scalar parameter of ``mat`` at a hit: slot 0 a mask's opacity, 1 a blend weight
-    (both clipped to [0, 1], as Mitsuba), 2 a roughness; its texture's value
+    (both clipped to [0, 1], as Mitsuba), 2 a roughness (α_u), 3 α_v; its texture's value
     (:func:`_scalar_texture`) on triangles, ``value`` (the constant, or the texture's
     mean on spheres) without a texture."""
     if B.ptex[mat, slot, 0] == 0 or prim < ns:
         return value
     return _scalar_texture(B.ptex[mat, slot], B.ptex_uv[mat, slot], B.ptex_c[mat, slot, 0],
                            B.ptex_c[mat, slot, 1], B.ptex_data, tri_uv[prim - ns], b1, b2, slot < 2)
+
+
+@njit(inline="always", cache=True)
+def _roughness(B, mat, ns, prim, tri_uv, b1, b2):
+    """(α_u, α_v) of ``mat`` at a hit: the constants or their textures' values
+    (:func:`_scalar_param`, slots 2 and 3); α_v = α_u unless the row is anisotropic."""
+    alpha = B.alpha[mat]
+    if B.ptex[mat, 2, 0] != 0:
+        alpha = _scalar_param(B, mat, 2, alpha, ns, prim, tri_uv, b1, b2)
+    alpha_v = alpha
+    if B.aniso[mat] != 0:
+        alpha_v = B.alpha_v[mat]
+        if B.ptex[mat, 3, 0] != 0:
+            alpha_v = _scalar_param(B, mat, 3, alpha_v, ns, prim, tri_uv, b1, b2)
+    return alpha, alpha_v
+
+
+@njit(inline="always", cache=True)
+def _specular_texture(A: SceneArrays, B: MaterialArrays, mat):
+    """Whether ``mat`` is a conductor, roughconductor or dielectric whose
+    ``specular_reflectance`` is a texture (:func:`impl.materials.with_specular_textures`
+    moved it to the diffuse texture slot: ρ at the hit is its value)."""
+    k = B.kind[mat]
+    return A.mat_tex[mat] != 0 and (k == MAT_CONDUCTOR or k == MAT_ROUGHCONDUCTOR or k == MAT_DIELECTRIC)
 
 
 @njit(cache=True)
@@ -245,12 +279,14 @@ def _blend_eval_pdf(A: SceneArrays, B: MaterialArrays, mat, w, skip, prim, b1, b
         c = B.comp[mat, k]
         wk = w if k == 1 else 1.0 - w
         rr, rg, rb = diffuse_albedo(A, c, prim, b1, b2)
-        al = _scalar_param(B, c, 2, B.alpha[c], A.sph_radius.shape[0], prim, A.tri_uv, b1, b2)
-        er, eg, eb = bsdf_eval_at(B, c, al, rr, rg, rb, eta_scale, wix, wiy, wiz, wox, woy, woz)
+        al, av = _roughness(B, c, A.sph_radius.shape[0], prim, A.tri_uv, b1, b2)
+        er, eg, eb = bsdf_eval_at(B, c, al, av, rr, rg, rb, eta_scale, wix, wiy, wiz, wox, woy, woz)
+        if _specular_texture(A, B, c):
+            er, eg, eb = er * rr, eg * rg, eb * rb
         fr += wk * er
         fg += wk * eg
         fb += wk * eb
-        pdf += wk * bsdf_pdf_at(B, c, al, eta_scale, wix, wiy, wiz, wox, woy, woz)
+        pdf += wk * bsdf_pdf_at(B, c, al, av, eta_scale, wix, wiy, wiz, wox, woy, woz)
     return fr, fg, fb, pdf
 
 
@@ -382,9 +418,7 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                 else:
                     smat = B.comp[mat, 1]
                     ck = 1
-            alpha = B.alpha[smat]            # a textured roughness: its value here
-            if B.ptex[smat, 2, 0] != 0:
-                alpha = _scalar_param(B, smat, 2, alpha, ns, prim, A.tri_uv, b1, b2)
+            alpha, alpha_v = _roughness(B, smat, ns, prim, A.tri_uv, b1, b2)   # textured: its value here
             # A two-sided opaque BSDF is seen from the front on both sides.
             back = not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
             # A normal or bump map: the BSDF's frame turns to the perturbed normal n.
@@ -395,12 +429,22 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                                               A.mat_shade_uv[mat], A.tex_data, A.tri_v[prim - ns],
                                               A.tri_uv[prim - ns], b1, b2, gx, gy, gz, sx, sy, sz, vx,
                                               vy, vz, back)
+            # Anisotropic roughness: Mitsuba's frame, s along ∂p/∂u and t = n × s, kept on
+            # the back of a two-sided BSDF (Mitsuba's twosided negates the local z only).
+            aniso = B.aniso[mat] != 0
+            if aniso:
+                fx, fy, fz = tangent(prim, ns, b1, b2, px, py, pz, A.sph_center, A.tri_v, A.tri_uv,
+                                     A.tri_has_uv, gx, gy, gz, sx, sy, sz)
+                qx, qy, qz = sy * fz - sz * fy, sz * fx - sx * fz, sx * fy - sy * fx
+            else:
+                fx = fy = fz = qx = qy = qz = 0.0
             if back:
                 gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
                 if shade == 0:
                     nx, ny, nz = sx, sy, sz
             terminator = shade != 0 and A.mat_shade_tex[mat, 6] != 0
-            fx, fy, fz, qx, qy, qz = frame(nx, ny, nz)
+            if not aniso:
+                fx, fy, fz, qx, qy, qz = frame(nx, ny, nz)
             wix, wiy, wiz = to_local(fx, fy, fz, qx, qy, qz, nx, ny, nz, vx, vy, vz)
             if spectral:
                 rho_r = spectrum_at(S.mat_spec[mat], w0)
@@ -409,6 +453,7 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
             else:
                 rho_r, rho_g, rho_b = diffuse_albedo(A, smat, prim, b1, b2)
             eta_scale = eta_scale_at(S, mat, w0) if spectral else 1.0
+            spec_tex = _specular_texture(A, B, smat)
 
             # Next-event estimation: one light sample, shadow ray, MIS weight.
             if not delta and L.n_lights > 0:
@@ -424,6 +469,12 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                     er *= spectrum_at(S.light_spec[li], w0)
                     eg *= spectrum_at(S.light_spec[li], w1)
                     eb *= spectrum_at(S.light_spec[li], w2)
+                if (ldelta and li < A.light_kind.shape[0] and A.light_tex[li, 1] > 0
+                        and A.light_kind[li] == LIGHT_SPOT and (er > 0.0 or eg > 0.0 or eb > 0.0)):
+                    tr_, tg_, tb_ = spot_texture(-lx, -ly, -lz, A.light_local, li,
+                                                 math.tan(A.light_cutoff[li]), A.light_tex[li],
+                                                 A.light_tex_uv[li], A.tex_data)
+                    er, eg, eb = er * tr_, eg * tg_, eb * tb_
                 if shade != 0 and not same_side(nx, ny, nz, sx, sy, sz, lx, ly, lz):
                     er = eg = eb = 0.0           # below the perturbed or the true horizon
                 if er > 0.0 or eg > 0.0 or eb > 0.0:
@@ -433,8 +484,10 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                         fr, fg, fb, bpdf = _blend_eval_pdf(A, B, mat, bw, -1, prim, b1, b2, eta_scale,
                                                            wix, wiy, wiz, wox, woy, woz)
                     else:
-                        fr, fg, fb = bsdf_eval_at(B, mat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy,
-                                                  wiz, wox, woy, woz)
+                        fr, fg, fb = bsdf_eval_at(B, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale,
+                                                  wix, wiy, wiz, wox, woy, woz)
+                        if spec_tex:             # a textured specular_reflectance
+                            fr, fg, fb = fr * rho_r, fg * rho_g, fb * rho_b
                     if opac < 1.0:               # a mask scatters by its BSDF with probability opac
                         fr, fg, fb = fr * opac, fg * opac, fb * opac
                     if terminator:
@@ -456,8 +509,8 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                             w = 1.0
                             if not ldelta and mis:
                                 if not blend:
-                                    bpdf = bsdf_pdf_at(B, mat, alpha, eta_scale, wix, wiy, wiz, wox, woy,
-                                                       woz)
+                                    bpdf = bsdf_pdf_at(B, mat, alpha, alpha_v, eta_scale, wix, wiy, wiz, wox,
+                                                       woy, woz)
                                 bpdf *= opac
                                 if bias == _BIAS_MIS:   # debug: the classic swapped-argument bug
                                     w = _power(bpdf, lpdf)
@@ -486,7 +539,9 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                 if blend:                    # rescaled for the chosen component
                     u0 = (u0 - bw) / (1.0 - bw) if ck == 0 else (u0 / bw if bw > 0.0 else 0.0)
                 wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample_at(
-                    B, smat, alpha, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+                    B, smat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+                if spec_tex and woz * wiz > 0.0:   # reflected: a textured specular_reflectance
+                    wr, wg, wb = wr * rho_r, wg * rho_g, wb * rho_b
                 if blend and pdf > 0.0:
                     # Mitsuba's blendbsdf.sample: the mixture's pdf, and the weight
                     # (w_k f_k cos / 1 + the other's weighted f cos) / that pdf.
@@ -597,12 +652,16 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
     _check(params)
     # A blendbsdf's components get rows of their own in A and B (kept alive by the memo).
     def expanded():              # None without a blendbsdf: the memo must not hold the scene itself
-        e = expand_components(scene, algorithm="path")
+        e = expand_components(with_specular_textures(scene), algorithm="path")
         return None if e is scene else e
 
     full = scene_memo(scene, "path.expanded", expanded) or scene
     B = scene_memo(scene, "path.bsdf", lambda: bsdf_arrays(full, algorithm="path"))
-    A, L = scene_memo(scene, "path.lights", lambda: flatten_with_lights(full))
+    def lights():                # a textured spot's bitmap joins A's texels
+        A_, L_ = flatten_with_lights(full)
+        return with_spot_textures(A_, full.lights), L_
+
+    A, L = scene_memo(scene, "path.lights", lights)
     cam = camera_params(scene.camera, lens=True)
     H, W = scene.camera.film.height, scene.camera.film.width
     spp = params["spp"]
@@ -614,6 +673,12 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
     if spectral and any(light.kind == "projector" for light in scene.lights):
         raise UnsupportedError("path: spectral=true does not model the projector emitter (its "
                                "irradiance image is RGB); render it with spectral=false")
+    if spectral and any(light.kind == "spot" and light.texture is not None for light in scene.lights):
+        raise UnsupportedError("path: spectral=true does not model a spot's texture (an RGB image); "
+                               "render it with spectral=false")
+    if spectral and "textured specular reflectance" in scene_features(scene):
+        raise UnsupportedError("path: spectral=true does not model a textured specular_reflectance "
+                               "(an RGB texture); render it with spectral=false")
     if spectral and any(m.kind == "blendbsdf" for m in full.materials):
         raise UnsupportedError("path: spectral=true does not model the blendbsdf BSDF (its "
                                "components' reflectances are RGB here); render it with spectral=false")
@@ -655,5 +720,6 @@ ALGORITHM = Algorithm(
     ),
     render=render,
     models=frozenset({"envmap", "plastic", "roughplastic", "plastic texture", "normalmap", "bumpmap",
-                      "projector", "thindielectric", "blendbsdf", "mask", "textured roughness"}),
+                      "projector", "thindielectric", "blendbsdf", "mask", "textured roughness",
+                      "anisotropic roughness", "spot texture", "textured specular reflectance"}),
 )

@@ -45,10 +45,18 @@ Where Mitsuba's normalisations divide by zero (a texel with 2c − 1 = 0, a
 vanishing bumped cross product) n_p is the unperturbed s, and a tangent ∂p/∂u
 along n_s is replaced by any tangent.
 
-Only the normal matters to the BSDFs modelled here (all isotropic), so the
-tracers build their own tangents around n_p; Mitsuba's tangent of the
-perturbed frame, and hence an anisotropic BSDF under a normal map, is not
-reproduced.  Triangles only: the loader gives spheres no uv.
+Only the normal matters to the isotropic BSDFs, so the tracers build their own
+tangents around n_p; Mitsuba's tangent of the perturbed frame, and hence an
+anisotropic BSDF under a normal map, is not reproduced (refused).  Triangles
+only: the loader gives spheres no uv.
+
+The tangent frame of an anisotropic BSDF (:func:`tangent`): Mitsuba's
+``SurfaceInteraction::initialize_sh_frame`` (3.9) takes s = ∂p/∂u made orthogonal to
+the shading normal n and normalised (any tangent of n where ∂p/∂u vanishes), and
+t = n × s.  ∂p/∂u of a triangle with uvs as above (:func:`tri_dpdu_dpdv`); of a
+triangle without uvs p1 − p0 (Mitsuba's barycentric parameterisation); of a sphere
+e_z × (p − c) (Mitsuba's ``sphere``: the azimuth about the sphere's local z axis,
+here the world z axis: the scene model keeps no rotation of a sphere's to_world).
 
 Per-ray helpers (``inline="always"``, scalars and a few arrays), called from
 the batch kernels.
@@ -62,7 +70,7 @@ from numba import njit
 
 from .textures import bitmap, bitmap_grad
 
-__all__ = ["tri_dpdu_dpdv", "perturbed_normal", "same_side", "shadow_terminator"]
+__all__ = ["tri_dpdu_dpdv", "tangent", "perturbed_normal", "same_side", "shadow_terminator"]
 
 
 @njit(inline="always", cache=True)
@@ -89,6 +97,31 @@ def tri_dpdu_dpdv(v, uv, gx, gy, gz):
     inv = 1.0 / det
     return ((c1 * d0x - a1 * d1x) * inv, (c1 * d0y - a1 * d1y) * inv, (c1 * d0z - a1 * d1z) * inv,
             (a0 * d1x - c0 * d0x) * inv, (a0 * d1y - c0 * d0y) * inv, (a0 * d1z - c0 * d0z) * inv)
+
+
+@njit(inline="always", cache=True)
+def tangent(prim, ns, b1, b2, px, py, pz, sph_center, tri_v, tri_uv, tri_has_uv, gx, gy, gz, nx, ny, nz):
+    """The unit tangent s of Mitsuba's shading frame at a hit on primitive ``prim``
+    (spheres first, ``ns`` of them; triangles with vertices ``tri_v``, uvs ``tri_uv``
+    where ``tri_has_uv``): ∂p/∂u made orthogonal to the unit shading normal n and
+    normalised (module docstring); g the unit geometric normal (the fallback of a
+    degenerate uv map)."""
+    if prim < ns:
+        dx, dy, dz = -(py - sph_center[prim, 1]), px - sph_center[prim, 0], 0.0
+    else:
+        j = prim - ns
+        v = tri_v[j]
+        if tri_has_uv[j]:
+            dx, dy, dz, _a, _b, _c = tri_dpdu_dpdv(v, tri_uv[j], gx, gy, gz)
+        else:
+            dx, dy, dz = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
+    d = nx * dx + ny * dy + nz * dz
+    ex, ey, ez = dx - d * nx, dy - d * ny, dz - d * nz
+    le = math.sqrt(ex * ex + ey * ey + ez * ez)
+    if le > 0.0:
+        return ex / le, ey / le, ez / le
+    ex, ey, ez, _a, _b, _c = _coordinate_system(nx, ny, nz)
+    return ex, ey, ez
 
 
 @njit(inline="always", cache=True)

@@ -414,3 +414,175 @@ def test_rough_bsdfs_eval_and_pdf_match_mitsuba(mitsuba):
             pd_mi = np.array(diel.pdf(ctx, si_d, mi.Vector3f(*wo_d))).ravel()
             pd = np.array([mf.dielectric_pdf(0.3, True, 1.5, *wi_d[:, k], *wo_d[:, k]) for k in range(n)])
             assert np.allclose(pd, pd_mi, rtol=2e-3, atol=1e-6)
+
+
+# ------------------------------------------------------ anisotropic roughness ---
+
+ANISO = ((0.15, 0.5), (0.6, 0.2))
+
+
+@pytest.mark.parametrize("dist", (mf.BECKMANN, mf.GGX), ids=("beckmann", "ggx"))
+@pytest.mark.parametrize("au,av", ANISO)
+def test_anisotropic_d_is_normalised(au, av, dist):
+    """∫ D(m) cos θ_m dω_m = 1 with α_u ≠ α_v, and D is not symmetric under x ↔ y."""
+    def f(x, y, z):
+        return mf.microfacet_d(dist, au, x, y, z, av) * z
+
+    assert _hemisphere_quadrature(f, 512, 256) == pytest.approx(1.0, abs=2e-3)
+    m = _dir(0.4, 0.0)
+    assert mf.microfacet_d(dist, au, *m, av) != pytest.approx(mf.microfacet_d(dist, au, m[1], m[0], m[2], av),
+                                                              rel=1e-2)
+
+
+@pytest.mark.parametrize("dist", (mf.BECKMANN, mf.GGX), ids=("beckmann", "ggx"))
+def test_equal_alphas_reduce_to_the_isotropic_functions(dist):
+    """α_u = α_v = α gives the isotropic D, G1, normal samples and their pdfs, and the
+    rough BSDFs' eval, pdf and samples (to 1e-12)."""
+    rng = np.random.default_rng(SEED)
+    for _ in range(200):
+        a = rng.uniform(0.02, 0.9)
+        wi = _dir(rng.uniform(0.0, 1.5), rng.uniform(0.0, 2 * math.pi))
+        wo = _dir(rng.uniform(0.0, 1.5), rng.uniform(0.0, 2 * math.pi))
+        wt = (wo[0], wo[1], -wo[2])
+        m = _dir(rng.uniform(0.0, 1.4), rng.uniform(0.0, 2 * math.pi))
+        u0, u1, u2 = rng.random(3)
+        same = lambda x, y: np.allclose(np.asarray(x, float), np.asarray(y, float), rtol=1e-12,  # noqa: E731
+                                        atol=0.0)
+        assert same(mf.microfacet_d(dist, a, *m, a), mf.microfacet_d(dist, a, *m))
+        assert same(mf.smith_g1(a, *wi, *m, dist, a), mf.smith_g1(a, *wi, *m, dist))
+        assert same(mf.smith_g1_exact(a, *wi, *m, a), mf.smith_g1_exact(a, *wi, *m))
+        assert same(mf.sample_visible_normal(a, *wi, u1, u2, dist, a), mf.sample_visible_normal(a, *wi, u1, u2, dist))
+        assert same(mf.sample_normal(a, u1, u2, dist, a), mf.sample_normal(a, u1, u2, dist))
+        for vis in (True, False):
+            assert same(mf.conductor_pdf(a, vis, *wi, *wo, dist, a), mf.conductor_pdf(a, vis, *wi, *wo, dist))
+            assert same(mf.conductor_sample(a, mf.G_SMITH, vis, *wi, u1, u2, dist, a),
+                        mf.conductor_sample(a, mf.G_SMITH, vis, *wi, u1, u2, dist))
+            for w in (wo, wt):
+                assert same(mf.dielectric_pdf(a, vis, 1.5, *wi, *w, dist, a),
+                            mf.dielectric_pdf(a, vis, 1.5, *wi, *w, dist))
+            assert same(mf.dielectric_sample(a, mf.G_SMITH, vis, 1.5, *wi, u0, u1, u2, dist, a),
+                        mf.dielectric_sample(a, mf.G_SMITH, vis, 1.5, *wi, u0, u1, u2, dist))
+        assert same(mf.conductor_eval(a, mf.G_SMITH, *wi, *wo, dist, a),
+                    mf.conductor_eval(a, mf.G_SMITH, *wi, *wo, dist))
+        for w in (wo, wt):
+            assert same(mf.dielectric_eval(a, mf.G_SMITH, 1.5, *wi, *w, dist, a),
+                        mf.dielectric_eval(a, mf.G_SMITH, 1.5, *wi, *w, dist))
+
+
+@pytest.mark.parametrize("dist", (mf.BECKMANN, mf.GGX), ids=("beckmann", "ggx"))
+@pytest.mark.parametrize("au,av,theta_i", [(0.15, 0.5, 0.7), (0.6, 0.2, 1.2)])
+def test_anisotropic_visible_normals_match_the_exact_visible_density(au, av, theta_i, dist):
+    """Visible normals of an anisotropic distribution (wi off both tangent axes) against
+    D_wi(m) with the exact G1, which integrates to 1; the density with α_u and α_v
+    swapped is rejected."""
+    rng = np.random.default_rng(SEED)
+    wi = _dir(theta_i, 0.7)
+    u = rng.random((N_CHI2, 2))
+    out = np.array([mf.sample_visible_normal(au, *wi, a, b, dist, av) for a, b in u])
+    for m in out[:200]:
+        assert m[3] == pytest.approx(mf.visible_normal_pdf(au, *wi, *m[:3], False, dist, av), rel=1e-9)
+    exact = lambda x, y, z: mf.visible_normal_pdf(au, *wi, x, y, z, True, dist, av)  # noqa: E731
+    assert _hemisphere_quadrature(exact, 256, 128) == pytest.approx(1.0, abs=3e-3)
+    pv = _chi2_pvalue(out[:, :3], exact)
+    assert pv > P_MIN, f"chi-square p = {pv:.2e} (seed {SEED})"
+    swapped = _chi2_pvalue(out[:, :3], lambda x, y, z: mf.visible_normal_pdf(av, *wi, x, y, z, True, dist, au))
+    assert swapped < P_MIN
+
+
+@pytest.mark.parametrize("dist", (mf.BECKMANN, mf.GGX), ids=("beckmann", "ggx"))
+def test_anisotropic_d_cos_sampling_matches_its_pdf(dist):
+    """``sample_visible=false`` with α_u ≠ α_v (Mitsuba's azimuth warp) against D cos θ_m."""
+    au, av = 0.15, 0.5
+    rng = np.random.default_rng(SEED)
+    u = rng.random((N_CHI2, 2))
+    out = np.array([mf.sample_normal(au, a, b, dist, av) for a, b in u])
+    for m in out[:200]:
+        assert m[3] == pytest.approx(mf.normal_pdf(au, *m[:3], dist, av), rel=1e-9)
+    pv = _chi2_pvalue(out[:, :3], lambda x, y, z: mf.normal_pdf(au, x, y, z, dist, av))
+    assert pv > P_MIN, f"chi-square p = {pv:.2e} (seed {SEED})"
+
+
+@pytest.mark.parametrize("dist", (mf.BECKMANN, mf.GGX), ids=("beckmann", "ggx"))
+def test_anisotropic_rough_bsdfs_sample_their_pdf(dist):
+    """The anisotropic conductor and dielectric (both lobes, wi outside) sample by their pdf,
+    and their sampling weight is eval / pdf."""
+    au, av, eta, wi = 0.1, 0.45, 1.5, _dir(0.9, 0.5)
+    rng = np.random.default_rng(SEED)
+    u = rng.random((N_CHI2, 3))
+    out = np.array([mf.conductor_sample(au, mf.G_SMITH, True, *wi, a, b, dist, av) for _, a, b in u])
+    ok = out[:, 4] > 0.0
+    for r in out[ok][:200]:
+        f, _ = mf.conductor_eval(au, mf.G_SMITH, *wi, *r[:3], dist, av)
+        assert r[3] == pytest.approx(f / r[4], rel=1e-9)
+    pv = _chi2_pvalue(out[ok, :3], lambda x, y, z: mf.conductor_pdf(au, True, *wi, x, y, z, dist, av),
+                      invalid=int((~ok).sum()))
+    assert pv > P_MIN, f"conductor: chi-square p = {pv:.2e} (seed {SEED})"
+    out = np.array([mf.dielectric_sample(au, mf.G_SMITH, True, eta, *wi, a, b, c, dist, av) for a, b, c in u],
+                   dtype=np.float64)
+    ok = out[:, 4] > 0.0
+    for r in out[ok][:200]:
+        f, _ = mf.dielectric_eval(au, mf.G_SMITH, eta, *wi, *r[:3], dist, av)
+        assert r[3] == pytest.approx(f / r[4], rel=1e-9)
+    pv = _chi2_pvalue(out[ok, :3], lambda x, y, z: mf.dielectric_pdf(au, True, eta, *wi, x, y, z, dist, av),
+                      lower=-1.0, n_theta=48, invalid=int((~ok).sum()))
+    assert pv > P_MIN, f"dielectric: chi-square p = {pv:.2e} (seed {SEED})"
+
+
+@pytest.mark.mitsuba
+@pytest.mark.parametrize("name,dist", [("beckmann", mf.BECKMANN), ("ggx", mf.GGX)])
+def test_anisotropic_distribution_and_bsdfs_match_mitsuba(mitsuba, name, dist):
+    """D, G1, visible and D cos normal samples and their pdfs against Mitsuba's
+    ``MicrofacetDistribution(type, alpha_u, alpha_v)``, and roughconductor /
+    roughdielectric eval and pdf with ``alpha_u``/``alpha_v`` (float32 there)."""
+    mi = mitsuba
+    rng = np.random.default_rng(SEED)
+    mtype = mi.MicrofacetType.Beckmann if dist == mf.BECKMANN else mi.MicrofacetType.GGX
+    n = 256
+    for au, av in ((0.08, 0.4), (0.5, 0.15)):
+        th = rng.uniform(0.0, 1.4, n)
+        ph = rng.uniform(0.0, 2 * math.pi, n)
+        wi = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)])
+        u = rng.uniform(0.0, 1.0, (2, n))
+        for visible in (True, False):
+            d_mi = mi.MicrofacetDistribution(mtype, au, av, visible)
+            m, pdf = d_mi.sample(mi.Vector3f(*wi), mi.Point2f(*u))
+            m = np.array([np.array(m.x), np.array(m.y), np.array(m.z)])
+            if visible:
+                ours = np.array([mf.sample_visible_normal(au, *wi[:, k], *u[:, k], dist, av) for k in range(n)])
+            else:
+                ours = np.array([mf.sample_normal(au, *u[:, k], dist, av) for k in range(n)])
+            assert np.median(np.abs(ours[:, :3] - m.T)) < 1e-5
+            assert np.quantile(np.abs(ours[:, :3] - m.T), 0.95) < 1e-3
+            close = np.abs(ours[:, :3] - m.T).max(axis=1) < 1e-4
+            assert close.mean() > 0.9
+            assert np.allclose(ours[close, 3], np.array(pdf)[close], rtol=5e-3)
+        d = np.array(d_mi.eval(mi.Vector3f(*m)))
+        g1 = np.array(d_mi.smith_g1(mi.Vector3f(*wi), mi.Vector3f(*m)))
+        ours_d = np.array([mf.microfacet_d(dist, au, *m[:, k], av) for k in range(n)])
+        ours_g = np.array([mf.smith_g1(au, *wi[:, k], *m[:, k], dist, av) for k in range(n)])
+        assert np.allclose(ours_d, d, rtol=1e-4, atol=1e-6)
+        assert np.allclose(ours_g, g1, rtol=1e-4, atol=1e-6)
+        # The BSDFs: random pairs, both sides of the dielectric.
+        ctx = mi.BSDFContext()
+        th_o, ph_o = rng.uniform(0.0, 1.5, n), rng.uniform(0, 2 * math.pi, n)
+        wo = np.stack([np.sin(th_o) * np.cos(ph_o), np.sin(th_o) * np.sin(ph_o), np.cos(th_o)])
+        sgn = np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
+        wo_d = np.stack([wo[0], wo[1], wo[2] * sgn])
+        si = _mi_si(mi, wi)
+        cond = mi.load_dict({"type": "roughconductor", "alpha_u": au, "alpha_v": av, "distribution": name})
+        diel = mi.load_dict({"type": "roughdielectric", "alpha_u": au, "alpha_v": av, "distribution": name,
+                             "int_ior": 1.5, "ext_ior": 1.0})
+        f_mi = np.array(cond.eval(ctx, si, mi.Vector3f(*wo)))[0]
+        p_mi = np.array(cond.pdf(ctx, si, mi.Vector3f(*wo))).ravel()
+        f = np.array([mf.conductor_eval(au, mf.G_SMITH, *wi[:, k], *wo[:, k], dist, av)[0] for k in range(n)])
+        p = np.array([mf.conductor_pdf(au, True, *wi[:, k], *wo[:, k], dist, av) for k in range(n)])
+        assert np.allclose(f, f_mi, rtol=2e-3, atol=1e-6)
+        assert np.allclose(p, p_mi, rtol=2e-3, atol=1e-6)
+        fd_mi = np.array(diel.eval(ctx, si, mi.Vector3f(*wo_d)))[0]
+        pd_mi = np.array(diel.pdf(ctx, si, mi.Vector3f(*wo_d))).ravel()
+        fd = np.array([mf.dielectric_eval(au, mf.G_SMITH, 1.5, *wi[:, k], *wo_d[:, k], dist, av)[0]
+                       for k in range(n)])
+        pd = np.array([mf.dielectric_pdf(au, True, 1.5, *wi[:, k], *wo_d[:, k], dist, av) for k in range(n)])
+        assert np.allclose(fd, fd_mi, rtol=3e-3, atol=1e-6)
+        assert np.allclose(pd, pd_mi, rtol=3e-3, atol=1e-6)
+        assert (fd > 0).sum() > n // 4 and (f > 0).sum() > n // 4

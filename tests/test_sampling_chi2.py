@@ -217,15 +217,19 @@ def test_rectangle_light_sampling():
 
 # ------------------------------------------------------ rough BSDFs ---
 
-def _rough_materials(kind, alpha, eta=1.5, dist=0):
+def _rough_materials(kind, alpha, eta=1.5, dist=0, alpha_v=None, visible=1):
+    """One rough material's rows; ``alpha_v``: anisotropic, α_u = ``alpha``."""
     from impl.materials import MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC
 
     code = {"roughconductor": MAT_ROUGHCONDUCTOR, "roughdielectric": MAT_ROUGHDIELECTRIC}[kind]
     o = np.ones((1, 3))
-    return bsdf.with_plastic(MaterialArrays(o, o, np.zeros((1, 3)), o.copy(), np.array([eta]),
-                                            np.array([eta]), np.ones(1), np.array([code]),
-                                            np.array([alpha]), np.ones(1, np.int64)),
-                             dist=np.array([dist]))
+    B = bsdf.with_plastic(MaterialArrays(o, o, np.zeros((1, 3)), o.copy(), np.array([eta]),
+                                         np.array([eta]), np.ones(1), np.array([code]),
+                                         np.array([alpha]), np.full(1, visible, np.int64)),
+                          dist=np.array([dist]))
+    if alpha_v is not None:
+        B = B._replace(alpha_v=np.array([float(alpha_v)]), aniso=np.ones(1, np.int64))
+    return B
 
 
 @njit
@@ -273,4 +277,33 @@ def test_rough_bsdf_sampling(kind, alpha, theta, dist):
 
     # Invalid samples (wo on the wrong side for its lobe) carry pdf mass no valid
     # direction has: the valid directions' pdf integrates to the valid fraction.
+    _check(w, pdf, wrong, integral=valid.mean())
+
+
+@pytest.mark.parametrize("kind,alphas,theta,dist,visible", [
+    ("roughconductor", (0.1, 0.5), 40.0, 0, 1),
+    ("roughconductor", (0.5, 0.08), 60.0, 1, 1),
+    ("roughconductor", (0.1, 0.4), 30.0, 0, 0),
+    ("roughdielectric", (0.5, 0.1), 30.0, 1, 1),
+    ("roughdielectric", (0.1, 0.4), 150.0, 0, 1)],
+    ids=["conductor-beckmann", "conductor-ggx", "conductor-beckmann-not-visible", "dielectric-ggx",
+         "dielectric-beckmann-inside"])
+def test_anisotropic_rough_bsdf_sampling(kind, alphas, theta, dist, visible):
+    """Anisotropic roughness (α_u ≠ α_v): the path tracer's sampling against its own
+    pdf, wi off both tangent axes, outside and inside the glass; the pdf with α_u and
+    α_v swapped (the tangent turned by 90°) is rejected."""
+    au, av = alphas
+    B = _rough_materials(kind, au, dist=dist, alpha_v=av, visible=visible)
+    th, ph = math.radians(theta), 0.6
+    wi = np.array([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
+    s = _bsdf_samples(N, 5, B, wi)
+    valid = s[:, 3] > 0
+    w = s[valid, :3] / np.linalg.norm(s[valid, :3], axis=1, keepdims=True)
+
+    def pdf(w):
+        return _bsdf_pdfs(B, wi, w)
+
+    def wrong(w):
+        return _bsdf_pdfs(_rough_materials(kind, av, dist=dist, alpha_v=au, visible=visible), wi, w)
+
     _check(w, pdf, wrong, integral=valid.mean())

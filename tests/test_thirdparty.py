@@ -129,12 +129,12 @@ def test_instancing_hits_match_mitsuba(mitsuba, name):
 
 
 #: Of the files that load, those the path tracer renders (8x6 pixels, 1 spp,
-#: max_depth 3 here); the others are refused by name before rendering (a textured
-#: spot, anisotropic roughness, constant or textured).
-PATH_RENDERS = 61
+#: max_depth 3 here): all of them; any other would be refused by name before
+#: rendering.
+PATH_RENDERS = 64
 #: Of those, the scenes lit by an envmap and those with a plastic or roughplastic shape
 #: (a blendbsdf's components included).
-ENVMAPS, PLASTICS = 43, 20
+ENVMAPS, PLASTICS = 45, 20
 
 
 def test_path_renders_or_refuses_by_name():

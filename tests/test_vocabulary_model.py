@@ -162,6 +162,7 @@ def test_refused_by_name(tmp_path, extra, why):
     ("docs/scenes/emitter_spot_texture.xml", "spot texture"),
     ("tests/scenes/bsdf_spheres/test_normalmap_path.xml", "normalmap"),
     ("docs/scenes/bsdf_roughconductor_textured_carbon.xml", "textured roughness"),
+    ("docs/scenes/bsdf_roughconductor_anisotropic_aluminium.xml", "anisotropic roughness"),
 ])
 @pytest.mark.parametrize("algorithm", ["raycast", "path", "whitted", "distributed", "radiosity",
                                        "zbuffer"])

@@ -9,8 +9,8 @@ the path tracer.
   fail the Z-test — the thin dielectrics drawn as solid ``dielectric``\\ s, the
   blend weights swapped (w ↔ 1 − w), the masks ignored (opacity 1), the
   roughness textures replaced by their means.
-* The other algorithms still refuse the four by name; anisotropic textured
-  roughness is refused by name.
+* The other algorithms still refuse the four by name (anisotropic roughness:
+  ``tests/test_vocabulary_anisotropic.py``).
 * The thin dielectric's reflection probability is Mitsuba's 2R/(1 + R).
 """
 
@@ -109,16 +109,6 @@ def test_other_algorithms_refuse_them_by_name(name, feature):
         algo = registry.get(algo_name)
         with pytest.raises(UnsupportedError, match=f"uses '{feature}', which {algo_name} does not model"):
             algo.render(scene, algo.parse_params({}))
-
-
-def test_anisotropic_textured_roughness_is_refused_by_name(tmp_path):
-    p = tmp_path / "s.xml"
-    p.write_text(SCENES["textured_roughness"].read_text()
-                 .replace('<texture name="alpha" type="bitmap">', '<texture name="alpha_u" type="bitmap">')
-                 .replace('textures/ramp.png', str(VOCAB / "textures" / "ramp.png")))
-    algo = registry.get("path")
-    with pytest.raises(UnsupportedError, match="anisotropic roughness \\(textured 'alpha_u'/'alpha_v'\\)"):
-        algo.render(load_scene(p), algo.parse_params({"spp": 1}))
 
 
 @pytest.mark.parametrize("cos_i", [1.0, 0.6, 0.2, -0.5])
