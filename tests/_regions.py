@@ -1,4 +1,7 @@
-"""Region statistics shared by the Z-tests of whole scenes against Mitsuba."""
+"""Region statistics shared by the Z-tests of whole scenes against Mitsuba, and the
+render-and-test steps of the vocabulary scenes' tests."""
+
+import dataclasses
 
 import numpy as np
 
@@ -15,3 +18,38 @@ def thirds_z(ref, image, variance) -> np.ndarray:
         se = np.sqrt(variance[:, x0:x1].sum((0, 1)) + ref.variance[:, x0:x1].sum((0, 1))) / n
         out.append(diff / se)
     return np.array(out)
+
+
+def path_against_mitsuba(scene_file, materials=None, **fields):
+    """Own ``path`` at 256 spp (seed 0) of ``scene_file`` and the Z-test against the
+    stored Mitsuba ``path`` reference (1024 spp × 8 passes): (reference, render, z).
+    ``materials`` (a function of one material) or ``fields`` (scene field → function
+    of one of its items) change the loaded scene first, e.g. to mis-model a feature."""
+    from core.loader import load_scene
+    from gibench import registry
+    from references.reference import get_reference
+    from reports.metrics import z_test
+
+    algo = registry.get("path")
+    ref = get_reference(scene_file, transport="full", spp=1024, passes=8)
+    scene = load_scene(scene_file)
+    if materials is not None:
+        fields["materials"] = materials
+    if fields:
+        scene = dataclasses.replace(scene, **{k: [fn(x) for x in getattr(scene, k)]
+                                               for k, fn in fields.items()})
+    own = algo.render(scene, algo.parse_params({"spp": 256}), seed=0)
+    z = z_test(ref.image, own.image, reference_variance=ref.variance, test_variance=own.variance)
+    return ref, own, z
+
+
+def assert_passes_by_pixel_and_thirds(name, ref, own, z):
+    """The per-pixel Z-test passes, each third's mean is within 4 standard errors, and a
+    3 % exposure error moves some third's mean by more than 4."""
+    zt = thirds_z(ref, own.image, own.variance).astype(np.float64)
+    z3 = thirds_z(ref, own.image * 1.03, own.variance).astype(np.float64)
+    print(f"\n{name}: {z}\nz of the thirds' means {np.round(zt, 2).tolist()}; with a 3 % exposure "
+          f"error {np.round(z3, 1).tolist()}")
+    assert z.passed, z
+    assert np.all(np.abs(zt) < 4.0)
+    assert np.abs(z3).max() > 4.0

@@ -174,17 +174,9 @@ def test_culled_batches_equal_the_per_ray_queries(batch, dtype):
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     o, d = o.astype(dtype).astype(np.float64), d.astype(dtype).astype(np.float64)
     ray = _batch(o, d, tmin, tmax)
-    t, prim, b = np.empty(n), np.empty(n, np.int64), np.empty((2, n))
-    q, qt, qp = np.empty((8, n), dtype), np.empty((3, n), dtype), np.empty(n, np.int32)
-    tracer.closest_batch(R, ray, n, t, prim, b, q, qt, qp)
-    blocked = np.empty(n, np.bool_)
-    tracer.occluded_batch(R, ray, n, blocked, q)
-    te, pe, be, he = np.empty(n), np.empty(n, np.int64), np.empty((2, n)), np.empty(n, np.bool_)
-    _per_ray(R, ray, te, pe, be, he)
-    np.testing.assert_array_equal(prim, pe)
-    np.testing.assert_array_equal(t, te)
-    np.testing.assert_array_equal(b, be)
-    np.testing.assert_array_equal(blocked, he)
+    t, prim, b, blocked = got = _batch_answers(R, ray, dtype)
+    _assert_same(got, _per_ray_answers(R, ray))
+    q = np.empty((8, n), dtype)
     assert (prim >= 0).sum() > n // 8 and blocked.sum() > n // 8, "the rays do hit"
     sph, tri = np.empty(len(r), np.int64), np.empty(len(v), np.int64)
     tracer._in_precision(ray, n, q)
@@ -229,6 +221,30 @@ def _per_ray(R, ray, t, prim, b, blocked):
                               ray[5, i], ray[6, i], ray[7, i])
 
 
+def _batch_answers(R, ray, dtype):
+    """closest_batch / occluded_batch over every ray of ``ray`` (8, n): (t, prim, b, blocked)."""
+    n = ray.shape[1]
+    t, prim, b = np.empty(n), np.empty(n, np.int64), np.empty((2, n))
+    q, qt, qp = np.empty((8, n), dtype), np.empty((3, n), dtype), np.empty(n, np.int32)
+    tracer.closest_batch(R, ray, n, t, prim, b, q, qt, qp)
+    blocked = np.empty(n, np.bool_)
+    tracer.occluded_batch(R, ray, n, blocked, q)
+    return t, prim, b, blocked
+
+
+def _per_ray_answers(R, ray):
+    """impl.rays.hit / occluded ray by ray: (t, prim, b, blocked)."""
+    n = ray.shape[1]
+    out = np.empty(n), np.empty(n, np.int64), np.empty((2, n)), np.empty(n, np.bool_)
+    _per_ray(R, ray, *out)
+    return out
+
+
+def _assert_same(got, want, err_msg=""):
+    for g, w in zip(got, want):
+        np.testing.assert_array_equal(g, w, err_msg=err_msg)
+
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
 @pytest.mark.parametrize("kind", ["spheres", "triangles", "mixed"])
 def test_structure_batches_equal_the_per_ray_queries(kind, dtype):
@@ -248,33 +264,20 @@ def test_structure_batches_equal_the_per_ray_queries(kind, dtype):
     ray[6] = rng.choice([0.0, 1e-6, 0.3, 1.0], n)
     ray[7] = rng.choice([np.inf, np.inf, 2.0, 0.5, 1e-3], n)
     R0 = config(c, r, v, shape, "none", dtype)
-    t0, p0, b0, h0 = np.empty(n), np.empty(n, np.int64), np.empty((2, n)), np.empty(n, np.bool_)
-    _per_ray(R0, ray, t0, p0, b0, h0)
+    brute = _per_ray_answers(R0, ray)
+    p0 = brute[1]
     unbounded = ray.copy()
     unbounded[6], unbounded[7] = 0.0, np.inf
-    tu, pu, bu, hu = np.empty(n), np.empty(n, np.int64), np.empty((2, n)), np.empty(n, np.bool_)
-    _per_ray(R0, unbounded, tu, pu, bu, hu)
+    pu = _per_ray_answers(R0, unbounded)[1]
     assert 0.1 < (p0 >= 0).mean() < 0.9, "hits and misses"
     assert ((pu >= 0) & (p0 < 0)).sum() > n // 20, "hits cut off by tmin / tmax"
     assert ((pu >= 0) & (p0 >= 0) & (pu != p0)).sum() > n // 200, "nearer hits skipped by tmin"
     for name, form in (("bvh-wide", 2), ("bvh-sah", 2), ("grid", 2), ("none", 0)):
         R = config(c, r, v, shape, name, dtype, form=form)
-        t, prim, b = np.empty(n), np.empty(n, np.int64), np.empty((2, n))
-        q, qt, qp = np.empty((8, n), dtype), np.empty((3, n), dtype), np.empty(n, np.int32)
-        tracer.closest_batch(R, ray, n, t, prim, b, q, qt, qp)
-        blocked = np.empty(n, np.bool_)
-        tracer.occluded_batch(R, ray, n, blocked, q)
-        te, pe, be, he = np.empty(n), np.empty(n, np.int64), np.empty((2, n)), np.empty(n, np.bool_)
-        _per_ray(R, ray, te, pe, be, he)
-        np.testing.assert_array_equal(prim, pe, err_msg=name)
-        np.testing.assert_array_equal(t, te, err_msg=name)
-        np.testing.assert_array_equal(b, be, err_msg=name)
-        np.testing.assert_array_equal(blocked, he, err_msg=name)
+        got = _batch_answers(R, ray, dtype)
+        _assert_same(got, _per_ray_answers(R, ray), name)
         if form == 2:                                    # a structure: brute force's answers
-            np.testing.assert_array_equal(prim, p0, err_msg=name)
-            np.testing.assert_array_equal(t, t0, err_msg=name)
-            np.testing.assert_array_equal(b, b0, err_msg=name)
-            np.testing.assert_array_equal(blocked, h0, err_msg=name)
+            _assert_same(got, brute, name)
 
 
 @pytest.mark.skipif(not _avx2(), reason="the host has no AVX2")

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _regions import thirds_z
+from _regions import assert_passes_by_pixel_and_thirds, path_against_mitsuba
 
 from core.errors import UnsupportedError
 from core.loader import load_scene
@@ -35,37 +35,16 @@ def _as_mean(m):
     return dataclasses.replace(m, textures={}, params={**m.params, "specular_reflectance": mean.tolist()})
 
 
-def _render_and_test(change=None):
-    from references.reference import get_reference
-    from reports.metrics import z_test
-
-    algo = registry.get("path")
-    ref = get_reference(SCENE, transport="full", spp=1024, passes=8)
-    scene = load_scene(SCENE)
-    if change is not None:
-        scene = dataclasses.replace(scene, materials=[change(m) for m in scene.materials])
-    own = algo.render(scene, algo.parse_params({"spp": 256}), seed=0)
-    z = z_test(ref.image, own.image, reference_variance=ref.variance, test_variance=own.variance)
-    return ref, own, z
-
-
 @pytest.mark.mitsuba
 def test_scene_passes_the_ztest_against_mitsuba_path():
     """Per pixel and per third of the image, own ``path`` agrees with Mitsuba's ``path``;
     a 3 % exposure error moves some third's mean by more than 4 standard errors."""
-    ref, own, z = _render_and_test()
-    zt = thirds_z(ref, own.image, own.variance).astype(np.float64)
-    z3 = thirds_z(ref, own.image * 1.03, own.variance).astype(np.float64)
-    print(f"\ntextured_specular: {z}\nz of the thirds' means {np.round(zt, 2).tolist()}; with a 3 % "
-          f"exposure error {np.round(z3, 1).tolist()}")
-    assert z.passed, z
-    assert np.all(np.abs(zt) < 4.0)
-    assert np.abs(z3).max() > 4.0
+    assert_passes_by_pixel_and_thirds("textured_specular", *path_against_mitsuba(SCENE))
 
 
 @pytest.mark.mitsuba
 def test_the_ztest_rejects_the_textures_replaced_by_their_means():
-    ref, own, z = _render_and_test(_as_mean)
+    ref, own, z = path_against_mitsuba(SCENE, materials=_as_mean)
     print(f"\ntextured_specular (_as_mean): {z}")
     assert not z.passed
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _regions import thirds_z
+from _regions import assert_passes_by_pixel_and_thirds, path_against_mitsuba, thirds_z
 
 from core.errors import UnsupportedError
 from core.loader import load_scene
@@ -59,33 +59,12 @@ WRONG = {"thindielectric": _thin_as_dielectric, "blendbsdf": _weights_swapped, "
          "textured_roughness": _roughness_as_mean}
 
 
-def _render_and_test(name: str, change=None):
-    from references.reference import get_reference
-    from reports.metrics import z_test
-
-    algo = registry.get("path")
-    ref = get_reference(SCENES[name], transport="full", spp=1024, passes=8)
-    scene = load_scene(SCENES[name])
-    if change is not None:
-        scene = dataclasses.replace(scene, materials=[change(m) for m in scene.materials])
-    own = algo.render(scene, algo.parse_params({"spp": 256}), seed=0)
-    z = z_test(ref.image, own.image, reference_variance=ref.variance, test_variance=own.variance)
-    return ref, own, z
-
-
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("name", list(SCENES))
 def test_scene_passes_the_ztest_against_mitsuba_path(name):
     """Per pixel and per third of the image, own ``path`` agrees with Mitsuba's ``path``;
     a 3 % exposure error moves some third's mean by more than 4 standard errors."""
-    ref, own, z = _render_and_test(name)
-    zt = thirds_z(ref, own.image, own.variance).astype(np.float64)
-    z3 = thirds_z(ref, own.image * 1.03, own.variance).astype(np.float64)
-    print(f"\n{name}: {z}\nz of the thirds' means {np.round(zt, 2).tolist()}; with a 3 % exposure "
-          f"error {np.round(z3, 1).tolist()}")
-    assert z.passed, z
-    assert np.all(np.abs(zt) < 4.0)
-    assert np.abs(z3).max() > 4.0
+    assert_passes_by_pixel_and_thirds(name, *path_against_mitsuba(SCENES[name]))
 
 
 @pytest.mark.mitsuba
@@ -93,7 +72,7 @@ def test_scene_passes_the_ztest_against_mitsuba_path(name):
 def test_the_ztest_rejects_the_feature_mis_modelled(name):
     """The same scene with the thin dielectrics as solid ones, the blend weights swapped
     or the masks ignored fails the Z-test."""
-    ref, own, z = _render_and_test(name, WRONG[name])
+    ref, own, z = path_against_mitsuba(SCENES[name], materials=WRONG[name])
     zt = thirds_z(ref, own.image, own.variance).astype(np.float64)
     print(f"\n{name} ({WRONG[name].__name__}): {z}; largest |z| of a third's mean "
           f"{np.abs(zt).max():.1f}")
