@@ -50,7 +50,7 @@ from impl import accel
 from impl.accel.packets import primary_hits
 from impl.accel.wide import (wide_closest_batch, wide_closest_packets, wide_closest_rays,
                              wide_occluded_batch, wide_occluded_packets)
-from impl.rays import ray_config
+from impl.rays import ray_config, structure
 from impl.scene_arrays import flatten
 from _timing import median_s
 
@@ -83,7 +83,7 @@ def bench_build(benchmark, name, structure):
     _, A, _ = scene(name)
     config(A, structure)                                            # warm-up
     R = benchmark.pedantic(config, args=(A, structure), rounds=3, iterations=1)
-    benchmark.extra_info.update(memory_mb=accel.memory_bytes(accel.Accel(*R[8:])) / 1e6,
+    benchmark.extra_info.update(memory_mb=accel.memory_bytes(structure(R)) / 1e6,
                                 prims=len(A.sph_radius) + len(A.tri_v))
 
 
@@ -152,7 +152,7 @@ def bench_build_1e6(benchmark, structure):
     _, A, _ = mesh_1e6()
     config(A, structure)                                            # warm-up
     R = benchmark.pedantic(config, args=(A, structure), rounds=3, iterations=1)
-    benchmark.extra_info.update(prims=len(A.tri_v), memory_mb=accel.memory_bytes(accel.Accel(*R[8:])) / 1e6)
+    benchmark.extra_info.update(prims=len(A.tri_v), memory_mb=accel.memory_bytes(structure(R)) / 1e6)
 
 
 @pytest.mark.mitsuba

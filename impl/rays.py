@@ -249,6 +249,12 @@ def ray_config(A, params: dict, *, algorithm: str) -> RayConfig:
                      sph_center, sph_radius, tri_v, *acc, batch_brute)
 
 
+def structure(R: RayConfig) -> _accel.Accel:
+    """The acceleration structure's arrays in R (:class:`impl.accel.Accel`: kind and
+    flat arrays), e.g. for :func:`impl.accel.memory_bytes`."""
+    return _accel.Accel(*R[8:8 + len(_accel.Accel._fields)])
+
+
 @njit(cache=True)
 def legacy_config(A, eps):
     """The fixed rule: stable form, float64, origin p + eps·(1 + max|p_i|)·n."""

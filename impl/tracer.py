@@ -399,7 +399,7 @@ def _cull(R: RayConfig, q, n, sph, tri):
     Without a bound (a cone of half-angle 90° or more, segments of unbounded length:
     a directional light's), every primitive is kept."""
     C, g, V = R.sph_center, R.sph_radius, R.tri_v
-    if g.shape[0] + V.shape[0] < _CULL_MIN_PRIMS:
+    if n == 0 or g.shape[0] + V.shape[0] < _CULL_MIN_PRIMS:
         return _keep_all(sph, tri)
     ox0, oy0, oz0 = float(q[OX, 0]), float(q[OY, 0]), float(q[OZ, 0])
     shared = True
@@ -450,17 +450,19 @@ def _cull(R: RayConfig, q, n, sph, tri):
     if not bounded:
         return _keep_all(sph, tri)
     pad = _CULL_PAD * (1.0 + max(abs(lo_x), abs(lo_y), abs(lo_z), abs(hi_x), abs(hi_y), abs(hi_z)))
-    lo_x, lo_y, lo_z, hi_x, hi_y, hi_z = lo_x - pad, lo_y - pad, lo_z - pad, hi_x + pad, hi_y + pad, hi_z + pad
+    lo_x, lo_y, lo_z = lo_x - pad, lo_y - pad, lo_z - pad
+    hi_x, hi_y, hi_z = hi_x + pad, hi_y + pad, hi_z + pad
     m = 0
     for s in range(g.shape[0]):
         r = float(g[s])
-        if (C[s, 0] + r >= lo_x and C[s, 0] - r <= hi_x and C[s, 1] + r >= lo_y and C[s, 1] - r <= hi_y
-                and C[s, 2] + r >= lo_z and C[s, 2] - r <= hi_z):
+        if (C[s, 0] + r >= lo_x and C[s, 0] - r <= hi_x and C[s, 1] + r >= lo_y
+                and C[s, 1] - r <= hi_y and C[s, 2] + r >= lo_z and C[s, 2] - r <= hi_z):
             sph[m] = s
             m += 1
     k = 0
     for j in range(V.shape[0]):
-        if (max(V[j, 0, 0], V[j, 1, 0], V[j, 2, 0]) >= lo_x and min(V[j, 0, 0], V[j, 1, 0], V[j, 2, 0]) <= hi_x
+        if (max(V[j, 0, 0], V[j, 1, 0], V[j, 2, 0]) >= lo_x
+                and min(V[j, 0, 0], V[j, 1, 0], V[j, 2, 0]) <= hi_x
                 and max(V[j, 0, 1], V[j, 1, 1], V[j, 2, 1]) >= lo_y
                 and min(V[j, 0, 1], V[j, 1, 1], V[j, 2, 1]) <= hi_y
                 and max(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]) >= lo_z
@@ -505,15 +507,16 @@ def _in_cone(ox, oy, oz, ax, ay, az, cos_t, sin_t, cx, cy, cz, r):
         return True
     sin_b = r / d
     cos_b = math.sqrt(1.0 - sin_b * sin_b)
-    cos_tb = cos_t * cos_b - sin_t * sin_b          # cos(θ + β); θ + β ≥ π/2 keeps all ahead
+    cos_tb = cos_t * cos_b - sin_t * sin_b          # cos(θ + β), θ + β < π: cos decreases there
     return ax * vx + ay * vy + az * vz >= d * cos_tb
 
 
 @batch_kernel(error_model="numpy")
 def _closest_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, best, bp, b1s, b2s):
     """Closest hits of the rays (ox..tmax, one array per component) among spheres
-    ``sph`` of (C, g) and triangles ``tri`` of V (index lists in scene order), primitive-outer / ray-inner: the inner loops have no
-    branch, so LLVM vectorises them over the rays.  Writes the hit distance ``best``,
+    ``sph`` of (C, g) and triangles ``tri`` of V (index lists in scene order),
+    primitive-outer / ray-inner: the inner loops have no branch, so LLVM vectorises them
+    over the rays.  Writes the hit distance ``best``,
     primitive ``bp`` (-1 on a miss) and barycentrics ``b1s``, ``b2s``.
 
     A function of its own, every array a separate argument: inlined into its caller,
@@ -555,14 +558,15 @@ def _occluded_brute(R: RayConfig, ray, n, hitm, q):
     _in_precision(ray, n, q)
     sph, tri = _candidates(R)
     ns, nt = _cull(R, q, n, sph, tri)
-    _occluded_loops(R.sph_center, R.sph_radius, R.tri_v, sph[:ns], tri[:nt], q[OX, :n], q[OY, :n], q[OZ, :n], q[DX, :n],
-                    q[DY, :n], q[DZ, :n], q[TMIN, :n], q[TMAX, :n], hitm[:n])
+    _occluded_loops(R.sph_center, R.sph_radius, R.tri_v, sph[:ns], tri[:nt], q[OX, :n], q[OY, :n],
+                    q[OZ, :n], q[DX, :n], q[DY, :n], q[DZ, :n], q[TMIN, :n], q[TMAX, :n], hitm[:n])
 
 
 @batch_kernel(error_model="numpy")
 def _occluded_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, hitm):
-    """Whether any sphere ``sph`` of (C, g) or triangle ``tri`` of V lies on each ray within (tmin, tmax),
-    primitive-outer / ray-inner with branch-free inner loops (vectorised over the rays)."""
+    """Whether any sphere ``sph`` of (C, g) or triangle ``tri`` of V lies on each ray
+    within (tmin, tmax), primitive-outer / ray-inner with branch-free inner loops
+    (vectorised over the rays)."""
     n = ox.shape[0]
     for i in range(n):
         hitm[i] = False

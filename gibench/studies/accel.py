@@ -209,7 +209,7 @@ def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=
     A structure whose render exceeds ``time_limit_s`` is not run at larger N of that
     family (the row says so in ``note``)."""
     from impl import accel
-    from impl.rays import ray_config
+    from impl.rays import ray_config, structure
     from impl.scene_arrays import flatten
 
     from .. import registry
@@ -246,7 +246,7 @@ def scaling(*, families=("spheres", "mesh"), sizes=None, structures=None, width=
                 params = algo.parse_params({"accel": name, "max_depth": max_depth})
                 reps = repeats if n_prims <= 100000 else 1
                 config_s, R = _median_time(lambda: ray_config(A, params, algorithm="whitted"), reps)
-                acc_arrays = accel.Accel(*R[8:])
+                acc_arrays = structure(R)
                 render_s, res, phases = _timed_renders(algo, scene, params, reps)
                 query_s, (_, prim, _, counts) = _median_time(lambda: accel.trace_batch(R, o, d), reps)
                 rays = sum(res.counters.get(k, 0) for k in
