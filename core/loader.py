@@ -127,7 +127,8 @@ from lxml import etree
 from . import transforms as tf
 from .meshes import (MeshError, angle_weighted_normals, cube, cylinder, disk, load_mesh_uvs, load_serialized,
                      rectangle)
-from .scene import Camera, EnvMap, Film, Light, Material, Scene, Shape, Spectrum, anisotropic_roughness
+from .scene import (Camera, EnvMap, Film, Light, Material, Scene, Shape, Spectrum, anisotropic_roughness,
+                    texture_mean)
 from .errors import SceneError
 from .xmlscene import Document, _snake_case, resolve, short  # noqa: F401  (_snake_case: tests)
 
@@ -574,10 +575,8 @@ def _material(ctx, el, materials: list, cache: dict) -> int:
         textures = _param_textures(ctx, p)
     if p.type in ("roughconductor", "roughdielectric"):
         _check_roughness(ctx, p, textures)
-    if texture is not None and texture["type"] == "bitmap":
-        refl = tuple(float(x) for x in texture["data"].reshape(-1, 3).mean(axis=0))
-    elif texture is not None:
-        refl = tuple(0.5 * (np.asarray(texture["color0"]) + np.asarray(texture["color1"])))
+    if texture is not None:
+        refl = tuple(float(x) for x in texture_mean(texture))
     elif p.type in ("plastic", "roughplastic"):
         refl = _plastic_albedo(ctx, p, textures)
     else:
@@ -1199,7 +1198,7 @@ def _blend(ctx, p, opacity) -> Material:
     parts: list[Material] = []
     for c in inner:
         _material(ctx, c, parts, {})
-    w = float(np.mean(_texture_mean(textures["weight"]))) if textures else float(p.get("weight", 0.5))
+    w = float(np.mean(texture_mean(textures["weight"]))) if textures else float(p.get("weight", 0.5))
     refl = tuple((1.0 - w) * np.asarray(parts[0].reflectance) + w * np.asarray(parts[1].reflectance))
     params = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in p.props.items()}
     return Material(kind="blendbsdf", reflectance=refl, params=params, name=ctx.attr(p.el, "id", "") or "",
@@ -1233,16 +1232,10 @@ def _check_roughness(ctx, p, textures: dict) -> None:
                               "given (as Mitsuba requires)")
 
 
-def _texture_mean(tex: dict) -> np.ndarray:
-    if tex["type"] == "bitmap":
-        return tex["data"].reshape(-1, 3).mean(axis=0)
-    return 0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"]))
-
-
 def _plastic_albedo(ctx, p, textures) -> tuple:
     """A plastic's ``diffuse_reflectance`` (Mitsuba's default 0.5; a texture's mean)."""
     if "diffuse_reflectance" in textures:
-        return tuple(float(x) for x in _texture_mean(textures["diffuse_reflectance"]))
+        return tuple(float(x) for x in texture_mean(textures["diffuse_reflectance"]))
     return tuple(_rgb(ctx, p, "diffuse_reflectance", 0.5))
 
 

@@ -384,6 +384,15 @@ def _material_features(m: Material, where: str, found: dict) -> None:
         _material_features(c, where, found)
 
 
+def texture_mean(tex: dict) -> np.ndarray:
+    """The mean RGB of a texture record (a ``bitmap``'s texels, or the mean of a
+    ``checkerboard``'s two colours, which cover equal areas): the constant that stands
+    for it where no uv is available."""
+    if tex["type"] == "bitmap":
+        return tex["data"].reshape(-1, 3).mean(axis=0)
+    return 0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"]))
+
+
 def anisotropic_roughness(m: Material) -> bool:
     """Whether material ``m`` (or a blendbsdf component of it) is a rough BSDF with
     anisotropic roughness: a textured ``alpha_u`` or ``alpha_v``, or two different

@@ -366,7 +366,7 @@ def with_specular_textures(scene: Scene) -> Scene:
     ``roughconductor`` and ``dielectric`` multiply by their texture's ``eval``."""
     import dataclasses
 
-    from core.scene import SPECULAR_TEXTURED
+    from core.scene import SPECULAR_TEXTURED, texture_mean
 
     def moved(m):
         if m.components:
@@ -376,8 +376,7 @@ def with_specular_textures(scene: Scene) -> Scene:
         if m.kind not in SPECULAR_TEXTURED or "specular_reflectance" not in m.textures:
             return m
         tex = m.textures["specular_reflectance"]
-        mean = (np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3).mean(axis=0)
-                if tex["type"] == "bitmap" else 0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"])))
+        mean = texture_mean(tex)
         rest = {k: v for k, v in m.textures.items() if k != "specular_reflectance"}
         return dataclasses.replace(m, texture=tex, reflectance=tuple(float(x) for x in mean), textures=rest)
 

@@ -14,12 +14,12 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-import numpy as np
 import pytest
 from _regions import assert_passes_by_pixel_and_thirds, path_against_mitsuba
 
 from core.errors import UnsupportedError
 from core.loader import load_scene
+from core.scene import texture_mean
 from gibench import registry
 
 SCENE = Path(__file__).resolve().parent.parent / "suites" / "vocabulary" / "textured_specular.xml"
@@ -30,8 +30,7 @@ def _as_mean(m):
     tex = m.textures.get("specular_reflectance")
     if tex is None:
         return m
-    mean = (np.asarray(tex["data"]).reshape(-1, 3).mean(axis=0) if tex["type"] == "bitmap"
-            else 0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"])))
+    mean = texture_mean(tex)
     return dataclasses.replace(m, textures={}, params={**m.params, "specular_reflectance": mean.tolist()})
 
 
