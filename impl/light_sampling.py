@@ -32,9 +32,8 @@ from numba import njit
 from core.scene import Scene
 
 from .envmap import envmap_direction_pdf, envmap_draw
-from .lighting import sample_emitter, spot_falloff
-from .projector import projector_weight
-from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_PROJECTOR, LIGHT_SPOT, SceneArrays, flatten
+from .lighting import delta_filter, sample_emitter, spot_falloff
+from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
 
 __all__ = ["LightArrays", "flatten_with_lights", "sample_sphere_cone", "sphere_cone_pdf",
            "sample_light", "emitter_pdf", "sample_uniform_sphere"]
@@ -189,11 +188,9 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
         if kind == LIGHT_SPOT:
             fr = fg = fb = spot_falloff(-wx, -wy, -wz, A.light_local, i, A.light_cos_cutoff[i],
                                         A.light_cos_beam[i], A.light_cutoff[i], A.light_inv_tw[i])
-        elif kind == LIGHT_PROJECTOR:
-            fr, fg, fb = projector_weight(A.light_local, i, yx, yy, yz, A.light_dir[i, 0],
-                                          A.light_dir[i, 1], A.light_dir[i, 2], A.light_proj[i],
-                                          A.light_tex[i], A.light_tex_uv[i], A.tex_data, px, py, pz,
-                                          wx, wy, wz)
+        if fr > 0.0:                            # a projector's image, a spot's texture
+            tr, tg, tb = delta_filter(A, i, kind, px, py, pz, wx, wy, wz)
+            fr, fg, fb = fr * tr, fg * tg, fb * tb
         s = n / (d * d)
         return (wx, wy, wz, d, yx, yy, yz, s * fr * A.light_rad[i, 0], s * fg * A.light_rad[i, 1],
                 s * fb * A.light_rad[i, 2], 0.0, True, i)

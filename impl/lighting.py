@@ -16,10 +16,9 @@ tree (thesis 2.2: the shadow rays of a hit point):
 * the light samples of the Phong model (thesis 1.4.1–1.4.2), one helper per
   kind of light, each on plain scalars (and the emitter's arrays): a delta
   light (point, spot, directional, projector: :func:`delta_sample`; a spot's cone
-  :func:`spot_falloff`, Mitsuba's, in the emitter's frame, and a spot's ``texture``
-  :func:`spot_texture` (only the path tracer applies it, with the rows of
-  :func:`with_spot_textures`); a projector's image
-  :func:`impl.projector.projector_weight`, applied by the callers), a uniform-by-area
+  :func:`spot_falloff`, Mitsuba's, in the emitter's frame; the RGB factor of a
+  projector's image or a spot's ``texture``, :func:`delta_filter`, applied by the
+  callers), a uniform-by-area
   point of an area emitter (:func:`area_sample`), a cosine-weighted direction
   towards a ``constant`` environment emitter, or importance-sampled by an
   ``envmap``'s luminance (:func:`environment_sample`).
@@ -78,7 +77,7 @@ from .textures import bitmap, checkerboard
 from .tracer import occluded_batch
 
 __all__ = ["SHADOW_EPSILON", "surface", "diffuse_albedo", "sample_emitter", "direct_light",
-           "direct_light_rays", "direct_light_dims", "spot_falloff", "delta_sample", "area_sample",
+           "direct_light_rays", "direct_light_dims", "spot_falloff", "delta_filter", "delta_sample", "area_sample",
            "environment_sample",
            "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
            "environment_radiance", "sample_cosine_hemisphere", "shadow_filter", "SHADOW_MODES"]
@@ -269,14 +268,9 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
             vx, vy, vz, ks, shininess, c1, c2, c3, fclamp)
         if not ok:
             continue
-        tr = tg = tb = 1.0
-        if kind == LIGHT_PROJECTOR:
-            tr, tg, tb = projector_weight(A.light_local, li, A.light_pos[li, 0], A.light_pos[li, 1],
-                                          A.light_pos[li, 2], A.light_dir[li, 0], A.light_dir[li, 1],
-                                          A.light_dir[li, 2], A.light_proj[li], A.light_tex[li],
-                                          A.light_tex_uv[li], A.tex_data, px, py, pz, lx, ly, lz)
-            if tr == 0.0 and tg == 0.0 and tb == 0.0:
-                continue
+        tr, tg, tb = delta_filter(A, li, kind, px, py, pz, lx, ly, lz)
+        if tr == 0.0 and tg == 0.0 and tb == 0.0:
+            continue
         cr = w * tr * A.light_rad[li, 0] * (kd * rho_r + spec)
         cg = w * tg * A.light_rad[li, 1] * (kd * rho_g + spec)
         cb = w * tb * A.light_rad[li, 2] * (kd * rho_b + spec)
@@ -390,35 +384,6 @@ def light_uv_sobol(seed, pixel, sample, light, k, light_samples):
     return sample_2d(1 + light, sample * light_samples + k, pixel_seed(pixel, 0, seed))
 
 
-def with_spot_textures(A: SceneArrays, lights) -> SceneArrays:
-    """``A`` with the ``texture`` bitmap of every textured spot of ``lights`` (the
-    scene's, in ``A``'s light order) in ``light_tex`` / ``light_tex_uv`` (records as a
-    projector's: offset, width, height, wrap, filter; its texels appended to
-    ``tex_data``), or ``A`` itself without one.  Raises UnsupportedError for a texture
-    other than a bitmap (Mitsuba requires a spatially varying one)."""
-    from core.errors import UnsupportedError
-
-    from .scene_arrays import FILTER_CODES, WRAP_CODES
-
-    textured = [i for i, l in enumerate(lights) if l.kind == "spot" and l.texture is not None]
-    if not textured:
-        return A
-    tex, uv = A.light_tex.copy(), A.light_tex_uv.copy()
-    data, n = [A.tex_data], A.tex_data.shape[0]
-    for i in textured:
-        t = lights[i].texture
-        if t["type"] != "bitmap":
-            raise UnsupportedError(f"spot emitter '{lights[i].name or i}': a {t['type']} texture is not "
-                                   "modelled; only a bitmap is")
-        img = np.asarray(t["data"], dtype=np.float64)
-        tex[i] = (n, img.shape[1], img.shape[0], WRAP_CODES[t["wrap_mode"]], FILTER_CODES[t["filter_type"]])
-        uv[i] = np.asarray(t["to_uv"])[:2]
-        data.append(img.reshape(-1, 3))
-        n += img.shape[0] * img.shape[1]
-    return A._replace(light_tex=tex, light_tex_uv=uv,
-                      tex_data=np.ascontiguousarray(np.concatenate(data), dtype=np.float64))
-
-
 @njit(inline="always", cache=True)
 def spot_texture(wx, wy, wz, local, li, tan_cutoff, tex, uvm, data):
     """The RGB factor of spot ``li``'s ``texture`` towards the world direction w (from
@@ -462,6 +427,25 @@ def spot_falloff(wx, wy, wz, local, li, cos_cutoff, cos_beam, cutoff, inv_tw):
 
 
 @njit(inline="always", cache=True)
+def delta_filter(A: SceneArrays, li, kind, px, py, pz, lx, ly, lz):
+    """The RGB factor of delta light ``li``'s image at p, l the unit direction from p
+    to the light: a projector's irradiance image (:func:`impl.projector.projector_weight`,
+    which holds the d² the attenuation's 1/d² cancels), a spot's ``texture``
+    (:func:`spot_texture`; meaningful inside the cone, where the callers apply it),
+    else (1, 1, 1).  One return path, as :func:`spot_falloff`."""
+    tr = tg = tb = 1.0
+    if kind == LIGHT_PROJECTOR:
+        tr, tg, tb = projector_weight(A.light_local, li, A.light_pos[li, 0], A.light_pos[li, 1],
+                                      A.light_pos[li, 2], A.light_dir[li, 0], A.light_dir[li, 1],
+                                      A.light_dir[li, 2], A.light_proj[li], A.light_tex[li],
+                                      A.light_tex_uv[li], A.tex_data, px, py, pz, lx, ly, lz)
+    elif kind == LIGHT_SPOT and A.light_tex[li, 1] > 0:
+        tr, tg, tb = spot_texture(-lx, -ly, -lz, A.light_local, li, math.tan(A.light_cutoff[li]),
+                                  A.light_tex[li], A.light_tex_uv[li], A.tex_data)
+    return tr, tg, tb
+
+
+@njit(inline="always", cache=True)
 def delta_sample(kind, lpx, lpy, lpz, ldx, ldy, ldz, local, li, cos_cutoff, cos_beam, cutoff,
                  inv_tw, px, py, pz, sx, sy, sz, vx, vy, vz, ks, shininess, c1, c2, c3, fclamp):
     """A delta light (thesis 1.4.1) at a surface point p (shading normal s, towards the
@@ -470,9 +454,8 @@ def delta_sample(kind, lpx, lpy, lpz, ldx, ldy, ldz, local, li, cos_cutoff, cos_
     w I (kd ρ + spec).  Point and spot lights sit at ``lp``, attenuated
     by f_att(d); a directional light shines along ``ld``.  A spot (light ``li``) is
     weighted by :func:`spot_falloff` (``local`` and the cone parameters as there).  A
-    projector is a point light here; its callers multiply by its image's RGB factor
-    (:func:`impl.projector.projector_weight`), which holds the d² that f_att's 1/d²
-    cancels.  ``lit`` is false where the light adds nothing (outside the cone, or the bracket
+    projector is a point light here, and a spot's texture is left out: the callers
+    multiply by their image's RGB factor (:func:`delta_filter`).  ``lit`` is false where the light adds nothing (outside the cone, or the bracket
     is 0)."""
     z = 0.0
     if kind == LIGHT_DIRECTIONAL:
@@ -684,7 +667,6 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
         rr, rg, rb = A.light_rad[li, 0], A.light_rad[li, 1], A.light_rad[li, 2]
         cc, cb_, cut, itw = (A.light_cos_cutoff[li], A.light_cos_beam[li], A.light_cutoff[li],
                              A.light_inv_tw[li])
-        proj, ptex, puv, tex_data = A.light_proj[li], A.light_tex[li], A.light_tex_uv[li], A.tex_data
         m = 0
         for i in range(T.n):
             if not active[i]:
@@ -695,12 +677,9 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                 c2, c3, fclamp)
             if not ok:
                 continue
-            tr = tg = tb = 1.0
-            if kind == LIGHT_PROJECTOR:
-                tr, tg, tb = projector_weight(local, li, lpx, lpy, lpz, ldx, ldy, ldz, proj, ptex, puv,
-                                              tex_data, P[0, i], P[1, i], P[2, i], lx, ly, lz)
-                if tr == 0.0 and tg == 0.0 and tb == 0.0:
-                    continue
+            tr, tg, tb = delta_filter(A, li, kind, P[0, i], P[1, i], P[2, i], lx, ly, lz)
+            if tr == 0.0 and tg == 0.0 and tb == 0.0:
+                continue
             cr = w * tr * rr * (kd * P[12, i] + spec)
             cg = w * tg * rg * (kd * P[13, i] + spec)
             cb = w * tb * rb * (kd * P[14, i] + spec)

@@ -32,7 +32,7 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   η the product of the relative IORs crossed; survivors are divided by q.
 * Lights: area emitters (triangle meshes and spheres), point, spot and
   directional lights, projectors (:mod:`impl.projector`, RGB only), a spot's
-  bitmap ``texture`` (:func:`impl.lighting.spot_texture`, Mitsuba's uv, RGB only);
+  bitmap ``texture`` (:func:`impl.lighting.delta_filter`, Mitsuba's uv, RGB only);
   one light is picked uniformly per vertex.  A
   ``constant`` environment emitter is reached by BSDF sampling only: a ray
   that leaves the scene adds throughput · L_env with weight 1 (it is never
@@ -164,14 +164,13 @@ from .camera import camera_params
 from .kernel import batch_kernel, interleaved, task_stride
 from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_with_lights,
                              sample_light)
-from .lighting import diffuse_albedo, environment_radiance, spot_texture, surface, with_spot_textures
+from .lighting import diffuse_albedo, environment_radiance, surface
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, hit, leave, occluded, refine, round_ray
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
-from .scene_arrays import LIGHT_SPOT
 from .shading_frame import perturbed_normal, same_side, shadow_terminator, tangent
 from .textures import bitmap, checkerboard, luminance
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
@@ -469,12 +468,6 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                     er *= spectrum_at(S.light_spec[li], w0)
                     eg *= spectrum_at(S.light_spec[li], w1)
                     eb *= spectrum_at(S.light_spec[li], w2)
-                if (ldelta and li < A.light_kind.shape[0] and A.light_tex[li, 1] > 0
-                        and A.light_kind[li] == LIGHT_SPOT and (er > 0.0 or eg > 0.0 or eb > 0.0)):
-                    tr_, tg_, tb_ = spot_texture(-lx, -ly, -lz, A.light_local, li,
-                                                 math.tan(A.light_cutoff[li]), A.light_tex[li],
-                                                 A.light_tex_uv[li], A.tex_data)
-                    er, eg, eb = er * tr_, eg * tg_, eb * tb_
                 if shade != 0 and not same_side(nx, ny, nz, sx, sy, sz, lx, ly, lz):
                     er = eg = eb = 0.0           # below the perturbed or the true horizon
                 if er > 0.0 or eg > 0.0 or eb > 0.0:
@@ -657,31 +650,27 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
 
     full = scene_memo(scene, "path.expanded", expanded) or scene
     B = scene_memo(scene, "path.bsdf", lambda: bsdf_arrays(full, algorithm="path"))
-    def lights():                # a textured spot's bitmap joins A's texels
-        A_, L_ = flatten_with_lights(full)
-        return with_spot_textures(A_, full.lights), L_
-
-    A, L = scene_memo(scene, "path.lights", lights)
+    A, L = scene_memo(scene, "path.lights", lambda: flatten_with_lights(full))
     cam = camera_params(scene.camera, lens=True)
     H, W = scene.camera.film.height, scene.camera.film.width
     spp = params["spp"]
     R = ray_config_cached(scene, A, params, algorithm="path")
     spectral = bool(params["spectral"])
-    if spectral and scene.environment is not None:
-        raise UnsupportedError("path: spectral=true does not model the constant environment "
-                                  "emitter (its radiance is RGB); render it with spectral=false")
-    if spectral and any(light.kind == "projector" for light in scene.lights):
-        raise UnsupportedError("path: spectral=true does not model the projector emitter (its "
-                               "irradiance image is RGB); render it with spectral=false")
-    if spectral and any(light.kind == "spot" and light.texture is not None for light in scene.lights):
-        raise UnsupportedError("path: spectral=true does not model a spot's texture (an RGB image); "
-                               "render it with spectral=false")
-    if spectral and "textured specular reflectance" in scene_features(scene):
-        raise UnsupportedError("path: spectral=true does not model a textured specular_reflectance "
-                               "(an RGB texture); render it with spectral=false")
-    if spectral and any(m.kind == "blendbsdf" for m in full.materials):
-        raise UnsupportedError("path: spectral=true does not model the blendbsdf BSDF (its "
-                               "components' reflectances are RGB here); render it with spectral=false")
+    if spectral:                 # RGB-only parts of the scene model
+        for present, what in (
+                (scene.environment is not None,
+                 "the constant environment emitter (its radiance is RGB)"),
+                (any(light.kind == "projector" for light in scene.lights),
+                 "the projector emitter (its irradiance image is RGB)"),
+                (any(light.kind == "spot" and light.texture is not None for light in scene.lights),
+                 "a spot's texture (an RGB image)"),
+                ("textured specular reflectance" in scene_features(scene),
+                 "a textured specular_reflectance (an RGB texture)"),
+                (any(m.kind == "blendbsdf" for m in full.materials),
+                 "the blendbsdf BSDF (its components' reflectances are RGB here)")):
+            if present:
+                raise UnsupportedError(f"path: spectral=true does not model {what}; "
+                                       "render it with spectral=false")
     if spectral:
         S = spectral_arrays(full, A, L)
         # Unit emission in A and L: the kernel scales light samples by S.light_spec.

@@ -6,7 +6,8 @@ become per-emitter triangle lists with an area CDF for uniform area sampling.
 Light ``kind`` codes: 0 point, 1 directional, 2 spot, 3 projector (Mitsuba's
 ``projector``: ``light_rad`` is π × scale × its constant irradiance, ``light_proj``
 its projection constants and ``light_tex_*`` its ``irradiance`` bitmap, evaluated
-by :func:`impl.projector.projector_weight`).  Material ``kind``
+by :func:`impl.projector.projector_weight`; a spot's ``texture`` bitmap is in
+``light_tex_*`` too, evaluated by :func:`impl.lighting.spot_texture`).  Material ``kind``
 codes: 0 diffuse, 1 conductor, 2 dielectric, 3 roughconductor, 4 roughdielectric, 5 plastic,
 6 roughplastic, 9 thindielectric, 10 blendbsdf; an algorithm
 refuses the kinds it cannot model.  Textured diffuse reflectance: ``mat_tex``
@@ -102,7 +103,7 @@ class SceneArrays(NamedTuple):
                                 # whether the map wraps a twosided (0/1)
     mat_shade_uv: np.ndarray    # (M, 2, 3) its 2D affine to_uv map
     light_proj: np.ndarray      # (L, 3) projector: cot(fov_x / 2), image aspect, |to_world · e_z|
-    light_tex: np.ndarray       # (L, 5) projector irradiance bitmap as mat_shade_tex (width 0: none)
+    light_tex: np.ndarray       # (L, 5) projector irradiance / spot texture bitmap, as mat_shade_tex (width 0: none)
     light_tex_uv: np.ndarray    # (L, 2, 3) its to_uv map
 
     @property
@@ -261,10 +262,11 @@ def flatten(scene: Scene) -> SceneArrays:
     cutoff = np.deg2rad([l.cutoff_angle for l in lights])
     beam = np.deg2rad([l.beam_width for l in lights])
     is_proj = [l.kind == "projector" for l in lights]
-    light_tex = [bitmap_record(l.texture, "a projector's irradiance") if p else (0, 0, 0, 0, 0)
-                 for l, p in zip(lights, is_proj)]
-    light_tex_uv = [np.asarray(l.texture["to_uv"])[:2] if p and l.texture is not None else np.eye(3)[:2]
-                    for l, p in zip(lights, is_proj)]
+    imaged = [p or (l.kind == "spot" and l.texture is not None) for l, p in zip(lights, is_proj)]
+    light_tex = [bitmap_record(l.texture, "a projector's irradiance" if p else "a spot's texture")
+                 if i else (0, 0, 0, 0, 0) for l, p, i in zip(lights, is_proj, imaged)]
+    light_tex_uv = [np.asarray(l.texture["to_uv"])[:2] if i and l.texture is not None else np.eye(3)[:2]
+                    for l, i in zip(lights, imaged)]
     light_proj = [projector_constants(l) if p else (0.0, 0.0, 0.0) for l, p in zip(lights, is_proj)]
     light_rad = [np.pi * l.scale * np.asarray(l.radiant) if p else l.radiant for l, p in zip(lights, is_proj)]
     tex_data = np.ascontiguousarray(np.concatenate(texels) if texels else np.zeros((0, 3)), dtype=np.float64)

@@ -610,5 +610,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap", "projector"}),
+    models=frozenset({"envmap", "projector", "spot texture"}),
 )

@@ -1,16 +1,17 @@
-"""Normal maps, bump maps and projectors against Mitsuba 3.
+"""Normal maps, bump maps, projectors and a spot's texture against Mitsuba 3.
 
 * :func:`impl.textures.bitmap_grad` is the derivative of the bilinear luminance
   (finite differences), and 0 for ``nearest``;
 * ``suites/vocabulary/normalmap.xml`` and ``bumpmap.xml`` (``path``) and
-  ``projector.xml`` (``path``, ``raycast``, ``whitted``) pass the per-pixel Z-test
-  against Mitsuba on the same XML, and each image's thirds agree in the mean;
+  ``projector.xml`` and ``spot_texture_direct.xml`` (``path``, ``raycast``,
+  ``whitted``) pass the per-pixel Z-test against Mitsuba on the same XML, and each
+  image's thirds agree in the mean;
 * negative controls, each of which must fail the Z-test: the normal map ignored,
   the normal map with its tangent t negated (the green channel inverted), the
   panels seen from behind with the normal map's order around ``twosided``
   swapped, the
   bump map ignored, the bump map with its scale negated, the projector's image
-  mirrored left to right;
+  and the spot's texture mirrored left to right, the spot's texture ignored;
 * the algorithms that do not model a part refuse it by name.
 """
 
@@ -28,7 +29,8 @@ from core.loader import load_scene
 from gibench import registry
 
 VOCAB = Path(__file__).resolve().parent.parent / "suites" / "vocabulary"
-NORMALMAP, BUMPMAP, PROJECTOR = (VOCAB / f"{n}.xml" for n in ("normalmap", "bumpmap", "projector"))
+NORMALMAP, BUMPMAP, PROJECTOR, SPOT = (VOCAB / f"{n}.xml" for n in ("normalmap", "bumpmap", "projector",
+                                                                       "spot_texture_direct"))
 
 
 # ------------------------------------------------------------ the gradient ---
@@ -87,9 +89,10 @@ def _z(ref, own):
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("algorithm, scene_path", [("path", NORMALMAP), ("path", BUMPMAP),
                                                    ("path", PROJECTOR), ("raycast", PROJECTOR),
-                                                   ("whitted", PROJECTOR)],
+                                                   ("whitted", PROJECTOR), ("path", SPOT), ("raycast", SPOT),
+                                                   ("whitted", SPOT)],
                          ids=["path-normalmap", "path-bumpmap", "path-projector", "raycast-projector",
-                              "whitted-projector"])
+                              "whitted-projector", "path-spot", "raycast-spot", "whitted-spot"])
 def test_scene_passes_the_ztest_against_mitsuba(algorithm, scene_path):
     """Per pixel (Z-test) and per third of the image (|z| < 4 for each third's mean):
     the own tracer agrees with Mitsuba's matching integrator on the same XML; a 3 %
@@ -138,6 +141,11 @@ def _mirrored_slide(scene):
     return dataclasses.replace(scene, lights=lights)
 
 
+def _untextured(scene):
+    return dataclasses.replace(scene, lights=[dataclasses.replace(light, texture=None)
+                                              if light.kind == "spot" else light for light in scene.lights])
+
+
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("algorithm, scene_path, wrong", [
     ("path", NORMALMAP, lambda s: _with_shading(s, lambda sh: None)),
@@ -147,9 +155,12 @@ def _mirrored_slide(scene):
     ("path", BUMPMAP, lambda s: _with_shading(s, lambda sh: {**sh, "scale": -sh["scale"]})),
     ("path", PROJECTOR, _mirrored_slide),
     ("raycast", PROJECTOR, _mirrored_slide),
+    ("raycast", SPOT, _mirrored_slide),
+    ("whitted", SPOT, _untextured),
 ], ids=["normalmap-ignored", "normalmap-tangent-negated", "normalmap-twosided-order-swapped",
         "bumpmap-ignored", "bumpmap-scale-negated",
-        "path-projector-mirrored", "raycast-projector-mirrored"])
+        "path-projector-mirrored", "raycast-projector-mirrored", "raycast-spot-mirrored",
+        "whitted-spot-untextured"])
 def test_the_ztest_rejects_a_wrong_rendering(algorithm, scene_path, wrong):
     """Each deliberately wrong rendering of the scene fails the Z-test."""
     ref, own = _render(algorithm, scene_path, scene=wrong(load_scene(scene_path)))

@@ -10,7 +10,8 @@
 * Negative controls fail the Z-test: the roughness along the tangent and the bitangent
   swapped (the tangent turned by 90°), the anisotropic roughness replaced by an
   isotropic one (√(α_u α_v)), the spot's texture ignored or mirrored in u.
-* The other algorithms refuse both by name; a lone ``alpha_u`` is refused with its
+* The algorithms that do not model them refuse them by name (raycast and whitted
+  model a spot's texture: tests/test_shading_maps.py); a lone ``alpha_u`` is refused with its
   file and line, as Mitsuba refuses it.
 """
 
@@ -87,12 +88,14 @@ def test_the_ztest_rejects_the_feature_mis_modelled(name, k):
     assert not z.passed
 
 
-@pytest.mark.parametrize("name, feature", [("anisotropic", "anisotropic roughness"),
-                                           ("anisotropic_textured", "anisotropic roughness"),
-                                           ("spot_texture", "spot texture")])
-def test_other_algorithms_refuse_them_by_name(name, feature):
+@pytest.mark.parametrize("name, feature, others", [
+    ("anisotropic", "anisotropic roughness", ("raycast", "whitted", "distributed", "zbuffer", "radiosity")),
+    ("anisotropic_textured", "anisotropic roughness", ("raycast", "whitted", "distributed", "zbuffer",
+                                                       "radiosity")),
+    ("spot_texture", "spot texture", ("distributed", "zbuffer", "radiosity"))])
+def test_other_algorithms_refuse_them_by_name(name, feature, others):
     scene = load_scene(SCENES[name])
-    for algo_name in ("raycast", "whitted", "distributed", "zbuffer", "radiosity"):
+    for algo_name in others:
         algo = registry.get(algo_name)
         with pytest.raises(UnsupportedError, match=f"uses '{feature}', which {algo_name} does not model"):
             algo.render(scene, algo.parse_params({}))
