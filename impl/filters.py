@@ -142,7 +142,8 @@ def _gather(samples, counts, W, H, x, y, kind, stddev):
 
 @njit(parallel=True, cache=True)
 def _reconstruct_kernel(samples, counts, W, H, kind, stddev, mean, var):
-    for pixel in prange(W * H):
+    for c in prange(W * H):
+        pixel = np.int64(c)    # one index type in both typings of the loop (impl.kernel)
         x, y = pixel % W, pixel // W
         m0, m1, m2, v0, v1, v2 = _gather(samples, counts, W, H, x, y, kind, stddev)
         mean[y, x, 0] = m0

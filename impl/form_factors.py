@@ -262,7 +262,8 @@ def _contour_row(M: PatchMesh, i, pts, wts, vis_k, eps, row):
 
 @njit(parallel=True, cache=True)
 def _contour_kernel(M: PatchMesh, pts, wts, vis_k, eps, F, rays):
-    for i in prange(F.shape[0]):
+    for c in prange(F.shape[0]):
+        i = np.int64(c)    # one index type in both typings of the loop (impl.kernel)
         rays[i] = _contour_row(M, i, pts[i], wts[i], vis_k, eps, F[i])
 
 
@@ -342,7 +343,8 @@ def _hemicube_row(M: PatchMesh, i, pts, wts, dirs, dF, eps, row):
 
 @njit(parallel=True, cache=True)
 def _hemicube_kernel(M: PatchMesh, pts, wts, dirs, dF, eps, F, rays):
-    for i in prange(F.shape[0]):
+    for c in prange(F.shape[0]):
+        i = np.int64(c)    # one index type in both typings of the loop (impl.kernel)
         rays[i] = _hemicube_row(M, i, pts[i], wts[i], dirs, dF, eps, F[i])
 
 
@@ -499,7 +501,8 @@ def _point_row(M: PatchMesh, i, pts, wts, vis_k, eps, row):
 
 @njit(parallel=True, cache=True)
 def _point_kernel(M: PatchMesh, pts, wts, vis_k, eps, F, rays):
-    for i in prange(F.shape[0]):
+    for c in prange(F.shape[0]):
+        i = np.int64(c)    # one index type in both typings of the loop (impl.kernel)
         rays[i] = _point_row(M, i, pts[i], wts[i], vis_k, eps, F[i])
 
 
@@ -536,7 +539,8 @@ def _mc_row(M: PatchMesh, i, n_samples, seed, eps, row):
 
 @njit(parallel=True, cache=True)
 def _mc_kernel(M: PatchMesh, n_samples, seed, eps, F, rays):
-    for i in prange(F.shape[0]):
+    for c in prange(F.shape[0]):
+        i = np.int64(c)    # one index type in both typings of the loop (impl.kernel)
         rays[i] = _mc_row(M, i, n_samples, seed, eps, F[i])
 
 

@@ -36,6 +36,14 @@ with its own error model (inlined, it would take the caller's, where ``1 / 0.0``
 of an axis-parallel ray raises instead of giving ∞), rather than once per call
 site.  These and the stand-alone queries (``wide_closest``, ``wide_any``) are
 batch kernels, whichever caller compiles them first.
+
+numba types a ``prange`` loop twice: as a plain loop, where its index is int64, and
+again in the parallel body it outlines, where the index is uint64.  A separate njit
+function that takes the index (or a value computed from it) is therefore compiled
+for both signatures, its whole call tree twice; the parallel loops that pass their
+index on take ``np.int64(index)`` first, so both typings pass one type.  A literal
+argument (``False``, ``0``, ``-1``) is such a second type too, beside the variables
+other call sites pass: those calls pass a typed value.
 """
 
 from __future__ import annotations

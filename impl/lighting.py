@@ -211,10 +211,12 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
     sample keeps its light × :func:`shadow_filter` of its segment."""
     if seta is None:
         # Opaque shadows; any two arrays of the right types stand in for the unused filter.
+        # ``through`` false as a bool, not the literal False: a literal argument would
+        # compile _direct_light_rays a second time, for that literal.
         return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
                                   rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
-                                  light_samples, seed, pixel, sample, R, False, A.sph_radius,
-                                  A.mat_rho, DIM_INDEPENDENT, 0, 0)
+                                  light_samples, seed, pixel, sample, R, A.sph_radius.shape[0] < 0,
+                                  A.sph_radius, A.mat_rho, DIM_INDEPENDENT, 0, 0)
     return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
                               rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
                               light_samples, seed, pixel, sample, R, seta.shape[0] > 0, seta,
@@ -233,7 +235,8 @@ def direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
     dmode, dspp, ddim = dims
     return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                               A, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-                              pixel, sample, R, False, A.sph_radius, A.mat_rho, dmode, dspp, ddim)
+                              pixel, sample, R, A.sph_radius.shape[0] < 0, A.sph_radius, A.mat_rho,
+                              dmode, dspp, ddim)
 
 
 @njit(inline="always", cache=True)
@@ -779,7 +782,7 @@ def _light_unoccluded(R: RayConfig, T, m, nshadow, A: SceneArrays, seta, strans)
     (and, with transmissive shadows, of the blocked ones × :func:`shadow_filter`)."""
     if m == 0:
         return
-    occluded_batch(R, T.sh, m, T.blocked, T.q)
+    occluded_batch(R, T.sh, np.int64(m), T.blocked, T.q)     # not a literal 0: one compile
     for k in range(m):
         i = T.sh_i[k]
         nshadow[i] += 1

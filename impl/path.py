@@ -269,8 +269,9 @@ def _blend_eval_pdf(A: SceneArrays, B: MaterialArrays, mat, w, skip, prim, b1, b
                     wix, wiy, wiz, wox, woy, woz):
     """A blendbsdf's f·|cos θ_o| (RGB) and pdf at (wi, wo): (1 − w) × those of its first
     component + w × those of its second (Mitsuba's ``blendbsdf.eval_pdf``), leaving out
-    component ``skip`` (0 or 1; −1 none).  A plain call, not inlined: it holds a second
-    copy of the BSDF dispatch, run only at blendbsdf vertices."""
+    component ``skip`` (0 or 1; −1 none, passed as ``np.int64(-1)``: a literal would
+    compile it a second time).  A plain call, not inlined: it holds a second copy of
+    the BSDF dispatch, run only at blendbsdf vertices."""
     fr = fg = fb = pdf = 0.0
     for k in range(2):
         if k == skip:
@@ -474,8 +475,8 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
                     wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, nx, ny, nz, lx, ly, lz)
                     bpdf = 0.0
                     if blend:
-                        fr, fg, fb, bpdf = _blend_eval_pdf(A, B, mat, bw, -1, prim, b1, b2, eta_scale,
-                                                           wix, wiy, wiz, wox, woy, woz)
+                        fr, fg, fb, bpdf = _blend_eval_pdf(A, B, mat, bw, np.int64(-1), prim, b1, b2,
+                                                           eta_scale, wix, wiy, wiz, wox, woy, woz)
                     else:
                         fr, fg, fb = bsdf_eval_at(B, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale,
                                                   wix, wiy, wiz, wox, woy, woz)

@@ -184,7 +184,8 @@ def _escape_fraction(M: PatchMesh, i, rays, seed, eps):
 
 @njit(parallel=True, cache=True)
 def _escape_kernel(M: PatchMesh, rays, seed, eps, out):
-    for i in prange(out.shape[0]):
+    for c in prange(out.shape[0]):
+        i = np.int64(c)    # one index type in both typings of the loop (impl.kernel)
         out[i] = _escape_fraction(M, i, rays, seed, eps)
 
 
@@ -293,7 +294,8 @@ def _pixel(cam, M: PatchMesh, B, V, gouraud, env, x, y, spp, seed):
 @njit(parallel=True, cache=True)
 def _display_kernel(cam, M: PatchMesh, B, V, gouraud, env, spp, seed, mean, var):
     W, H = int(cam[14]), int(cam[15])
-    for pixel in prange(W * H):
+    for c in prange(W * H):
+        pixel = np.int64(c)    # one index type in both typings of the loop (impl.kernel)
         x = pixel % W
         y = pixel // W
         out = _pixel(cam, M, B, V, gouraud, env, x, y, spp, seed)

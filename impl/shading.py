@@ -118,7 +118,8 @@ def _face_normal(pos, tri, t, flip):
 
 @njit(parallel=True, cache=True)
 def _face_kernel(pos, tri, tri_shape, tri_prim, tri_flip, used, eye, A: SceneArrays, pp, out):
-    for t in prange(tri.shape[0]):
+    for c in prange(tri.shape[0]):
+        t = np.int64(c)                # one index type in both typings of the loop (impl.kernel)
         if not used[t]:
             continue
         _face_one(pos, tri, tri_shape, tri_prim, tri_flip, t, eye, A, pp, out)
@@ -140,7 +141,8 @@ def _face_one(pos, tri, tri_shape, tri_prim, tri_flip, t, eye, A, pp, out):
 
 @njit(parallel=True, cache=True)
 def _vertex_kernel(pos, nrm, vshape, used, eye, A: SceneArrays, pp, out):
-    for v in prange(pos.shape[0]):
+    for c in prange(pos.shape[0]):
+        v = np.int64(c)                # one index type in both typings of the loop (impl.kernel)
         if not used[v]:
             continue
         _vertex_one(pos, nrm, vshape, v, eye, A, pp, out)
@@ -215,7 +217,8 @@ def _pixel(mode, t, b1, b2, scr_src, scr_bary, pos, nrm, tri, tri_shape, tri_pri
 def _resolve_kernel(mode, vis_id, vis_b, scr_src, scr_bary, pos, nrm, tri, tri_shape, tri_prim, tri_flip,
                     fcol, vterm, eye, A: SceneArrays, pp, image):
     H, W = vis_id.shape
-    for pixel in prange(H * W):
+    for c in prange(H * W):
+        pixel = np.int64(c)            # one index type in both typings of the loop (impl.kernel)
         y, x = pixel // W, pixel % W
         t = vis_id[y, x]
         if t < 0:

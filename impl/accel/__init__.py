@@ -242,7 +242,8 @@ def _brute_counts(R):
 
 @njit(parallel=True, cache=True)
 def _trace_kernel(R, o, d, tmin, tmax, t, prim, b, counts):
-    for i in prange(o.shape[0]):
+    for c in prange(o.shape[0]):
+        i = np.int64(c)    # one index type in both typings of the loop (impl.kernel)
         _trace_one(R, o, d, tmin, tmax, t, prim, b, counts, i)
 
 
@@ -269,7 +270,8 @@ def _brute(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
 
 @njit(parallel=True, cache=True)
 def _occluded_kernel(R, o, d, tmin, tmax, out, counts):
-    for i in prange(o.shape[0]):
+    for c in prange(o.shape[0]):
+        i = np.int64(c)    # one index type in both typings of the loop (impl.kernel)
         _occluded_one(R, o, d, tmin, tmax, out, counts, i)
 
 
