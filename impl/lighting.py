@@ -77,8 +77,8 @@ from .textures import bitmap, checkerboard
 from .tracer import occluded_batch
 
 __all__ = ["SHADOW_EPSILON", "surface", "diffuse_albedo", "sample_emitter", "direct_light",
-           "direct_light_rays", "direct_light_dims", "spot_falloff", "delta_filter", "delta_sample", "area_sample",
-           "environment_sample",
+           "direct_light_rays", "direct_light_dims", "spot_falloff", "delta_filter", "delta_sample",
+           "area_sample", "environment_sample",
            "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
            "environment_radiance", "sample_cosine_hemisphere", "shadow_filter", "SHADOW_MODES"]
 
@@ -458,8 +458,8 @@ def delta_sample(kind, lpx, lpy, lpz, ldx, ldy, ldz, local, li, cos_cutoff, cos_
     by f_att(d); a directional light shines along ``ld``.  A spot (light ``li``) is
     weighted by :func:`spot_falloff` (``local`` and the cone parameters as there).  A
     projector is a point light here, and a spot's texture is left out: the callers
-    multiply by their image's RGB factor (:func:`delta_filter`).  ``lit`` is false where the light adds nothing (outside the cone, or the bracket
-    is 0)."""
+    multiply by their image's RGB factor (:func:`delta_filter`).  ``lit`` is false
+    where the light adds nothing (outside the cone, or the bracket is 0)."""
     z = 0.0
     if kind == LIGHT_DIRECTIONAL:
         lx, ly, lz = -ldx, -ldy, -ldz

@@ -103,7 +103,7 @@ class SceneArrays(NamedTuple):
                                 # whether the map wraps a twosided (0/1)
     mat_shade_uv: np.ndarray    # (M, 2, 3) its 2D affine to_uv map
     light_proj: np.ndarray      # (L, 3) projector: cot(fov_x / 2), image aspect, |to_world · e_z|
-    light_tex: np.ndarray       # (L, 5) projector irradiance / spot texture bitmap, as mat_shade_tex (width 0: none)
+    light_tex: np.ndarray       # (L, 5) projector irradiance / spot texture bitmap (width 0: none)
     light_tex_uv: np.ndarray    # (L, 2, 3) its to_uv map
 
     @property
