@@ -40,8 +40,12 @@ batch kernels, whichever caller compiles them first.
 numba types a ``prange`` loop twice: as a plain loop, where its index is int64, and
 again in the parallel body it outlines, where the index is uint64.  A separate njit
 function that takes the index (or a value computed from it) is therefore compiled
-for both signatures, its whole call tree twice; the parallel loops that pass their
-index on take ``np.int64(index)`` first, so both typings pass one type.  A literal
+for both signatures, its whole call tree twice.  The loops where this was seen (the
+z-buffer's shading, form factors, radiosity, the acceleration structures' query
+kernels, the film filter) take ``np.int64(index)`` first, so both typings pass one
+type; the tracers' tile loops, which pass ``interleaved(c, n, stride)``, compile
+their tile function once.  Other parallel loops (distributed's per-pixel loop,
+raycast's depth pass) are not checked.  A literal
 argument (``False``, ``0``, ``-1``) is such a second type too, beside the variables
 other call sites pass: those calls pass a typed value.
 """
