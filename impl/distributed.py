@@ -221,7 +221,7 @@ from .samplers import (DIM_INDEPENDENT, DIM_SOBOL, DIM_STRATIFIED, adaptive_chil
                        dim_1d, dim_2d, gaussian_jitter_pattern, jitter_pattern, poisson_disk_pattern,
                        random_pattern, sobol_pattern, statistical_done, uniform_pattern)
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
-from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit, _push
+from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit
 
 __all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS", "Motion", "motion_arrays"]
 
@@ -300,6 +300,29 @@ def motion_arrays(scene: Scene, A: SceneArrays) -> Motion:
                   tri_nrest=np.ascontiguousarray(A.tri_n[tri_index], dtype=np.float64).reshape(-1, 3, 3),
                   tri_motion=np.ascontiguousarray(np.concatenate(mot) if mot else np.zeros((0, 9))),
                   cam=cm)
+
+
+@njit(inline="always", cache=True)
+def _push(stack_f, stack_i, sp, R: RayConfig, px, py, pz, gx, gy, gz, dx, dy, dz, wr, wg, wb,
+          depth, kind, medium):
+    """Put a child ray on the tree's stack, leaving the surface to the side it goes to (R's
+    offset)."""
+    side = 1.0 if gx * dx + gy * dy + gz * dz >= 0.0 else -1.0
+    ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+    stack_f[sp, 0] = ox
+    stack_f[sp, 1] = oy
+    stack_f[sp, 2] = oz
+    stack_f[sp, 10] = t0
+    stack_f[sp, 3] = dx
+    stack_f[sp, 4] = dy
+    stack_f[sp, 5] = dz
+    stack_f[sp, 6] = wr
+    stack_f[sp, 7] = wg
+    stack_f[sp, 8] = wb
+    stack_f[sp, 9] = medium
+    stack_i[sp, 0] = depth
+    stack_i[sp, 1] = kind
+    return sp + 1
 
 
 @njit(inline="always", cache=True)

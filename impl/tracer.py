@@ -18,8 +18,12 @@ the same steps:
 
 :func:`store` writes a tile's mean, variance of the mean and counters into
 the :class:`Film`.  :func:`new_points` makes a batch not tied to a tile: the
-shading points a tracer collects along its rays (``whitted``'s diffuse
-leaves) to light them together.  A tracer module is thus its transport step plus a
+shading points a tracer collects along its rays to light them together, or a
+chunk of secondary rays.  :class:`Pending` holds a tile's secondary rays by depth
+(a *wavefront*: ``whitted``'s reflection and transmission rays), so that they
+too are traced a batch at a time: :func:`push_pending` queues a child ray one
+level deeper, :func:`take_pending` moves up to a batch's worth of one level into
+a batch for :func:`closest_batch`.  A tracer module is thus its transport step plus a
 ten-line tile function and ``prange`` loop (numba cannot cache a kernel that
 takes or closes over another kernel, so the loop itself cannot live here).
 
@@ -34,8 +38,8 @@ few operations costs about as much per ray on scenes of tens of triangles.
 They compute exactly what :func:`impl.intersect.closest_hit_form` / ``any_hit_form`` compute for each
 ray (same arithmetic, same tie rule: the first primitive of smallest ``t``),
 so the image does not depend on the path taken.  Before the loops, a batch's rays are
-bounded (:func:`_cull`: the cone of rays from one origin, or the box of the segments)
-and only the primitives inside the bound are tested; ``accel=auto`` answers batch
+bounded (:func:`_cull`: the frustum of rays from one origin or to one point, else the
+box of the segments) and only the primitives inside the bound are tested; ``accel=auto`` answers batch
 queries this way on small scenes even where its per-ray queries use the wide BVH
 (:data:`impl.rays.AUTO_BATCH_PRIMS_PER_LANE`).  The loops are functions of their own
 taking every array as a separate argument: inlined with rows of one 2-D array as
@@ -75,7 +79,7 @@ from .scene_arrays import scene_memo
 DIM_LENS = 1 << 29
 
 __all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "film_result", "new_batch",
-           "new_points",
+           "new_points", "Pending", "new_pending", "push_pending", "take_pending",
            "ray_config_cached", "run_tiles", "eye_batch", "closest_batch", "occluded_batch", "accumulate",
            "store", "OX", "OY", "OZ", "DX", "DY", "DZ", "TMIN", "TMAX"]
 
@@ -228,6 +232,64 @@ def new_points(n, R: RayConfig, counters=0):
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, 0)), np.empty((2, 0)))
 
 
+class Pending(NamedTuple):
+    """Rays waiting to be traced, one block per depth (the wavefront of a tile's ray
+    trees): block ``d`` holds ``count[d]`` rays of depth d in its first columns.
+
+    A tracer drains the deepest non-empty block first, a batch of at most B rays at a
+    time, and queues the children of that batch one block deeper; so a block receives
+    the children of one batch only, at most (children per ray) × B rays, which is each
+    block's capacity (:func:`new_pending`).  Memory: depths × capacity × 14 numbers."""
+
+    ray: np.ndarray             # (D, 8, cap) rows OX..TMAX, rounded to the intersection precision
+    w: np.ndarray               # (D, 4, cap) RGB weight of the branch and one number of the tracer's
+    col: np.ndarray             # (D, cap) int64 column of the eye ray the branch belongs to
+    kind: np.ndarray            # (D, cap) int64 the tracer's ray kind
+    count: np.ndarray           # (D,) int64 rays queued per depth
+
+
+@njit(cache=True)
+def new_pending(depths, cap):
+    """An empty :class:`Pending` of ``depths`` blocks of ``cap`` rays."""
+    return Pending(np.empty((depths, 8, cap)), np.empty((depths, 4, cap)),
+                   np.empty((depths, cap), np.int64), np.empty((depths, cap), np.int64),
+                   np.zeros(depths, np.int64))
+
+
+@njit(inline="always", cache=True)
+def push_pending(Q: Pending, d, ox, oy, oz, dx, dy, dz, tmin, tmax, wr, wg, wb, extra, col, kind):
+    """Queue a ray of depth ``d`` (already rounded to the intersection precision)."""
+    k = Q.count[d]
+    r, w = Q.ray[d], Q.w[d]
+    r[OX, k], r[OY, k], r[OZ, k] = ox, oy, oz
+    r[DX, k], r[DY, k], r[DZ, k] = dx, dy, dz
+    r[TMIN, k], r[TMAX, k] = tmin, tmax
+    w[0, k], w[1, k], w[2, k], w[3, k] = wr, wg, wb, extra
+    Q.col[d, k] = col
+    Q.kind[d, k] = kind
+    Q.count[d] = k + 1
+
+
+@njit(inline="always", cache=True)
+def take_pending(Q: Pending, d, ray, w, col, kind, cap):
+    """Move the last min(``count[d]``, ``cap``) queued rays of depth ``d`` into columns
+    0, 1, … of ``ray`` (8, ≥cap), ``w`` (4, ≥cap), ``col`` and ``kind``; their number."""
+    m = min(Q.count[d], cap)
+    k0 = Q.count[d] - m
+    r, qw = Q.ray[d], Q.w[d]
+    for c in range(8):
+        for i in range(m):
+            ray[c, i] = r[c, k0 + i]
+    for c in range(4):
+        for i in range(m):
+            w[c, i] = qw[c, k0 + i]
+    for i in range(m):
+        col[i] = Q.col[d, k0 + i]
+        kind[i] = Q.kind[d, k0 + i]
+    Q.count[d] = k0
+    return m
+
+
 @batch_kernel
 def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     """Sample ``s`` of the tile's pixels: the eye rays (pixel centre for spp = 1, else
@@ -373,7 +435,7 @@ def _candidates(R: RayConfig):
     return np.empty(R.sph_radius.shape[0], np.int64), np.empty(R.tri_v.shape[0], np.int64)
 
 
-#: Relative padding of the culling bounds (the cone's angles, the box): far above the
+#: Relative padding of the culling bounds (the frustum's planes, the box): far above the
 #: rounding of the bounds' arithmetic and of the float32 hit tests, so that no
 #: primitive a ray's test could report is culled.
 _CULL_PAD = 1e-5
@@ -389,52 +451,175 @@ def _cull(R: RayConfig, q, n, sph, tri):
     rays ``q`` (8, ≥n): a conservative culling, so the brute-force loops that follow
     return exactly what they return over every primitive.
 
-    Rays from one origin (a pinhole camera's eye rays): a cone from that origin about
-    the mean direction containing every ray (the tile's frustum; Wald et al. 2001's
-    packets, Reshetov et al. 2005's frustum culling), against each primitive's bounding
-    sphere: kept when the angle between the cone's axis and the sphere's centre is at
-    most the cone's half-angle plus the sphere's angular radius.  Otherwise: the
-    bounding box of the segments against each primitive's box (a shaft's box, Haines
-    and Wallace 1994), e.g. a light sample's shadow rays from one tile's points.
-    Without a bound (a cone of half-angle 90° or more, segments of unbounded length:
-    a directional light's), every primitive is kept."""
-    C, g, V = R.sph_center, R.sph_radius, R.tri_v
-    if n == 0 or g.shape[0] + V.shape[0] < _CULL_MIN_PRIMS:
+    Rays from one origin (a pinhole camera's eye rays) and segments that end at one
+    point (a light sample's shadow rays to a point or spot light) lie in a frustum from
+    that apex: four planes through it bounding the rays' directions about their mean
+    (:func:`_frustum`; the tile's frustum of Wald et al. 2001's packets and Reshetov et
+    al. 2005's frustum culling).  A primitive wholly outside one plane is culled: a
+    triangle with its three vertices outside, a sphere with its centre more than its
+    radius outside.  Otherwise: the bounding box of the segments against each
+    primitive's box (a shaft's box, Haines and Wallace 1994), e.g. an area light's
+    shadow rays from one tile's points.  Without a bound (directions spread over a
+    hemisphere or more, segments of unbounded length: a directional light's), every
+    primitive is kept."""
+    if n == 0 or R.sph_radius.shape[0] + R.tri_v.shape[0] < _CULL_MIN_PRIMS:
         return _keep_all(sph, tri)
-    ox0, oy0, oz0 = float(q[OX, 0]), float(q[OY, 0]), float(q[OZ, 0])
+    px, py, pz = float(q[OX, 0]), float(q[OY, 0]), float(q[OZ, 0])
     shared = True
     for i in range(n):
         shared &= (q[OX, i] == q[OX, 0]) & (q[OY, i] == q[OY, 0]) & (q[OZ, i] == q[OZ, 0])
-    if shared:
-        ax = ay = az = 0.0
-        for i in range(n):
-            ax += q[DX, i]
-            ay += q[DY, i]
-            az += q[DZ, i]
-        norm = math.sqrt(ax * ax + ay * ay + az * az)
-        cos_t = 1.0
-        if norm > 0.0:
-            ax, ay, az = ax / norm, ay / norm, az / norm
-            for i in range(n):
-                dx, dy, dz = float(q[DX, i]), float(q[DY, i]), float(q[DZ, i])
-                c = (ax * dx + ay * dy + az * dz) / math.sqrt(dx * dx + dy * dy + dz * dz)
-                cos_t = min(cos_t, c)
-        if norm > 0.0 and cos_t > 0.0:
-            sin_t = math.sqrt(max(0.0, 1.0 - cos_t * cos_t))
-            # Pad the half-angle: cos(θ + δ) ≈ cos θ − δ sin θ − δ²/2.
-            cos_t, sin_t = cos_t - _CULL_PAD * sin_t - _CULL_PAD, min(1.0, sin_t + _CULL_PAD)
-            m = 0
-            for s in range(g.shape[0]):
-                if _in_cone(ox0, oy0, oz0, ax, ay, az, cos_t, sin_t, C[s, 0], C[s, 1], C[s, 2], g[s]):
-                    sph[m] = s
-                    m += 1
-            k = 0
-            for j in range(V.shape[0]):
-                cx, cy, cz, r = _tri_sphere(V, j)
-                if _in_cone(ox0, oy0, oz0, ax, ay, az, cos_t, sin_t, cx, cy, cz, r):
-                    tri[k] = j
-                    k += 1
+    if shared:                           # apex: the origin; directions: the rays'
+        ok, m, k = _frustum(R, q, n, sph, tri, px, py, pz, 0.0, False)
+        if ok:
             return m, k
+    else:
+        # Segments ending within a small distance δ of one point A: each lies within δ
+        # of the ray from A towards its origin, so the frustum from A padded by δ holds it.
+        ex, ey, ez = _end(q, 0)
+        slack2 = span2 = 0.0             # squared: no root per ray
+        finite = True
+        for i in range(n):
+            x, y, z = _end(q, i)
+            finite &= math.isfinite(x + y + z)
+            x, y, z = x - ex, y - ey, z - ez
+            slack2 = max(slack2, x * x + y * y + z * z)
+            x, y, z = float(q[OX, i]) - ex, float(q[OY, i]) - ey, float(q[OZ, i]) - ez
+            span2 = max(span2, x * x + y * y + z * z)
+        if finite and slack2 <= _CONVERGE * _CONVERGE * span2:
+            ok, m, k = _frustum(R, q, n, sph, tri, ex, ey, ez, math.sqrt(slack2), True)
+            if ok:
+                return m, k
+    return _shaft_box(R, q, n, sph, tri)
+
+
+#: Segments count as ending at one point when their ends lie within this fraction of the
+#: batch's extent of each other (shadow rays to a point light end a relative 1e-9 short
+#: of it; the frustum is padded by the actual spread, so this only chooses the bound).
+_CONVERGE = 1e-3
+#: The frustum is built only when every direction is within this cosine of the mean
+#: direction (about 84°): wider bundles are bounded by their box.
+_FRUSTUM_MIN_COS = 0.1
+
+
+@njit(inline="always", cache=True)
+def _end(q, i):
+    """The end o + tmax·d of ray i of ``q``, in float64."""
+    t = float(q[TMAX, i])
+    return (float(q[OX, i]) + t * float(q[DX, i]), float(q[OY, i]) + t * float(q[DY, i]),
+            float(q[OZ, i]) + t * float(q[DZ, i]))
+
+
+@njit(inline="always", cache=True)
+def _frustum(R: RayConfig, q, n, sph, tri, px, py, pz, slack, towards_origins):
+    """Cull by the frustum from apex p holding the rays' directions: the rays' own
+    (``towards_origins`` false) or those from p to the rays' origins, each segment
+    within ``slack`` of its ray from p.  The directions w, about their mean a with a
+    frame (e1, e2, a), span [u0, u1] × [v0, v1] in u = w·e1 / w·a, v = w·e2 / w·a; the
+    four planes u = u0, u = u1, v = v0, v = v1 through p bound a convex cone (in front
+    of p) that holds every ray.  Returns (built, spheres kept, triangles kept); not
+    built when some direction is more than acos(_FRUSTUM_MIN_COS) from the mean."""
+    ax = ay = az = 0.0
+    for i in range(n):
+        wx, wy, wz = _direction(q, i, px, py, pz, towards_origins)
+        ax += wx
+        ay += wy
+        az += wz
+    norm = math.sqrt(ax * ax + ay * ay + az * az)
+    if not norm > 0.0:
+        return False, 0, 0
+    ax, ay, az = ax / norm, ay / norm, az / norm
+    # A frame about a (Duff et al. 2017).
+    sign = 1.0 if az >= 0.0 else -1.0
+    c = -1.0 / (sign + az)
+    d = ax * ay * c
+    e1x, e1y, e1z = 1.0 + sign * ax * ax * c, sign * d, -sign * ax
+    e2x, e2y, e2z = d, sign + ay * ay * c, -ay
+    u0 = v0 = math.inf
+    u1 = v1 = -math.inf
+    narrow = True
+    c2 = _FRUSTUM_MIN_COS * _FRUSTUM_MIN_COS
+    for i in range(n):                   # no early exit: the loop stays branch-free
+        wx, wy, wz = _direction(q, i, px, py, pz, towards_origins)
+        wa = wx * ax + wy * ay + wz * az
+        narrow &= (wa > 0.0) & (wa * wa >= c2 * (wx * wx + wy * wy + wz * wz))
+        inv = 1.0 / wa
+        u = (wx * e1x + wy * e1y + wz * e1z) * inv
+        v = (wx * e2x + wy * e2y + wz * e2z) * inv
+        u0, u1 = min(u0, u), max(u1, u)
+        v0, v1 = min(v0, v), max(v1, v)
+    if not narrow:
+        return False, 0, 0
+    # Inward unit normals of the planes: e1 − u0 a, u1 a − e1, e2 − v0 a, v1 a − e2.
+    n0 = _unit(e1x - u0 * ax, e1y - u0 * ay, e1z - u0 * az)
+    n1 = _unit(u1 * ax - e1x, u1 * ay - e1y, u1 * az - e1z)
+    n2 = _unit(e2x - v0 * ax, e2y - v0 * ay, e2z - v0 * az)
+    n3 = _unit(v1 * ax - e2x, v1 * ay - e2y, v1 * az - e2z)
+    C, g, V = R.sph_center, R.sph_radius, R.tri_v
+    m = 0
+    for s in range(g.shape[0]):
+        x, y, z = float(C[s, 0]) - px, float(C[s, 1]) - py, float(C[s, 2]) - pz
+        r = float(g[s]) * (1.0 + _CULL_PAD)
+        pad = slack + r + _CULL_PAD * (1.0 + abs(x) + abs(y) + abs(z))
+        if not (_below(n0, x, y, z, pad) | _below(n1, x, y, z, pad) | _below(n2, x, y, z, pad)
+                | _below(n3, x, y, z, pad)):
+            sph[m] = s
+            m += 1
+    k = 0
+    for j in range(V.shape[0]):
+        x0, y0, z0 = float(V[j, 0, 0]) - px, float(V[j, 0, 1]) - py, float(V[j, 0, 2]) - pz
+        x1, y1, z1 = float(V[j, 1, 0]) - px, float(V[j, 1, 1]) - py, float(V[j, 1, 2]) - pz
+        x2, y2, z2 = float(V[j, 2, 0]) - px, float(V[j, 2, 1]) - py, float(V[j, 2, 2]) - pz
+        # Padding relative to the distance from p, bounded above by |x| + |y| + |z|.
+        p0 = slack + _CULL_PAD * (1.0 + abs(x0) + abs(y0) + abs(z0))
+        p1 = slack + _CULL_PAD * (1.0 + abs(x1) + abs(y1) + abs(z1))
+        p2 = slack + _CULL_PAD * (1.0 + abs(x2) + abs(y2) + abs(z2))
+        out = (_outside(n0, x0, y0, z0, p0, x1, y1, z1, p1, x2, y2, z2, p2)
+               | _outside(n1, x0, y0, z0, p0, x1, y1, z1, p1, x2, y2, z2, p2)
+               | _outside(n2, x0, y0, z0, p0, x1, y1, z1, p1, x2, y2, z2, p2)
+               | _outside(n3, x0, y0, z0, p0, x1, y1, z1, p1, x2, y2, z2, p2))
+        if not out:
+            tri[k] = j
+            k += 1
+    return True, m, k
+
+
+@njit(inline="always", cache=True)
+def _direction(q, i, px, py, pz, towards_origin):
+    """Ray i's direction, or with ``towards_origin`` the direction from p to its origin."""
+    if towards_origin:
+        return float(q[OX, i]) - px, float(q[OY, i]) - py, float(q[OZ, i]) - pz
+    return float(q[DX, i]), float(q[DY, i]), float(q[DZ, i])
+
+
+@njit(inline="always", cache=True)
+def _unit(x, y, z):
+    """(x, y, z) / |(x, y, z)|."""
+    r = math.sqrt(x * x + y * y + z * z)
+    return x / r, y / r, z / r
+
+
+@njit(inline="always", cache=True)
+def _below(nrm, x, y, z, pad):
+    """Whether the point (x, y, z) lies more than ``pad`` outside the plane through the
+    origin with inward unit normal ``nrm``."""
+    return nrm[0] * x + nrm[1] * y + nrm[2] * z < -pad
+
+
+@njit(inline="always", cache=True)
+def _outside(nrm, x0, y0, z0, p0, x1, y1, z1, p1, x2, y2, z2, p2):
+    """Whether all three points lie more than their pads outside the plane of
+    :func:`_below` (no branch)."""
+    a = nrm[0] * x0 + nrm[1] * y0 + nrm[2] * z0 + p0
+    b = nrm[0] * x1 + nrm[1] * y1 + nrm[2] * z1 + p1
+    c = nrm[0] * x2 + nrm[1] * y2 + nrm[2] * z2 + p2
+    return max(a, b, c) < 0.0
+
+
+@njit(inline="always", cache=True)
+def _shaft_box(R: RayConfig, q, n, sph, tri):
+    """Cull by the bounding box of the segments (every primitive kept when one is
+    unbounded)."""
+    C, g, V = R.sph_center, R.sph_radius, R.tri_v
     lo_x = lo_y = lo_z = math.inf
     hi_x = hi_y = hi_z = -math.inf
     bounded = True
@@ -480,35 +665,6 @@ def _keep_all(sph, tri):
     for j in range(tri.shape[0]):
         tri[j] = j
     return sph.shape[0], tri.shape[0]
-
-
-@njit(inline="always", cache=True)
-def _tri_sphere(V, j):
-    """A bounding sphere of triangle j of V: its box's centre, the farthest vertex's
-    distance, padded (float64)."""
-    cx = 0.5 * (min(V[j, 0, 0], V[j, 1, 0], V[j, 2, 0]) + max(V[j, 0, 0], V[j, 1, 0], V[j, 2, 0]))
-    cy = 0.5 * (min(V[j, 0, 1], V[j, 1, 1], V[j, 2, 1]) + max(V[j, 0, 1], V[j, 1, 1], V[j, 2, 1]))
-    cz = 0.5 * (min(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]) + max(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]))
-    r2 = 0.0
-    for v in range(3):
-        ex, ey, ez = V[j, v, 0] - cx, V[j, v, 1] - cy, V[j, v, 2] - cz
-        r2 = max(r2, ex * ex + ey * ey + ez * ez)
-    return cx, cy, cz, math.sqrt(r2)
-
-
-@njit(inline="always", cache=True)
-def _in_cone(ox, oy, oz, ax, ay, az, cos_t, sin_t, cx, cy, cz, r):
-    """Whether the sphere (c, r), padded, may meet the cone from o about unit axis a of
-    half-angle θ (cos θ, sin θ): angle(c − o, a) ≤ θ + asin(r / |c − o|), in cosines."""
-    r = float(r) * (1.0 + _CULL_PAD) + _CULL_PAD
-    vx, vy, vz = float(cx) - ox, float(cy) - oy, float(cz) - oz
-    d = math.sqrt(vx * vx + vy * vy + vz * vz)
-    if d <= r:
-        return True
-    sin_b = r / d
-    cos_b = math.sqrt(1.0 - sin_b * sin_b)
-    cos_tb = cos_t * cos_b - sin_t * sin_b          # cos(θ + β), θ + β < π: cos decreases there
-    return ax * vx + ay * vy + az * vz >= d * cos_tb
 
 
 @batch_kernel(error_model="numpy")

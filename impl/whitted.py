@@ -54,9 +54,9 @@ has every RGB channel below ``hall_threshold`` is cut (Hall's criterion);
 ``hall_threshold = 0`` follows every branch with a non-zero weight.  The
 default 1e-5 keeps the cut-off bias (≤ 1e-5 × the radiance of a cut ray) below
 the Z-test's noise floor against Mitsuba on the whitted scenes of ``suites/``.
-The tree is walked depth-first with an explicit stack of pending rays
-(origin, direction, RGB weight, depth, ray type, IOR of the medium it travels
-in), never by recursion.
+The tree is traced level by level (below), never by recursion; each pending
+ray carries its origin, direction, RGB weight, depth, ray type and the IOR of
+the medium it travels in.
 
 Counters: rays by type (``eye_rays``, ``shadow_rays``, ``reflection_rays``,
 ``transmission_rays``), ``hall_cuts`` and ``depth_cuts`` (branches not
@@ -161,15 +161,22 @@ packets         bool    false    trace the eye rays of 8×8 pixel tiles as
 
 Structure: the tracer core of :mod:`impl.tracer` renders tile by tile and
 traces each sample index's eye rays of a tile as one batch (with
-``packets=true`` as packets through the tree, :mod:`impl.accel.packets`);
-each pixel's ray tree (:func:`_trees`) then starts from its eye hit.
-Reflection and transmission rays are traced one at a time; the diffuse
-leaves of the trees are collected and lit together
-(:func:`impl.lighting.direct_batch`, the shadow rays of one light sample as
-one batch), with the random numbers each leaf would draw on its own (leaf k
-of sample s those of "sample" s + k·spp).  Same image and counters with and
-without packets, plus ``packet_nodes`` and ``packet_tests``; packets need a
-tree (``accel=auto`` then means ``bvh-sah``).
+``packets=true`` as packets through the tree, :mod:`impl.accel.packets`).
+The tile's ray trees are then traced level by level, as a wavefront
+(:func:`_trees`): the eye rays are shaded together (:func:`_shade`), their
+reflection and transmission rays queued one level deeper
+(:class:`impl.tracer.Pending`); the deepest pending level is drained first, a
+chunk of at most one tile's worth of rays at a time, each chunk's closest
+hits as one batch query (:func:`impl.tracer.closest_batch`) and its diffuse
+leaves lit together (:func:`impl.lighting.direct_batch`, the shadow rays of
+one light sample as one batch).  A level holds the children of one chunk (at
+most two per ray), so the queue holds at most (max_depth + 2) × 2 × 256 rays
+per thread.  Leaf k of a tree (in the order the levels meet them) draws the
+light samples of "sample" s + k·spp, so leaf 0 those of ``raycast``: without
+delta surfaces whitted renders raycast's image bit for bit.  Same image and
+counters with and without packets, plus ``packet_nodes`` and
+``packet_tests``; packets need a tree (``accel=auto`` then means
+``bvh-sah``).
 
 Example::
 
@@ -182,6 +189,7 @@ Example::
 from __future__ import annotations
 
 import time
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -194,16 +202,16 @@ from .camera import camera_params
 from .kernel import batch_kernel, interleaved, task_stride
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import (SHADOW_MODES, SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo,
-                       direct_batch, direct_light_rays, environment_radiance, local_model, surface)
+                       direct_batch, environment_radiance, local_model, surface)
 from .materials import SpecularArrays, material_arrays
 from .rays import PARAMS as RAY_PARAMS
-from .rays import RayConfig, hit, leave, ray_config, refine, round_ray
+from .rays import RayConfig, leave, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten, flatten_cached, scene_memo
-from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
+from .tracer import (accumulate, Batch, closest_batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
                      new_batch, new_film, new_points, OX, OY, OZ, ray_config_cached, run_tiles, store,
-                     TMAX, TMIN)
+                     TMAX, TMIN, Pending, new_pending, push_pending, take_pending)
 
 __all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "ALGORITHM"]
 
@@ -221,36 +229,7 @@ _C_EYE, _C_SHADOW, _C_REFL, _C_TRANS, _C_HALL, _C_DEPTH, _C_TIR, _C_IOR, _C_DIFF
 #: Two IORs closer than this count as the same medium (Mitsuba stores them as float32).
 IOR_TOLERANCE = 1e-5
 
-#: Diffuse leaves lit together (one batch of shadow rays per light sample); the batch is
-#: lit before the next tree once fewer than LEAF_MARGIN columns are free, and a tree that
-#: still fills it lights its further leaves on the spot.
-LEAF_BATCH = 512
-LEAF_MARGIN = 64
-
-
 # ------------------------------------------------------------------ kernels ---
-
-@njit(inline="always", cache=True)
-def _push(stack_f, stack_i, sp, R: RayConfig, px, py, pz, gx, gy, gz, dx, dy, dz, wr, wg, wb,
-          depth, kind, medium):
-    """Put a child ray on the stack, leaving the surface to the side it goes to (R's offset)."""
-    side = 1.0 if gx * dx + gy * dy + gz * dz >= 0.0 else -1.0
-    ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
-    stack_f[sp, 0] = ox
-    stack_f[sp, 1] = oy
-    stack_f[sp, 2] = oz
-    stack_f[sp, 10] = t0
-    stack_f[sp, 3] = dx
-    stack_f[sp, 4] = dy
-    stack_f[sp, 5] = dz
-    stack_f[sp, 6] = wr
-    stack_f[sp, 7] = wg
-    stack_f[sp, 8] = wb
-    stack_f[sp, 9] = medium
-    stack_i[sp, 0] = depth
-    stack_i[sp, 1] = kind
-    return sp + 1
-
 
 @njit(inline="always", cache=True)
 def _admit(wr, wg, wb, depth, max_depth, hall_threshold, counts, cut_w):
@@ -269,241 +248,246 @@ def _admit(wr, wg, wb, depth, max_depth, hall_threshold, counts, cut_w):
     return True
 
 
+class TreeWork(NamedTuple):
+    """The working state of a tile's ray trees (:func:`_trees`): the pending rays by depth,
+    a batch for a chunk of them, and per eye-ray column what the sample has done so far."""
+
+    Q: Pending                  # reflection and transmission rays by depth (capacity 2B each)
+    C: Batch                    # a chunk of at most B of them, traced and shaded together
+    w: np.ndarray               # (4, B) the chunk's branch weights (RGB) and media (IOR, 0 unknown)
+    col: np.ndarray             # (B,) the chunk's eye-ray columns
+    kind: np.ndarray            # (B,) the chunk's ray kinds (RAY_*)
+    lsample: np.ndarray         # (B,) the light-sample index of each diffuse leaf of a chunk
+    nshadow: np.ndarray         # (B, 1) the shadow rays each leaf cast
+    nleaf: np.ndarray           # (n,) diffuse leaves of each eye ray's tree so far
+    deepest: np.ndarray         # (n,) the depth of each tree's deepest traced ray
+    cut: np.ndarray             # (n, 2) summed weights of branches cut (Hall, depth), over samples
+
+
+@njit(cache=True)
+def _scratch(n, max_depth, R: RayConfig):
+    """The :class:`TreeWork` for a tile of ``n`` eye rays (chunks of B = n rays): depths
+    1 .. max_depth + 1, each holding the children of one chunk (two per ray at most)."""
+    return TreeWork(new_pending(max_depth + 2, 2 * n), new_points(n, R),
+                    np.empty((4, n)), np.empty(n, np.int64), np.empty(n, np.int64),
+                    np.empty(n, np.int64), np.zeros((n, 1), np.int64), np.zeros(n, np.int64),
+                    np.zeros(n, np.int64), np.zeros((n, 2)))
+
+
+@batch_kernel
+def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
+           hall_threshold, seed, sample, spp, T: Batch, K: TreeWork, C: Batch, m, depth, eye):
+    """Shade the ``m`` rays of depth ``depth`` in batch ``C`` (hits traced): add each
+    one's light to its eye ray's radiance ``T.L``, queue its reflection and transmission
+    rays one level deeper (``K.Q``) and light its diffuse leaves together
+    (:func:`impl.lighting.direct_batch`).  With ``eye`` the rays are the eye rays of the
+    tile batch itself (``C`` is ``T``: unit weight, column = ray), whose leaves are lit
+    straight into ``T.L`` as ``raycast`` lights them; otherwise ``K``'s chunk, the weight
+    and column of each ray in ``K.w`` and ``K.col``.
+
+    At a dielectric the exact Fresnel factor F splits the ray (thesis 2.4.4): a
+    reflected branch of weight F × ``specular_reflectance`` and a transmitted one of
+    weight (1 − F) η_ti² × ``specular_transmittance`` (none under total internal
+    reflection); at a conductor the mirror branch carries its Fresnel reflectance ×
+    ``specular_reflectance``; a diffuse hit is a leaf, lit by every emitter, where the
+    branch ends.  Leaf k of a sample s (in the order the levels meet them) takes the light
+    samples of "sample" s + k·spp, so leaf 0 those of ``raycast``."""
+    ns = A.sph_radius.shape[0]
+    Q = K.Q
+    amb = M.ambient * M.ka
+    for i in range(m):
+        C.active[i] = False
+        col = i if eye else K.col[i]
+        if eye:
+            wr = wg = wb = 1.0
+            medium = 0.0
+            kind = RAY_EYE
+        else:
+            wr, wg, wb, medium = K.w[0, i], K.w[1, i], K.w[2, i], K.w[3, i]
+            kind = K.kind[i]
+        counts, cut = T.cnt[col], K.cut[col]
+        counts[_C_EYE if kind == RAY_EYE else _C_REFL if kind == RAY_REFLECTION else _C_TRANS] += 1
+        K.deepest[col] = max(K.deepest[col], depth)
+        rox, roy, roz = C.ray[OX, i], C.ray[OY, i], C.ray[OZ, i]
+        rdx, rdy, rdz = C.ray[DX, i], C.ray[DY, i], C.ray[DZ, i]
+        prim = C.prim[i]
+        if prim < 0:                     # escaped: a constant environment, if any, else black
+            er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
+            T.L[0, col] += wr * er
+            T.L[1, col] += wg * eg
+            T.L[2, col] += wb * eb
+            continue
+        t, b1, b2 = C.t[i], C.b[0, i], C.b[1, i]
+        shape = A.prim_shape[prim]
+        px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
+        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
+                                         A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+        vx, vy, vz = -rdx, -rdy, -rdz
+        cos_v = sx * vx + sy * vy + sz * vz
+        if cos_v > 0.0:                  # emitted radiance L_e of an area emitter (front side)
+            T.L[0, col] += wr * A.shape_emit[shape, 0]
+            T.L[1, col] += wg * A.shape_emit[shape, 1]
+            T.L[2, col] += wb * A.shape_emit[shape, 2]
+        mat = A.shape_material[shape]
+        mkind = A.mat_kind[mat]
+        nd = depth + 1
+
+        if mkind == MAT_DIELECTRIC:
+            # Fresnel split at a smooth interface (thesis 2.4.4), Mitsuba's sign conventions.
+            eta = S.diel_eta[mat]
+            if medium > 0.0:
+                expected = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+                if abs(medium - expected) > IOR_TOLERANCE:
+                    counts[_C_IOR] += 1
+            F, cos_t, eta_it, eta_ti = fresnel_dielectric(cos_v, eta)
+            if F == 1.0 and cos_t == 0.0:
+                counts[_C_TIR] += 1
+            here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+            there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
+            if F < 1.0:                  # transmitted: (1 − F) T_s η_ti² (radiance scaling)
+                scale = (1.0 - F) * eta_ti * eta_ti
+                twr = wr * scale * S.spec_trans[mat, 0]
+                twg = wg * scale * S.spec_trans[mat, 1]
+                twb = wb * scale * S.spec_trans[mat, 2]
+                if _admit(twr, twg, twb, nd, max_depth, hall_threshold, counts, cut):
+                    tx, ty, tz = refract(rdx, rdy, rdz, sx, sy, sz, cos_v, cos_t, eta_ti)
+                    _queue(Q, nd, R, px, py, pz, gx, gy, gz, tx, ty, tz, twr, twg, twb, there, col,
+                           RAY_TRANSMISSION)
+            rwr = wr * F * S.spec_refl[mat, 0]
+            rwg = wg * F * S.spec_refl[mat, 1]
+            rwb = wb * F * S.spec_refl[mat, 2]
+            if _admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
+                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
+                _queue(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, here, col,
+                       RAY_REFLECTION)
+            continue
+
+        # Opaque one-sided BSDFs: a two-sided one is seen from the front on both sides.
+        if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+            cos_v = -cos_v
+        if cos_v <= 0.0:
+            continue
+
+        if mkind == MAT_CONDUCTOR:
+            # Mirror reflection R = I − 2(N·I)N weighted by specular_reflectance × F_conductor.
+            fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
+            fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
+            fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
+            rwr = wr * fr * S.spec_refl[mat, 0]
+            rwg = wg * fg * S.spec_refl[mat, 1]
+            rwb = wb * fb * S.spec_refl[mat, 2]
+            if _admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
+                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
+                _queue(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, medium, col,
+                       RAY_REFLECTION)
+            continue
+
+        # Diffuse: a leaf, lit by every emitter below (thesis 2.2); ambient term now.
+        rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+        T.L[0, col] += wr * (amb * rho_r)
+        T.L[1, col] += wg * (amb * rho_g)
+        T.L[2, col] += wb * (amb * rho_b)
+        pts = C.pts
+        pts[SP_P, i], pts[SP_P + 1, i], pts[SP_P + 2, i] = px, py, pz
+        pts[SP_G, i], pts[SP_G + 1, i], pts[SP_G + 2, i] = gx, gy, gz
+        pts[SP_S, i], pts[SP_S + 1, i], pts[SP_S + 2, i] = sx, sy, sz
+        pts[SP_V, i], pts[SP_V + 1, i], pts[SP_V + 2, i] = vx, vy, vz
+        pts[SP_RHO, i], pts[SP_RHO + 1, i], pts[SP_RHO + 2, i] = rho_r, rho_g, rho_b
+        C.active[i] = True
+        K.lsample[i] = sample + K.nleaf[col] * spp
+        K.nleaf[col] += 1
+        counts[_C_DIFFUSE] += 1
+    if eye:                              # unit weights: the light goes straight into T.L
+        direct_batch(A, R, M, T, K.lsample, seed, T.cnt[:, _C_SHADOW])
+        return
+    nsh = K.nshadow[:, 0]
+    for i in range(m):
+        C.L[0, i] = C.L[1, i] = C.L[2, i] = 0.0
+        nsh[i] = 0
+        C.pixel[i] = T.pixel[K.col[i]]
+    direct_batch(A, R, M, C, K.lsample, seed, nsh)
+    for i in range(m):
+        if C.active[i]:
+            col = K.col[i]
+            T.L[0, col] += K.w[0, i] * C.L[0, i]
+            T.L[1, col] += K.w[1, i] * C.L[1, i]
+            T.L[2, col] += K.w[2, i] * C.L[2, i]
+            T.cnt[col, _C_SHADOW] += nsh[i]
+            C.active[i] = False
+
+
+@njit(inline="always", cache=True)
+def _queue(Q: Pending, depth, R: RayConfig, px, py, pz, gx, gy, gz, dx, dy, dz, wr, wg, wb,
+           medium, col, kind):
+    """Queue a child ray of depth ``depth``, leaving the surface to the side it goes to (R's
+    offset), rounded to R's precision as it will be intersected and shaded."""
+    side = 1.0 if gx * dx + gy * dy + gz * dz >= 0.0 else -1.0
+    ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+    ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
+    push_pending(Q, depth, ox, oy, oz, dx, dy, dz, t0, np.inf, wr, wg, wb, medium, col, kind)
+
+
 @batch_kernel
 def _trees(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
-           hall_threshold, seed, sample, spp, T: Batch, traced, stack_f, stack_i, cut_w, P: Batch,
-           lw, lcol, lsample, nshadow, lcount):
-    """The radiance ``T.L`` of the batch's eye rays (``T.ray``), each by walking its ray
-    tree depth-first with an explicit stack (``stack_f``, ``stack_i``); per-ray counters
-    into ``T.cnt`` (:data:`COUNTERS`, then the tree-depth histogram), cut weights into
-    ``cut_w``.  With ``traced`` the eye rays' closest hits are ``T.t``, ``T.prim``,
-    ``T.b`` (:func:`impl.tracer.eye_batch`), else they are traced here like every other
-    ray.
-
-    Diffuse leaves are deferred: a leaf's shading point goes to the next free column of
-    the point batch ``P`` (rows :data:`impl.lighting.SP_P` …) with its branch weight
-    ``lw``, its eye ray's column ``lcol`` and its sample index ``lsample``, and
-    :func:`_light_leaves` adds weight × its direct light to the eye ray's radiance: before
-    the next tree once fewer than ``LEAF_MARGIN`` columns are free, and after the last.
-    A tree that fills the batch lights its further leaves on the spot, one shadow ray at
-    a time (:func:`impl.lighting.direct_light_rays`: the same light).
-    """
-    ns = A.sph_radius.shape[0]
+           hall_threshold, seed, sample, spp, T: Batch, traced, K: TreeWork):
+    """The radiance ``T.L`` of the batch's eye rays (``T.ray``), their ray trees traced
+    level by level: the eye rays (hits in ``T.t``, ``T.prim``, ``T.b`` when ``traced``,
+    from :func:`impl.tracer.eye_batch`; else traced here), then, deepest level first,
+    chunks of at most B pending reflection and transmission rays, each chunk's closest
+    hits as one batch query (:func:`impl.tracer.closest_batch`) and its shading by
+    :func:`_shade`.  Per-ray counters into ``T.cnt`` (:data:`COUNTERS`, then the
+    tree-depth histogram), cut weights into ``K.cut``."""
+    n = T.n
     nc = len(COUNTERS)
-    pts, lpixel, lactive = P.pts, P.pixel, P.active
-    for col in range(T.n):
-        if lcount[0] > LEAF_BATCH - LEAF_MARGIN:
-            _light_leaves(A, R, M, P, lw, lcol, lsample, nshadow, lcount, T, seed)
-        counts = T.cnt[col, :nc]
-        hist = T.cnt[col, nc:]
-        cut = cut_w[col]
-        ox, oy, oz = T.ray[OX, col], T.ray[OY, col], T.ray[OZ, col]
-        dx, dy, dz = T.ray[DX, col], T.ray[DY, col], T.ray[DZ, col]
-        tmin, tmax = T.ray[TMIN, col], T.ray[TMAX, col]
-        pre_t, pre_prim, pre_b1, pre_b2 = T.t[col], T.prim[col], T.b[0, col], T.b[1, col]
-        pixel = T.pixel[col]
-        r = g = b = 0.0
-        sp = 0
-        # The eye ray: unit weight, depth 1, medium unknown (0).
-        stack_f[0, 0] = ox
-        stack_f[0, 1] = oy
-        stack_f[0, 2] = oz
-        stack_f[0, 3] = dx
-        stack_f[0, 4] = dy
-        stack_f[0, 5] = dz
-        stack_f[0, 6] = 1.0
-        stack_f[0, 7] = 1.0
-        stack_f[0, 8] = 1.0
-        stack_f[0, 9] = 0.0
-        stack_f[0, 10] = tmin
-        stack_i[0, 0] = 1
-        stack_i[0, 1] = RAY_EYE
-        sp = 1
-        leaf = 0
-        deepest = 0
-        while sp > 0:
-            sp -= 1
-            rox, roy, roz = stack_f[sp, 0], stack_f[sp, 1], stack_f[sp, 2]
-            rdx, rdy, rdz = stack_f[sp, 3], stack_f[sp, 4], stack_f[sp, 5]
-            wr, wg, wb = stack_f[sp, 6], stack_f[sp, 7], stack_f[sp, 8]
-            medium = stack_f[sp, 9]
-            depth = stack_i[sp, 0]
-            kind = stack_i[sp, 1]
-            if kind == RAY_EYE:
-                counts[_C_EYE] += 1
-                t0, t1 = tmin, tmax
-            else:
-                counts[_C_REFL if kind == RAY_REFLECTION else _C_TRANS] += 1
-                t0, t1 = stack_f[sp, 10], np.inf
-            if depth > deepest:
-                deepest = depth
-
-            # Intersect (and shade) the ray as rounded to the intersection precision.
-            rox, roy, roz, rdx, rdy, rdz = round_ray(R, rox, roy, roz, rdx, rdy, rdz)
-            if kind == RAY_EYE and traced:
-                t, prim, b1, b2 = pre_t, pre_prim, pre_b1, pre_b2
-            else:
-                t, prim, b1, b2 = hit(R, rox, roy, roz, rdx, rdy, rdz, t0, t1)
-            if prim < 0:                     # escaped: a constant environment, if any, else black
-                er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
-                r += wr * er
-                g += wg * eg
-                b += wb * eb
-                continue
-            shape = A.prim_shape[prim]
-            px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
-            gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
-                                             A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
-            vx, vy, vz = -rdx, -rdy, -rdz
-            cos_v = sx * vx + sy * vy + sz * vz
-            # Emitted radiance L_e of an area emitter (front side only).
-            if cos_v > 0.0:
-                r += wr * A.shape_emit[shape, 0]
-                g += wg * A.shape_emit[shape, 1]
-                b += wb * A.shape_emit[shape, 2]
-            mat = A.shape_material[shape]
-            mkind = A.mat_kind[mat]
-
-            if mkind == MAT_DIELECTRIC:
-                # Fresnel split at a smooth interface (thesis 2.4.4), Mitsuba's sign conventions.
-                eta = S.diel_eta[mat]
-                if medium > 0.0:
-                    expected = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-                    if abs(medium - expected) > IOR_TOLERANCE:
-                        counts[_C_IOR] += 1
-                F, cos_t, eta_it, eta_ti = fresnel_dielectric(cos_v, eta)
-                if F == 1.0 and cos_t == 0.0:
-                    counts[_C_TIR] += 1
-                here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-                there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
-                # Transmitted branch: (1 − F) T_s η_ti² (radiance scaling), pushed first so the
-                # reflected branch is walked first.
-                if F < 1.0:
-                    scale = (1.0 - F) * eta_ti * eta_ti
-                    twr = wr * scale * S.spec_trans[mat, 0]
-                    twg = wg * scale * S.spec_trans[mat, 1]
-                    twb = wb * scale * S.spec_trans[mat, 2]
-                    if _admit(twr, twg, twb, depth + 1, max_depth, hall_threshold, counts, cut):
-                        tx, ty, tz = refract(rdx, rdy, rdz, sx, sy, sz, cos_v, cos_t, eta_ti)
-                        sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, tx, ty, tz,
-                                   twr, twg, twb, depth + 1, RAY_TRANSMISSION, there)
-                rwr = wr * F * S.spec_refl[mat, 0]
-                rwg = wg * F * S.spec_refl[mat, 1]
-                rwb = wb * F * S.spec_refl[mat, 2]
-                if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut):
-                    qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
-                    sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
-                               rwr, rwg, rwb, depth + 1, RAY_REFLECTION, here)
-                continue
-
-            # Opaque one-sided BSDFs: a two-sided one is seen from the front on both sides.
-            if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
-                gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-                cos_v = -cos_v
-            if cos_v <= 0.0:
-                continue
-
-            if mkind == MAT_CONDUCTOR:
-                # Mirror reflection R = I − 2(N·I)N weighted by specular_reflectance × F_conductor.
-                fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
-                fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
-                fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
-                rwr = wr * fr * S.spec_refl[mat, 0]
-                rwg = wg * fg * S.spec_refl[mat, 1]
-                rwb = wb * fb * S.spec_refl[mat, 2]
-                if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut):
-                    qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
-                    sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
-                               rwr, rwg, rwb, depth + 1, RAY_REFLECTION, medium)
-                continue
-
-            # Diffuse: direct light from every emitter, and the branch ends (thesis 2.2).
-            rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
-            amb = M.ambient * M.ka
-            # Leaf k of sample s draws the light samples of "sample" s + k·spp: leaf 0
-            # uses raycast's numbers, the others are independent of them.
-            k = lcount[0]
-            if k < lactive.shape[0]:
-                pts[SP_P, k], pts[SP_P + 1, k], pts[SP_P + 2, k] = px, py, pz
-                pts[SP_G, k], pts[SP_G + 1, k], pts[SP_G + 2, k] = gx, gy, gz
-                pts[SP_S, k], pts[SP_S + 1, k], pts[SP_S + 2, k] = sx, sy, sz
-                pts[SP_V, k], pts[SP_V + 1, k], pts[SP_V + 2, k] = vx, vy, vz
-                pts[SP_RHO, k], pts[SP_RHO + 1, k], pts[SP_RHO + 2, k] = rho_r, rho_g, rho_b
-                lw[0, k], lw[1, k], lw[2, k] = wr, wg, wb
-                lcol[k], lsample[k], lpixel[k] = col, sample + leaf * spp, pixel
-                lactive[k] = True
-                lcount[0] = k + 1
-                lr = lg = lb = 0.0
-            else:
-                lr, lg, lb, nsh = direct_light_rays(
-                    px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, A, M.ks,
-                    M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows, M.light_samples, seed, pixel,
-                    sample + leaf * spp, R, M.shadow_eta, M.shadow_trans)
-                counts[_C_SHADOW] += nsh
-            leaf += 1
-            counts[_C_DIFFUSE] += 1
-            r += wr * (amb * rho_r + lr)
-            g += wg * (amb * rho_g + lg)
-            b += wb * (amb * rho_b + lb)
-        hist[deepest] += 1
-        T.L[0, col], T.L[1, col], T.L[2, col] = r, g, b
-    _light_leaves(A, R, M, P, lw, lcol, lsample, nshadow, lcount, T, seed)
+    for i in range(n):
+        T.L[0, i] = T.L[1, i] = T.L[2, i] = 0.0
+        K.nleaf[i] = 0
+        K.deepest[i] = 0
+    if not traced:
+        for i in range(n):
+            (T.ray[OX, i], T.ray[OY, i], T.ray[OZ, i], T.ray[DX, i], T.ray[DY, i],
+             T.ray[DZ, i]) = round_ray(R, T.ray[OX, i], T.ray[OY, i], T.ray[OZ, i], T.ray[DX, i],
+                                       T.ray[DY, i], T.ray[DZ, i])
+        closest_batch(R, T.ray, n, T.t, T.prim, T.b, T.q, T.qt, T.qp)
+    # Typed values, not literals: a literal argument would compile _shade a second time.
+    _shade(A, S, R, M, max_depth, hall_threshold, seed, sample, spp, T, K, T, n, np.int64(1),
+           np.bool_(True))
+    Q, C = K.Q, K.C
+    cap = C.n
+    d = np.int64(2)                      # typed: a literal 2 would compile _shade again
+    while d >= 2:
+        if Q.count[d] == 0:
+            d -= 1
+            continue
+        m = take_pending(Q, d, C.ray, K.w, K.col, K.kind, cap)
+        closest_batch(R, C.ray, m, C.t, C.prim, C.b, C.q, C.qt, C.qp)
+        _shade(A, S, R, M, max_depth, hall_threshold, seed, sample, spp, T, K, C, m, d,
+               np.bool_(False))
+        if Q.count[d + 1] > 0:           # its children first: a block holds one chunk's
+            d += 1
+    for i in range(n):
+        T.cnt[i, nc + K.deepest[i]] += 1
 
 
 @njit(cache=True)
 def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
           hall_threshold, film: Film, tile, spp, seed, cut):
     """One tile (:mod:`impl.tracer`): per sample index, the eye rays and their hits, then
-    each pixel's ray tree from its eye hit (:func:`_trees`).  Per-pixel counters:
+    the tile's ray trees level by level (:func:`_trees`).  Per-pixel counters:
     :data:`COUNTERS`, then the tree-depth histogram (``max_depth + 1`` columns); cut
     weights go to ``cut``."""
     T = new_batch(film, R, tile)
-    work = _scratch(T.n, max_depth, R)
+    K = _scratch(T.n, max_depth, R)
     for s in range(spp):
         eye_batch(cam, R, T, s, spp, seed, film.packets, film.sampler)
-        _trees(A, S, R, M, max_depth, hall_threshold, seed, s, spp, T, True, *work)
+        _trees(A, S, R, M, max_depth, hall_threshold, seed, s, spp, T, np.bool_(True), K)
         accumulate(T, s)
     store(T, film, spp)
-    cut_w = work[2]
     for i in range(T.n):
         x, y = T.x0 + i % T.nx, T.y0 + i // T.nx
-        cut[y, x, 0] = cut_w[i, 0] / spp
-        cut[y, x, 1] = cut_w[i, 1] / spp
-
-
-@njit(cache=True)
-def _scratch(n, max_depth, R: RayConfig):
-    """The working arrays of :func:`_trees` for batches of ``n`` eye rays: the tree stack
-    (depth-first: below the popped ray of depth d wait at most one sibling per level
-    2..d, plus its two children, so max_depth + 1 slots suffice), the cut weights and
-    the batch of deferred diffuse leaves."""
-    return (np.empty((max_depth + 2, 11)), np.empty((max_depth + 2, 2), dtype=np.int64),
-            np.zeros((n, 2)), new_points(LEAF_BATCH, R), np.empty((3, LEAF_BATCH)),
-            np.empty(LEAF_BATCH, np.int64), np.empty(LEAF_BATCH, np.int64),
-            np.zeros(LEAF_BATCH, np.int64), np.zeros(1, np.int64))
-
-
-@batch_kernel
-def _light_leaves(A: SceneArrays, R: RayConfig, M: LocalModel, P: Batch, lw, lcol, lsample,
-                  nshadow, lcount, T: Batch, seed):
-    """Light the ``lcount[0]`` collected diffuse leaves together
-    (:func:`impl.lighting.direct_batch`: each light sample's shadow rays as one batch) and
-    add each one's weighted light to its eye ray's radiance and shadow-ray count."""
-    m = lcount[0]
-    if m == 0:
-        return
-    for k in range(m):
-        P.L[0, k] = P.L[1, k] = P.L[2, k] = 0.0
-        nshadow[k] = 0
-    direct_batch(A, R, M, P, lsample, seed, nshadow)
-    for k in range(m):
-        i = lcol[k]
-        T.L[0, i] += lw[0, k] * P.L[0, k]
-        T.L[1, i] += lw[1, k] * P.L[1, k]
-        T.L[2, i] += lw[2, k] * P.L[2, k]
-        T.cnt[i, _C_SHADOW] += nshadow[k]
-        P.active[k] = False
-    lcount[0] = 0
+        cut[y, x, 0] = K.cut[i, 0] / spp
+        cut[y, x, 1] = K.cut[i, 1] / spp
 
 
 @njit(parallel=True, cache=True)
@@ -525,9 +509,10 @@ def _trace_one(ox, oy, oz, dx, dy, dz, A: SceneArrays, S: SpecularArrays, R: Ray
     T.ray[OX, 0], T.ray[OY, 0], T.ray[OZ, 0] = ox, oy, oz
     T.ray[DX, 0], T.ray[DY, 0], T.ray[DZ, 0] = dx, dy, dz
     T.ray[TMIN, 0], T.ray[TMAX, 0] = 0.0, np.inf
-    work = _scratch(1, max_depth, R)
-    _trees(A, S, R, M, max_depth, hall_threshold, seed, 0, 1, T, False, *work)
-    return T.L[:, 0].copy(), T.cnt[0].copy(), work[2][0].copy()
+    K = _scratch(1, max_depth, R)
+    _trees(A, S, R, M, max_depth, hall_threshold, seed, np.int64(0), np.int64(1), T,
+           np.bool_(False), K)
+    return T.L[:, 0].copy(), T.cnt[0].copy(), K.cut[0].copy()
 
 
 # ------------------------------------------------------------- orchestration ---
