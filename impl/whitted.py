@@ -209,7 +209,8 @@ from .rays import RayConfig, leave, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten, flatten_cached, scene_memo
-from .tracer import (accumulate, Batch, closest_batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
+from .tracer import (accumulate, Batch, closest_batch, DX, DY, DZ, eye_batch, first, Film,
+                     film_counters, film_result,
                      new_batch, new_film, new_points, OX, OY, OZ, ray_config_cached, run_tiles, store,
                      TMAX, TMIN, Pending, new_pending, push_pending, take_pending)
 
@@ -406,7 +407,7 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
         C.L[0, i] = C.L[1, i] = C.L[2, i] = 0.0
         nsh[i] = 0
         C.pixel[i] = T.pixel[K.col[i]]
-    direct_batch(A, R, M, C, K.lsample, seed, nsh)
+    direct_batch(A, R, M, first(C, m), K.lsample, seed, nsh)
     for i in range(m):
         if C.active[i]:
             col = K.col[i]
