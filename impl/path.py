@@ -129,8 +129,13 @@ packets     bool   false    trace the eye rays of 8×8 pixel tiles as
 Structure: the tracer core of :mod:`impl.tracer` renders tile by tile and
 traces each sample index's eye rays of a tile as one batch (with
 ``packets=true`` as packets through the tree, :mod:`impl.accel.packets`);
-each path (:func:`_path`) then continues from its first hit, its bounce and
-shadow rays one at a time.  Same image and counters with and without
+the tile's paths then walk on as a *wavefront*: one vertex of every walking
+path at a time (:func:`_vertices`: emission, light sample, BSDF sample,
+roulette), then the light samples' shadow rays as one
+:func:`impl.tracer.occluded_batch` and the continuing rays as one
+:func:`impl.tracer.closest_batch`, until every path has ended.  A path's
+random numbers depend on its pixel, sample and vertex only, so the order in
+which paths are walked does not change the image.  Same image and counters with and without
 packets, plus ``packet_nodes`` / ``packet_tests``; packets need a tree
 (``accel=auto`` then means ``bvh-sah``).
 
@@ -159,14 +164,13 @@ from .bsdf import bsdf_arrays, bsdf_eval_at, bsdf_pdf_at, bsdf_sample_at, frame,
 from .bsdf import to_local, to_world
 from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MaterialArrays,
                         expand_components, with_specular_textures)
-from .accel.packets import NOT_TRACED
 from .camera import camera_params
 from .kernel import batch_kernel, interleaved, task_stride
 from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_with_lights,
                              sample_light)
 from .lighting import diffuse_albedo, environment_radiance, surface
 from .rays import PARAMS as RAY_PARAMS
-from .rays import RayConfig, hit, leave, occluded, refine, round_ray
+from .rays import RayConfig, leave, refine, round_ray
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
@@ -175,9 +179,9 @@ from .shading_frame import perturbed_normal, same_side, shadow_terminator, tange
 from .textures import bitmap, checkerboard, luminance
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
-from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
-                     new_batch, new_film, OX, OY, OZ, ray_config_cached, run_tiles, store, TMAX,
-                     TMIN)
+from .tracer import (accumulate, Batch, closest_batch, DX, DY, DZ, eye_batch, Film, film_counters,
+                     film_result, new_batch, new_film, occluded_batch, OX, OY, OZ, ray_config_cached,
+                     run_tiles, store, TMAX, TMIN)
 
 __all__ = ["render", "COUNTERS", "DEBUG_BIAS", "ALGORITHM"]
 
@@ -314,13 +318,62 @@ def _vertex_uv(pixel_seed, sample, pair):
     return sample_2d(pair, sample, pixel_seed)
 
 
+class Walks(NamedTuple):
+    """The state of a tile's paths between two bounces (:func:`_tile`), by eye-ray column
+    ``c`` except ``col``: the wavefront of one sample index's paths.  The rays still
+    walking sit in the first ``m`` columns of the tile's batch (``T.ray``, their hits in
+    ``T.t``/``T.prim``/``T.b``), position ``k`` holding the path of column ``col[k]``."""
+
+    col: np.ndarray             # (n,) int64 the path at each position of the batch
+    thr: np.ndarray             # (3, n) path throughput
+    f: np.ndarray               # (_W_ROWS, n) η, pdf of the last bounce, last vertex, wavelengths
+    depth: np.ndarray           # (n,) int64 vertices after the eye so far
+    delta: np.ndarray           # (n,) bool: the last bounce was a delta one (the eye ray is)
+    single: np.ndarray          # (n,) bool: the secondary wavelengths were dropped (dispersion)
+
+
+#: Rows of ``Walks.f``.
+_W_ETA, _W_PDF, _W_PX, _W_PY, _W_PZ, _W_L0, _W_L1, _W_L2 = range(8)
+_W_ROWS = 8
+
+
+@njit(cache=True)
+def _new_walks(n):
+    return Walks(np.empty(n, np.int64), np.empty((3, n)), np.empty((_W_ROWS, n)),
+                 np.empty(n, np.int64), np.empty(n, np.bool_), np.empty(n, np.bool_))
+
+
 @batch_kernel
-def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
-           P: PathConfig, seed, sample, T: Batch):
-    """The radiance ``T.L`` carried to the eye along one sampled path per eye ray of the
-    batch (``T.ray``, closest hits ``T.t``, ``T.prim``, ``T.b`` from
-    :func:`impl.tracer.eye_batch`); in spectral mode the radiance at three hero
-    wavelengths, converted to linear sRGB.  Per-ray counters into ``T.cnt``.
+def _start(P: PathConfig, seed, sample, T: Batch, W: Walks):
+    """Every column's path at its eye ray: throughput 1, no radiance, the hero wavelengths
+    in spectral mode."""
+    for c in range(T.n):
+        W.col[c] = c
+        W.thr[0, c] = W.thr[1, c] = W.thr[2, c] = 1.0
+        T.L[0, c] = T.L[1, c] = T.L[2, c] = 0.0
+        W.f[_W_ETA, c] = 1.0
+        W.f[_W_PDF, c] = 1.0
+        W.f[_W_PX, c], W.f[_W_PY, c], W.f[_W_PZ, c] = T.ray[OX, c], T.ray[OY, c], T.ray[OZ, c]
+        w0 = w1 = w2 = 0.0
+        if P.spectral:
+            h = uniform_prefix(seed, T.pixel[c], sample)
+            w0, w1, w2 = sample_wavelengths(uniform_from(h, _DIM_WAVELENGTH))
+        W.f[_W_L0, c], W.f[_W_L1, c], W.f[_W_L2, c] = w0, w1, w2
+        W.depth[c] = 0
+        W.delta[c] = True
+        W.single[c] = False
+        T.cnt[c, _C_PATH] += 1
+
+
+@batch_kernel
+def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
+              P: PathConfig, seed, sample, T: Batch, W: Walks, m):
+    """One vertex of each of the ``m`` walking paths, at the closest hit of its ray: the
+    emission it sees, the light sample (its shadow ray and contribution queued in
+    ``T.sh``/``T.sh_w``/``T.sh_i`` for :func:`occluded_batch`) and the BSDF sample
+    that continues the path, or its end (the scene left, ``max_depth``, a zero
+    weight, Russian roulette).  Continuing rays are moved to the front of the batch.
+    Returns (paths walking on, shadow rays queued).
 
     The loop over the batch's rays lives here, so that the scene's arrays are handed
     over once per batch, not once per path.
@@ -328,287 +381,325 @@ def _paths(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: S
     ns = A.sph_radius.shape[0]
     spectral, max_depth, rr_depth, mis, bias = P.spectral, P.max_depth, P.rr_depth, P.mis, P.bias
     sobol = P.sobol
-    for col in range(T.n):
-        pixel = T.pixel[col]
+    walking = 0
+    queued = 0
+    for k in range(m):
+        c = W.col[k]
+        pixel = T.pixel[c]
         h = uniform_prefix(seed, pixel, sample)      # this path's random numbers: dimension d
         ps = pixel_seed(pixel, 0, seed)              # is uniform_from(h, d); with sobol, the
-        w0 = w1 = w2 = 0.0                           # 2-D ones Sobol points (_vertex_uv)
-        if spectral:
-            w0, w1, w2 = sample_wavelengths(uniform_from(h, _DIM_WAVELENGTH))
-        counts = T.cnt[col]
-        ox, oy, oz = T.ray[OX, col], T.ray[OY, col], T.ray[OZ, col]
-        dx, dy, dz = T.ray[DX, col], T.ray[DY, col], T.ray[DZ, col]
-        tmin, tmax = T.ray[TMIN, col], T.ray[TMAX, col]
-        pre_t, pre_prim, pre_b1, pre_b2 = T.t[col], T.prim[col], T.b[0, col], T.b[1, col]
-        r = g = b = 0.0
-        tr = tg = tb = 1.0               # path throughput
-        eta = 1.0                        # product of the relative IORs crossed
-        depth = 0
-        prev_pdf = 1.0
-        prev_delta = True                # the eye ray counts as a delta "bounce" for MIS
-        ppx, ppy, ppz = ox, oy, oz       # previous vertex (for the light pdf of an emitter hit)
-        single = False                   # secondary wavelengths dropped (after dispersion)
-        t0, t1 = tmin, tmax
-        counts[_C_PATH] += 1
-        while True:
-            counts[_C_SEG] += 1
-            ox, oy, oz, dx, dy, dz = round_ray(R, ox, oy, oz, dx, dy, dz)
-            if pre_prim != NOT_TRACED:   # the eye ray's hit, traced in a packet
-                t, prim, b1, b2 = pre_t, pre_prim, pre_b1, pre_b2
-                pre_prim = NOT_TRACED
-            else:
-                t, prim, b1, b2 = hit(R, ox, oy, oz, dx, dy, dz, t0, t1)
-            if prim < 0:                 # left the scene: the environment
-                er, eg, eb = environment_radiance(A, dx, dy, dz)
-                if not prev_delta and A.env_image.shape[0] > 0:   # an envmap is light-sampled too
-                    w = _power(prev_pdf, environment_pdf(A, L, dx, dy, dz)) if mis else 0.0
-                    er, eg, eb = w * er, w * eg, w * eb
-                r += tr * er
-                g += tg * eg
-                b += tb * eb
-                break
-            shape = A.prim_shape[prim]
-            px, py, pz = refine(R, prim, b1, b2, ox + t * dx, oy + t * dy, oz + t * dz)
-            gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
-                                             A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
-            vx, vy, vz = -dx, -dy, -dz
-            cos_v = sx * vx + sy * vy + sz * vz
+        w0, w1, w2 = W.f[_W_L0, c], W.f[_W_L1, c], W.f[_W_L2, c]   # 2-D ones _vertex_uv
+        counts = T.cnt[c]
+        ox, oy, oz = T.ray[OX, k], T.ray[OY, k], T.ray[OZ, k]
+        dx, dy, dz = T.ray[DX, k], T.ray[DY, k], T.ray[DZ, k]
+        t, prim, b1, b2 = T.t[k], T.prim[k], T.b[0, k], T.b[1, k]
+        tr, tg, tb = W.thr[0, c], W.thr[1, c], W.thr[2, c]
+        eta = W.f[_W_ETA, c]
+        depth = W.depth[c]
+        prev_pdf = W.f[_W_PDF, c]
+        prev_delta = W.delta[c]
+        ppx, ppy, ppz = W.f[_W_PX, c], W.f[_W_PY, c], W.f[_W_PZ, c]
+        single = W.single[c]
+        counts[_C_SEG] += 1
+        if prim < 0:                 # left the scene: the environment
+            er, eg, eb = environment_radiance(A, dx, dy, dz)
+            if not prev_delta and A.env_image.shape[0] > 0:   # an envmap is light-sampled too
+                w = _power(prev_pdf, environment_pdf(A, L, dx, dy, dz)) if mis else 0.0
+                er, eg, eb = w * er, w * eg, w * eb
+            T.L[0, c] += tr * er
+            T.L[1, c] += tg * eg
+            T.L[2, c] += tb * eb
+            continue
+        shape = A.prim_shape[prim]
+        px, py, pz = refine(R, prim, b1, b2, ox + t * dx, oy + t * dy, oz + t * dz)
+        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
+                                         A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+        vx, vy, vz = -dx, -dy, -dz
+        cos_v = sx * vx + sy * vy + sz * vz
 
-            # Emitted radiance (front side), MIS-weighted after a non-delta bounce.
-            if cos_v > 0.0 and (L.shape_emit[shape, 0] > 0.0 or L.shape_emit[shape, 1] > 0.0
-                                or L.shape_emit[shape, 2] > 0.0):
-                w = 1.0
-                if not prev_delta:
-                    if mis:
-                        cos_y = abs(gx * vx + gy * vy + gz * vz)
-                        w = _power(prev_pdf, emitter_pdf(A, L, shape, ppx, ppy, ppz, t, cos_y))
-                    else:
-                        w = 0.0          # plain NEE: the light sample already counted this
-                if spectral:
-                    er = spectrum_at(S.emit_spec[shape], w0)
-                    eg = spectrum_at(S.emit_spec[shape], w1)
-                    eb = spectrum_at(S.emit_spec[shape], w2)
+        # Emitted radiance (front side), MIS-weighted after a non-delta bounce.
+        if cos_v > 0.0 and (L.shape_emit[shape, 0] > 0.0 or L.shape_emit[shape, 1] > 0.0
+                            or L.shape_emit[shape, 2] > 0.0):
+            w = 1.0
+            if not prev_delta:
+                if mis:
+                    cos_y = abs(gx * vx + gy * vy + gz * vz)
+                    w = _power(prev_pdf, emitter_pdf(A, L, shape, ppx, ppy, ppz, t, cos_y))
                 else:
-                    er, eg, eb = L.shape_emit[shape, 0], L.shape_emit[shape, 1], L.shape_emit[shape, 2]
-                r += tr * w * er
-                g += tg * w * eg
-                b += tb * w * eb
-
-            if max_depth >= 0 and depth + 1 >= max_depth:
-                counts[_C_DEPTH] += 1
-                break
-            mat = A.shape_material[shape]
-            delta = is_delta(B, mat)
-            dim = 2 + _DIMS_PER_VERTEX * depth
-            # A mask: its opacity here; a blendbsdf: its weight, and the component the BSDF
-            # sample will come from (Mitsuba: the second when u0 <= w), u0 rescaled for it.
-            u0s = uniform_from(h, dim + 3)
-            opac = B.opacity[mat]
-            if opac < 1.0:
-                opac = _scalar_param(B, mat, 0, opac, ns, prim, A.tri_uv, b1, b2)
-            smat = mat
-            blend = B.kind[mat] == MAT_BLEND
-            bw = 0.0
-            ck = 0
-            if blend:
-                bw = _scalar_param(B, mat, 1, B.blend_w[mat], ns, prim, A.tri_uv, b1, b2)
-                us = u0s / opac if opac < 1.0 else u0s     # the nested BSDF's share of u0
-                if us > bw:
-                    smat = B.comp[mat, 0]
-                else:
-                    smat = B.comp[mat, 1]
-                    ck = 1
-            alpha, alpha_v = _roughness(B, smat, ns, prim, A.tri_uv, b1, b2)   # textured: its value here
-            # A two-sided opaque BSDF is seen from the front on both sides.
-            back = not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
-            # A normal or bump map: the BSDF's frame turns to the perturbed normal n.
-            shade = A.mat_shade[mat]
-            nx, ny, nz = sx, sy, sz
-            if shade != 0 and prim >= ns:
-                nx, ny, nz = perturbed_normal(shade, A.mat_shade_scale[mat], A.mat_shade_tex[mat],
-                                              A.mat_shade_uv[mat], A.tex_data, A.tri_v[prim - ns],
-                                              A.tri_uv[prim - ns], b1, b2, gx, gy, gz, sx, sy, sz, vx,
-                                              vy, vz, back)
-            # Anisotropic roughness: Mitsuba's frame, s along ∂p/∂u and t = n × s, kept on
-            # the back of a two-sided BSDF (Mitsuba's twosided negates the local z only).
-            aniso = B.aniso[mat] != 0
-            if aniso:
-                fx, fy, fz = tangent(prim, ns, b1, b2, px, py, pz, A.sph_center, A.tri_v, A.tri_uv,
-                                     A.tri_has_uv, gx, gy, gz, sx, sy, sz)
-                qx, qy, qz = sy * fz - sz * fy, sz * fx - sx * fz, sx * fy - sy * fx
-            else:
-                fx = fy = fz = qx = qy = qz = 0.0
-            if back:
-                gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-                if shade == 0:
-                    nx, ny, nz = sx, sy, sz
-            terminator = shade != 0 and A.mat_shade_tex[mat, 6] != 0
-            if not aniso:
-                fx, fy, fz, qx, qy, qz = frame(nx, ny, nz)
-            wix, wiy, wiz = to_local(fx, fy, fz, qx, qy, qz, nx, ny, nz, vx, vy, vz)
+                    w = 0.0          # plain NEE: the light sample already counted this
             if spectral:
-                rho_r = spectrum_at(S.mat_spec[mat], w0)
-                rho_g = spectrum_at(S.mat_spec[mat], w1)
-                rho_b = spectrum_at(S.mat_spec[mat], w2)
+                er = spectrum_at(S.emit_spec[shape], w0)
+                eg = spectrum_at(S.emit_spec[shape], w1)
+                eb = spectrum_at(S.emit_spec[shape], w2)
             else:
-                rho_r, rho_g, rho_b = diffuse_albedo(A, smat, prim, b1, b2)
-            eta_scale = eta_scale_at(S, mat, w0) if spectral else 1.0
-            spec_tex = _specular_texture(A, B, smat)
+                er, eg, eb = L.shape_emit[shape, 0], L.shape_emit[shape, 1], L.shape_emit[shape, 2]
+            T.L[0, c] += tr * w * er
+            T.L[1, c] += tg * w * eg
+            T.L[2, c] += tb * w * eb
 
-            # Next-event estimation: one light sample, shadow ray, MIS weight.
-            if not delta and L.n_lights > 0:
-                u0 = uniform_from(h, dim)
-                if sobol:
-                    u1, u2 = _vertex_uv(ps, sample, 1 + 2 * depth)
-                else:
-                    u1 = uniform_from(h, dim + 1)
-                    u2 = uniform_from(h, dim + 2)
-                lx, ly, lz, ldist, yx, yy, yz, er, eg, eb, lpdf, ldelta, li = sample_light(
-                    A, L, px, py, pz, u0, u1, u2)
-                if spectral:                 # L and A carry unit emission: scale by the spectrum
-                    er *= spectrum_at(S.light_spec[li], w0)
-                    eg *= spectrum_at(S.light_spec[li], w1)
-                    eb *= spectrum_at(S.light_spec[li], w2)
-                if shade != 0 and not same_side(nx, ny, nz, sx, sy, sz, lx, ly, lz):
-                    er = eg = eb = 0.0           # below the perturbed or the true horizon
-                if er > 0.0 or eg > 0.0 or eb > 0.0:
-                    wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, nx, ny, nz, lx, ly, lz)
-                    bpdf = 0.0
-                    if blend:
-                        fr, fg, fb, bpdf = _blend_eval_pdf(A, B, mat, bw, np.int64(-1), prim, b1, b2,
-                                                           eta_scale, wix, wiy, wiz, wox, woy, woz)
-                    else:
-                        fr, fg, fb = bsdf_eval_at(B, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale,
-                                                  wix, wiy, wiz, wox, woy, woz)
-                        if spec_tex:             # a textured specular_reflectance
-                            fr, fg, fb = fr * rho_r, fg * rho_g, fb * rho_b
-                    if opac < 1.0:               # a mask scatters by its BSDF with probability opac
-                        fr, fg, fb = fr * opac, fg * opac, fb * opac
-                    if terminator:
-                        gt = shadow_terminator(nx, ny, nz, sx, sy, sz, lx, ly, lz)
-                        fr, fg, fb = fr * gt, fg * gt, fb * gt
-                    if fr > 0.0 or fg > 0.0 or fb > 0.0:
-                        counts[_C_SHADOW] += 1
-                        side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
-                        sox, soy, soz, st0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
-                        if math.isinf(ldist):
-                            blocked = occluded(R, sox, soy, soz, lx, ly, lz, st0, np.inf)
-                        else:
-                            hx, hy, hz = yx - sox, yy - soy, yz - soz
-                            hd = math.sqrt(hx * hx + hy * hy + hz * hz)
-                            shrink = R.shrink_point if ldelta else R.shrink_area
-                            blocked = hd == 0.0 or occluded(R, sox, soy, soz, hx / hd, hy / hd, hz / hd,
-                                                            st0, hd * (1.0 - shrink))
-                        if not blocked:
-                            w = 1.0
-                            if not ldelta and mis:
-                                if not blend:
-                                    bpdf = bsdf_pdf_at(B, mat, alpha, alpha_v, eta_scale, wix, wiy, wiz, wox,
-                                                       woy, woz)
-                                bpdf *= opac
-                                if bias == _BIAS_MIS:   # debug: the classic swapped-argument bug
-                                    w = _power(bpdf, lpdf)
-                                else:
-                                    w = _power(lpdf, bpdf)
-                            r += tr * w * fr * er
-                            g += tg * w * fg * eg
-                            b += tb * w * fb * eb
-
-            # BSDF sampling: the next direction.  A mask lets the ray pass straight on with
-            # probability 1 − opacity (Mitsuba's null event: weight 1, a delta "bounce").
-            u0 = u0s
-            if sobol:
-                u1, u2 = _vertex_uv(ps, sample, 2 + 2 * depth)
+        if max_depth >= 0 and depth + 1 >= max_depth:
+            counts[_C_DEPTH] += 1
+            continue
+        mat = A.shape_material[shape]
+        delta = is_delta(B, mat)
+        dim = 2 + _DIMS_PER_VERTEX * depth
+        # A mask: its opacity here; a blendbsdf: its weight, and the component the BSDF
+        # sample will come from (Mitsuba: the second when u0 <= w), u0 rescaled for it.
+        u0s = uniform_from(h, dim + 3)
+        opac = B.opacity[mat]
+        if opac < 1.0:
+            opac = _scalar_param(B, mat, 0, opac, ns, prim, A.tri_uv, b1, b2)
+        smat = mat
+        blend = B.kind[mat] == MAT_BLEND
+        bw = 0.0
+        ck = 0
+        if blend:
+            bw = _scalar_param(B, mat, 1, B.blend_w[mat], ns, prim, A.tri_uv, b1, b2)
+            us = u0s / opac if opac < 1.0 else u0s     # the nested BSDF's share of u0
+            if us > bw:
+                smat = B.comp[mat, 0]
             else:
-                u1 = uniform_from(h, dim + 4)
-                u2 = uniform_from(h, dim + 5)
-            if opac < 1.0 and u0 >= opac:
-                ndx, ndy, ndz = dx, dy, dz
-                pdf = 1.0 - opac
-                sdelta = True
-                seta = 1.0
-            else:
-                if opac < 1.0:
-                    u0 = u0 / opac
-                if blend:                    # rescaled for the chosen component
-                    u0 = (u0 - bw) / (1.0 - bw) if ck == 0 else (u0 / bw if bw > 0.0 else 0.0)
-                wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample_at(
-                    B, smat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
-                if spec_tex and woz * wiz > 0.0:   # reflected: a textured specular_reflectance
-                    wr, wg, wb = wr * rho_r, wg * rho_g, wb * rho_b
-                if blend and pdf > 0.0:
-                    # Mitsuba's blendbsdf.sample: the mixture's pdf, and the weight
-                    # (w_k f_k cos / 1 + the other's weighted f cos) / that pdf.
-                    orr, org, orb, opdf = _blend_eval_pdf(A, B, mat, bw, ck, prim, b1, b2, eta_scale,
-                                                          wix, wiy, wiz, wox, woy, woz)
-                    wk = bw if ck == 1 else 1.0 - bw
-                    mix = wk * pdf + opdf
-                    if mix > 0.0:
-                        wr = (orr + wk * wr * pdf) / mix
-                        wg = (org + wk * wg * pdf) / mix
-                        wb = (orb + wk * wb * pdf) / mix
-                    else:
-                        wr = wg = wb = 0.0
-                    pdf = mix
-                pdf *= opac
-                if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
-                    break
-                tr *= wr
-                tg *= wg
-                tb *= wb
-                eta *= seta
-                if eta_scale != 1.0 and not single:
-                    # Dispersion: the direction is the hero wavelength's; drop the others.
-                    tr *= 3.0
-                    tg = tb = 0.0
-                    single = True
-                ndx, ndy, ndz = to_world(fx, fy, fz, qx, qy, qz, nx, ny, nz, wox, woy, woz)
-                inv = 1.0 / math.sqrt(ndx * ndx + ndy * ndy + ndz * ndz)
-                ndx, ndy, ndz = ndx * inv, ndy * inv, ndz * inv
-                if shade != 0:
-                    if not same_side(nx, ny, nz, sx, sy, sz, ndx, ndy, ndz):
-                        break
-                    if terminator:
-                        gt = shadow_terminator(nx, ny, nz, sx, sy, sz, ndx, ndy, ndz)
-                        tr, tg, tb = tr * gt, tg * gt, tb * gt
-            side = 1.0 if gx * ndx + gy * ndy + gz * ndz >= 0.0 else -1.0
-            ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
-            dx, dy, dz = ndx, ndy, ndz
-            t1 = np.inf
-            ppx, ppy, ppz = px, py, pz
-            prev_pdf = pdf
-            prev_delta = sdelta
-            counts[_C_BOUNCE] += 1
-
-            # Russian roulette (Mitsuba: after the depth increment, q = min(max(T)·η², 0.95)).
-            depth += 1
-            tmax_ = max(tr, tg, tb)
-            if tmax_ <= 0.0:
-                break
-            if depth >= rr_depth:
-                q = min(tmax_ * eta * eta, 0.95)
-                if uniform_from(h, dim + 6) >= q:
-                    counts[_C_RR] += 1
-                    break
-                if bias != _BIAS_RR:
-                    tr /= q
-                    tg /= q
-                    tb /= q
-
+                smat = B.comp[mat, 1]
+                ck = 1
+        alpha, alpha_v = _roughness(B, smat, ns, prim, A.tri_uv, b1, b2)   # textured: its value here
+        # A two-sided opaque BSDF is seen from the front on both sides.
+        back = not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
+        # A normal or bump map: the BSDF's frame turns to the perturbed normal n.
+        shade = A.mat_shade[mat]
+        nx, ny, nz = sx, sy, sz
+        if shade != 0 and prim >= ns:
+            nx, ny, nz = perturbed_normal(shade, A.mat_shade_scale[mat], A.mat_shade_tex[mat],
+                                          A.mat_shade_uv[mat], A.tex_data, A.tri_v[prim - ns],
+                                          A.tri_uv[prim - ns], b1, b2, gx, gy, gz, sx, sy, sz, vx,
+                                          vy, vz, back)
+        # Anisotropic roughness: Mitsuba's frame, s along ∂p/∂u and t = n × s, kept on
+        # the back of a two-sided BSDF (Mitsuba's twosided negates the local z only).
+        aniso = B.aniso[mat] != 0
+        if aniso:
+            fx, fy, fz = tangent(prim, ns, b1, b2, px, py, pz, A.sph_center, A.tri_v, A.tri_uv,
+                                 A.tri_has_uv, gx, gy, gz, sx, sy, sz)
+            qx, qy, qz = sy * fz - sz * fy, sz * fx - sx * fz, sx * fy - sy * fx
+        else:
+            fx = fy = fz = qx = qy = qz = 0.0
+        if back:
+            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+            if shade == 0:
+                nx, ny, nz = sx, sy, sz
+        terminator = shade != 0 and A.mat_shade_tex[mat, 6] != 0
+        if not aniso:
+            fx, fy, fz, qx, qy, qz = frame(nx, ny, nz)
+        wix, wiy, wiz = to_local(fx, fy, fz, qx, qy, qz, nx, ny, nz, vx, vy, vz)
         if spectral:
-            r, g, b = to_linear_srgb(S, r, g, b, w0, w1, w2)
-        T.L[0, col], T.L[1, col], T.L[2, col] = r, g, b
+            rho_r = spectrum_at(S.mat_spec[mat], w0)
+            rho_g = spectrum_at(S.mat_spec[mat], w1)
+            rho_b = spectrum_at(S.mat_spec[mat], w2)
+        else:
+            rho_r, rho_g, rho_b = diffuse_albedo(A, smat, prim, b1, b2)
+        eta_scale = eta_scale_at(S, mat, w0) if spectral else 1.0
+        spec_tex = _specular_texture(A, B, smat)
+
+        # Next-event estimation: one light sample, its MIS weight, and its shadow ray
+        # queued with the contribution it adds if nothing blocks it.
+        if not delta and L.n_lights > 0:
+            u0 = uniform_from(h, dim)
+            if sobol:
+                u1, u2 = _vertex_uv(ps, sample, 1 + 2 * depth)
+            else:
+                u1 = uniform_from(h, dim + 1)
+                u2 = uniform_from(h, dim + 2)
+            lx, ly, lz, ldist, yx, yy, yz, er, eg, eb, lpdf, ldelta, li = sample_light(
+                A, L, px, py, pz, u0, u1, u2)
+            if spectral:                 # L and A carry unit emission: scale by the spectrum
+                er *= spectrum_at(S.light_spec[li], w0)
+                eg *= spectrum_at(S.light_spec[li], w1)
+                eb *= spectrum_at(S.light_spec[li], w2)
+            if shade != 0 and not same_side(nx, ny, nz, sx, sy, sz, lx, ly, lz):
+                er = eg = eb = 0.0           # below the perturbed or the true horizon
+            if er > 0.0 or eg > 0.0 or eb > 0.0:
+                wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, nx, ny, nz, lx, ly, lz)
+                bpdf = 0.0
+                if blend:
+                    fr, fg, fb, bpdf = _blend_eval_pdf(A, B, mat, bw, np.int64(-1), prim, b1, b2,
+                                                       eta_scale, wix, wiy, wiz, wox, woy, woz)
+                else:
+                    fr, fg, fb = bsdf_eval_at(B, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale,
+                                              wix, wiy, wiz, wox, woy, woz)
+                    if spec_tex:             # a textured specular_reflectance
+                        fr, fg, fb = fr * rho_r, fg * rho_g, fb * rho_b
+                if opac < 1.0:               # a mask scatters by its BSDF with probability opac
+                    fr, fg, fb = fr * opac, fg * opac, fb * opac
+                if terminator:
+                    gt = shadow_terminator(nx, ny, nz, sx, sy, sz, lx, ly, lz)
+                    fr, fg, fb = fr * gt, fg * gt, fb * gt
+                if fr > 0.0 or fg > 0.0 or fb > 0.0:
+                    counts[_C_SHADOW] += 1
+                    side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
+                    sox, soy, soz, st0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+                    if math.isinf(ldist):
+                        hx, hy, hz, st1 = lx, ly, lz, np.inf
+                        hd = 1.0
+                    else:
+                        hx, hy, hz = yx - sox, yy - soy, yz - soz
+                        hd = math.sqrt(hx * hx + hy * hy + hz * hz)
+                        shrink = R.shrink_point if ldelta else R.shrink_area
+                        st1 = hd * (1.0 - shrink)
+                    if hd > 0.0:             # a light sample at the origin counts as blocked
+                        w = 1.0
+                        if not ldelta and mis:
+                            if not blend:
+                                bpdf = bsdf_pdf_at(B, mat, alpha, alpha_v, eta_scale, wix, wiy, wiz, wox,
+                                                   woy, woz)
+                            bpdf *= opac
+                            if bias == _BIAS_MIS:   # debug: the classic swapped-argument bug
+                                w = _power(bpdf, lpdf)
+                            else:
+                                w = _power(lpdf, bpdf)
+                        sh = T.sh
+                        sh[OX, queued], sh[OY, queued], sh[OZ, queued] = sox, soy, soz
+                        sh[DX, queued], sh[DY, queued], sh[DZ, queued] = hx / hd, hy / hd, hz / hd
+                        sh[TMIN, queued], sh[TMAX, queued] = st0, st1
+                        T.sh_w[0, queued] = tr * w * fr * er
+                        T.sh_w[1, queued] = tg * w * fg * eg
+                        T.sh_w[2, queued] = tb * w * fb * eb
+                        T.sh_i[queued] = c
+                        queued += 1
+
+        # BSDF sampling: the next direction.  A mask lets the ray pass straight on with
+        # probability 1 − opacity (Mitsuba's null event: weight 1, a delta "bounce").
+        u0 = u0s
+        if sobol:
+            u1, u2 = _vertex_uv(ps, sample, 2 + 2 * depth)
+        else:
+            u1 = uniform_from(h, dim + 4)
+            u2 = uniform_from(h, dim + 5)
+        if opac < 1.0 and u0 >= opac:
+            ndx, ndy, ndz = dx, dy, dz
+            pdf = 1.0 - opac
+            sdelta = True
+            seta = 1.0
+        else:
+            if opac < 1.0:
+                u0 = u0 / opac
+            if blend:                    # rescaled for the chosen component
+                u0 = (u0 - bw) / (1.0 - bw) if ck == 0 else (u0 / bw if bw > 0.0 else 0.0)
+            wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample_at(
+                B, smat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+            if spec_tex and woz * wiz > 0.0:   # reflected: a textured specular_reflectance
+                wr, wg, wb = wr * rho_r, wg * rho_g, wb * rho_b
+            if blend and pdf > 0.0:
+                # Mitsuba's blendbsdf.sample: the mixture's pdf, and the weight
+                # (w_k f_k cos / 1 + the other's weighted f cos) / that pdf.
+                orr, org, orb, opdf = _blend_eval_pdf(A, B, mat, bw, ck, prim, b1, b2, eta_scale,
+                                                      wix, wiy, wiz, wox, woy, woz)
+                wk = bw if ck == 1 else 1.0 - bw
+                mix = wk * pdf + opdf
+                if mix > 0.0:
+                    wr = (orr + wk * wr * pdf) / mix
+                    wg = (org + wk * wg * pdf) / mix
+                    wb = (orb + wk * wb * pdf) / mix
+                else:
+                    wr = wg = wb = 0.0
+                pdf = mix
+            pdf *= opac
+            if pdf <= 0.0 or (wr <= 0.0 and wg <= 0.0 and wb <= 0.0):
+                continue
+            tr *= wr
+            tg *= wg
+            tb *= wb
+            eta *= seta
+            if eta_scale != 1.0 and not single:
+                # Dispersion: the direction is the hero wavelength's; drop the others.
+                tr *= 3.0
+                tg = tb = 0.0
+                single = True
+            ndx, ndy, ndz = to_world(fx, fy, fz, qx, qy, qz, nx, ny, nz, wox, woy, woz)
+            inv = 1.0 / math.sqrt(ndx * ndx + ndy * ndy + ndz * ndz)
+            ndx, ndy, ndz = ndx * inv, ndy * inv, ndz * inv
+            if shade != 0:
+                if not same_side(nx, ny, nz, sx, sy, sz, ndx, ndy, ndz):
+                    continue
+                if terminator:
+                    gt = shadow_terminator(nx, ny, nz, sx, sy, sz, ndx, ndy, ndz)
+                    tr, tg, tb = tr * gt, tg * gt, tb * gt
+        side = 1.0 if gx * ndx + gy * ndy + gz * ndz >= 0.0 else -1.0
+        ox, oy, oz, t0 = leave(R, px, py, pz, side * gx, side * gy, side * gz)
+        counts[_C_BOUNCE] += 1
+
+        # Russian roulette (Mitsuba: after the depth increment, q = min(max(T)·η², 0.95)).
+        depth += 1
+        tmax_ = max(tr, tg, tb)
+        if tmax_ <= 0.0:
+            continue
+        if depth >= rr_depth:
+            q = min(tmax_ * eta * eta, 0.95)
+            if uniform_from(h, dim + 6) >= q:
+                counts[_C_RR] += 1
+                continue
+            if bias != _BIAS_RR:
+                tr /= q
+                tg /= q
+                tb /= q
+
+        # The path walks on: its next ray, rounded to the intersection precision, at the
+        # front of the batch (position walking <= k, already read).
+        j = walking
+        W.col[j] = c
+        ray = T.ray
+        ray[OX, j], ray[OY, j], ray[OZ, j], ray[DX, j], ray[DY, j], ray[DZ, j] = round_ray(
+            R, ox, oy, oz, ndx, ndy, ndz)
+        ray[TMIN, j], ray[TMAX, j] = t0, np.inf
+        W.thr[0, c], W.thr[1, c], W.thr[2, c] = tr, tg, tb
+        W.f[_W_ETA, c] = eta
+        W.f[_W_PDF, c] = pdf
+        W.f[_W_PX, c], W.f[_W_PY, c], W.f[_W_PZ, c] = px, py, pz
+        W.depth[c] = depth
+        W.delta[c] = sdelta
+        W.single[c] = single
+        walking += 1
+    return walking, queued
+
+
+@batch_kernel
+def _unblocked(T: Batch, queued):
+    """Add the contributions of the queued light samples whose shadow rays are clear."""
+    for j in range(queued):
+        if not T.blocked[j]:
+            c = T.sh_i[j]
+            T.L[0, c] += T.sh_w[0, j]
+            T.L[1, c] += T.sh_w[1, j]
+            T.L[2, c] += T.sh_w[2, j]
+
+
+@batch_kernel
+def _to_srgb(S: SpectralArrays, T: Batch, W: Walks):
+    """Each column's three wavelengths' radiance as linear sRGB (spectral mode)."""
+    for c in range(T.n):
+        T.L[0, c], T.L[1, c], T.L[2, c] = to_linear_srgb(S, T.L[0, c], T.L[1, c], T.L[2, c], W.f[_W_L0, c],
+                                                         W.f[_W_L1, c], W.f[_W_L2, c])
 
 
 @njit(cache=True)
 def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
           P: PathConfig, film: Film, tile, spp, seed):
     """One tile (:mod:`impl.tracer`): per sample index, the eye rays and their hits, then
-    each pixel's path from its first hit (:func:`_paths`)."""
+    the paths as a wavefront: one vertex of every walking path (:func:`_vertices`), the
+    shadow rays of its light samples as one batch, the continuing rays' closest hits as
+    another, until every path has ended."""
     T = new_batch(film, R, tile)
+    W = _new_walks(T.n)
     for s in range(spp):
         eye_batch(cam, R, T, s, spp, seed, film.packets, film.sampler)
-        _paths(A, L, B, R, S, P, seed, s, T)
+        _start(P, seed, s, T, W)
+        m = T.n
+        while m > 0:
+            m, queued = _vertices(A, L, B, R, S, P, seed, s, T, W, m)
+            if queued > 0:
+                occluded_batch(R, T.sh, queued, T.blocked, T.q)
+                _unblocked(T, queued)
+            if m > 0:
+                closest_batch(R, T.ray, m, T.t, T.prim, T.b, T.q, T.qt, T.qp)
+        if P.spectral:
+            _to_srgb(S, T, W)
         accumulate(T, s)
     store(T, film, spp)
 

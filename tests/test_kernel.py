@@ -19,7 +19,8 @@ from impl.accel import wide
 from impl.kernel import batch_kernel
 
 BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, whitted._trees,
-                 whitted._shade, path._paths, wide.wide_closest, wide.wide_any,
+                 whitted._shade, path._start, path._vertices, path._unblocked,
+                 path._to_srgb, wide.wide_closest, wide.wide_any,
                  wide.wide_closest_bound, wide.wide_any_bound,
                  spectral.to_linear_srgb]
 #: Called per ray from batch kernels: inlined (a call would pass every array of the scene,
