@@ -330,17 +330,26 @@ class Walks(NamedTuple):
     depth: np.ndarray           # (n,) int64 vertices after the eye so far
     delta: np.ndarray           # (n,) bool: the last bounce was a delta one (the eye ray is)
     single: np.ndarray          # (n,) bool: the secondary wavelengths were dropped (dispersion)
+    h: np.ndarray               # (n,) uint64 the hashed numbers' prefix of the column's sample
+    seq: np.ndarray             # (n,) uint64 the pixel's Sobol scramble seed
+    ls: np.ndarray              # (_LS_ROWS, n) by position: hit point, light sample, BSDF numbers
 
 
 #: Rows of ``Walks.f``.
 _W_ETA, _W_PDF, _W_PX, _W_PY, _W_PZ, _W_L0, _W_L1, _W_L2 = range(8)
 _W_ROWS = 8
+#: Rows of ``Walks.ls`` (:func:`_light_samples`): the vertex, the light sample of
+#: :func:`impl.light_sampling.sample_light` (ER = 0: none), the BSDF sample's (u1, u2).
+(_LS_PX, _LS_PY, _LS_PZ, _LS_WX, _LS_WY, _LS_WZ, _LS_DIST, _LS_YX, _LS_YY, _LS_YZ, _LS_ER, _LS_EG,
+ _LS_EB, _LS_PDF, _LS_DELTA, _LS_LIGHT, _LS_U1, _LS_U2) = range(18)
+_LS_ROWS = 18
 
 
 @njit(cache=True)
 def _new_walks(n):
     return Walks(np.empty(n, np.int64), np.empty((3, n)), np.empty((_W_ROWS, n)),
-                 np.empty(n, np.int64), np.empty(n, np.bool_), np.empty(n, np.bool_))
+                 np.empty(n, np.int64), np.empty(n, np.bool_), np.empty(n, np.bool_),
+                 np.empty(n, np.uint64), np.empty(n, np.uint64), np.empty((_LS_ROWS, n)))
 
 
 @batch_kernel
@@ -354,9 +363,11 @@ def _start(P: PathConfig, seed, sample, T: Batch, W: Walks):
         W.f[_W_ETA, c] = 1.0
         W.f[_W_PDF, c] = 1.0
         W.f[_W_PX, c], W.f[_W_PY, c], W.f[_W_PZ, c] = T.ray[OX, c], T.ray[OY, c], T.ray[OZ, c]
+        h = uniform_prefix(seed, T.pixel[c], sample)
+        W.h[c] = h
+        W.seq[c] = pixel_seed(T.pixel[c], 0, seed)
         w0 = w1 = w2 = 0.0
         if P.spectral:
-            h = uniform_prefix(seed, T.pixel[c], sample)
             w0, w1, w2 = sample_wavelengths(uniform_from(h, _DIM_WAVELENGTH))
         W.f[_W_L0, c], W.f[_W_L1, c], W.f[_W_L2, c] = w0, w1, w2
         W.depth[c] = 0
@@ -366,10 +377,51 @@ def _start(P: PathConfig, seed, sample, T: Batch, W: Walks):
 
 
 @batch_kernel
+def _light_samples(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, P: PathConfig,
+                   sample, T: Batch, W: Walks, m):
+    """The hit point of each of the ``m`` walking paths and, where its vertex takes one,
+    its light sample (:func:`impl.light_sampling.sample_light`) into ``W.ls``; with
+    ``sampler=sobol`` also the BSDF sample's Sobol pair.  A loop of its own, ahead of
+    :func:`_vertices`: each sample is a chain of dependent square roots and divisions,
+    and in a short loop the processor overlaps the chains of consecutive paths, which
+    it cannot within the long body of a vertex."""
+    ls = W.ls
+    for k in range(m):
+        prim = T.prim[k]
+        ls[_LS_ER, k] = ls[_LS_EG, k] = ls[_LS_EB, k] = 0.0
+        if prim < 0:
+            continue
+        c = W.col[k]
+        depth = W.depth[c]
+        t = T.t[k]
+        px, py, pz = refine(R, prim, T.b[0, k], T.b[1, k], T.ray[OX, k] + t * T.ray[DX, k],
+                            T.ray[OY, k] + t * T.ray[DY, k], T.ray[OZ, k] + t * T.ray[DZ, k])
+        ls[_LS_PX, k], ls[_LS_PY, k], ls[_LS_PZ, k] = px, py, pz
+        if P.max_depth >= 0 and depth + 1 >= P.max_depth:
+            continue
+        if P.sobol:
+            ls[_LS_U1, k], ls[_LS_U2, k] = _vertex_uv(W.seq[c], sample, 2 + 2 * depth)
+        if L.n_lights == 0 or is_delta(B, A.shape_material[A.prim_shape[prim]]):
+            continue
+        h = W.h[c]
+        dim = 2 + _DIMS_PER_VERTEX * depth
+        if P.sobol:
+            u1, u2 = _vertex_uv(W.seq[c], sample, 1 + 2 * depth)
+        else:
+            u1 = uniform_from(h, dim + 1)
+            u2 = uniform_from(h, dim + 2)
+        (ls[_LS_WX, k], ls[_LS_WY, k], ls[_LS_WZ, k], ls[_LS_DIST, k], ls[_LS_YX, k], ls[_LS_YY, k],
+         ls[_LS_YZ, k], ls[_LS_ER, k], ls[_LS_EG, k], ls[_LS_EB, k], ls[_LS_PDF, k], delta,
+         li) = sample_light(A, L, px, py, pz, uniform_from(h, dim), u1, u2)
+        ls[_LS_DELTA, k] = 1.0 if delta else 0.0
+        ls[_LS_LIGHT, k] = li
+
+
+@batch_kernel
 def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
-              P: PathConfig, seed, sample, T: Batch, W: Walks, m):
+              P: PathConfig, T: Batch, W: Walks, m):
     """One vertex of each of the ``m`` walking paths, at the closest hit of its ray: the
-    emission it sees, the light sample (its shadow ray and contribution queued in
+    emission it sees, the light sample of :func:`_light_samples` (its shadow ray and contribution queued in
     ``T.sh``/``T.sh_w``/``T.sh_i`` for :func:`occluded_batch`) and the BSDF sample
     that continues the path, or its end (the scene left, ``max_depth``, a zero
     weight, Russian roulette).  Continuing rays are moved to the front of the batch.
@@ -385,12 +437,10 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
     queued = 0
     for k in range(m):
         c = W.col[k]
-        pixel = T.pixel[c]
-        h = uniform_prefix(seed, pixel, sample)      # this path's random numbers: dimension d
-        ps = pixel_seed(pixel, 0, seed)              # is uniform_from(h, d); with sobol, the
-        w0, w1, w2 = W.f[_W_L0, c], W.f[_W_L1, c], W.f[_W_L2, c]   # 2-D ones _vertex_uv
+        h = W.h[c]                   # this path's random numbers: dimension d is
+        ls = W.ls                    # uniform_from(h, d); with sobol, the 2-D ones _vertex_uv
+        w0, w1, w2 = W.f[_W_L0, c], W.f[_W_L1, c], W.f[_W_L2, c]
         counts = T.cnt[c]
-        ox, oy, oz = T.ray[OX, k], T.ray[OY, k], T.ray[OZ, k]
         dx, dy, dz = T.ray[DX, k], T.ray[DY, k], T.ray[DZ, k]
         t, prim, b1, b2 = T.t[k], T.prim[k], T.b[0, k], T.b[1, k]
         tr, tg, tb = W.thr[0, c], W.thr[1, c], W.thr[2, c]
@@ -411,7 +461,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
             T.L[2, c] += tb * eb
             continue
         shape = A.prim_shape[prim]
-        px, py, pz = refine(R, prim, b1, b2, ox + t * dx, oy + t * dy, oz + t * dz)
+        px, py, pz = ls[_LS_PX, k], ls[_LS_PY, k], ls[_LS_PZ, k]
         gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
                                          A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
         vx, vy, vz = -dx, -dy, -dz
@@ -501,14 +551,10 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         # Next-event estimation: one light sample, its MIS weight, and its shadow ray
         # queued with the contribution it adds if nothing blocks it.
         if not delta and L.n_lights > 0:
-            u0 = uniform_from(h, dim)
-            if sobol:
-                u1, u2 = _vertex_uv(ps, sample, 1 + 2 * depth)
-            else:
-                u1 = uniform_from(h, dim + 1)
-                u2 = uniform_from(h, dim + 2)
-            lx, ly, lz, ldist, yx, yy, yz, er, eg, eb, lpdf, ldelta, li = sample_light(
-                A, L, px, py, pz, u0, u1, u2)
+            lx, ly, lz, ldist = ls[_LS_WX, k], ls[_LS_WY, k], ls[_LS_WZ, k], ls[_LS_DIST, k]
+            yx, yy, yz = ls[_LS_YX, k], ls[_LS_YY, k], ls[_LS_YZ, k]
+            er, eg, eb, lpdf = ls[_LS_ER, k], ls[_LS_EG, k], ls[_LS_EB, k], ls[_LS_PDF, k]
+            ldelta, li = ls[_LS_DELTA, k] != 0.0, int(ls[_LS_LIGHT, k])
             if spectral:                 # L and A carry unit emission: scale by the spectrum
                 er *= spectrum_at(S.light_spec[li], w0)
                 eg *= spectrum_at(S.light_spec[li], w1)
@@ -568,7 +614,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         # probability 1 − opacity (Mitsuba's null event: weight 1, a delta "bounce").
         u0 = u0s
         if sobol:
-            u1, u2 = _vertex_uv(ps, sample, 2 + 2 * depth)
+            u1, u2 = ls[_LS_U1, k], ls[_LS_U2, k]
         else:
             u1 = uniform_from(h, dim + 4)
             u2 = uniform_from(h, dim + 5)
@@ -692,7 +738,8 @@ def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, 
         _start(P, seed, s, T, W)
         m = T.n
         while m > 0:
-            m, queued = _vertices(A, L, B, R, S, P, seed, s, T, W, m)
+            _light_samples(A, L, B, R, P, s, T, W, m)
+            m, queued = _vertices(A, L, B, R, S, P, T, W, m)
             if queued > 0:
                 occluded_batch(R, T.sh, queued, T.blocked, T.q)
                 _unblocked(T, queued)

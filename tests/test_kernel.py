@@ -19,7 +19,7 @@ from impl.accel import wide
 from impl.kernel import batch_kernel
 
 BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, whitted._trees,
-                 whitted._shade, path._start, path._vertices, path._unblocked,
+                 whitted._shade, path._start, path._light_samples, path._vertices, path._unblocked,
                  path._to_srgb, wide.wide_closest, wide.wide_any,
                  wide.wide_closest_bound, wide.wide_any_bound,
                  spectral.to_linear_srgb]
