@@ -54,9 +54,23 @@ from __future__ import annotations
 
 import math
 
+import llvmlite.binding as _llvm
 from numba import njit
 
 __all__ = ["batch_kernel", "interleaved", "task_stride"]
+
+#: LLVM's loop vectoriser versions a loop over arrays it cannot prove disjoint with
+#: run-time overlap checks, and gives the loop up (scalar code) when it would need more
+#: checks than a small threshold: a batch step that reads a dozen rows of ray and point
+#: data and writes a dozen others (a light sample and its shadow ray per point) stayed
+#: scalar.  The checks run once per loop, not per ray, so the limits are raised for every
+#: kernel compiled in this process (numba gives no way to declare its array arguments
+#: ``noalias``).  LLVM reads these options when it vectorises: kernels loaded from numba's
+#: cache were compiled with them already.
+LLVM_OPTIONS = ("-runtime-memory-check-threshold=4096", "-vectorize-memory-check-threshold=4096",
+                "-memory-check-merge-threshold=4096")
+for _option in LLVM_OPTIONS:
+    _llvm.set_option("gibench", _option)
 
 
 def batch_kernel(fn=None, **options):

@@ -67,16 +67,19 @@ from .envmap import envmap_draw, envmap_radiance
 from .fresnel import fresnel_dielectric
 from .kernel import batch_kernel
 from .rays import RayConfig, hit, legacy_config, leave, occluded, refine, round_ray
-from .phong import attenuation, phong_brdf_cos
+from .intersect import like
+from .offset import spawn_select
+from .phong import INV_PI, attenuation, phong_brdf_cos
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .projector import projector_weight
 from .samplers import DIM_INDEPENDENT, dim_2d
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_PROJECTOR, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays
 from .textures import bitmap, checkerboard
-from .tracer import occluded_batch
+from .tracer import brute_force, occluded_batch
 
-__all__ = ["SHADOW_EPSILON", "surface", "diffuse_albedo", "sample_emitter", "direct_light",
+__all__ = ["SHADOW_EPSILON", "surface", "surface_at", "sphere_surface", "triangle_normal",
+           "diffuse_albedo", "sample_emitter", "direct_light",
            "direct_light_rays", "direct_light_dims", "spot_falloff", "delta_filter", "delta_sample",
            "area_sample", "environment_sample",
            "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
@@ -95,31 +98,65 @@ MAX_INTERFACES = 16
 
 @njit(inline="always", cache=True)
 def surface(prim, b1, b2, px, py, pz, ns, sph_center, sph_radius, tri_v, tri_n, tri_has_n, flip):
-    """Geometric and shading normals of a hit (the costly part, only for the kept hit)."""
+    """Geometric and shading normals of a hit (the costly part, only for the kept hit), a
+    triangle's geometric normal computed from its vertices ``tri_v`` (for geometry that
+    moves; :func:`surface_at` reads it from the scene's table)."""
     if prim < ns:
-        r = sph_radius[prim]
-        gx = (px - sph_center[prim, 0]) / r
-        gy = (py - sph_center[prim, 1]) / r
-        gz = (pz - sph_center[prim, 2]) / r
-        sx, sy, sz = gx, gy, gz
+        return sphere_surface(prim, px, py, pz, sph_center, sph_radius, flip)
+    gx, gy, gz = triangle_normal(tri_v[prim - ns])
+    return _shading_normal(prim - ns, b1, b2, gx, gy, gz, tri_n, tri_has_n, flip)
+
+
+@njit(inline="always", cache=True)
+def surface_at(A: SceneArrays, prim, b1, b2, px, py, pz, flip):
+    """:func:`surface` of the scene ``A``, a triangle's geometric normal read from
+    ``A.tri_ng`` (the same bits: :func:`impl.scene_arrays.flatten` computes the table with
+    :func:`triangle_normal`'s operations)."""
+    ns = A.sph_radius.shape[0]
+    if prim < ns:
+        return sphere_surface(prim, px, py, pz, A.sph_center, A.sph_radius, flip)
+    j = prim - ns
+    return _shading_normal(j, b1, b2, A.tri_ng[j, 0], A.tri_ng[j, 1], A.tri_ng[j, 2], A.tri_n,
+                           A.tri_has_n, flip)
+
+
+@njit(inline="always", cache=True)
+def sphere_surface(prim, px, py, pz, sph_center, sph_radius, flip):
+    """Normals (geometric = shading) of sphere ``prim`` at p: (p − c) / r, negated with ``flip``."""
+    r = sph_radius[prim]
+    gx = (px - sph_center[prim, 0]) / r
+    gy = (py - sph_center[prim, 1]) / r
+    gz = (pz - sph_center[prim, 2]) / r
+    if flip:
+        gx, gy, gz = -gx, -gy, -gz
+    return gx, gy, gz, gx, gy, gz
+
+
+@njit(inline="always", cache=True)
+def triangle_normal(v):
+    """Unit normal (v1 − v0) × (v2 − v0) / |…| of the triangle with vertices ``v`` (3, 3)."""
+    e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
+    e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
+    gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+    return gx * inv, gy * inv, gz * inv
+
+
+@njit(inline="always", cache=True)
+def _shading_normal(j, b1, b2, gx, gy, gz, tri_n, tri_has_n, flip):
+    """Triangle j's normals at barycentrics (b1, b2) from its geometric normal g: the
+    shading normal interpolated from its vertex normals where it has them, else g; both
+    negated with ``flip``."""
+    if tri_has_n[j]:
+        b0 = 1.0 - b1 - b2
+        n = tri_n[j]
+        sx = b0 * n[0, 0] + b1 * n[1, 0] + b2 * n[2, 0]
+        sy = b0 * n[0, 1] + b1 * n[1, 1] + b2 * n[2, 1]
+        sz = b0 * n[0, 2] + b1 * n[1, 2] + b2 * n[2, 2]
+        inv = 1.0 / math.sqrt(sx * sx + sy * sy + sz * sz)
+        sx, sy, sz = sx * inv, sy * inv, sz * inv
     else:
-        j = prim - ns
-        v = tri_v[j]
-        e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
-        e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
-        gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
-        gx, gy, gz = gx * inv, gy * inv, gz * inv
-        if tri_has_n[j]:
-            b0 = 1.0 - b1 - b2
-            n = tri_n[j]
-            sx = b0 * n[0, 0] + b1 * n[1, 0] + b2 * n[2, 0]
-            sy = b0 * n[0, 1] + b1 * n[1, 1] + b2 * n[2, 1]
-            sz = b0 * n[0, 2] + b1 * n[1, 2] + b2 * n[2, 2]
-            inv = 1.0 / math.sqrt(sx * sx + sy * sy + sz * sz)
-            sx, sy, sz = sx * inv, sy * inv, sz * inv
-        else:
-            sx, sy, sz = gx, gy, gz
+        sx, sy, sz = gx, gy, gz
     if flip:
         gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
     return gx, gy, gz, sx, sy, sz
@@ -656,6 +693,10 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
     ``sample[i]`` (hashed and stratified within the pixel sample, :func:`light_uv`, or
     with ``M.sobol`` Sobol points over the pixel's samples, :func:`light_uv_sobol`); adds
     their light to ``T.L`` and their shadow rays to ``nshadow`` (n,).
+
+    A point, directional or untextured spot light without a specular term and with
+    opaque shadows is computed a point per vector lane (:func:`_delta_light_lanes`); the
+    other lights, the area emitters and the environment point by point.
     """
     P, L, active, pixel = T.pts, T.L, T.active, T.pixel
     sh, sh_w, sh_i = T.sh, T.sh_w, T.sh_i
@@ -665,6 +706,10 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
     local = A.light_local
     for li in range(A.light_kind.shape[0]):
         kind = A.light_kind[li]
+        if kind != LIGHT_PROJECTOR and not (kind == LIGHT_SPOT and A.light_tex[li, 1] > 0) \
+                and ks == 0.0 and seta.shape[0] == 0:
+            _delta_light_lanes(A, R, M, T, li, nshadow)
+            continue
         lpx, lpy, lpz = A.light_pos[li, 0], A.light_pos[li, 1], A.light_pos[li, 2]
         ldx, ldy, ldz = A.light_dir[li, 0], A.light_dir[li, 1], A.light_dir[li, 2]
         rr, rg, rb = A.light_rad[li, 0], A.light_rad[li, 1], A.light_rad[li, 2]
@@ -762,6 +807,161 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                 ray = shadow_along(R, P[0, i], P[1, i], P[2, i], P[3, i], P[4, i], P[5, i], lx, ly, lz)
                 m = _queue_shadow(sh, sh_w, sh_i, m, i, ray, cr, cg, cb)
             _light_unoccluded(R, T, m, nshadow, A, seta, strans)
+
+
+#: A point's state for one delta light in :func:`_delta_light_lanes` (``Batch.sh_i``): no
+#: light, lit (pending its shadow ray), or in a spot's transition band (lit by the scalar
+#: :func:`delta_sample`, whose ``acos`` does not vectorise).
+_DARK, _LIT, _BAND = 0, 1, 2
+
+
+@njit(inline="always", cache=True)
+def _delta_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, li, nshadow):
+    """Delta light ``li`` (point, directional or untextured spot; no specular term, opaque
+    shadows) at every active point of batch ``T``, a point per lane: the light sample, its
+    contribution and its shadow ray computed by the branch-free :func:`_delta_lanes` into
+    ``T.sh`` / ``T.sh_w`` (column i for point i; ``T.sh_i`` the state), then one
+    :func:`impl.tracer.occluded_batch` over the lanes.  Lanes without light are given a lit
+    lane's ray when queries are brute force (:func:`impl.tracer.brute_force`: a lane costs a
+    few vector operations per candidate, and a copy keeps the culling bound), else the lit
+    lanes are moved to the front.  The same samples, contributions and shadow rays as the
+    scalar loop of :func:`direct_batch`, so the same image bit for bit."""
+    n = T.n
+    sh, w, flag, P, L = T.sh, T.sh_w, T.sh_i, T.pts, T.L
+    kind = A.light_kind[li]
+    loc = A.light_local[li]
+    _delta_lanes(kind == LIGHT_DIRECTIONAL, kind == LIGHT_SPOT, A.light_pos[li, 0], A.light_pos[li, 1],
+                 A.light_pos[li, 2], A.light_dir[li, 0], A.light_dir[li, 1], A.light_dir[li, 2],
+                 loc[0, 0], loc[0, 1], loc[0, 2], loc[1, 0], loc[1, 1], loc[1, 2], loc[2, 0], loc[2, 1],
+                 loc[2, 2], A.light_cos_cutoff[li], A.light_cos_beam[li], M.c1, M.c2, M.c3, M.fclamp,
+                 A.light_rad[li, 0], A.light_rad[li, 1], A.light_rad[li, 2], R.strategy, R.eps,
+                 R.shrink_point, R.sph_radius, T.active[:n], P[0, :n], P[1, :n], P[2, :n], P[3, :n],
+                 P[4, :n], P[5, :n], P[6, :n], P[7, :n], P[8, :n], P[9, :n], P[10, :n], P[11, :n],
+                 P[12, :n], P[13, :n], P[14, :n], sh[0, :n], sh[1, :n], sh[2, :n], sh[3, :n], sh[4, :n],
+                 sh[5, :n], sh[6, :n], sh[7, :n], w[0, :n], w[1, :n], w[2, :n], flag[:n])
+    lit, first = 0, -1
+    for i in range(n):
+        if flag[i] == _BAND:             # the spot's cone edge: the scalar sample
+            ok, lx, ly, lz, wt, kd, spec = delta_sample(
+                kind, A.light_pos[li, 0], A.light_pos[li, 1], A.light_pos[li, 2], A.light_dir[li, 0],
+                A.light_dir[li, 1], A.light_dir[li, 2], A.light_local, li, A.light_cos_cutoff[li],
+                A.light_cos_beam[li], A.light_cutoff[li], A.light_inv_tw[li], P[0, i], P[1, i], P[2, i],
+                P[6, i], P[7, i], P[8, i], P[9, i], P[10, i], P[11, i], 0.0, M.shininess, M.c1, M.c2,
+                M.c3, M.fclamp)
+            flag[i] = _LIT if ok else _DARK
+            w[0, i] = wt * 1.0 * A.light_rad[li, 0] * (kd * P[12, i] + spec)
+            w[1, i] = wt * 1.0 * A.light_rad[li, 1] * (kd * P[13, i] + spec)
+            w[2, i] = wt * 1.0 * A.light_rad[li, 2] * (kd * P[14, i] + spec)
+        if flag[i] == _LIT:
+            lit += 1
+            first = i if first < 0 else first
+    if lit == 0:
+        return
+    if not M.shadows:
+        _add_lit(flag[:n], T.blocked[:n], False, w[0, :n], w[1, :n], w[2, :n], L[0, :n], L[1, :n],
+                 L[2, :n])
+        return
+    if brute_force(R):
+        _copy_lane(flag[:n], first, sh[0, :n], sh[1, :n], sh[2, :n], sh[3, :n], sh[4, :n], sh[5, :n],
+                   sh[6, :n], sh[7, :n])
+        occluded_batch(R, sh, np.int64(n), T.blocked, T.q)
+        for i in range(n):
+            nshadow[i] += flag[i] == _LIT
+        _add_lit(flag[:n], T.blocked[:n], True, w[0, :n], w[1, :n], w[2, :n], L[0, :n], L[1, :n],
+                 L[2, :n])
+        return
+    m = 0
+    for i in range(n):                   # lit lanes to the front (m <= i: in place)
+        if flag[i] == _LIT:
+            for c in range(8):
+                sh[c, m] = sh[c, i]
+            w[0, m], w[1, m], w[2, m] = w[0, i], w[1, i], w[2, i]
+            flag[m] = i
+            m += 1
+    _light_unoccluded(R, T, m, nshadow, A, M.shadow_eta, M.shadow_trans)
+
+
+@batch_kernel(error_model="numpy")
+def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02, m10, m11, m12, m20,
+                 m21, m22, cos_cutoff, cos_beam, c1, c2, c3, fclamp, ir, ig, ib, strategy, eps, shrink, g,
+                 active, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
+                 ox, oy, oz, dx, dy, dz, tmin, tmax, wr, wg, wb, flag):
+    """A delta light at every point i (a lane): :func:`delta_sample` with k_s = 0 (the
+    Phong bracket's diffuse term), the contribution w I kd ρ into ``wr``/``wg``/``wb``, the
+    shadow ray of :func:`shadow_towards` (:func:`shadow_along` for a directional light)
+    into ``ox``..``tmax`` and the state (``_DARK``, ``_LIT``, ``_BAND``) into ``flag`` —
+    the same operations as those functions, selects for their branches, so LLVM
+    vectorises the loop.  ``m`` is the spot's world-to-local map, ``g`` an array of the
+    intersection precision (the origin's offset is computed in it, :func:`impl.rays.leave`)."""
+    for i in range(px.shape[0]):
+        p_x, p_y, p_z = px[i], py[i], pz[i]
+        lx, ly, lz = lpx - p_x, lpy - p_y, lpz - p_z
+        dist = math.sqrt(lx * lx + ly * ly + lz * lz)
+        lx, ly, lz = lx / dist, ly / dist, lz / dist
+        den = c1 + c2 * dist + c3 * dist * dist
+        wt = 1.0 / den if den > 0.0 else math.inf
+        wt = 1.0 if fclamp & (wt > 1.0) else wt
+        lx = -ldx if directional else lx
+        ly = -ldy if directional else ly
+        lz = -ldz if directional else lz
+        wt = 1.0 if directional else wt
+        # spot_falloff: inside the cone (beyond its beam: the band, left to the scalar path)
+        ax = m00 * -lx + m01 * -ly + m02 * -lz
+        ay = m10 * -lx + m11 * -ly + m12 * -lz
+        az = m20 * -lx + m21 * -ly + m22 * -lz
+        cos_t = az / math.sqrt(ax * ax + ay * ay + az * az)
+        inside = (not spot) | (cos_t > cos_cutoff)
+        band = spot & (cos_t > cos_cutoff) & (cos_t < cos_beam)
+        # phong_brdf_cos with k_s = 0
+        cos_l = sx[i] * lx + sy[i] * ly + sz[i] * lz
+        cos_v = sx[i] * vx[i] + sy[i] * vy[i] + sz[i] * vz[i]
+        kd = cos_l * INV_PI
+        lit = active[i] & inside & (cos_l > 0.0) & (cos_v > 0.0) & (kd != 0.0)
+        flag[i] = (_BAND if band else _LIT) if lit else _DARK
+        wr[i] = wt * ir * (kd * rho_r[i])
+        wg[i] = wt * ig * (kd * rho_g[i])
+        wb[i] = wt * ib * (kd * rho_b[i])
+        # the shadow ray leaves p on the side of l
+        side = 1.0 if gx[i] * lx + gy[i] * ly + gz[i] * lz >= 0.0 else -1.0
+        o_x, o_y, o_z, t0 = spawn_select(strategy, like(g, p_x), like(g, p_y), like(g, p_z),
+                                         like(g, side * gx[i]), like(g, side * gy[i]),
+                                         like(g, side * gz[i]), like(g, eps))
+        o_x, o_y, o_z = float(o_x), float(o_y), float(o_z)
+        hx, hy, hz = lpx - o_x, lpy - o_y, lpz - o_z
+        hd = math.sqrt(hx * hx + hy * hy + hz * hz)
+        away = hd != 0.0
+        ox[i], oy[i], oz[i] = o_x, o_y, o_z
+        dx[i] = lx if directional else (hx / hd if away else 0.0)
+        dy[i] = ly if directional else (hy / hd if away else 0.0)
+        dz[i] = lz if directional else (hz / hd if away else 0.0)
+        tmin[i] = float(t0)
+        tmax[i] = math.inf if directional else (hd if away else 0.0) * (1.0 - shrink)
+
+
+@batch_kernel(error_model="numpy")
+def _copy_lane(flag, k, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    """Give every lane not ``_LIT`` the ray of lane ``k`` (a lit one)."""
+    a, b, c, d, e, f, t0, t1 = ox[k], oy[k], oz[k], dx[k], dy[k], dz[k], tmin[k], tmax[k]
+    for i in range(flag.shape[0]):
+        keep = flag[i] == _LIT
+        ox[i] = ox[i] if keep else a
+        oy[i] = oy[i] if keep else b
+        oz[i] = oz[i] if keep else c
+        dx[i] = dx[i] if keep else d
+        dy[i] = dy[i] if keep else e
+        dz[i] = dz[i] if keep else f
+        tmin[i] = tmin[i] if keep else t0
+        tmax[i] = tmax[i] if keep else t1
+
+
+@batch_kernel(error_model="numpy")
+def _add_lit(flag, blocked, shadows, wr, wg, wb, Lr, Lg, Lb):
+    """L += w at the ``_LIT`` lanes, with ``shadows`` only where ``blocked`` is false."""
+    for i in range(flag.shape[0]):
+        add = (flag[i] == _LIT) & (not (shadows & blocked[i]))
+        Lr[i] = Lr[i] + wr[i] if add else Lr[i]
+        Lg[i] = Lg[i] + wg[i] if add else Lg[i]
+        Lb[i] = Lb[i] + wb[i] if add else Lb[i]
 
 
 @njit(inline="always", cache=True)

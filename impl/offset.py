@@ -52,7 +52,7 @@ from .intersect import like
 
 __all__ = [
     "STRATEGIES", "ORIGIN", "FLOAT_SCALE", "INT_SCALE",
-    "float_as_int", "int_as_float", "offset_normal", "offset_scaled", "offset_ray", "spawn",
+    "float_as_int", "int_as_float", "offset_normal", "offset_scaled", "offset_ray", "spawn", "spawn_select",
 ]
 
 #: Strategy names, in the order of :func:`spawn`'s ``strategy`` code.
@@ -198,3 +198,29 @@ def spawn(strategy, px, py, pz, nx, ny, nz, eps):
     ox, oy, oz = offset_ray(px, py, pz, nx, ny, nz)
     return ox, oy, oz, zero
 
+
+
+@njit(inline="always", cache=True)
+def spawn_select(strategy, px, py, pz, nx, ny, nz, eps):
+    """:func:`spawn` without branches, for loops that LLVM vectorises over rays: every
+    strategy's origin computed with the same operations as there, the one of
+    ``strategy`` selected (so the result has the same bits)."""
+    zero = like(px, 0.0)
+    rx, ry, rz = _offset_select(px, nx), _offset_select(py, ny), _offset_select(pz, nz)
+    ax, ay, az = offset_normal(px, py, pz, nx, ny, nz, eps)
+    bx, by, bz = offset_scaled(px, py, pz, nx, ny, nz, eps)
+    robust, normal, scaled = strategy == 3, strategy == 1, strategy == 2
+    ox = rx if robust else (ax if normal else (bx if scaled else px))
+    oy = ry if robust else (ay if normal else (by if scaled else py))
+    oz = rz if robust else (az if normal else (bz if scaled else pz))
+    return ox, oy, oz, (eps if strategy == 0 else zero)
+
+
+@njit(inline="always", cache=True)
+def _offset_select(p, n):
+    """:func:`_offset_component` with selects instead of branches (same operations)."""
+    near = p + _float_scale(p) * n
+    of_i = int(like(p, INT_SCALE) * n)
+    of_i = -of_i if p < like(p, 0.0) else of_i
+    far = _add_ulps(p, of_i)
+    return near if abs(p) < like(p, ORIGIN) else far

@@ -168,7 +168,7 @@ from .camera import camera_params
 from .kernel import batch_kernel, interleaved, task_stride
 from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_with_lights,
                              sample_light)
-from .lighting import diffuse_albedo, environment_radiance, surface
+from .lighting import diffuse_albedo, environment_radiance, surface_at
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, leave, refine, round_ray
 from .lowdiscrepancy import pixel_seed, sample_2d
@@ -462,8 +462,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
             continue
         shape = A.prim_shape[prim]
         px, py, pz = ls[_LS_PX, k], ls[_LS_PY, k], ls[_LS_PZ, k]
-        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
-                                         A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+        gx, gy, gz, sx, sy, sz = surface_at(A, prim, b1, b2, px, py, pz, A.shape_flip[shape])
         vx, vy, vz = -dx, -dy, -dz
         cos_v = sx * vx + sy * vy + sz * vz
 

@@ -64,8 +64,9 @@ Structure: the tracer core of :mod:`impl.tracer` renders tile by tile, each
 sample index's eye rays as one batch; this module is the shading step
 (:func:`_shade`): the hit's surface, emission and ambient term, then the
 direct light of :func:`impl.lighting.direct_batch`, whose shadow rays are
-traced a light sample at a time over the whole batch.  With ``packets=true``
-the eye rays of 8×8 tiles go through the tree as packets
+traced a light sample at a time over the whole batch (a delta light's sample,
+contribution and shadow ray computed for every point in one vectorised loop).
+With ``packets=true`` the eye rays of 8×8 tiles go through the tree as packets
 (:mod:`impl.accel.packets`); the image and counters are those of
 ``packets=false`` bit for bit, plus the counters ``packet_nodes`` and
 ``packet_tests``.  ``RenderResult.timings`` splits the render's wall time into
@@ -89,7 +90,7 @@ from .camera import camera_params, eye_ray
 from .intersect import closest_hit
 from .kernel import batch_kernel, interleaved, task_stride
 from .lighting import (SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo, direct_batch,
-                       environment_radiance, local_model, surface)
+                       environment_radiance, local_model, surface_at)
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, refine
@@ -112,7 +113,6 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx)
     one-sided surface seen from behind gets nothing; a two-sided one is shaded on the
     side it is seen from.  ``sidx`` (n,) is scratch for the points' sample index."""
     pts, active = T.pts, T.active
-    ns = A.sph_radius.shape[0]
     amb = M.ambient * M.ka
     for i in range(T.n):
         active[i] = False
@@ -125,8 +125,7 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx)
         shape = A.prim_shape[prim]
         px, py, pz = refine(R, prim, b1, b2, T.ray[OX, i] + t * dx, T.ray[OY, i] + t * dy,
                             T.ray[OZ, i] + t * dz)
-        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
-                                          A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+        gx, gy, gz, sx, sy, sz = surface_at(A, prim, b1, b2, px, py, pz, A.shape_flip[shape])
         vx, vy, vz = -dx, -dy, -dz
         r = g = b = 0.0
         cos_v = sx * vx + sy * vy + sz * vz

@@ -42,7 +42,7 @@ from .textures import FILTER_BILINEAR, FILTER_NEAREST, WRAP_CLAMP, WRAP_MIRROR, 
 WRAP_CODES = {"repeat": WRAP_REPEAT, "clamp": WRAP_CLAMP, "mirror": WRAP_MIRROR}
 FILTER_CODES = {"bilinear": FILTER_BILINEAR, "nearest": FILTER_NEAREST}
 
-__all__ = ["SceneArrays", "diffuse_texture", "flatten", "flatten_cached", "scene_memo", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
+__all__ = ["SceneArrays", "diffuse_texture", "flatten", "triangle_normals", "flatten_cached", "scene_memo", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
            "LIGHT_PROJECTOR", "SHADE_NONE", "SHADE_NORMALMAP", "SHADE_BUMPMAP",
            "TEX_NONE", "TEX_CHECKERBOARD", "TEX_BITMAP", "MATERIAL_CODES"]
 
@@ -105,6 +105,7 @@ class SceneArrays(NamedTuple):
     light_proj: np.ndarray      # (L, 3) projector: cot(fov_x / 2), image aspect, |to_world · e_z|
     light_tex: np.ndarray       # (L, 5) projector irradiance / spot texture bitmap (width 0: none)
     light_tex_uv: np.ndarray    # (L, 2, 3) its to_uv map
+    tri_ng: np.ndarray          # (T, 3) unit geometric normal (v1 − v0) × (v2 − v0) / |…|
 
     @property
     def n_spheres(self) -> int:
@@ -156,6 +157,20 @@ def _light_local(light) -> np.ndarray:
     x = np.cross(a, z)
     x /= np.linalg.norm(x)
     return np.stack([x, np.cross(z, x), z])
+
+
+def triangle_normals(tri_v: np.ndarray) -> np.ndarray:
+    """(T, 3) unit normals (v1 − v0) × (v2 − v0) / |…| of the triangles ``tri_v`` (T, 3, 3),
+    with the operations of :func:`impl.lighting.triangle_normal` in its order (elementwise
+    numpy arithmetic rounds each operation as the kernel does: the same bits).  A
+    degenerate triangle gets a non-finite normal; no ray hits it."""
+    v = np.asarray(tri_v, dtype=np.float64)
+    e1x, e1y, e1z = v[:, 1, 0] - v[:, 0, 0], v[:, 1, 1] - v[:, 0, 1], v[:, 1, 2] - v[:, 0, 2]
+    e2x, e2y, e2z = v[:, 2, 0] - v[:, 0, 0], v[:, 2, 1] - v[:, 0, 1], v[:, 2, 2] - v[:, 0, 2]
+    gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / np.sqrt(gx * gx + gy * gy + gz * gz)
+        return np.ascontiguousarray(np.stack([gx * inv, gy * inv, gz * inv], axis=1))
 
 
 def flatten(scene: Scene) -> SceneArrays:
@@ -276,6 +291,7 @@ def flatten(scene: Scene) -> SceneArrays:
         tri_v=np.ascontiguousarray(tri_v, dtype=np.float64),
         tri_n=np.ascontiguousarray(tri_n, dtype=np.float64),
         tri_has_n=tri_has_n,
+        tri_ng=triangle_normals(tri_v),
         prim_shape=np.asarray(prim_shape, dtype=np.int64),
         shape_material=np.asarray([s.material for s in scene.shapes], dtype=np.int64),
         shape_flip=np.asarray([int(s.flip_normals) for s in scene.shapes], dtype=np.int64),

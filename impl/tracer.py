@@ -39,7 +39,9 @@ They compute exactly what :func:`impl.intersect.closest_hit_form` / ``any_hit_fo
 ray (same arithmetic, same tie rule: the first primitive of smallest ``t``),
 so the image does not depend on the path taken.  Before the loops, a batch's rays are
 bounded (:func:`_cull`: the frustum of rays from one origin or to one point, else the
-box of the segments) and only the primitives inside the bound are tested; ``accel=auto`` answers batch
+box of the segments) and only the primitives inside the bound are tested; a pinhole
+camera's eye rays are bounded once per tile, for all its samples, by the frustum through
+the tile's corners (:func:`_tile_candidates`).  ``accel=auto`` answers batch
 queries this way on small scenes even where its per-ray queries use the wide BVH
 (:data:`impl.rays.AUTO_BATCH_PRIMS_PER_LANE`).  The loops are functions of their own
 taking every array as a separate argument: inlined with rows of one 2-D array as
@@ -80,7 +82,8 @@ DIM_LENS = 1 << 29
 
 __all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "film_result", "new_batch",
            "new_points", "first", "Pending", "new_pending", "push_pending", "take_pending",
-           "ray_config_cached", "run_tiles", "eye_batch", "closest_batch", "occluded_batch", "accumulate",
+           "ray_config_cached", "run_tiles", "eye_batch", "closest_batch", "occluded_batch",
+           "brute_force", "accumulate",
            "store", "OX", "OY", "OZ", "DX", "DY", "DZ", "TMIN", "TMAX"]
 
 #: Tile side without packets.
@@ -133,6 +136,9 @@ class Batch(NamedTuple):
     qp: np.ndarray              # (n,) int32 primitive (int32: the loops then vectorise in float32 too)
     film: np.ndarray            # (2, n) film positions (pixels) of the eye rays
     xy: np.ndarray              # (2, n) float64 pixel coordinates (x, y) of each column
+    cand: np.ndarray            # (2 + S + T,) int64 the tile's eye-ray candidates (:func:`eye_batch`):
+                                # counts of spheres and triangles, then their indices; -1 = not yet
+                                # known, -2 = none (each batch culled on its own)
 
 
 #: The parameters :func:`impl.rays.ray_config` reads (its parameter table).
@@ -214,7 +220,8 @@ def new_batch(film: Film, R: RayConfig, tile):
                  film.packet[tile], np.empty((P, 8)), np.empty((P, 2)), pixel,
                  np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
-                 np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, n)), xy)
+                 np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, n)), xy,
+                 np.full(2 + R.sph_radius.shape[0] + R.tri_v.shape[0], -1, np.int64))
 
 
 @njit(cache=True)
@@ -229,7 +236,8 @@ def new_points(n, R: RayConfig, counters=0):
                  np.zeros(2, np.int64), np.empty((0, 8)), np.empty((0, 2)), np.zeros(n, np.int64),
                  np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
-                 np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, 0)), np.empty((2, 0)))
+                 np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, 0)), np.empty((2, 0)),
+                 np.full(2, -2, np.int64))
 
 
 @njit(inline="always", cache=True)
@@ -238,7 +246,7 @@ def first(T: Batch, m):
     m): what the batch steps loop over when a chunk fills only part of a batch."""
     return Batch(T.x0, T.y0, T.nx, m, T.ray, T.t, T.prim, T.b, T.L, T.acc, T.cnt, T.packet, T.aos,
                  T.aos_b, T.pixel, T.pts, T.active, T.sh, T.sh_w, T.sh_i, T.blocked, T.q, T.qt, T.qp,
-                 T.film, T.xy)
+                 T.film, T.xy, T.cand)
 
 
 class Pending(NamedTuple):
@@ -339,7 +347,14 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     if pinhole:
         pinhole_rays(cam, g, T.film[0, :n], T.film[1, :n], ray[OX, :n], ray[OY, :n], ray[OZ, :n],
                      ray[DX, :n], ray[DY, :n], ray[DZ, :n], ray[TMIN, :n], ray[TMAX, :n])
-    if packets:
+    if pinhole and not packets and brute_force(R) and n >= 4 and T.cand.shape[0] > 2:
+        if T.cand[0] == -1:
+            _tile_candidates(cam, R, T)
+        _in_precision(ray, n, T.q)
+        S = R.sph_radius.shape[0]
+        _closest_in(R, ray, n, T.t, T.prim, T.b, T.q, T.qt, T.qp, T.cand[2:2 + T.cand[0]],
+                    T.cand[2 + S:2 + S + T.cand[1]])
+    elif packets:
         for i in range(T.n):
             for c in range(8):
                 T.aos[i, c] = ray[c, i]
@@ -350,12 +365,47 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
         closest_batch(R, ray, T.n, T.t, T.prim, T.b, T.q, T.qt, T.qp)
 
 
+@njit(inline="always", cache=True)
+def _tile_candidates(cam, R: RayConfig, T: Batch):
+    """The primitives the tile's eye rays can meet, into ``T.cand``, for every sample
+    index at once: those inside the frustum of the four rays through the tile's outer
+    pixel corners (:func:`_frustum`).  A pinhole's rays share the camera's origin, and
+    every film position of the tile lies in the rectangle of those corners, so every eye
+    ray of every sample lies in that frustum (the projective map from the film to the
+    frustum's (u, v) plane keeps the rectangle's image inside the box of its corners'
+    images).  The corner rays go through the scratch rows ``T.sh``, ``T.sh_w`` and the
+    first four columns of ``T.q`` (the tile has at least four pixels)."""
+    ny = T.n // T.nx
+    fx, fy, c = T.sh_w[0, :4], T.sh_w[1, :4], T.sh
+    fx[0], fy[0] = T.x0, T.y0
+    fx[1], fy[1] = T.x0 + T.nx, T.y0
+    fx[2], fy[2] = T.x0, T.y0 + ny
+    fx[3], fy[3] = T.x0 + T.nx, T.y0 + ny
+    pinhole_rays(cam, R.sph_radius, fx, fy, c[OX, :4], c[OY, :4], c[OZ, :4], c[DX, :4], c[DY, :4],
+                 c[DZ, :4], c[TMIN, :4], c[TMAX, :4])
+    _in_precision(c, 4, T.q)
+    S = R.sph_radius.shape[0]
+    sph, tri = T.cand[2:2 + S], T.cand[2 + S:]
+    ok, m, k = _frustum(R, T.q, 4, sph, tri, float(T.q[OX, 0]), float(T.q[OY, 0]),
+                        float(T.q[OZ, 0]), 0.0, False, T.film)
+    if not ok:
+        m, k = _keep_all(sph, tri)
+    T.cand[0], T.cand[1] = m, k
+
+
+@njit(inline="always", cache=True)
+def brute_force(R: RayConfig):
+    """Whether batch queries go through the brute-force loops (else through R's
+    structure): a ray then costs a few vector operations per candidate primitive."""
+    return (R.accel == 0 or R.batch_brute) and R.form == 2
+
+
 @njit(cache=True, error_model="numpy", _nrt=True)
 def closest_batch(R: RayConfig, ray, n, t, prim, b, q, qt, qp):
     """Closest hits of the first ``n`` rays of ``ray`` (8, ≥n) in R's form, precision and
     structure: ``t`` (float64), ``prim`` (-1 on a miss), ``b`` (2, n) barycentrics.
     ``q`` (8, ≥n), ``qt`` (3, ≥n) in R's precision and ``qp`` (≥n,) int32 are scratch."""
-    if (R.accel == 0 or R.batch_brute) and R.form == 2:
+    if brute_force(R):
         _closest_brute(R, ray, n, t, prim, b, q, qt, qp)
         return
     closest_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
@@ -367,7 +417,7 @@ def occluded_batch(R: RayConfig, ray, n, blocked, q):
     """Whether anything lies on each of the first ``n`` rays of ``ray`` (8, ≥n) within
     (tmin, tmax), in R's form, precision and structure; ``q`` (8, ≥n) in R's precision
     is scratch."""
-    if (R.accel == 0 or R.batch_brute) and R.form == 2:
+    if brute_force(R):
         _occluded_brute(R, ray, n, blocked, q)
         return
     occluded_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
@@ -425,10 +475,17 @@ def _closest_brute(R: RayConfig, ray, n, t, prim, b, q, qt, bp):
     """Brute-force closest hits: the rays in R's precision, the primitives that can lie on
     them (:func:`_cull`), then :func:`_closest_loops` over those."""
     _in_precision(ray, n, q)
-    best, b1s, b2s = qt[0, :n], qt[1, :n], qt[2, :n]
     sph, tri = _candidates(R)
     ns, nt = _cull(R, q, n, sph, tri)
-    _closest_loops(R.sph_center, R.sph_radius, R.tri_v, sph[:ns], tri[:nt], q[OX, :n], q[OY, :n],
+    _closest_in(R, ray, n, t, prim, b, q, qt, bp, sph[:ns], tri[:nt])
+
+
+@njit(inline="always", cache=True)
+def _closest_in(R: RayConfig, ray, n, t, prim, b, q, qt, bp, sph, tri):
+    """:func:`_closest_loops` of the rays ``q`` (already in R's precision) over the spheres
+    ``sph`` and triangles ``tri``, the answers copied to ``t``, ``prim``, ``b`` (float64)."""
+    best, b1s, b2s = qt[0, :n], qt[1, :n], qt[2, :n]
+    _closest_loops(R.sph_center, R.sph_radius, R.tri_v, sph, tri, q[OX, :n], q[OY, :n],
                    q[OZ, :n], q[DX, :n], q[DY, :n], q[DZ, :n], q[TMIN, :n], q[TMAX, :n], best, bp[:n],
                    b1s, b2s)
     for i in range(n):
@@ -456,7 +513,7 @@ _CULL_MIN_PRIMS = 8
 _CULL_MIN_RAYS = 32
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=True)
 def _cull(R: RayConfig, q, n, sph, tri):
     """The spheres and triangles (indices into ``sph`` and ``tri``, in scene order; their
     counts returned) that may meet a segment o + t·d, tmin < t < tmax, of the batch's
@@ -477,11 +534,12 @@ def _cull(R: RayConfig, q, n, sph, tri):
     if n < _CULL_MIN_RAYS or R.sph_radius.shape[0] + R.tri_v.shape[0] < _CULL_MIN_PRIMS:
         return _keep_all(sph, tri)
     px, py, pz = float(q[OX, 0]), float(q[OY, 0]), float(q[OZ, 0])
+    uv = np.empty((2, n))
     shared = True
     for i in range(n):
         shared &= (q[OX, i] == q[OX, 0]) & (q[OY, i] == q[OY, 0]) & (q[OZ, i] == q[OZ, 0])
     if shared:                           # apex: the origin; directions: the rays'
-        ok, m, k = _frustum(R, q, n, sph, tri, px, py, pz, 0.0, False)
+        ok, m, k = _frustum(R, q, n, sph, tri, px, py, pz, 0.0, False, uv)
         if ok:
             return m, k
     else:
@@ -500,7 +558,7 @@ def _cull(R: RayConfig, q, n, sph, tri):
         if not finite:                   # an unbounded segment: no box either
             return _keep_all(sph, tri)
         if slack2 <= _CONVERGE * _CONVERGE * span2:
-            ok, m, k = _frustum(R, q, n, sph, tri, ex, ey, ez, math.sqrt(slack2), True)
+            ok, m, k = _frustum(R, q, n, sph, tri, ex, ey, ez, math.sqrt(slack2), True, uv)
             if ok:
                 return m, k
     return _shaft_box(R, q, n, sph, tri)
@@ -524,20 +582,21 @@ def _end(q, i):
 
 
 @njit(inline="always", cache=True)
-def _frustum(R: RayConfig, q, n, sph, tri, px, py, pz, slack, towards_origins):
+def _frustum(R: RayConfig, q, n, sph, tri, px, py, pz, slack, towards_origins, uv):
     """Cull by the frustum from apex p holding the rays' directions: the rays' own
     (``towards_origins`` false) or those from p to the rays' origins, each segment
-    within ``slack`` of its ray from p.  The directions w, about their mean a with a
-    frame (e1, e2, a), span [u0, u1] × [v0, v1] in u = w·e1 / w·a, v = w·e2 / w·a; the
-    four planes u = u0, u = u1, v = v0, v = v1 through p bound a convex cone (in front
-    of p) that holds every ray.  Returns (built, spheres kept, triangles kept); not
-    built when some direction is more than acos(_FRUSTUM_MIN_COS) from the mean."""
-    ax = ay = az = 0.0
-    for i in range(n):
-        wx, wy, wz = _direction(q, i, px, py, pz, towards_origins)
-        ax += wx
-        ay += wy
-        az += wz
+    within ``slack`` of its ray from p.  The directions w, about an axis a (their sum's
+    direction) with a frame (e1, e2, a), span [u0, u1] × [v0, v1] in u = w·e1 / w·a,
+    v = w·e2 / w·a; the four planes u = u0, u = u1, v = v0, v = v1 through p bound a
+    convex cone (in front of p) that holds every ray.  Any axis with w·a > 0 for every
+    ray gives a cone holding them, so the sum may be taken in any order.  ``uv`` (2, ≥n)
+    float64 is scratch.  Returns (built, spheres kept, triangles kept); not built when
+    some direction is more than acos(_FRUSTUM_MIN_COS) from the axis."""
+    if towards_origins:
+        wx, wy, wz, ox, oy, oz = q[OX, :n], q[OY, :n], q[OZ, :n], px, py, pz
+    else:
+        wx, wy, wz, ox, oy, oz = q[DX, :n], q[DY, :n], q[DZ, :n], 0.0, 0.0, 0.0
+    ax, ay, az = _direction_sum(wx, wy, wz, ox, oy, oz)
     norm = math.sqrt(ax * ax + ay * ay + az * az)
     if not norm > 0.0:
         return False, 0, 0
@@ -548,21 +607,16 @@ def _frustum(R: RayConfig, q, n, sph, tri, px, py, pz, slack, towards_origins):
     d = ax * ay * c
     e1x, e1y, e1z = 1.0 + sign * ax * ax * c, sign * d, -sign * ax
     e2x, e2y, e2z = d, sign + ay * ay * c, -ay
+    u, v = uv[0, :n], uv[1, :n]
+    wide = _frustum_uv(wx, wy, wz, ox, oy, oz, ax, ay, az, e1x, e1y, e1z, e2x, e2y, e2z,
+                       _FRUSTUM_MIN_COS * _FRUSTUM_MIN_COS, u, v)
+    if wide > 0:
+        return False, 0, 0
     u0 = v0 = math.inf
     u1 = v1 = -math.inf
-    narrow = True
-    c2 = _FRUSTUM_MIN_COS * _FRUSTUM_MIN_COS
-    for i in range(n):                   # no early exit: the loop stays branch-free
-        wx, wy, wz = _direction(q, i, px, py, pz, towards_origins)
-        wa = wx * ax + wy * ay + wz * az
-        narrow &= (wa > 0.0) & (wa * wa >= c2 * (wx * wx + wy * wy + wz * wz))
-        inv = 1.0 / wa
-        u = (wx * e1x + wy * e1y + wz * e1z) * inv
-        v = (wx * e2x + wy * e2y + wz * e2z) * inv
-        u0, u1 = min(u0, u), max(u1, u)
-        v0, v1 = min(v0, v), max(v1, v)
-    if not narrow:
-        return False, 0, 0
+    for i in range(n):
+        u0, u1 = min(u0, u[i]), max(u1, u[i])
+        v0, v1 = min(v0, v[i]), max(v1, v[i])
     # Inward unit normals of the planes: e1 − u0 a, u1 a − e1, e2 − v0 a, v1 a − e2.
     n0 = _unit(e1x - u0 * ax, e1y - u0 * ay, e1z - u0 * az)
     n1 = _unit(u1 * ax - e1x, u1 * ay - e1y, u1 * az - e1z)
@@ -597,12 +651,34 @@ def _frustum(R: RayConfig, q, n, sph, tri, px, py, pz, slack, towards_origins):
     return True, m, k
 
 
-@njit(inline="always", cache=True)
-def _direction(q, i, px, py, pz, towards_origin):
-    """Ray i's direction, or with ``towards_origin`` the direction from p to its origin."""
-    if towards_origin:
-        return float(q[OX, i]) - px, float(q[OY, i]) - py, float(q[OZ, i]) - pz
-    return float(q[DX, i]), float(q[DY, i]), float(q[DZ, i])
+@njit(cache=True, error_model="numpy", fastmath={"reassoc", "nsz"})
+def _direction_sum(x, y, z, px, py, pz):
+    """Σ_i (x_i − px, y_i − py, z_i − pz) in float64, summed in any order (reassociation
+    allowed: LLVM vectorises the loop)."""
+    sx = sy = sz = 0.0
+    for i in range(x.shape[0]):
+        sx += float(x[i]) - px
+        sy += float(y[i]) - py
+        sz += float(z[i]) - pz
+    return sx, sy, sz
+
+
+@njit(cache=True, error_model="numpy")
+def _frustum_uv(x, y, z, px, py, pz, ax, ay, az, e1x, e1y, e1z, e2x, e2y, e2z, c2, u, v):
+    """Projective coordinates u = w·e1 / w·a, v = w·e2 / w·a of the directions
+    w = (x_i − px, y_i − py, z_i − pz) into ``u``, ``v``; returns how many directions lie
+    behind a or wider than the cosine whose square is ``c2``.  No branch: LLVM
+    vectorises the loop, divisions included."""
+    wide = 0
+    for i in range(x.shape[0]):
+        wx, wy, wz = float(x[i]) - px, float(y[i]) - py, float(z[i]) - pz
+        wa = wx * ax + wy * ay + wz * az
+        ok = (wa > 0.0) & (wa * wa >= c2 * (wx * wx + wy * wy + wz * wz))
+        wide += 0 if ok else 1
+        inv = 1.0 / wa
+        u[i] = (wx * e1x + wy * e1y + wz * e1z) * inv
+        v[i] = (wx * e2x + wy * e2y + wz * e2z) * inv
+    return wide
 
 
 @njit(inline="always", cache=True)

@@ -202,7 +202,7 @@ from .camera import camera_params
 from .kernel import batch_kernel, interleaved, task_stride
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import (SHADOW_MODES, SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo,
-                       direct_batch, environment_radiance, local_model, surface)
+                       direct_batch, environment_radiance, local_model, surface_at)
 from .materials import SpecularArrays, material_arrays
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, leave, ray_config, refine, round_ray
@@ -321,8 +321,7 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
         t, b1, b2 = C.t[i], C.b[0, i], C.b[1, i]
         shape = A.prim_shape[prim]
         px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
-        gx, gy, gz, sx, sy, sz = surface(prim, b1, b2, px, py, pz, ns, A.sph_center, A.sph_radius,
-                                         A.tri_v, A.tri_n, A.tri_has_n, A.shape_flip[shape])
+        gx, gy, gz, sx, sy, sz = surface_at(A, prim, b1, b2, px, py, pz, A.shape_flip[shape])
         vx, vy, vz = -rdx, -rdy, -rdz
         cos_v = sx * vx + sy * vy + sz * vz
         if cos_v > 0.0:                  # emitted radiance L_e of an area emitter (front side)

@@ -18,7 +18,8 @@ from impl import (accel, bsdf, light_sampling, lighting, path, projector, raycas
 from impl.accel import wide
 from impl.kernel import batch_kernel
 
-BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, whitted._trees,
+BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, lighting._delta_lanes,
+                 lighting._copy_lane, lighting._add_lit, whitted._trees,
                  whitted._shade, path._start, path._light_samples, path._vertices, path._unblocked,
                  path._to_srgb, wide.wide_closest, wide.wide_any,
                  wide.wide_closest_bound, wide.wide_any_bound,
@@ -29,7 +30,7 @@ PER_RAY = [bsdf.bsdf_sample, bsdf.bsdf_eval, bsdf.bsdf_pdf, light_sampling.sampl
            light_sampling.emitter_pdf, rays.hit, rays.occluded, wide.wide_bind,
            shading_frame.perturbed_normal, shading_frame.same_side, shading_frame.shadow_terminator,
            textures.bitmap_grad, projector.projector_weight]
-ALLOCATING = [tracer.closest_batch, tracer.occluded_batch, accel.closest, accel.any_hit,
+ALLOCATING = [tracer.closest_batch, tracer.occluded_batch, tracer._cull, accel.closest, accel.any_hit,
               accel.closest_rays, accel.occluded_rays, bsdf._plastic_sample, bsdf._plastic_eval,
               bsdf._plastic_pdf]
 

@@ -145,6 +145,27 @@ def test_jittered_film_equals_pixel_sample_bit_for_bit():
             assert (fx[i], fy[i]) == (x[i] + ox, y[i] + oy), (spp, s, i)
 
 
+@pytest.mark.skipif(not _avx2(), reason="the host has no AVX2")
+def test_light_sample_lanes_and_frustum_loops_vectorise():
+    """The per-point delta-light loop (a light sample, its contribution and its shadow
+    ray's offset origin for every point: 15 input and 11 output arrays) and the frustum's
+    projective coordinates compile to packed float64 divisions and square roots.  The
+    light loop needs more run-time overlap checks between its arrays than LLVM allows by
+    default (impl.kernel.LLVM_OPTIONS); without them it stays scalar."""
+    from impl import lighting
+    n = 64
+    a = [np.ones(n) for _ in range(26)]
+    lanes = njit(error_model="numpy")(lighting._delta_lanes.py_func)
+    lanes(False, True, *([0.5] * 15), 0.9, 0.95, 0.0, 0.0, 1.0, False, 1.0, 1.0, 1.0, 3, 1e-4,
+          1e-9, np.ones(1), np.ones(n, np.bool_), *a, np.empty(n, np.int64))
+    uv = njit(error_model="numpy")(tracer._frustum_uv.py_func)
+    uv(*a[:3], *([0.1] * 12), 0.01, a[3], a[4])
+    for name, kernel in (("light lanes", lanes), ("frustum", uv)):
+        asm = "\n".join(kernel.inspect_asm().values())
+        assert re.search(r"vdivpd\s+%[yz]mm", asm), name
+    assert re.search(r"vsqrtpd\s+%[yz]mm", "\n".join(lanes.inspect_asm().values()))
+
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
 @pytest.mark.parametrize("batch", ["shared_origin", "to_a_point", "parallel"])
 def test_culled_batches_equal_the_per_ray_queries(batch, dtype):
@@ -299,3 +320,85 @@ def test_wide_bvh_leaf_triangles_are_tested_in_vector_registers():
     asm = "\n".join(kernel.inspect_asm().values())
     assert re.search(r"vdivpd\s+%ymm", asm), "triangle lanes"
     assert re.search(r"vcmp\w*pd\s+%ymm", asm), "box and triangle lane compares"
+
+
+@pytest.mark.parametrize("scene, sampler", [("cornell/cornell_box.xml", "jitter"),
+                                            ("spheres/spot_directional.xml", "sobol")])
+def test_tile_frustum_keeps_every_primitive_an_eye_ray_hits(scene, sampler):
+    """A pinhole's eye rays are culled once per tile, for all its samples, by the
+    frustum through the tile's corners (impl.tracer._tile_candidates): every eye ray of
+    every sample, jittered or Sobol, gets the per-ray query's answer over all primitives,
+    and the tiles' lists do cull (on the Cornell box most tiles keep few of its 34
+    triangles; on the spheres the sky tiles keep no sphere)."""
+    from impl.camera import camera_params
+    from impl.sampling import sampler_code
+    from impl.tracer import eye_batch, new_batch, new_film
+
+    sc = load_scene(SUITES / scene)
+    p = registry.get("raycast").parse_params({"spp": 4, "sampler": sampler})
+    A = flatten_cached(sc)
+    R = tracer.ray_config_cached(sc, A, p, algorithm="raycast")
+    assert tracer.brute_force(R)
+    cam = camera_params(sc.camera)
+    W, H = sc.camera.film.width, sc.camera.film.height
+    film = new_film(W, H, 1, False, sampler_code(p))
+    total = len(A.sph_radius) + len(A.tri_v)
+    kept = []
+    for tile in range(film.packet.shape[0]):
+        T = new_batch(film, R, tile)
+        for s in range(4):
+            eye_batch(cam, R, T, s, 4, 5, False, film.sampler)
+            got = (T.t.copy(), T.prim.copy(), T.b.copy())
+            want = _per_ray_answers(R, T.ray)[:3]
+            _assert_same(got, want, err_msg=f"tile {tile} sample {s}")
+        kept.append(T.cand[0] + T.cand[1])
+    kept = np.array(kept)
+    assert (kept >= 0).all() and (kept <= total).all()
+    assert np.median(kept) < total / 2, np.median(kept)
+
+
+@pytest.mark.parametrize("params", [{}, {"precision": "float32"}, {"offset": "normal"},
+                                    {"offset": "epsilon"}, {"shadows": False},
+                                    {"accel": "bvh-wide"}, {"fatt_clamp": True, "c3": 4.0}])
+def test_delta_light_lanes_equal_the_scalar_light_samples(params):
+    """direct_batch computes a point, spot or directional light at every point of a batch
+    in one branch-free loop (impl.lighting._delta_lanes; the spot's cone edge goes back to
+    the scalar sample): each point gets, bit for bit, the light and the shadow-ray count
+    of the scalar per-point estimator (impl.lighting._direct_light_rays), in every ray
+    configuration; points in the spot's transition band and in shadow are among them."""
+    from impl import lighting, raycast
+    from impl.camera import camera_params
+    from impl.samplers import DIM_INDEPENDENT
+    from impl.sampling import sampler_code
+    from impl.tracer import eye_batch, new_batch, new_film
+
+    sc = load_scene(SUITES / "spheres/spot_directional.xml")
+    p = registry.get("raycast").parse_params({"spp": 4, "light_samples": 1, **params})
+    A = flatten_cached(sc)
+    R = tracer.ray_config_cached(sc, A, p, algorithm="raycast")
+    M = lighting.local_model(p)
+    cam = camera_params(sc.camera)
+    W, H = sc.camera.film.width, sc.camera.film.height
+    film = new_film(W, H, 1, False, sampler_code(p))
+    spot = int(np.flatnonzero(A.light_kind == 2)[0])
+    lit = dark = band = 0
+    for tile in range(0, film.packet.shape[0], 3):
+        T = new_batch(film, R, tile)
+        sidx = np.empty(T.n, np.int64)
+        eye_batch(cam, R, T, 2, 4, 7, False, film.sampler)
+        raycast._shade(A, R, M, T, 2, 7, sidx)
+        P = T.pts
+        for i in np.flatnonzero(T.active[:T.n]):
+            r, g, b, nsh = lighting._direct_light_rays(
+                *P[:, i], A, M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows,
+                M.light_samples, 7, T.pixel[i], 2, R, False, A.sph_radius, A.mat_rho,
+                DIM_INDEPENDENT, 0, 0)
+            assert (T.L[0, i], T.L[1, i], T.L[2, i]) == (r, g, b), (tile, i)
+            assert T.cnt[i, 0] == nsh, (tile, i)
+            lit += r > 0.0
+            dark += nsh > 0 and r == 0.0
+            lx = A.light_pos[spot] - P[0:3, i]
+            cos_t = -(A.light_dir[spot] @ lx) / np.linalg.norm(lx)
+            band += A.light_cos_cutoff[spot] < cos_t < A.light_cos_beam[spot]
+    assert lit > 100 and band > 10
+    assert dark > 10 or not M.shadows
