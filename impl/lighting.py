@@ -102,9 +102,12 @@ def surface(prim, b1, b2, px, py, pz, ns, sph_center, sph_radius, tri_v, tri_n, 
     triangle's geometric normal computed from its vertices ``tri_v`` (for geometry that
     moves; :func:`surface_at` reads it from the scene's table)."""
     if prim < ns:
-        return sphere_surface(prim, px, py, pz, sph_center, sph_radius, flip)
-    gx, gy, gz = triangle_normal(tri_v[prim - ns])
-    return _shading_normal(prim - ns, b1, b2, gx, gy, gz, tri_n, tri_has_n, flip)
+        gx, gy, gz, sx, sy, sz = sphere_surface(prim, px, py, pz, sph_center, sph_radius, flip)
+    else:
+        gx, gy, gz = triangle_normal(tri_v[prim - ns])
+        gx, gy, gz, sx, sy, sz = _shading_normal(prim - ns, b1, b2, gx, gy, gz, tri_n, tri_has_n,
+                                                 flip)
+    return gx, gy, gz, sx, sy, sz        # one return path (see spot_falloff)
 
 
 @njit(inline="always", cache=True)
@@ -114,10 +117,12 @@ def surface_at(A: SceneArrays, prim, b1, b2, px, py, pz, flip):
     :func:`triangle_normal`'s operations)."""
     ns = A.sph_radius.shape[0]
     if prim < ns:
-        return sphere_surface(prim, px, py, pz, A.sph_center, A.sph_radius, flip)
-    j = prim - ns
-    return _shading_normal(j, b1, b2, A.tri_ng[j, 0], A.tri_ng[j, 1], A.tri_ng[j, 2], A.tri_n,
-                           A.tri_has_n, flip)
+        gx, gy, gz, sx, sy, sz = sphere_surface(prim, px, py, pz, A.sph_center, A.sph_radius, flip)
+    else:
+        j = prim - ns
+        gx, gy, gz, sx, sy, sz = _shading_normal(j, b1, b2, A.tri_ng[j, 0], A.tri_ng[j, 1],
+                                                 A.tri_ng[j, 2], A.tri_n, A.tri_has_n, flip)
+    return gx, gy, gz, sx, sy, sz
 
 
 @njit(inline="always", cache=True)
@@ -849,9 +854,9 @@ def _delta_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, li, nshad
                 P[6, i], P[7, i], P[8, i], P[9, i], P[10, i], P[11, i], 0.0, M.shininess, M.c1, M.c2,
                 M.c3, M.fclamp)
             flag[i] = _LIT if ok else _DARK
-            w[0, i] = wt * 1.0 * A.light_rad[li, 0] * (kd * P[12, i] + spec)
-            w[1, i] = wt * 1.0 * A.light_rad[li, 1] * (kd * P[13, i] + spec)
-            w[2, i] = wt * 1.0 * A.light_rad[li, 2] * (kd * P[14, i] + spec)
+            w[0, i] = wt * A.light_rad[li, 0] * (kd * P[12, i] + spec)
+            w[1, i] = wt * A.light_rad[li, 1] * (kd * P[13, i] + spec)
+            w[2, i] = wt * A.light_rad[li, 2] * (kd * P[14, i] + spec)
         if flag[i] == _LIT:
             lit += 1
             first = i if first < 0 else first
@@ -898,9 +903,7 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
         lx, ly, lz = lpx - p_x, lpy - p_y, lpz - p_z
         dist = math.sqrt(lx * lx + ly * ly + lz * lz)
         lx, ly, lz = lx / dist, ly / dist, lz / dist
-        den = c1 + c2 * dist + c3 * dist * dist
-        wt = 1.0 / den if den > 0.0 else math.inf
-        wt = 1.0 if fclamp & (wt > 1.0) else wt
+        wt = attenuation(dist, c1, c2, c3, fclamp)
         lx = -ldx if directional else lx
         ly = -ldy if directional else ly
         lz = -ldz if directional else lz

@@ -373,8 +373,10 @@ def _tile_candidates(cam, R: RayConfig, T: Batch):
     every film position of the tile lies in the rectangle of those corners, so every eye
     ray of every sample lies in that frustum (the projective map from the film to the
     frustum's (u, v) plane keeps the rectangle's image inside the box of its corners'
-    images).  The corner rays go through the scratch rows ``T.sh``, ``T.sh_w`` and the
-    first four columns of ``T.q`` (the tile has at least four pixels)."""
+    images).  The corner rays go through the first four columns of the scratch arrays
+    ``T.sh_w`` (film positions), ``T.sh`` (rays), ``T.q`` (in R's precision) and ``T.film``
+    (the frustum's coordinates; the sample's film positions are used by then): the tile
+    has at least four pixels."""
     ny = T.n // T.nx
     fx, fy, c = T.sh_w[0, :4], T.sh_w[1, :4], T.sh
     fx[0], fy[0] = T.x0, T.y0
