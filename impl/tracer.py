@@ -86,8 +86,15 @@ __all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "
            "brute_force", "accumulate",
            "store", "OX", "OY", "OZ", "DX", "DY", "DZ", "TMIN", "TMAX"]
 
-#: Tile side without packets.
-BATCH_TILE = 16
+#: Tile side without packets: a batch of up to BATCH_TILE² rays.  Every batch step has a
+#: fixed cost besides its per-ray work: numba hands a named tuple to a compiled function
+#: as its fields, each array as several machine words, so a call such as a tracer's
+#: shading step (scene, ray configuration, model, batch) copies several hundred words
+#: onto the stack; larger batches spread that over more rays.  The side is not a power
+#: of two: the rows of a batch array are n·8 bytes apart, and with n a multiple of 512
+#: (32×32 tiles) they all fall into one set of the L1 data cache, so a loop streaming
+#: more rows than the cache's ways evicts its own data.
+BATCH_TILE = 24
 
 #: Rows of a ray batch (``Batch.ray``): origin, unit direction, valid range.
 OX, OY, OZ, DX, DY, DZ, TMIN, TMAX = range(8)
@@ -156,8 +163,7 @@ def ray_config_cached(scene, A, params: dict, *, algorithm: str) -> RayConfig:
 def new_film(W: int, H: int, counters: int, packets: bool, sampler: int = 0) -> Film:
     """The zeroed outputs of a W×H render with ``counters`` per-pixel counts, pixel
     samples placed by ``sampler`` (:func:`impl.sampling.pixel_sample`'s code).  Tiles are
-    the packets' (``TILE``) with packets, else ``BATCH_TILE`` (fewer, larger batches:
-    each batch step has a fixed cost)."""
+    the packets' (``TILE``) with packets, else ``BATCH_TILE``."""
     ts = TILE if packets else BATCH_TILE
     tiles = ((W + ts - 1) // ts) * ((H + ts - 1) // ts)
     return Film(np.zeros((H, W, 3)), np.zeros((H, W, 3)), np.zeros((H, W, counters), np.int64),

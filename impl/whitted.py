@@ -170,13 +170,13 @@ chunk of at most one tile's worth of rays at a time, each chunk's closest
 hits as one batch query (:func:`impl.tracer.closest_batch`) and its diffuse
 leaves lit together (:func:`impl.lighting.direct_batch`, the shadow rays of
 one light sample as one batch).  A level holds the children of one chunk (at
-most two per ray), so the queue holds at most (max_depth + 2) × 2 × 256 rays
-per thread.  Leaf k of a tree (in the order the levels meet them) draws the
-light samples of "sample" s + k·spp, so leaf 0 those of ``raycast``: without
-delta surfaces whitted renders raycast's image bit for bit.  Same image and
-counters with and without packets, plus ``packet_nodes`` and
-``packet_tests``; packets need a tree (``accel=auto`` then means
-``bvh-sah``).
+most two per ray), so the queue holds at most (max_depth + 2) × 2 × B rays per
+thread (B = ``BATCH_TILE``², the rays of a batch).  Leaf k of a tree (in the
+order the levels meet them) draws the light samples of "sample" s + k·spp, so
+leaf 0 those of ``raycast``: without delta surfaces whitted renders raycast's
+image bit for bit.  Same image and counters with and without packets, plus
+``packet_nodes`` and ``packet_tests``; packets need a tree (``accel=auto``
+then means ``bvh-sah``).
 
 Example::
 

@@ -232,6 +232,29 @@ def test_renders_report_setup_and_trace_time(name):
     assert all(v >= 0.0 for v in res.timings.values())
 
 
+@pytest.mark.parametrize("name, scene, params", [
+    ("raycast", "cornell/cornell_point.xml", {"spp": 4, "light_samples": 1}),
+    ("raycast", "spheres/spot_directional.xml", {"spp": 4, "sampler": "sobol"}),
+    ("whitted", "spheres/mirror_sphere.xml", {"spp": 4}),
+    ("path", "cornell/cornell_box.xml", {"spp": 4, "max_depth": 4}),
+], ids=["raycast-point", "raycast-spot-sobol", "whitted", "path"])
+def test_images_do_not_depend_on_the_tile_size(monkeypatch, name, scene, params):
+    """The tile (the batch) is a schedule, not part of the estimator: random numbers are
+    keyed by pixel and sample, culling is conservative, counters are per pixel.  Tiles of
+    7 and 13 pixels (partial tiles at every edge of the 160×120 film) give the image,
+    variance and counters of the default tile bit for bit."""
+    sc = load_scene(SUITES / scene)
+    algo = registry.get(name)
+    p = algo.parse_params(params)
+    want = algo.render(sc, p, seed=3)
+    for side in (7, 13):
+        monkeypatch.setattr(tracer, "BATCH_TILE", side)
+        got = algo.render(sc, p, seed=3)
+        np.testing.assert_array_equal(got.image, want.image, err_msg=f"tile {side}")
+        np.testing.assert_array_equal(got.variance, want.variance, err_msg=f"tile {side}")
+        assert got.counters == want.counters, side
+
+
 @njit(error_model="numpy")
 def _per_ray(R, ray, t, prim, b, blocked):
     """impl.rays.hit / occluded ray by ray (the reference of the batch queries)."""
