@@ -74,11 +74,12 @@ from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .projector import projector_weight
 from .samplers import DIM_INDEPENDENT, dim_2d
-from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_PROJECTOR, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays
+from .scene_arrays import (LIGHT_DIRECTIONAL, LIGHT_PROJECTOR, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD,
+                           SceneArrays, triangle_normal)
 from .textures import bitmap, checkerboard
 from .tracer import brute_force, occluded_batch
 
-__all__ = ["SHADOW_EPSILON", "surface", "surface_at", "sphere_surface", "triangle_normal",
+__all__ = ["SHADOW_EPSILON", "surface", "surface_at", "sphere_surface",
            "diffuse_albedo", "sample_emitter", "direct_light",
            "direct_light_rays", "direct_light_dims", "spot_falloff", "delta_filter", "delta_sample",
            "area_sample", "environment_sample",
@@ -114,7 +115,7 @@ def surface(prim, b1, b2, px, py, pz, ns, sph_center, sph_radius, tri_v, tri_n, 
 def surface_at(A: SceneArrays, prim, b1, b2, px, py, pz, flip):
     """:func:`surface` of the scene ``A``, a triangle's geometric normal read from
     ``A.tri_ng`` (the same bits: :func:`impl.scene_arrays.flatten` computes the table with
-    :func:`triangle_normal`'s operations)."""
+    :func:`impl.scene_arrays.triangle_normal`)."""
     ns = A.sph_radius.shape[0]
     if prim < ns:
         gx, gy, gz, sx, sy, sz = sphere_surface(prim, px, py, pz, A.sph_center, A.sph_radius, flip)
@@ -135,16 +136,6 @@ def sphere_surface(prim, px, py, pz, sph_center, sph_radius, flip):
     if flip:
         gx, gy, gz = -gx, -gy, -gz
     return gx, gy, gz, gx, gy, gz
-
-
-@njit(inline="always", cache=True)
-def triangle_normal(v):
-    """Unit normal (v1 − v0) × (v2 − v0) / |…| of the triangle with vertices ``v`` (3, 3)."""
-    e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
-    e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
-    gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-    inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
-    return gx * inv, gy * inv, gz * inv
 
 
 @njit(inline="always", cache=True)

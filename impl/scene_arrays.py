@@ -27,11 +27,13 @@ none, 1 normal map, 2 bump map) with its bitmap in ``tex_data``
 
 from __future__ import annotations
 
+import math
 import weakref
 from collections import OrderedDict
 from typing import Callable, NamedTuple
 
 import numpy as np
+from numba import njit
 
 from core.scene import Scene
 from core.errors import UnsupportedError
@@ -42,7 +44,7 @@ from .textures import FILTER_BILINEAR, FILTER_NEAREST, WRAP_CLAMP, WRAP_MIRROR, 
 WRAP_CODES = {"repeat": WRAP_REPEAT, "clamp": WRAP_CLAMP, "mirror": WRAP_MIRROR}
 FILTER_CODES = {"bilinear": FILTER_BILINEAR, "nearest": FILTER_NEAREST}
 
-__all__ = ["SceneArrays", "diffuse_texture", "flatten", "triangle_normals", "flatten_cached", "scene_memo", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
+__all__ = ["SceneArrays", "diffuse_texture", "flatten", "triangle_normal", "triangle_normals", "flatten_cached", "scene_memo", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
            "LIGHT_PROJECTOR", "SHADE_NONE", "SHADE_NORMALMAP", "SHADE_BUMPMAP",
            "TEX_NONE", "TEX_CHECKERBOARD", "TEX_BITMAP", "MATERIAL_CODES"]
 
@@ -159,18 +161,25 @@ def _light_local(light) -> np.ndarray:
     return np.stack([x, np.cross(z, x), z])
 
 
-def triangle_normals(tri_v: np.ndarray) -> np.ndarray:
-    """(T, 3) unit normals (v1 − v0) × (v2 − v0) / |…| of the triangles ``tri_v`` (T, 3, 3),
-    with the operations of :func:`impl.lighting.triangle_normal` in its order (elementwise
-    numpy arithmetic rounds each operation as the kernel does: the same bits).  A
-    degenerate triangle gets a non-finite normal; no ray hits it."""
-    v = np.asarray(tri_v, dtype=np.float64)
-    e1x, e1y, e1z = v[:, 1, 0] - v[:, 0, 0], v[:, 1, 1] - v[:, 0, 1], v[:, 1, 2] - v[:, 0, 2]
-    e2x, e2y, e2z = v[:, 2, 0] - v[:, 0, 0], v[:, 2, 1] - v[:, 0, 1], v[:, 2, 2] - v[:, 0, 2]
+@njit(inline="always", cache=True)
+def triangle_normal(v):
+    """Unit normal (v1 − v0) × (v2 − v0) / |…| of the triangle with vertices ``v`` (3, 3)."""
+    e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
+    e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
     gx, gy, gz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / np.sqrt(gx * gx + gy * gy + gz * gz)
-        return np.ascontiguousarray(np.stack([gx * inv, gy * inv, gz * inv], axis=1))
+    inv = 1.0 / math.sqrt(gx * gx + gy * gy + gz * gz)
+    return gx * inv, gy * inv, gz * inv
+
+
+@njit(cache=True, error_model="numpy")
+def triangle_normals(tri_v):
+    """(T, 3) :func:`triangle_normal` of every triangle of ``tri_v`` (T, 3, 3): the table
+    the shading steps read (``SceneArrays.tri_ng``), the same bits as the kernel computes
+    from the vertices.  A degenerate triangle gets a non-finite normal; no ray hits it."""
+    out = np.empty((tri_v.shape[0], 3))
+    for j in range(tri_v.shape[0]):
+        out[j, 0], out[j, 1], out[j, 2] = triangle_normal(tri_v[j])
+    return out
 
 
 def flatten(scene: Scene) -> SceneArrays:
@@ -196,7 +205,8 @@ def flatten(scene: Scene) -> SceneArrays:
             tri_n.append(np.zeros((len(s.faces), 3, 3)))
             tri_has_n.append(np.zeros(len(s.faces), np.int64))
         prim_shape += [index[id(s)]] * len(s.faces)
-    tri_v = np.concatenate(tri_v) if tri_v else np.zeros((0, 3, 3))
+    tri_v = np.ascontiguousarray(np.concatenate(tri_v) if tri_v else np.zeros((0, 3, 3)),
+                                 dtype=np.float64)
     tri_n = np.concatenate(tri_n) if tri_n else np.zeros((0, 3, 3))
     tri_has_n = np.concatenate(tri_has_n) if tri_has_n else np.zeros(0, np.int64)
     tri_uv = np.concatenate(tri_uv) if tri_uv else np.zeros((0, 3, 2))
@@ -288,7 +298,7 @@ def flatten(scene: Scene) -> SceneArrays:
     return SceneArrays(
         sph_center=f64([s.center for s in spheres], (-1, 3)),
         sph_radius=f64([s.radius for s in spheres], (-1,)),
-        tri_v=np.ascontiguousarray(tri_v, dtype=np.float64),
+        tri_v=tri_v,
         tri_n=np.ascontiguousarray(tri_n, dtype=np.float64),
         tri_has_n=tri_has_n,
         tri_ng=triangle_normals(tri_v),

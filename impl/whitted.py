@@ -293,7 +293,6 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
     ``specular_reflectance``; a diffuse hit is a leaf, lit by every emitter, where the
     branch ends.  Leaf k of a sample s (in the order the levels meet them) takes the light
     samples of "sample" s + k·spp, so leaf 0 those of ``raycast``."""
-    ns = A.sph_radius.shape[0]
     Q = K.Q
     amb = M.ambient * M.ka
     for i in range(m):
