@@ -41,9 +41,13 @@ so the image does not depend on the path taken.  Before the loops, a batch's ray
 bounded (:func:`_cull`: the frustum of rays from one origin or to one point, else the
 box of the segments) and only the primitives inside the bound are tested; a pinhole
 camera's eye rays are bounded once per tile, for all its samples, by the frustum through
-the tile's corners (:func:`_tile_candidates`).  ``accel=auto`` answers batch
-queries this way on small scenes even where its per-ray queries use the wide BVH
-(:data:`impl.rays.AUTO_BATCH_PRIMS_PER_LANE`).  The loops are functions of their own
+the corners of each strip of its pixel rows (:func:`_tile_candidates`).  ``accel=auto`` answers
+batch queries this way on small scenes even where its per-ray queries use the wide BVH
+(:data:`impl.rays.AUTO_BATCH_PRIMS_PER_LANE`).  Through the wide BVH, a batch goes in
+chunks of ``CHUNK`` rays: a chunk with a frustum gathers the primitives of the leaves the
+frustum reaches (:func:`impl.accel.wide.wide_frustum_prims`) and, when at most
+``CHUNK_CAP`` pass the frustum's own test, goes through the same brute-force loops; other
+chunks go ray by ray through the tree.  The loops are functions of their own
 taking every array as a separate argument: inlined with rows of one 2-D array as
 outputs, LLVM left them scalar.  The same holds for the eye rays of a pinhole camera
 (:func:`impl.sampling.jittered_film`, :func:`impl.camera.pinhole_rays`) and the
@@ -67,7 +71,8 @@ from numba import njit
 
 from core.algorithm import RenderResult
 
-from .accel import closest_rays, occluded_rays
+from .accel import WIDE, closest_rays, occluded_rays
+from .accel.wide import wide_closest_rays, wide_frustum_prims, wide_occluded_rays
 from .accel.packets import TILE, packet_hits
 from .camera import SENSOR_PERSPECTIVE, SENSOR_THINLENS, eye_ray, eye_ray_lens, pinhole_rays
 from .intersect import like
@@ -83,7 +88,7 @@ DIM_LENS = 1 << 29
 __all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "film_result", "new_batch",
            "new_points", "first", "Pending", "new_pending", "push_pending", "take_pending",
            "ray_config_cached", "run_tiles", "eye_batch", "closest_batch", "occluded_batch",
-           "brute_force", "accumulate",
+           "brute_force", "culled", "accumulate",
            "store", "OX", "OY", "OZ", "DX", "DY", "DZ", "TMIN", "TMAX"]
 
 #: Tile side without packets: a batch of up to BATCH_TILE² rays.  Every batch step has a
@@ -143,9 +148,11 @@ class Batch(NamedTuple):
     qp: np.ndarray              # (n,) int32 primitive (int32: the loops then vectorise in float32 too)
     film: np.ndarray            # (2, n) film positions (pixels) of the eye rays
     xy: np.ndarray              # (2, n) float64 pixel coordinates (x, y) of each column
-    cand: np.ndarray            # (2 + S + T,) int64 the tile's eye-ray candidates (:func:`eye_batch`):
-                                # counts of spheres and triangles, then their indices; -1 = not yet
-                                # known, -2 = none (each batch culled on its own)
+    cand: np.ndarray            # (strips, 2 + w) int64 the eye-ray candidates of each strip of
+                                # STRIP_ROWS pixel rows (:func:`_tile_candidates`): counts of
+                                # spheres m and triangles k, then their indices; _UNKNOWN = not
+                                # yet known, _PER_RAY = trace its rays one by one; (1, 2) for
+                                # batches not tied to a tile
 
 
 #: The parameters :func:`impl.rays.ray_config` reads (its parameter table).
@@ -227,7 +234,8 @@ def new_batch(film: Film, R: RayConfig, tile):
                  np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, n)), xy,
-                 np.full(2 + R.sph_radius.shape[0] + R.tri_v.shape[0], -1, np.int64))
+                 np.full(((ny + STRIP_ROWS - 1) // STRIP_ROWS, 2 + _cand_width(R)), _UNKNOWN,
+                         np.int64))
 
 
 @njit(cache=True)
@@ -243,7 +251,7 @@ def new_points(n, R: RayConfig, counters=0):
                  np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, 0)), np.empty((2, 0)),
-                 np.full(2, -2, np.int64))
+                 np.full((1, 2), _UNKNOWN, np.int64))
 
 
 @njit(inline="always", cache=True)
@@ -353,13 +361,14 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     if pinhole:
         pinhole_rays(cam, g, T.film[0, :n], T.film[1, :n], ray[OX, :n], ray[OY, :n], ray[OZ, :n],
                      ray[DX, :n], ray[DY, :n], ray[DZ, :n], ray[TMIN, :n], ray[TMAX, :n])
-    if pinhole and not packets and brute_force(R) and n >= 4 and T.cand.shape[0] > 2:
-        if T.cand[0] == -1:
+    if pinhole and not packets and culled(R) and n >= 4 and T.cand.shape[1] > 2:
+        if T.cand[0, 0] == _UNKNOWN:
             _tile_candidates(cam, R, T)
         _in_precision(ray, n, T.q)
-        S = R.sph_radius.shape[0]
-        _closest_in(R, ray, n, T.t, T.prim, T.b, T.q, T.qt, T.qp, T.cand[2:2 + T.cand[0]],
-                    T.cand[2 + S:2 + S + T.cand[1]])
+        rows = STRIP_ROWS * T.nx
+        for r in range(T.cand.shape[0]):
+            _closest_span(R, ray, T.q, T.qt, T.qp, r * rows, min(n, (r + 1) * rows), T.cand[r],
+                          T.t, T.prim, T.b)
     elif packets:
         for i in range(T.n):
             for c in range(8):
@@ -371,34 +380,48 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
         closest_batch(R, ray, T.n, T.t, T.prim, T.b, T.q, T.qt, T.qp)
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True, error_model="numpy", _nrt=True)
 def _tile_candidates(cam, R: RayConfig, T: Batch):
-    """The primitives the tile's eye rays can meet, into ``T.cand``, for every sample
-    index at once: those inside the frustum of the four rays through the tile's outer
-    pixel corners (:func:`_frustum`).  A pinhole's rays share the camera's origin, and
-    every film position of the tile lies in the rectangle of those corners, so every eye
-    ray of every sample lies in that frustum (the projective map from the film to the
-    frustum's (u, v) plane keeps the rectangle's image inside the box of its corners'
-    images).  The corner rays go through the first four columns of the scratch arrays
-    ``T.sh_w`` (film positions), ``T.sh`` (rays), ``T.q`` (in R's precision) and ``T.film``
-    (the frustum's coordinates; the sample's film positions are used by then): the tile
-    has at least four pixels."""
+    """The primitives the tile's eye rays can meet, into ``T.cand``, strip by strip
+    (``STRIP_ROWS`` rows of pixels each), for every sample index at once: those inside the
+    frustum of the four rays through the strip's outer pixel corners
+    (:func:`_frustum_planes`).  A pinhole's rays share the camera's origin, and every film
+    position of the strip lies in the rectangle of those corners, so every eye ray of every
+    sample lies in that frustum (the projective map from the film to the frustum's (u, v)
+    plane keeps the rectangle's image inside the box of its corners' images).  By brute
+    force the list is every primitive the frustum does not exclude; through the wide BVH,
+    those of the leaves it reaches (:func:`impl.accel.wide.wide_frustum_prims`), or
+    ``_PER_RAY`` when they are more than ``CHUNK_CAP``.  The corner rays go through the
+    first four columns of the scratch arrays ``T.sh_w`` (film positions), ``T.sh`` (rays),
+    ``T.q`` (in R's precision) and ``T.film`` (the frustum's coordinates; the sample's film
+    positions are used by then): the tile has at least four pixels.  Called once per tile
+    (it allocates its bound and scratch list)."""
     ny = T.n // T.nx
     fx, fy, c = T.sh_w[0, :4], T.sh_w[1, :4], T.sh
-    fx[0], fy[0] = T.x0, T.y0
-    fx[1], fy[1] = T.x0 + T.nx, T.y0
-    fx[2], fy[2] = T.x0, T.y0 + ny
-    fx[3], fy[3] = T.x0 + T.nx, T.y0 + ny
-    pinhole_rays(cam, R.sph_radius, fx, fy, c[OX, :4], c[OY, :4], c[OZ, :4], c[DX, :4], c[DY, :4],
-                 c[DZ, :4], c[TMIN, :4], c[TMAX, :4])
-    _in_precision(c, 4, T.q)
-    S = R.sph_radius.shape[0]
-    sph, tri = T.cand[2:2 + S], T.cand[2 + S:]
-    ok, m, k = _frustum(R, T.q, 4, sph, tri, float(T.q[OX, 0]), float(T.q[OY, 0]),
-                        float(T.q[OZ, 0]), 0.0, False, T.film)
-    if not ok:
-        m, k = _keep_all(sph, tri)
-    T.cand[0], T.cand[1] = m, k
+    bound = np.empty(_BOUND_WORDS)
+    raw = np.empty(_RAW_CAP, np.int64)
+    for r in range(T.cand.shape[0]):
+        ya, yb = T.y0 + r * STRIP_ROWS, T.y0 + min(ny, (r + 1) * STRIP_ROWS)
+        fx[0], fy[0] = T.x0, ya
+        fx[1], fy[1] = T.x0 + T.nx, ya
+        fx[2], fy[2] = T.x0, yb
+        fx[3], fy[3] = T.x0 + T.nx, yb
+        pinhole_rays(cam, R.sph_radius, fx, fy, c[OX, :4], c[OY, :4], c[OZ, :4], c[DX, :4],
+                     c[DY, :4], c[DZ, :4], c[TMIN, :4], c[TMAX, :4])
+        _in_precision(c, 4, T.q)
+        bound[0], bound[1], bound[2] = float(T.q[OX, 0]), float(T.q[OY, 0]), float(T.q[OZ, 0])
+        bound[3], bound[16] = 0.0, math.inf          # no slack; eye rays reach any distance
+        ok = _frustum_planes(T.q, 0, 4, False, T.film, bound)
+        cand = T.cand[r]
+        if brute_force(R):
+            if ok:
+                _frustum_prims(R, bound, cand)
+            else:
+                _keep_all(R, cand)
+        elif ok:
+            _wide_prims(R, bound, raw, cand)
+        else:
+            cand[0] = _PER_RAY
 
 
 @njit(inline="always", cache=True)
@@ -408,28 +431,131 @@ def brute_force(R: RayConfig):
     return (R.accel == 0 or R.batch_brute) and R.form == 2
 
 
+@njit(inline="always", cache=True)
+def culled(R: RayConfig):
+    """Whether batch queries bound their rays and test the primitives inside the bound in
+    the brute-force loops: by brute force (:func:`brute_force`), or through the wide BVH,
+    chunk by chunk, where the bound holds few primitives (:func:`_wide_prims`)."""
+    return brute_force(R) or (R.accel == WIDE and R.form == 2)
+
+
 @njit(cache=True, error_model="numpy", _nrt=True)
 def closest_batch(R: RayConfig, ray, n, t, prim, b, q, qt, qp):
     """Closest hits of the first ``n`` rays of ``ray`` (8, ≥n) in R's form, precision and
     structure: ``t`` (float64), ``prim`` (-1 on a miss), ``b`` (2, n) barycentrics.
-    ``q`` (8, ≥n), ``qt`` (3, ≥n) in R's precision and ``qp`` (≥n,) int32 are scratch."""
-    if brute_force(R):
-        _closest_brute(R, ray, n, t, prim, b, q, qt, qp)
+    ``q`` (8, ≥n), ``qt`` (3, ≥n) in R's precision and ``qp`` (≥n,) int32 are scratch.
+
+    By brute force, the batch is bounded as a whole (:func:`_cull`); through the wide BVH,
+    in chunks of ``CHUNK`` rays, each bounded and either tested against the primitives its
+    bound reaches in the tree or traced ray by ray (:func:`_wide_cull`); other structures
+    and forms trace ray by ray."""
+    if not culled(R) or n == 0:
+        closest_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
+                     ray[TMIN, :n], ray[TMAX, :n], t[:n], prim[:n], b[0, :n], b[1, :n])
         return
-    closest_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
-                 ray[TMIN, :n], ray[TMAX, :n], t[:n], prim[:n], b[0, :n], b[1, :n])
+    cand, uv, bound, raw = _scratch(R, n)
+    _closest_chunks(R, ray, n, t, prim, b, q, qt, qp, cand, uv, bound, raw)
+
+
+@batch_kernel(error_model="numpy")
+def _closest_chunks(R: RayConfig, ray, n, t, prim, b, q, qt, qp, cand, uv, bound, raw):
+    """The culled part of :func:`closest_batch`, with its scratch: a function without
+    numba's runtime, so the views of every chunk cost no reference counting."""
+    _in_precision(ray, n, q)
+    step = _chunk(R, n)
+    for c0 in range(0, n, step):
+        c1 = min(n, c0 + step)
+        _chunk_cull(R, q, c0, c1, cand, uv, bound, raw)
+        _closest_span(R, ray, q, qt, qp, c0, c1, cand, t, prim, b)
+
+
+@njit(inline="always", cache=True)
+def _chunk(R: RayConfig, n):
+    """Rays per bound of a batch of ``n``: the whole batch by brute force (a bound costs
+    about as much as the primitives it culls), ``CHUNK`` through the wide BVH."""
+    return n if brute_force(R) else CHUNK
+
+
+@njit(inline="always", cache=True)
+def _chunk_cull(R: RayConfig, q, c0, c1, cand, uv, bound, raw):
+    """The candidates of rays ``c0:c1`` into ``cand``: :func:`_cull` by brute force,
+    :func:`_wide_cull` through the wide BVH."""
+    if brute_force(R):
+        _cull(R, q, c0, c1, cand, uv, bound)
+    else:
+        _wide_cull(R, q, c0, c1, cand, uv, bound, raw)
 
 
 @njit(cache=True, error_model="numpy", _nrt=True)
 def occluded_batch(R: RayConfig, ray, n, blocked, q):
     """Whether anything lies on each of the first ``n`` rays of ``ray`` (8, ≥n) within
     (tmin, tmax), in R's form, precision and structure; ``q`` (8, ≥n) in R's precision
-    is scratch."""
-    if brute_force(R):
-        _occluded_brute(R, ray, n, blocked, q)
+    is scratch.  Bounded and culled as :func:`closest_batch`."""
+    if not culled(R) or n == 0:
+        occluded_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
+                      ray[TMIN, :n], ray[TMAX, :n], blocked[:n])
         return
-    occluded_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
-                  ray[TMIN, :n], ray[TMAX, :n], blocked[:n])
+    cand, uv, bound, raw = _scratch(R, n)
+    _occluded_chunks(R, ray, n, blocked, q, cand, uv, bound, raw)
+
+
+@batch_kernel(error_model="numpy")
+def _occluded_chunks(R: RayConfig, ray, n, blocked, q, cand, uv, bound, raw):
+    """The culled part of :func:`occluded_batch` (see :func:`_closest_chunks`)."""
+    _in_precision(ray, n, q)
+    step = _chunk(R, n)
+    for c0 in range(0, n, step):
+        c1 = min(n, c0 + step)
+        _chunk_cull(R, q, c0, c1, cand, uv, bound, raw)
+        if cand[0] == _PER_RAY:              # only through the wide BVH
+            wide_occluded_rays(R, ray[OX, c0:c1], ray[OY, c0:c1], ray[OZ, c0:c1], ray[DX, c0:c1],
+                               ray[DY, c0:c1], ray[DZ, c0:c1], ray[TMIN, c0:c1],
+                               ray[TMAX, c0:c1], blocked[c0:c1])
+            continue
+        m, k = cand[0], cand[1]
+        _occluded_loops(R.sph_center, R.sph_radius, R.tri_v, cand[2:2 + m], cand[2 + m:2 + m + k],
+                        q[OX, c0:c1], q[OY, c0:c1], q[OZ, c0:c1], q[DX, c0:c1], q[DY, c0:c1],
+                        q[DZ, c0:c1], q[TMIN, c0:c1], q[TMAX, c0:c1], blocked[c0:c1])
+
+
+@njit(inline="always", cache=True)
+def _scratch(R: RayConfig, n):
+    """A batch query's scratch: the candidate list (:data:`_UNKNOWN`-marked; room for every
+    primitive by brute force, for ``CHUNK_CAP`` through the wide BVH), the frustum's
+    projective coordinates of up to ``n`` rays, the bound and the tree's raw list."""
+    return (np.empty(2 + _cand_width(R), np.int64), np.empty((2, n)), np.empty(_BOUND_WORDS),
+            np.empty(0 if brute_force(R) else _RAW_CAP, np.int64))
+
+
+@njit(inline="always", cache=True)
+def _cand_width(R: RayConfig):
+    """Room for the ids of a candidate list: every primitive by brute force, at most
+    ``CHUNK_CAP`` through the wide BVH."""
+    P = R.sph_radius.shape[0] + R.tri_v.shape[0]
+    return P if brute_force(R) else min(P, CHUNK_CAP)
+
+
+@njit(inline="always", cache=True)
+def _closest_span(R: RayConfig, ray, q, qt, bp, c0, c1, cand, t, prim, b):
+    """Closest hits of rays ``c0:c1``: by :func:`_closest_loops` of ``q`` (R's precision)
+    over the candidates ``cand`` (``[m, k, m sphere ids, k triangle ids]``), the answers
+    copied to ``t``, ``prim``, ``b`` (float64); or ray by ray through R's structure when
+    ``cand`` says :data:`_PER_RAY`."""
+    if cand[0] == _PER_RAY:              # only through the wide BVH
+        wide_closest_rays(R, ray[OX, c0:c1], ray[OY, c0:c1], ray[OZ, c0:c1], ray[DX, c0:c1],
+                     ray[DY, c0:c1], ray[DZ, c0:c1], ray[TMIN, c0:c1], ray[TMAX, c0:c1], t[c0:c1],
+                     prim[c0:c1], b[0, c0:c1], b[1, c0:c1])
+        return
+    m, k = cand[0], cand[1]
+    best, b1s, b2s = qt[0, c0:c1], qt[1, c0:c1], qt[2, c0:c1]
+    _closest_loops(R.sph_center, R.sph_radius, R.tri_v, cand[2:2 + m], cand[2 + m:2 + m + k],
+                   q[OX, c0:c1], q[OY, c0:c1], q[OZ, c0:c1], q[DX, c0:c1], q[DY, c0:c1],
+                   q[DZ, c0:c1], q[TMIN, c0:c1], q[TMAX, c0:c1], best, bp[c0:c1], b1s, b2s)
+    for i in range(c0, c1):
+        t[i] = float(qt[0, i])
+        prim[i] = bp[i]
+        b[0, i] = float(qt[1, i])
+        b[1, i] = float(qt[2, i])
 
 
 @njit(inline="always", cache=True, error_model="numpy")
@@ -478,36 +604,26 @@ def _triangle_t(ox, oy, oz, dx, dy, dz, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, 
     return t, b1, b2, ok
 
 
-@njit(cache=True, error_model="numpy", _nrt=True)
-def _closest_brute(R: RayConfig, ray, n, t, prim, b, q, qt, bp):
-    """Brute-force closest hits: the rays in R's precision, the primitives that can lie on
-    them (:func:`_cull`), then :func:`_closest_loops` over those."""
-    _in_precision(ray, n, q)
-    sph, tri = _candidates(R)
-    ns, nt = _cull(R, q, n, sph, tri)
-    _closest_in(R, ray, n, t, prim, b, q, qt, bp, sph[:ns], tri[:nt])
-
-
-@njit(inline="always", cache=True)
-def _closest_in(R: RayConfig, ray, n, t, prim, b, q, qt, bp, sph, tri):
-    """:func:`_closest_loops` of the rays ``q`` (already in R's precision) over the spheres
-    ``sph`` and triangles ``tri``, the answers copied to ``t``, ``prim``, ``b`` (float64)."""
-    best, b1s, b2s = qt[0, :n], qt[1, :n], qt[2, :n]
-    _closest_loops(R.sph_center, R.sph_radius, R.tri_v, sph, tri, q[OX, :n], q[OY, :n],
-                   q[OZ, :n], q[DX, :n], q[DY, :n], q[DZ, :n], q[TMIN, :n], q[TMAX, :n], best, bp[:n],
-                   b1s, b2s)
-    for i in range(n):
-        t[i] = float(best[i])
-        prim[i] = bp[i]
-        b[0, i] = float(b1s[i])
-        b[1, i] = float(b2s[i])
-
-
-@njit(inline="always", cache=True)
-def _candidates(R: RayConfig):
-    """Scratch lists for the candidate spheres and triangles of :func:`_cull`."""
-    return np.empty(R.sph_radius.shape[0], np.int64), np.empty(R.tri_v.shape[0], np.int64)
-
+#: Rows of pixels per strip of a tile's eye rays, each strip culled on its own
+#: (:func:`_tile_candidates`).
+STRIP_ROWS = 2
+#: Rays per chunk of a batch query through the wide BVH, each chunk bounded on its own
+#: (a batch's rays come in column order: rows of a tile's pixels, or its points' shadow
+#: rays in that order).
+CHUNK = 64
+#: A chunk whose bound keeps more primitives than this goes ray by ray through the wide
+#: BVH: the brute-force loops cost a few vector operations per ray and primitive, a
+#: traversal some tens per ray.
+CHUNK_CAP = 24
+#: Room for the leaves' primitives a frustum reaches in the wide BVH, before the frustum's
+#: own primitive test thins them.
+_RAW_CAP = 2 * CHUNK_CAP
+#: Words of a frustum bound: apex, slack, four inward unit plane normals, reach.
+_BOUND_WORDS = 17
+#: Candidate-list states in its first word (else the number of spheres).
+_UNKNOWN, _PER_RAY = -1, -3
+#: What bounds a set of rays (:func:`_bound`).
+_NO_BOUND, _FRUSTUM, _BOX = 0, 1, 2
 
 #: Relative padding of the culling bounds (the frustum's planes, the box): far above the
 #: rounding of the bounds' arithmetic and of the float32 hit tests, so that no
@@ -521,55 +637,126 @@ _CULL_MIN_PRIMS = 8
 _CULL_MIN_RAYS = 32
 
 
-@njit(cache=True, error_model="numpy", _nrt=True)
-def _cull(R: RayConfig, q, n, sph, tri):
-    """The spheres and triangles (indices into ``sph`` and ``tri``, in scene order; their
-    counts returned) that may meet a segment o + t·d, tmin < t < tmax, of the batch's
-    rays ``q`` (8, ≥n): a conservative culling, so the brute-force loops that follow
-    return exactly what they return over every primitive.
+@njit(inline="always", cache=True)
+def _cull(R: RayConfig, q, c0, c1, cand, uv, bound):
+    """The spheres and triangles (in scene order) that may meet a segment o + t·d,
+    tmin < t < tmax, of rays ``c0:c1`` of ``q`` (8, ≥c1), into ``cand``: a conservative
+    culling, so the brute-force loops that follow return exactly what they return over
+    every primitive.
 
     Rays from one origin (a pinhole camera's eye rays) and segments that end at one
     point (a light sample's shadow rays to a point or spot light) lie in a frustum from
-    that apex: four planes through it bounding the rays' directions about their mean
-    (:func:`_frustum`; the tile's frustum of Wald et al. 2001's packets and Reshetov et
-    al. 2005's frustum culling).  A primitive wholly outside one plane is culled: a
-    triangle with its three vertices outside, a sphere with its centre more than its
-    radius outside.  Otherwise: the bounding box of the segments against each
-    primitive's box (a shaft's box, Haines and Wallace 1994), e.g. an area light's
-    shadow rays from one tile's points.  Without a bound (directions spread over a
-    hemisphere or more, segments of unbounded length: a directional light's), every
-    primitive is kept."""
-    if n < _CULL_MIN_RAYS or R.sph_radius.shape[0] + R.tri_v.shape[0] < _CULL_MIN_PRIMS:
-        return _keep_all(sph, tri)
-    px, py, pz = float(q[OX, 0]), float(q[OY, 0]), float(q[OZ, 0])
-    uv = np.empty((2, n))
-    shared = True
-    for i in range(n):
-        shared &= (q[OX, i] == q[OX, 0]) & (q[OY, i] == q[OY, 0]) & (q[OZ, i] == q[OZ, 0])
-    if shared:                           # apex: the origin; directions: the rays'
-        ok, m, k = _frustum(R, q, n, sph, tri, px, py, pz, 0.0, False, uv)
-        if ok:
-            return m, k
+    that apex (:func:`_bound`; the tile's frustum of Wald et al. 2001's packets and
+    Reshetov et al. 2005's frustum culling).  A primitive wholly outside one of its
+    planes is culled (:func:`_frustum_prims`).  Otherwise: the bounding box of the
+    segments against each primitive's box (a shaft's box, Haines and Wallace 1994),
+    e.g. an area light's shadow rays from one tile's points.  Without a bound
+    (directions spread over a hemisphere or more, segments of unbounded length: a
+    directional light's), every primitive is kept."""
+    if c1 - c0 < _CULL_MIN_RAYS or R.sph_radius.shape[0] + R.tri_v.shape[0] < _CULL_MIN_PRIMS:
+        _keep_all(R, cand)
+        return
+    kind = _bound(q, c0, c1, uv, bound)
+    if kind == _FRUSTUM:
+        _frustum_prims(R, bound, cand)
+    elif kind == _BOX:
+        _shaft_box(R, q, c0, c1, cand)
     else:
-        # Segments ending within a small distance δ of one point A: each lies within δ
-        # of the ray from A towards its origin, so the frustum from A padded by δ holds it.
-        ex, ey, ez = _end(q, 0)
-        slack2 = span2 = 0.0             # squared: no root per ray
-        finite = True
-        for i in range(n):
-            x, y, z = _end(q, i)
-            finite &= math.isfinite(x + y + z)
-            x, y, z = x - ex, y - ey, z - ez
-            slack2 = max(slack2, x * x + y * y + z * z)
-            x, y, z = float(q[OX, i]) - ex, float(q[OY, i]) - ey, float(q[OZ, i]) - ez
-            span2 = max(span2, x * x + y * y + z * z)
-        if not finite:                   # an unbounded segment: no box either
-            return _keep_all(sph, tri)
-        if slack2 <= _CONVERGE * _CONVERGE * span2:
-            ok, m, k = _frustum(R, q, n, sph, tri, ex, ey, ez, math.sqrt(slack2), True, uv)
-            if ok:
-                return m, k
-    return _shaft_box(R, q, n, sph, tri)
+        _keep_all(R, cand)
+
+
+@njit(inline="always", cache=True)
+def _wide_cull(R: RayConfig, q, c0, c1, cand, uv, bound, raw):
+    """:func:`_cull` through the wide BVH: the primitives of the leaves a chunk's frustum
+    reaches, thinned by the frustum's primitive test (:func:`_wide_prims`); ``_PER_RAY``
+    when the chunk is small, has no frustum, or its frustum holds more than
+    ``CHUNK_CAP`` primitives."""
+    if c1 - c0 < _CULL_MIN_RAYS or _bound(q, c0, c1, uv, bound) != _FRUSTUM:
+        cand[0] = _PER_RAY
+        return
+    _wide_prims(R, bound, raw, cand)
+
+
+@njit(inline="always", cache=True)
+def _wide_prims(R: RayConfig, bound, raw, cand):
+    """The primitives the frustum ``bound`` keeps among those of the wide BVH's leaves it
+    reaches (:func:`impl.accel.wide.wide_frustum_prims`), in scene order, into ``cand``;
+    ``_PER_RAY`` when there are more than ``CHUNK_CAP``."""
+    k = wide_frustum_prims(R, bound, _CULL_PAD, raw, raw.shape[0])
+    if k < 0:
+        cand[0] = _PER_RAY
+        return
+    for i in range(1, k):                # insertion sort: scene order, the loops' tie rule
+        x = raw[i]
+        j = i
+        while j > 0 and raw[j - 1] > x:
+            raw[j] = raw[j - 1]
+            j -= 1
+        raw[j] = x
+    ns = R.sph_radius.shape[0]
+    m = kt = 0
+    for i in range(k):
+        p = raw[i]
+        if p < ns:
+            out = _sphere_outside(R, p, bound)
+        else:
+            out = _triangle_outside(R, p - ns, bound)
+        if out:
+            continue
+        if m + kt >= cand.shape[0] - 2:
+            cand[0] = _PER_RAY
+            return
+        cand[2 + m + kt] = p if p < ns else p - ns
+        if p < ns:
+            m += 1
+        else:
+            kt += 1
+    cand[0], cand[1] = m, kt
+
+
+@njit(inline="always", cache=True)
+def _bound(q, c0, c1, uv, bound):
+    """What bounds rays ``c0:c1`` of ``q``: ``_FRUSTUM`` (its apex, slack, planes and
+    reach written to ``bound``: rays from one origin, or segments ending within a small
+    slack of one point, their directions within acos(_FRUSTUM_MIN_COS) of the axis; the
+    reach is how far from the apex a segment's point can lie — the largest tmax, or for
+    segments ending near the apex, the largest distance of an origin plus the slack, as a
+    point of a segment is no further from the apex than its two ends), ``_BOX``
+    (finite segments otherwise, or a shared origin with too wide a fan) or
+    ``_NO_BOUND`` (an unbounded segment)."""
+    px, py, pz = float(q[OX, c0]), float(q[OY, c0]), float(q[OZ, c0])
+    shared = True
+    for i in range(c0, c1):
+        shared &= (q[OX, i] == q[OX, c0]) & (q[OY, i] == q[OY, c0]) & (q[OZ, i] == q[OZ, c0])
+    if shared:                           # apex: the origin; directions: the rays'
+        bound[0], bound[1], bound[2], bound[3] = px, py, pz, 0.0
+        reach = 0.0
+        for i in range(c0, c1):
+            reach = max(reach, float(q[TMAX, i]))
+        bound[16] = reach
+        if _frustum_planes(q, c0, c1, False, uv, bound):
+            return _FRUSTUM
+        return _BOX
+    # Segments ending within a small distance δ of one point A: each lies within δ
+    # of the ray from A towards its origin, so the frustum from A padded by δ holds it.
+    ex, ey, ez = _end(q, c0)
+    slack2 = span2 = 0.0                 # squared: no root per ray
+    finite = True
+    for i in range(c0, c1):
+        x, y, z = _end(q, i)
+        finite &= math.isfinite(x + y + z)
+        x, y, z = x - ex, y - ey, z - ez
+        slack2 = max(slack2, x * x + y * y + z * z)
+        x, y, z = float(q[OX, i]) - ex, float(q[OY, i]) - ey, float(q[OZ, i]) - ez
+        span2 = max(span2, x * x + y * y + z * z)
+    if not finite:                       # an unbounded segment: no box either
+        return _NO_BOUND
+    if slack2 <= _CONVERGE * _CONVERGE * span2:
+        bound[0], bound[1], bound[2], bound[3] = ex, ey, ez, math.sqrt(slack2)
+        bound[16] = math.sqrt(span2) + math.sqrt(slack2)
+        if _frustum_planes(q, c0, c1, True, uv, bound):
+            return _FRUSTUM
+    return _BOX
 
 
 #: Segments count as ending at one point when their ends lie within this fraction of the
@@ -590,24 +777,26 @@ def _end(q, i):
 
 
 @njit(inline="always", cache=True)
-def _frustum(R: RayConfig, q, n, sph, tri, px, py, pz, slack, towards_origins, uv):
-    """Cull by the frustum from apex p holding the rays' directions: the rays' own
-    (``towards_origins`` false) or those from p to the rays' origins, each segment
-    within ``slack`` of its ray from p.  The directions w, about an axis a (their sum's
-    direction) with a frame (e1, e2, a), span [u0, u1] × [v0, v1] in u = w·e1 / w·a,
-    v = w·e2 / w·a; the four planes u = u0, u = u1, v = v0, v = v1 through p bound a
-    convex cone (in front of p) that holds every ray.  Any axis with w·a > 0 for every
-    ray gives a cone holding them, so the sum may be taken in any order.  ``uv`` (2, ≥n)
-    float64 is scratch.  Returns (built, spheres kept, triangles kept); not built when
-    some direction is more than acos(_FRUSTUM_MIN_COS) from the axis."""
+def _frustum_planes(q, c0, c1, towards_origins, uv, bound):
+    """The frustum from the apex p = ``bound[0:3]`` holding the directions of rays
+    ``c0:c1`` of ``q``: the rays' own (``towards_origins`` false) or those from p to the
+    rays' origins.  The directions w, about an axis a (their sum's direction) with a frame
+    (e1, e2, a), span [u0, u1] × [v0, v1] in u = w·e1 / w·a, v = w·e2 / w·a; the four
+    planes u = u0, u = u1, v = v0, v = v1 through p bound a convex cone (in front of p)
+    that holds every ray.  Any axis with w·a > 0 for every ray gives a cone holding them,
+    so the sum may be taken in any order.  Writes the planes' inward unit normals to
+    ``bound[4:16]``; ``uv`` (2, ≥c1−c0) float64 is scratch.  Returns whether it was
+    built: not when some direction is more than acos(_FRUSTUM_MIN_COS) from the axis."""
+    px, py, pz = bound[0], bound[1], bound[2]
+    n = c1 - c0
     if towards_origins:
-        wx, wy, wz, ox, oy, oz = q[OX, :n], q[OY, :n], q[OZ, :n], px, py, pz
+        wx, wy, wz, ox, oy, oz = q[OX, c0:c1], q[OY, c0:c1], q[OZ, c0:c1], px, py, pz
     else:
-        wx, wy, wz, ox, oy, oz = q[DX, :n], q[DY, :n], q[DZ, :n], 0.0, 0.0, 0.0
+        wx, wy, wz, ox, oy, oz = q[DX, c0:c1], q[DY, c0:c1], q[DZ, c0:c1], 0.0, 0.0, 0.0
     ax, ay, az = _direction_sum(wx, wy, wz, ox, oy, oz)
     norm = math.sqrt(ax * ax + ay * ay + az * az)
     if not norm > 0.0:
-        return False, 0, 0
+        return False
     ax, ay, az = ax / norm, ay / norm, az / norm
     # A frame about a (Duff et al. 2017).
     sign = 1.0 if az >= 0.0 else -1.0
@@ -619,44 +808,77 @@ def _frustum(R: RayConfig, q, n, sph, tri, px, py, pz, slack, towards_origins, u
     wide = _frustum_uv(wx, wy, wz, ox, oy, oz, ax, ay, az, e1x, e1y, e1z, e2x, e2y, e2z,
                        _FRUSTUM_MIN_COS * _FRUSTUM_MIN_COS, u, v)
     if wide > 0:
-        return False, 0, 0
+        return False
     u0 = v0 = math.inf
     u1 = v1 = -math.inf
     for i in range(n):
         u0, u1 = min(u0, u[i]), max(u1, u[i])
         v0, v1 = min(v0, v[i]), max(v1, v[i])
     # Inward unit normals of the planes: e1 − u0 a, u1 a − e1, e2 − v0 a, v1 a − e2.
-    n0 = _unit(e1x - u0 * ax, e1y - u0 * ay, e1z - u0 * az)
-    n1 = _unit(u1 * ax - e1x, u1 * ay - e1y, u1 * az - e1z)
-    n2 = _unit(e2x - v0 * ax, e2y - v0 * ay, e2z - v0 * az)
-    n3 = _unit(v1 * ax - e2x, v1 * ay - e2y, v1 * az - e2z)
-    C, g, V = R.sph_center, R.sph_radius, R.tri_v
+    bound[4], bound[5], bound[6] = _unit(e1x - u0 * ax, e1y - u0 * ay, e1z - u0 * az)
+    bound[7], bound[8], bound[9] = _unit(u1 * ax - e1x, u1 * ay - e1y, u1 * az - e1z)
+    bound[10], bound[11], bound[12] = _unit(e2x - v0 * ax, e2y - v0 * ay, e2z - v0 * az)
+    bound[13], bound[14], bound[15] = _unit(v1 * ax - e2x, v1 * ay - e2y, v1 * az - e2z)
+    return True
+
+
+@njit(inline="always", cache=True)
+def _frustum_prims(R: RayConfig, bound, cand):
+    """Every primitive the frustum ``bound`` keeps (:func:`_sphere_outside`,
+    :func:`_triangle_outside`), in scene order, into ``cand``."""
     m = 0
-    for s in range(g.shape[0]):
-        x, y, z = float(C[s, 0]) - px, float(C[s, 1]) - py, float(C[s, 2]) - pz
-        r = float(g[s]) * (1.0 + _CULL_PAD)
-        pad = slack + r + _CULL_PAD * (1.0 + abs(x) + abs(y) + abs(z))
-        if not (_below(n0, x, y, z, pad) | _below(n1, x, y, z, pad) | _below(n2, x, y, z, pad)
-                | _below(n3, x, y, z, pad)):
-            sph[m] = s
+    for s in range(R.sph_radius.shape[0]):
+        if not _sphere_outside(R, s, bound):
+            cand[2 + m] = s
             m += 1
     k = 0
-    for j in range(V.shape[0]):
-        x0, y0, z0 = float(V[j, 0, 0]) - px, float(V[j, 0, 1]) - py, float(V[j, 0, 2]) - pz
-        x1, y1, z1 = float(V[j, 1, 0]) - px, float(V[j, 1, 1]) - py, float(V[j, 1, 2]) - pz
-        x2, y2, z2 = float(V[j, 2, 0]) - px, float(V[j, 2, 1]) - py, float(V[j, 2, 2]) - pz
-        # Padding relative to the distance from p, bounded above by |x| + |y| + |z|.
-        p0 = slack + _CULL_PAD * (1.0 + abs(x0) + abs(y0) + abs(z0))
-        p1 = slack + _CULL_PAD * (1.0 + abs(x1) + abs(y1) + abs(z1))
-        p2 = slack + _CULL_PAD * (1.0 + abs(x2) + abs(y2) + abs(z2))
-        out = (_outside(n0, x0, y0, z0, p0, x1, y1, z1, p1, x2, y2, z2, p2)
-               | _outside(n1, x0, y0, z0, p0, x1, y1, z1, p1, x2, y2, z2, p2)
-               | _outside(n2, x0, y0, z0, p0, x1, y1, z1, p1, x2, y2, z2, p2)
-               | _outside(n3, x0, y0, z0, p0, x1, y1, z1, p1, x2, y2, z2, p2))
-        if not out:
-            tri[k] = j
+    for j in range(R.tri_v.shape[0]):
+        if not _triangle_outside(R, j, bound):
+            cand[2 + m + k] = j
             k += 1
-    return True, m, k
+    cand[0], cand[1] = m, k
+
+
+@njit(inline="always", cache=True)
+def _sphere_outside(R: RayConfig, s, bound):
+    """Whether sphere ``s`` lies wholly outside a plane of the frustum ``bound`` (its
+    centre more than its radius and the padding outside) or beyond its reach."""
+    C = R.sph_center
+    x, y, z = float(C[s, 0]) - bound[0], float(C[s, 1]) - bound[1], float(C[s, 2]) - bound[2]
+    r = float(R.sph_radius[s]) * (1.0 + _CULL_PAD)
+    pad = bound[3] + r + _CULL_PAD * (1.0 + abs(x) + abs(y) + abs(z))
+    out = x * x + y * y + z * z > (bound[16] + pad) * (bound[16] + pad)
+    for j in range(4):
+        out |= bound[4 + 3 * j] * x + bound[5 + 3 * j] * y + bound[6 + 3 * j] * z < -pad
+    return out
+
+
+@njit(inline="always", cache=True)
+def _triangle_outside(R: RayConfig, j, bound):
+    """Whether triangle ``j`` lies wholly outside a plane of the frustum ``bound`` — its
+    three vertices each more than their padding (relative to the distance from the apex,
+    bounded above by |x| + |y| + |z|, plus the slack) outside — or its bounding box
+    beyond the frustum's reach."""
+    V = R.tri_v
+    px, py, pz, slack = bound[0], bound[1], bound[2], bound[3]
+    x0, y0, z0 = float(V[j, 0, 0]) - px, float(V[j, 0, 1]) - py, float(V[j, 0, 2]) - pz
+    x1, y1, z1 = float(V[j, 1, 0]) - px, float(V[j, 1, 1]) - py, float(V[j, 1, 2]) - pz
+    x2, y2, z2 = float(V[j, 2, 0]) - px, float(V[j, 2, 1]) - py, float(V[j, 2, 2]) - pz
+    p0 = slack + _CULL_PAD * (1.0 + abs(x0) + abs(y0) + abs(z0))
+    p1 = slack + _CULL_PAD * (1.0 + abs(x1) + abs(y1) + abs(z1))
+    p2 = slack + _CULL_PAD * (1.0 + abs(x2) + abs(y2) + abs(z2))
+    gx = max(min(x0, x1, x2), 0.0) + max(-max(x0, x1, x2), 0.0)   # the box's gap from p
+    gy = max(min(y0, y1, y2), 0.0) + max(-max(y0, y1, y2), 0.0)
+    gz = max(min(z0, z1, z2), 0.0) + max(-max(z0, z1, z2), 0.0)
+    far = bound[16] + max(p0, p1, p2)
+    out = gx * gx + gy * gy + gz * gz > far * far
+    for k in range(4):
+        nx, ny, nz = bound[4 + 3 * k], bound[5 + 3 * k], bound[6 + 3 * k]
+        a = nx * x0 + ny * y0 + nz * z0 + p0
+        b = nx * x1 + ny * y1 + nz * z1 + p1
+        c = nx * x2 + ny * y2 + nz * z2 + p2
+        out |= max(a, b, c) < 0.0
+    return out
 
 
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "nsz"})
@@ -697,31 +919,14 @@ def _unit(x, y, z):
 
 
 @njit(inline="always", cache=True)
-def _below(nrm, x, y, z, pad):
-    """Whether the point (x, y, z) lies more than ``pad`` outside the plane through the
-    origin with inward unit normal ``nrm``."""
-    return nrm[0] * x + nrm[1] * y + nrm[2] * z < -pad
-
-
-@njit(inline="always", cache=True)
-def _outside(nrm, x0, y0, z0, p0, x1, y1, z1, p1, x2, y2, z2, p2):
-    """Whether all three points lie more than their pads outside the plane of
-    :func:`_below` (no branch)."""
-    a = nrm[0] * x0 + nrm[1] * y0 + nrm[2] * z0 + p0
-    b = nrm[0] * x1 + nrm[1] * y1 + nrm[2] * z1 + p1
-    c = nrm[0] * x2 + nrm[1] * y2 + nrm[2] * z2 + p2
-    return max(a, b, c) < 0.0
-
-
-@njit(inline="always", cache=True)
-def _shaft_box(R: RayConfig, q, n, sph, tri):
-    """Cull by the bounding box of the segments (every primitive kept when one is
+def _shaft_box(R: RayConfig, q, c0, c1, cand):
+    """Cull by the bounding box of segments ``c0:c1`` (every primitive kept when one is
     unbounded)."""
     C, g, V = R.sph_center, R.sph_radius, R.tri_v
     lo_x = lo_y = lo_z = math.inf
     hi_x = hi_y = hi_z = -math.inf
     bounded = True
-    for i in range(n):
+    for i in range(c0, c1):
         for tt in (q[TMIN, i], q[TMAX, i]):
             t = float(tt)
             x = float(q[OX, i]) + t * float(q[DX, i])
@@ -731,7 +936,8 @@ def _shaft_box(R: RayConfig, q, n, sph, tri):
             lo_x, lo_y, lo_z = min(lo_x, x), min(lo_y, y), min(lo_z, z)
             hi_x, hi_y, hi_z = max(hi_x, x), max(hi_y, y), max(hi_z, z)
     if not bounded:
-        return _keep_all(sph, tri)
+        _keep_all(R, cand)
+        return
     pad = _CULL_PAD * (1.0 + max(abs(lo_x), abs(lo_y), abs(lo_z), abs(hi_x), abs(hi_y), abs(hi_z)))
     lo_x, lo_y, lo_z = lo_x - pad, lo_y - pad, lo_z - pad
     hi_x, hi_y, hi_z = hi_x + pad, hi_y + pad, hi_z + pad
@@ -740,7 +946,7 @@ def _shaft_box(R: RayConfig, q, n, sph, tri):
         r = float(g[s])
         if (C[s, 0] + r >= lo_x and C[s, 0] - r <= hi_x and C[s, 1] + r >= lo_y
                 and C[s, 1] - r <= hi_y and C[s, 2] + r >= lo_z and C[s, 2] - r <= hi_z):
-            sph[m] = s
+            cand[2 + m] = s
             m += 1
     k = 0
     for j in range(V.shape[0]):
@@ -750,19 +956,20 @@ def _shaft_box(R: RayConfig, q, n, sph, tri):
                 and min(V[j, 0, 1], V[j, 1, 1], V[j, 2, 1]) <= hi_y
                 and max(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]) >= lo_z
                 and min(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]) <= hi_z):
-            tri[k] = j
+            cand[2 + m + k] = j
             k += 1
-    return m, k
+    cand[0], cand[1] = m, k
 
 
 @njit(inline="always", cache=True)
-def _keep_all(sph, tri):
-    """Every sphere and triangle as candidates: the lists 0, 1, … and their lengths."""
-    for s in range(sph.shape[0]):
-        sph[s] = s
-    for j in range(tri.shape[0]):
-        tri[j] = j
-    return sph.shape[0], tri.shape[0]
+def _keep_all(R: RayConfig, cand):
+    """Every sphere and triangle as candidates: ``[S, T, 0, 1, …, S−1, 0, 1, …, T−1]``."""
+    S, T = R.sph_radius.shape[0], R.tri_v.shape[0]
+    for s in range(S):
+        cand[2 + s] = s
+    for j in range(T):
+        cand[2 + S + j] = j
+    cand[0], cand[1] = S, T
 
 
 @batch_kernel(error_model="numpy")
@@ -803,17 +1010,6 @@ def _closest_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, best, 
             bp[i] = pj if ok else bp[i]
             b1s[i] = c1 if ok else b1s[i]
             b2s[i] = c2 if ok else b2s[i]
-
-
-@njit(cache=True, error_model="numpy", _nrt=True)
-def _occluded_brute(R: RayConfig, ray, n, hitm, q):
-    """Brute-force any-hit: the rays in R's precision, the primitives that can lie on them
-    (:func:`_cull`), then :func:`_occluded_loops` over those."""
-    _in_precision(ray, n, q)
-    sph, tri = _candidates(R)
-    ns, nt = _cull(R, q, n, sph, tri)
-    _occluded_loops(R.sph_center, R.sph_radius, R.tri_v, sph[:ns], tri[:nt], q[OX, :n], q[OY, :n],
-                    q[OZ, :n], q[DX, :n], q[DY, :n], q[DZ, :n], q[TMIN, :n], q[TMAX, :n], hitm[:n])
 
 
 @batch_kernel(error_model="numpy")

@@ -168,15 +168,18 @@ def test_light_sample_lanes_and_frustum_loops_vectorise():
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
 @pytest.mark.parametrize("batch", ["shared_origin", "to_a_point", "parallel"])
-def test_culled_batches_equal_the_per_ray_queries(batch, dtype):
+@pytest.mark.parametrize("structure", ["none", "bvh-wide"])
+def test_culled_batches_equal_the_per_ray_queries(structure, batch, dtype):
     """Coherent batches — a narrow fan of rays from one origin (a tile's eye rays), rays
     from scattered points to one point (a light sample's shadow rays), parallel rays
     with an unbounded range (a directional light's) — get, ray for ray, the scalar
-    queries' answers from the brute-force batch queries that test only the primitives
-    their bounds (:func:`impl.tracer._cull`) keep; and those bounds do cull."""
+    queries' answers from the batch queries that test only the primitives their bounds
+    keep: by brute force the batch's bound (:func:`impl.tracer._cull`), through the wide
+    BVH each chunk's frustum, its primitives gathered from the tree's leaves
+    (:func:`impl.tracer._wide_cull`); and those bounds do cull."""
     rng = np.random.default_rng(SEED + 3)
     c, r, v, shape = random_scene(rng, 40, 60)
-    R = config(c, r, v, shape, "none", dtype)
+    R = config(c, r, v, shape, structure, dtype)
     n = 256
     if batch == "shared_origin":
         o = np.tile([0.1, 0.2, 3.0], (n, 1))
@@ -199,17 +202,42 @@ def test_culled_batches_equal_the_per_ray_queries(batch, dtype):
     _assert_same(got, _per_ray_answers(R, ray))
     q = np.empty((8, n), dtype)
     assert (prim >= 0).sum() > n // 8 and blocked.sum() > n // 8, "the rays do hit"
-    sph, tri = np.empty(len(r), np.int64), np.empty(len(v), np.int64)
     tracer._in_precision(ray, n, q)
-    ns, nt = tracer._cull(R, q, n, sph, tri)
-    kept = ns + nt
-    if batch == "parallel":
-        assert kept == len(r) + len(v)                  # unbounded segments: nothing culled
-    else:
-        assert 0 < kept < (len(r) + len(v)) // 2, kept
-        hit_prims = set(prim[prim >= 0].tolist())
-        kept_ids = set(sph[:ns].tolist()) | {len(r) + j for j in tri[:nt].tolist()}
+    uv, bound = np.empty((2, n)), np.empty(tracer._BOUND_WORDS)
+    total = len(r) + len(v)
+    if structure == "none":                             # the whole batch's bound
+        spans = [(0, n)]
+    else:                                               # each chunk's frustum in the tree
+        spans = [(c0, min(n, c0 + tracer.CHUNK)) for c0 in range(0, n, tracer.CHUNK)]
+    culled = 0
+    for c0, c1 in spans:
+        cand = np.full(2 + total, -9, np.int64)
+        if structure == "none":
+            cull(R, q, c0, c1, cand, uv, bound)
+        else:
+            wide_cull(R, q, c0, c1, cand, uv, bound, np.empty(2 * tracer.CHUNK_CAP, np.int64))
+        if batch == "parallel":                         # unbounded segments: no bound
+            assert (cand[0] == tracer._PER_RAY if structure != "none"
+                    else cand[0] + cand[1] == total), cand[:2]
+            continue
+        if cand[0] == tracer._PER_RAY:
+            continue
+        culled += 1
+        ns, nt = cand[0], cand[1]
+        kept = ns + nt
+        assert 0 < kept < total // 2, kept
+        assert (np.diff(cand[2:2 + ns]) > 0).all() and (np.diff(cand[2 + ns:2 + kept]) > 0).all()
+        hit_prims = set(prim[c0:c1][prim[c0:c1] >= 0].tolist())
+        kept_ids = (set(cand[2:2 + ns].tolist())
+                    | {len(r) + j for j in cand[2 + ns:2 + kept].tolist()})
         assert hit_prims <= kept_ids
+    if batch != "parallel":
+        assert culled >= len(spans) // 2, (culled, len(spans))
+
+
+#: The inlined culling helpers, compiled to be called from the tests.
+cull = njit(tracer._cull.py_func)
+wide_cull = njit(_nrt=True)(tracer._wide_cull.py_func)
 
 
 def test_scene_memo_reuses_and_rebuilds():
@@ -349,8 +377,9 @@ def test_wide_bvh_leaf_triangles_are_tested_in_vector_registers():
                                             ("spheres/spot_directional.xml", "sobol")])
 def test_tile_frustum_keeps_every_primitive_an_eye_ray_hits(scene, sampler):
     """A pinhole's eye rays are culled once per tile, for all its samples, by the
-    frustum through the tile's corners (impl.tracer._tile_candidates): every eye ray of
-    every sample, jittered or Sobol, gets the per-ray query's answer over all primitives,
+    frustum through the corners of each strip of the tile (impl.tracer._tile_candidates):
+    every eye ray of every sample, jittered or Sobol, gets the per-ray query's answer over
+    all primitives,
     and the tiles' lists do cull (on the Cornell box most tiles keep few of its 34
     triangles; on the spheres the sky tiles keep no sphere)."""
     from impl.camera import camera_params
@@ -374,7 +403,7 @@ def test_tile_frustum_keeps_every_primitive_an_eye_ray_hits(scene, sampler):
             got = (T.t.copy(), T.prim.copy(), T.b.copy())
             want = _per_ray_answers(R, T.ray)[:3]
             _assert_same(got, want, err_msg=f"tile {tile} sample {s}")
-        kept.append(T.cand[0] + T.cand[1])
+        kept.extend((T.cand[:, 0] + T.cand[:, 1]).tolist())
     kept = np.array(kept)
     assert (kept >= 0).all() and (kept <= total).all()
     assert np.median(kept) < total / 2, np.median(kept)

@@ -65,7 +65,10 @@ consecutive rays traversed as packets (Wald, Slusallek, Benthin, Wagner
 2001) — each child box tested against the packet's active rays in one
 vectorised loop, rays leaving the packet for single-ray traversal when
 :data:`SWITCH` or fewer still enter a node (Embree's hybrid traversal).
-Every entry point returns exactly the single-ray answer.
+Every entry point returns exactly the single-ray answer.  For a bundle of rays
+bounded by a frustum, :func:`wide_frustum_prims` gathers the primitives of the
+leaves the frustum reaches (the tracers then test the bundle against those alone:
+:mod:`impl.tracer`).
 
 Arrays (the :class:`impl.accel.Accel` fields; ``M`` wide nodes):
 
@@ -123,7 +126,7 @@ from .primitives import _slab64, box_enter, closer, prim_test_arrays as _prim, u
 from .tree import STACK, _alloca_f64, _alloca_i64
 
 __all__ = ["WIDTH", "SWITCH", "collapse", "wide_closest", "wide_any", "wide_depth",
-           "wide_closest_batch", "wide_occluded_batch", "wide_packet_closest",
+           "wide_frustum_prims", "wide_closest_batch", "wide_occluded_batch", "wide_packet_closest",
            "wide_packet_occluded", "wide_closest_packets", "wide_occluded_packets"]
 
 #: Children per node.
@@ -687,11 +690,73 @@ def wide_any(R, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return p >= 0, nodes, tests
 
 
+@batch_kernel(error_model="numpy")
+def wide_frustum_prims(R, bound, pad_rel, out, cap):
+    """The primitives of every leaf whose box may meet the frustum ``bound`` (float64:
+    apex p, slack δ, the four inward unit plane normals through p, the reach r, as
+    :func:`impl.tracer._bound` gives them) into ``out``; their count, or -1 when there
+    are more than ``cap``.
+
+    A depth-first walk that opens every child box neither wholly outside one plane nor
+    further than r from p: a box lies outside the plane with normal n when its corner
+    furthest along n does, and beyond the reach when its nearest point is further than r,
+    by more than δ + ``pad_rel``·(1 + the box's largest L1 distance from p) — no less than the
+    padding of any point of the box, so a primitive kept by the frustum's own
+    primitive test (:func:`impl.tracer._frustum_prims`) is always in a kept leaf (a
+    box holds its primitives: :mod:`.primitives` pads them, ``wide_arrays`` rounds
+    outward).  The leaves' primitives come in tree order, unsorted, each once."""
+    box = R.acc_f.view(np.float32)
+    cref = R.acc_f.view(np.int32)
+    na, nb, idx = R.node_a, R.node_b, R.prim_idx
+    px, py, pz, slack, reach = bound[0], bound[1], bound[2], bound[3], bound[16]
+    stack = _alloca_i64()
+    stack[0] = 0
+    sp = 1
+    k = 0
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        base = node * _REC
+        for c in range(WIDTH):
+            s = node * WIDTH + c
+            if nb[s] == 0:                       # empty slot
+                continue
+            lx = float(box[base + c]) - px
+            ly = float(box[base + WIDTH + c]) - py
+            lz = float(box[base + 2 * WIDTH + c]) - pz
+            hx = float(box[base + 3 * WIDTH + c]) - px
+            hy = float(box[base + 4 * WIDTH + c]) - py
+            hz = float(box[base + 5 * WIDTH + c]) - pz
+            pad = slack + pad_rel * (1.0 + max(abs(lx), abs(hx)) + max(abs(ly), abs(hy))
+                                     + max(abs(lz), abs(hz)))
+            gx = max(lx, 0.0) + max(-hx, 0.0)   # the box's gap from p along each axis
+            gy = max(ly, 0.0) + max(-hy, 0.0)
+            gz = max(lz, 0.0) + max(-hz, 0.0)
+            out_of = gx * gx + gy * gy + gz * gz > (reach + pad) * (reach + pad)
+            for j in range(4):
+                nx, ny, nz = bound[4 + 3 * j], bound[5 + 3 * j], bound[6 + 3 * j]
+                far = max(nx * lx, nx * hx) + max(ny * ly, ny * hy) + max(nz * lz, nz * hz)
+                out_of |= far + pad < 0.0
+            if out_of:
+                continue
+            ref = cref[base + _PLANES + c]
+            if ref >= 0:
+                stack[sp] = ref
+                sp += 1
+                continue
+            if k + nb[s] > cap:
+                return -1
+            for e in range(na[s], na[s] + nb[s]):
+                out[k] = idx[e]
+                k += 1
+    return k
+
+
 # ------------------------------------------------------------------ batches ---
 # A batch binds the configuration's arrays once and runs the traversal inlined
 # in its loop over the rays.
 
-@njit(cache=True, error_model="numpy")
+@batch_kernel(error_model="numpy")
 def wide_closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, out_b1, out_b2):
     """Closest hits of the N rays given as float64 arrays (N,), one after the other
     (the tracers' batches, inside their own parallel loop): each ray rounded to R's
@@ -705,7 +770,7 @@ def wide_closest_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_t, out_prim, ou
         out_t[i], out_prim[i], out_b1[i], out_b2[i] = float(t), p, float(b1), float(b2)
 
 
-@njit(cache=True, error_model="numpy")
+@batch_kernel(error_model="numpy")
 def wide_occluded_rays(R, ox, oy, oz, dx, dy, dz, tmin, tmax, out_hit):
     """Any-hit of the N rays (float64 arrays (N,)) within (tmin[i], tmax[i]), one after
     the other: ``out_hit`` bool (N,)."""
