@@ -727,7 +727,9 @@ def _bound(q, c0, c1, uv, bound):
     px, py, pz = float(q[OX, c0]), float(q[OY, c0]), float(q[OZ, c0])
     shared = True
     for i in range(c0, c1):
-        shared &= (q[OX, i] == q[OX, c0]) & (q[OY, i] == q[OY, c0]) & (q[OZ, i] == q[OZ, c0])
+        if (q[OX, i] != q[OX, c0]) | (q[OY, i] != q[OY, c0]) | (q[OZ, i] != q[OZ, c0]):
+            shared = False               # a shadow batch's second ray, as a rule
+            break
     if shared:                           # apex: the origin; directions: the rays'
         bound[0], bound[1], bound[2], bound[3] = px, py, pz, 0.0
         reach = 0.0
