@@ -543,8 +543,8 @@ def _closest_span(R: RayConfig, ray, q, qt, bp, c0, c1, cand, t, prim, b):
     ``cand`` says :data:`_PER_RAY`."""
     if cand[0] == _PER_RAY:              # only through the wide BVH
         wide_closest_rays(R, ray[OX, c0:c1], ray[OY, c0:c1], ray[OZ, c0:c1], ray[DX, c0:c1],
-                     ray[DY, c0:c1], ray[DZ, c0:c1], ray[TMIN, c0:c1], ray[TMAX, c0:c1], t[c0:c1],
-                     prim[c0:c1], b[0, c0:c1], b[1, c0:c1])
+                          ray[DY, c0:c1], ray[DZ, c0:c1], ray[TMIN, c0:c1], ray[TMAX, c0:c1],
+                          t[c0:c1], prim[c0:c1], b[0, c0:c1], b[1, c0:c1])
         return
     m, k = cand[0], cand[1]
     best, b1s, b2s = qt[0, c0:c1], qt[1, c0:c1], qt[2, c0:c1]
@@ -733,8 +733,9 @@ def _bound(q, c0, c1, uv, bound):
     if shared:                           # apex: the origin; directions: the rays'
         bound[0], bound[1], bound[2], bound[3] = px, py, pz, 0.0
         reach = 0.0
-        for i in range(c0, c1):
-            reach = max(reach, float(q[TMAX, i]))
+        for i in range(c0, c1):          # a NaN tmax (a ray that meets nothing) is skipped
+            t = float(q[TMAX, i])
+            reach = t if t > reach else reach
         bound[16] = reach
         if _frustum_planes(q, c0, c1, False, uv, bound):
             return _FRUSTUM
