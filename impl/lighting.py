@@ -899,13 +899,14 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
         ly = -ldy if directional else ly
         lz = -ldz if directional else lz
         wt = 1.0 if directional else wt
-        # spot_falloff: inside the cone (beyond its beam: the band, left to the scalar path)
-        ax = m00 * -lx + m01 * -ly + m02 * -lz
-        ay = m10 * -lx + m11 * -ly + m12 * -lz
-        az = m20 * -lx + m21 * -ly + m22 * -lz
-        cos_t = az / math.sqrt(ax * ax + ay * ay + az * az)
-        inside = (not spot) | (cos_t > cos_cutoff)
-        band = spot & (cos_t > cos_cutoff) & (cos_t < cos_beam)
+        inside, band = True, False
+        if spot:        # spot_falloff: in the cone (beyond its beam: the band, left to the scalar path)
+            ax = m00 * -lx + m01 * -ly + m02 * -lz
+            ay = m10 * -lx + m11 * -ly + m12 * -lz
+            az = m20 * -lx + m21 * -ly + m22 * -lz
+            cos_t = az / math.sqrt(ax * ax + ay * ay + az * az)
+            inside = cos_t > cos_cutoff
+            band = inside & (cos_t < cos_beam)
         # phong_brdf_cos with k_s = 0
         cos_l = sx[i] * lx + sy[i] * ly + sz[i] * lz
         cos_v = sx[i] * vx[i] + sy[i] * vy[i] + sz[i] * vz[i]

@@ -68,6 +68,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 from numba import njit
+from numba.extending import overload
 
 from core.algorithm import RenderResult
 
@@ -364,10 +365,10 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     if pinhole and not packets and culled(R) and n >= 4 and T.cand.shape[1] > 2:
         if T.cand[0, 0] == _UNKNOWN:
             _tile_candidates(cam, R, T)
-        _in_precision(ray, n, T.q)
+        q = _query_rows(ray, n, T.q)
         rows = STRIP_ROWS * T.nx
         for r in range(T.cand.shape[0]):
-            _closest_span(R, ray, T.q, T.qt, T.qp, r * rows, min(n, (r + 1) * rows), T.cand[r],
+            _closest_span(R, ray, q, T.qt, T.qp, r * rows, min(n, (r + 1) * rows), T.cand[r],
                           T.t, T.prim, T.b)
     elif packets:
         for i in range(T.n):
@@ -461,7 +462,7 @@ def closest_batch(R: RayConfig, ray, n, t, prim, b, q, qt, qp):
 def _closest_chunks(R: RayConfig, ray, n, t, prim, b, q, qt, qp, cand, uv, bound, raw):
     """The culled part of :func:`closest_batch`, with its scratch: a function without
     numba's runtime, so the views of every chunk cost no reference counting."""
-    _in_precision(ray, n, q)
+    q = _query_rows(ray, n, q)
     step = _chunk(R, n)
     for c0 in range(0, n, step):
         c1 = min(n, c0 + step)
@@ -502,7 +503,7 @@ def occluded_batch(R: RayConfig, ray, n, blocked, q):
 @batch_kernel(error_model="numpy")
 def _occluded_chunks(R: RayConfig, ray, n, blocked, q, cand, uv, bound, raw):
     """The culled part of :func:`occluded_batch` (see :func:`_closest_chunks`)."""
-    _in_precision(ray, n, q)
+    q = _query_rows(ray, n, q)
     step = _chunk(R, n)
     for c0 in range(0, n, step):
         c1 = min(n, c0 + step)
@@ -539,7 +540,8 @@ def _cand_width(R: RayConfig):
 def _closest_span(R: RayConfig, ray, q, qt, bp, c0, c1, cand, t, prim, b):
     """Closest hits of rays ``c0:c1``: by :func:`_closest_loops` of ``q`` (R's precision)
     over the candidates ``cand`` (``[m, k, m sphere ids, k triangle ids]``), the answers
-    copied to ``t``, ``prim``, ``b`` (float64); or ray by ray through R's structure when
+    in ``t``, ``prim``, ``b`` (float64; in float32 through the scratch ``qt`` and ``bp``,
+    :func:`_hit_rows`); or ray by ray through R's structure when
     ``cand`` says :data:`_PER_RAY`."""
     if cand[0] == _PER_RAY:              # only through the wide BVH
         wide_closest_rays(R, ray[OX, c0:c1], ray[OY, c0:c1], ray[OZ, c0:c1], ray[DX, c0:c1],
@@ -547,15 +549,12 @@ def _closest_span(R: RayConfig, ray, q, qt, bp, c0, c1, cand, t, prim, b):
                           t[c0:c1], prim[c0:c1], b[0, c0:c1], b[1, c0:c1])
         return
     m, k = cand[0], cand[1]
-    best, b1s, b2s = qt[0, c0:c1], qt[1, c0:c1], qt[2, c0:c1]
+    ht, hp, h1, h2 = _hit_rows(t, prim, b, qt, bp)
     _closest_loops(R.sph_center, R.sph_radius, R.tri_v, cand[2:2 + m], cand[2 + m:2 + m + k],
                    q[OX, c0:c1], q[OY, c0:c1], q[OZ, c0:c1], q[DX, c0:c1], q[DY, c0:c1],
-                   q[DZ, c0:c1], q[TMIN, c0:c1], q[TMAX, c0:c1], best, bp[c0:c1], b1s, b2s)
-    for i in range(c0, c1):
-        t[i] = float(qt[0, i])
-        prim[i] = bp[i]
-        b[0, i] = float(qt[1, i])
-        b[1, i] = float(qt[2, i])
+                   q[DZ, c0:c1], q[TMIN, c0:c1], q[TMAX, c0:c1], ht[c0:c1], hp[c0:c1],
+                   h1[c0:c1], h2[c0:c1])
+    _hits_back(ht, hp, h1, h2, c0, c1, t, prim, b)
 
 
 @njit(inline="always", cache=True, error_model="numpy")
@@ -564,6 +563,59 @@ def _in_precision(ray, n, q):
     for c in range(8):
         for i in range(n):
             q[c, i] = ray[c, i]
+
+
+def _hit_rows(t, prim, b, qt, qp):
+    """Where :func:`_closest_loops` writes its answers (t, primitive, b1, b2): the
+    batch's own ``t``, ``prim``, ``b`` in float64 (no copy), else the scratch ``qt`` (3, ≥n)
+    in R's precision and ``qp`` int32 (so the loops vectorise at the float32 width), which
+    :func:`_hits_back` then copies.  Compiled code only."""
+    raise NotImplementedError("_hit_rows runs in compiled code only")
+
+
+@overload(_hit_rows, inline="always")
+def _hit_rows_overload(t, prim, b, qt, qp):
+    if qt.dtype == t.dtype:
+        return lambda t, prim, b, qt, qp: (t, prim, b[0], b[1])
+    return lambda t, prim, b, qt, qp: (qt[0], qp, qt[1], qt[2])
+
+
+def _hits_back(best, bp, b1s, b2s, c0, c1, t, prim, b):
+    """Copy the answers of rays ``c0:c1`` from :func:`_hit_rows`' scratch to ``t``,
+    ``prim``, ``b`` (nothing when they were written there).  Compiled code only."""
+    raise NotImplementedError("_hits_back runs in compiled code only")
+
+
+@overload(_hits_back, inline="always")
+def _hits_back_overload(best, bp, b1s, b2s, c0, c1, t, prim, b):
+    if best.dtype == t.dtype and bp.dtype == prim.dtype:
+        return lambda best, bp, b1s, b2s, c0, c1, t, prim, b: None
+
+    def copy(best, bp, b1s, b2s, c0, c1, t, prim, b):
+        for i in range(c0, c1):
+            t[i] = float(best[i])
+            prim[i] = bp[i]
+            b[0, i] = float(b1s[i])
+            b[1, i] = float(b2s[i])
+    return copy
+
+
+def _query_rows(ray, n, q):
+    """The first ``n`` rays of ``ray`` (8, ≥n) in R's precision, the precision of ``q``
+    (8, ≥n): ``ray`` itself when it has it (float64: no copy), else ``q`` filled by
+    :func:`_in_precision`.  Compiled code only (an overload chosen by the types)."""
+    raise NotImplementedError("_query_rows runs in compiled code only")
+
+
+@overload(_query_rows, inline="always")
+def _query_rows_overload(ray, n, q):
+    if ray.dtype == q.dtype:
+        return lambda ray, n, q: ray
+
+    def copy(ray, n, q):
+        _in_precision(ray, n, q)
+        return q
+    return copy
 
 
 @njit(inline="always", cache=True, error_model="numpy")
