@@ -77,8 +77,8 @@ def eye_ray(cam, px, py):
 
     Returns ``(ox, oy, oz, dx, dy, dz, tmin, tmax, dz_camera)``.
     """
-    u = px / cam[14]
-    v = py / cam[15]
+    u = px * (1.0 / cam[14])
+    v = py * (1.0 / cam[15])
     if cam[18] == SENSOR_ORTHOGRAPHIC:
         x = 1.0 - 2.0 * u
         y = (1.0 - 2.0 * v) / cam[13]
@@ -97,17 +97,20 @@ def _pinhole(u, v, x0, x1, x2, y0, y1, y2, z0, z1, z2, px, py, pz, tx, aspect, n
     """The perspective eye ray at film coordinates (u, v) of the camera whose to_world
     columns are x, y, z and origin p, tan(fov_x/2) ``tx`` and clip range (near, far):
     :func:`eye_ray`'s result, from scalars (so a loop over rays can hold the camera
-    in registers)."""
+    in registers).  One square root and one division per ray: the film's vertical scale
+    tan(fov_x/2)/aspect is the same for every ray (a loop hoists it), and the clip
+    distances along the unit direction are near·r and far·r, r = |(c_x, c_y, 1)| = 1/c_z."""
     cx = (1.0 - 2.0 * u) * tx
-    cy = (1.0 - 2.0 * v) * tx / aspect
-    inv = 1.0 / math.sqrt(cx * cx + cy * cy + 1.0)
+    cy = (1.0 - 2.0 * v) * (tx / aspect)
+    r = math.sqrt(cx * cx + cy * cy + 1.0)
+    inv = 1.0 / r
     cx *= inv
     cy *= inv
     cz = inv
     dx = x0 * cx + y0 * cy + z0 * cz
     dy = x1 * cx + y1 * cy + z1 * cz
     dz = x2 * cx + y2 * cy + z2 * cz
-    return px, py, pz, dx, dy, dz, near / cz, far / cz, cz
+    return px, py, pz, dx, dy, dz, near * r, far * r, cz
 
 
 @njit(cache=True, error_model="numpy", _nrt=False)
@@ -123,9 +126,10 @@ def pinhole_rays(cam, g, fx, fy, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """
     x0, x1, x2, y0, y1, y2 = cam[0], cam[1], cam[2], cam[3], cam[4], cam[5]
     z0, z1, z2, px, py, pz = cam[6], cam[7], cam[8], cam[9], cam[10], cam[11]
-    tx, aspect, w, h, near, far = cam[12], cam[13], cam[14], cam[15], cam[16], cam[17]
+    tx, aspect, near, far = cam[12], cam[13], cam[16], cam[17]
+    iw, ih = 1.0 / cam[14], 1.0 / cam[15]
     for i in range(fx.shape[0]):
-        a, b, c, d, e, f, t0, t1, _ = _pinhole(fx[i] / w, fy[i] / h, x0, x1, x2, y0, y1, y2, z0, z1,
+        a, b, c, d, e, f, t0, t1, _ = _pinhole(fx[i] * iw, fy[i] * ih, x0, x1, x2, y0, y1, y2, z0, z1,
                                                z2, px, py, pz, tx, aspect, near, far)
         ox[i], oy[i], oz[i] = float(like(g, a)), float(like(g, b)), float(like(g, c))
         dx[i], dy[i], dz[i] = float(like(g, d)), float(like(g, e)), float(like(g, f))

@@ -191,7 +191,8 @@ def _towards(ox, oy, oz, yx, yy, yz):
     hd = math.sqrt(hx * hx + hy * hy + hz * hz)
     if hd == 0.0:
         return 0.0, 0.0, 0.0, 0.0
-    return hx / hd, hy / hd, hz / hd, hd
+    inv = 1.0 / hd
+    return hx * inv, hy * inv, hz * inv, hd
 
 
 @njit(cache=True)
@@ -500,7 +501,8 @@ def delta_sample(kind, lpx, lpy, lpz, ldx, ldy, ldz, local, li, cos_cutoff, cos_
     else:
         lx, ly, lz = lpx - px, lpy - py, lpz - pz
         dist = math.sqrt(lx * lx + ly * ly + lz * lz)
-        lx, ly, lz = lx / dist, ly / dist, lz / dist
+        inv = 1.0 / dist
+        lx, ly, lz = lx * inv, ly * inv, lz * inv
         w = attenuation(dist, c1, c2, c3, fclamp)
         if kind == LIGHT_SPOT:
             f = spot_falloff(-lx, -ly, -lz, local, li, cos_cutoff, cos_beam, cutoff, inv_tw)
@@ -893,7 +895,8 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
         p_x, p_y, p_z = px[i], py[i], pz[i]
         lx, ly, lz = lpx - p_x, lpy - p_y, lpz - p_z
         dist = math.sqrt(lx * lx + ly * ly + lz * lz)
-        lx, ly, lz = lx / dist, ly / dist, lz / dist
+        inv = 1.0 / dist
+        lx, ly, lz = lx * inv, ly * inv, lz * inv
         wt = attenuation(dist, c1, c2, c3, fclamp)
         lx = -ldx if directional else lx
         ly = -ldy if directional else ly
@@ -925,10 +928,11 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
         hx, hy, hz = lpx - o_x, lpy - o_y, lpz - o_z
         hd = math.sqrt(hx * hx + hy * hy + hz * hz)
         away = hd != 0.0
+        ih = 1.0 / hd
         ox[i], oy[i], oz[i] = o_x, o_y, o_z
-        dx[i] = lx if directional else (hx / hd if away else 0.0)
-        dy[i] = ly if directional else (hy / hd if away else 0.0)
-        dz[i] = lz if directional else (hz / hd if away else 0.0)
+        dx[i] = lx if directional else (hx * ih if away else 0.0)
+        dy[i] = ly if directional else (hy * ih if away else 0.0)
+        dz[i] = lz if directional else (hz * ih if away else 0.0)
         tmin[i] = float(t0)
         tmax[i] = math.inf if directional else (hd if away else 0.0) * (1.0 - shrink)
 
