@@ -521,9 +521,10 @@ def _occluded_chunks(R: RayConfig, ray, n, blocked, q, cand, uv, bound, raw):
 
 @njit(inline="always", cache=True)
 def _scratch(R: RayConfig, n):
-    """A batch query's scratch: the candidate list (:data:`_UNKNOWN`-marked; room for every
-    primitive by brute force, for ``CHUNK_CAP`` through the wide BVH), the frustum's
-    projective coordinates of up to ``n`` rays, the bound and the tree's raw list."""
+    """A batch query's scratch, uninitialised (each chunk's culling fills it): the
+    candidate list (room for every primitive by brute force, for ``CHUNK_CAP`` through the
+    wide BVH), the frustum's projective coordinates of up to ``n`` rays, the bound and the
+    tree's raw list."""
     return (np.empty(2 + _cand_width(R), np.int64), np.empty((2, n)), np.empty(_BOUND_WORDS),
             np.empty(0 if brute_force(R) else _RAW_CAP, np.int64))
 
@@ -747,22 +748,17 @@ def _wide_prims(R: RayConfig, bound, raw, cand):
         raw[j] = x
     ns = R.sph_radius.shape[0]
     m = kt = 0
-    for i in range(k):
+    for i in range(k):                   # spheres first: their ids are below ns
         p = raw[i]
-        if p < ns:
-            out = _sphere_outside(R, p, bound)
-        else:
-            out = _triangle_outside(R, p - ns, bound)
-        if out:
+        sphere = p < ns
+        if _sphere_outside(R, p, bound) if sphere else _triangle_outside(R, p - ns, bound):
             continue
         if m + kt >= cand.shape[0] - 2:
             cand[0] = _PER_RAY
             return
-        cand[2 + m + kt] = p if p < ns else p - ns
-        if p < ns:
-            m += 1
-        else:
-            kt += 1
+        cand[2 + m + kt] = p if sphere else p - ns
+        m += sphere
+        kt += not sphere
     cand[0], cand[1] = m, kt
 
 

@@ -379,8 +379,7 @@ def test_tile_frustum_keeps_every_primitive_an_eye_ray_hits(scene, sampler):
     """A pinhole's eye rays are culled once per tile, for all its samples, by the
     frustum through the corners of each strip of the tile (impl.tracer._tile_candidates):
     every eye ray of every sample, jittered or Sobol, gets the per-ray query's answer over
-    all primitives,
-    and the tiles' lists do cull (on the Cornell box most tiles keep few of its 34
+    all primitives, and the tiles' lists do cull (on the Cornell box most tiles keep few of its 34
     triangles; on the spheres the sky tiles keep no sphere)."""
     from impl.camera import camera_params
     from impl.sampling import sampler_code
