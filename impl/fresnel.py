@@ -47,7 +47,6 @@ Mitsuba's ``material="none"`` conductor is ``η = 0 + 1i``, for which R = 1.
 All functions are scalar ``@njit`` kernels with no side effects.
 """
 
-import cmath
 import math
 
 from numba import njit
@@ -196,16 +195,41 @@ def snell_refract(ix, iy, iz, nx, ny, nz, eta):
     return tx, ty, tz, False
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def fresnel_conductor(cos_theta_i, eta, k):
-    """Unpolarised reflectance of a conductor of complex relative index eta + i k (cos_theta_i > 0)."""
+    """Unpolarised reflectance of a conductor of complex relative index eta + i k.
+
+    The complex amplitudes above, squared in real arithmetic (Born & Wolf,
+    *Principles of Optics*, §14.2; the form of S. Lagarde, "Memo on Fresnel
+    equations", 2013): with ``s² = 1 − c²``, ``t = eta² − k² − s²``,
+    ``a² + b² = |w|² = sqrt(t² + 4 eta² k²)`` and ``a = Re w = sqrt((a² + b² + t) / 2)``
+    (for t < 0 computed as ``|eta k| / b`` with ``b = sqrt((a² + b² − t) / 2)``, which
+    does not cancel)::
+
+        R_s = (a² + b² + c² − 2ac) / (a² + b² + c² + 2ac)
+        R_p = R_s (c²(a² + b²) + s⁴ − 2ac s²) / (c²(a² + b²) + s⁴ + 2ac s²)
+        R   = (R_s + R_p) / 2
+
+    The denominators vanish only where the complex form's do: at grazing incidence on
+    an index-matched interface (1 + 0i; R_s = 1, the complex form's value) and, for the second,
+    at normal incidence with the degenerate index 0 + 0i (R_p = R_s).  Grazing
+    incidence, total internal reflection (k = 0, a = 0) and Mitsuba's
+    ``material="none"`` (0 + 1i) otherwise need no special case: all give 1.  Real
+    square roots and divisions only, where the complex form takes a complex root, two
+    complex divisions and three moduli (``hypot``)."""
     c = min(abs(cos_theta_i), 1.0)
-    s2 = 1.0 - c * c
-    n = complex(eta, k)
-    n2 = n * n
-    w = cmath.sqrt(n2 - s2)             # η cos θ_t, principal root
-    if c + w == 0.0 or n2 * c + w == 0.0:   # grazing incidence on an index-matched medium
-        return 1.0
-    r_s = (c - w) / (c + w)
-    r_p = (n2 * c - w) / (n2 * c + w)
-    return 0.5 * (abs(r_s) ** 2 + abs(r_p) ** 2)
+    c2 = c * c
+    s2 = 1.0 - c2
+    t = eta * eta - k * k - s2
+    ab2 = math.sqrt(t * t + 4.0 * eta * eta * k * k)
+    if t >= 0.0:                        # a = Re w, without cancellation: a b = eta k
+        a = math.sqrt(0.5 * (ab2 + t))
+    else:
+        a = abs(eta * k) / math.sqrt(0.5 * (ab2 - t))
+    u = ab2 + c2
+    v = 2.0 * a * c
+    r_s = (u - v) / (u + v) if u + v > 0.0 else 1.0
+    p = ab2 * c2 + s2 * s2
+    q = v * s2
+    d = p + q
+    return 0.5 * r_s * (1.0 + ((p - q) / d if d > 0.0 else 1.0))

@@ -2,6 +2,7 @@
 closed forms, energy conservation and Mitsuba's own ``mi.fresnel`` /
 ``mi.fresnel_conductor`` over sweeps of angles."""
 
+import cmath
 import math
 
 import numpy as np
@@ -124,6 +125,29 @@ def test_conductor_closed_forms(eta, k):
     if k == 0.0:
         for c in np.linspace(0.01, 1.0, 50):
             assert fresnel_conductor(c, eta, 0.0) == pytest.approx(fresnel_dielectric(c, eta)[0], rel=1e-10)
+
+
+def _conductor_complex(c, eta, k):
+    """The complex amplitudes of the module's docstring, in Python's complex arithmetic."""
+    c = min(abs(c), 1.0)
+    n2 = complex(eta, k) ** 2
+    w = cmath.sqrt(n2 - (1.0 - c * c))
+    if c + w == 0.0 or n2 * c + w == 0.0:
+        return 1.0
+    return 0.5 * (abs((c - w) / (c + w)) ** 2 + abs((n2 * c - w) / (n2 * c + w)) ** 2)
+
+
+@pytest.mark.parametrize("eta", [0.0, 1e-8, 0.05, 0.27, 1.0, 1.0001, 1.5, 2.9, 1e3])
+def test_conductor_real_form_equals_the_complex_amplitudes(eta):
+    """The real-arithmetic reflectance equals |r_s|² and |r_p|² of the complex
+    amplitudes to rounding, over cos θ_i ∈ [−1, 1] and k from 0 to 10³ — including a
+    tiny eta under a large k, where a = sqrt((a² + b² + t)/2) cancels to 0 (an error of
+    2e-8 at eta = 1e-8, k = 1) unless it is taken as |eta k| / b."""
+    for k in (0.0, 1e-9, 1e-6, 0.1, 1.0, 3.1, 1e3):
+        for c in np.linspace(-1.0, 1.0, 401):
+            ref = _conductor_complex(float(c), eta, k)
+            got = fresnel_conductor(float(c), eta, k)
+            assert got == pytest.approx(ref, rel=1e-12, abs=1e-15), (eta, k, c)
 
 
 def test_conductor_material_none_is_a_perfect_mirror():
