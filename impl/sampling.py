@@ -22,6 +22,7 @@ low-discrepancy samples, so Z-tests stay conservative).
 
 import math
 
+import numpy as np
 from numba import njit
 
 from core.algorithm import Param
@@ -31,7 +32,7 @@ from core.errors import ParamError
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 
-__all__ = ["check_spp", "strata", "pixel_sample", "jittered_film", "welford_add", "variance_of_mean",
+__all__ = ["check_spp", "strata", "pixel_sample", "jittered_film", "sobol_film", "welford_add", "variance_of_mean",
            "PIXEL_JITTER", "PIXEL_SOBOL", "PIXEL_SAMPLERS", "SAMPLER_PARAM", "sampler_code"]
 
 #: :func:`pixel_sample` sampler codes, and their names (index = code).
@@ -101,6 +102,20 @@ def jittered_film(spp, k, s, seed, pixel, x, y, fx, fy):
         h = uniform_prefix(seed, pixel[i], s)
         fx[i] = x[i] + (sx + uniform_from(h, 0)) / k
         fy[i] = y[i] + (sy + uniform_from(h, 1)) / k
+
+
+@njit(cache=True, _nrt=False)
+def sobol_film(s, seed, x, y, fx, fy):
+    """Film positions (pixels) of sample ``s`` of :data:`PIXEL_SOBOL` for every pixel i of a
+    batch: ``x[i] + u``, ``y[i] + v`` with :func:`pixel_sample`'s (u, v) for spp > 1 (same
+    arithmetic, same bits) — the pixel's integer coordinates ``x``, ``y`` (float64).  The
+    scramble and shuffle hashes are 64-bit integer arithmetic and byte-table lookups
+    without branches: LLVM vectorises them over the pixels where the target has packed
+    64-bit multiplies (AVX-512DQ) and gathers."""
+    for i in range(x.shape[0]):
+        u, v = sample_2d(PIXEL_PAIR, s, pixel_seed(np.int64(x[i]), np.int64(y[i]), seed))
+        fx[i] = x[i] + u
+        fy[i] = y[i] + v
 
 
 @njit(inline="always", cache=True)

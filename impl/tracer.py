@@ -50,7 +50,8 @@ frustum reaches (:func:`impl.accel.wide.wide_frustum_prims`) and, when at most
 chunks go ray by ray through the tree.  The loops are functions of their own
 taking every array as a separate argument: inlined with rows of one 2-D array as
 outputs, LLVM left them scalar.  The same holds for the eye rays of a pinhole camera
-(:func:`impl.sampling.jittered_film`, :func:`impl.camera.pinhole_rays`) and the
+(:func:`impl.sampling.jittered_film`, :func:`impl.sampling.sobol_film`,
+:func:`impl.camera.pinhole_rays`) and the
 Welford update (:func:`_welford`).  The algebraic and geometric
 forms and every acceleration structure go to :func:`impl.accel.closest_rays` /
 :func:`impl.accel.occluded_rays`: one call per batch that binds R's arrays
@@ -80,7 +81,8 @@ from .intersect import like
 from .kernel import batch_kernel
 from .rng import uniform_from, uniform_prefix
 from .rays import PARAMS as RAY_PARAMS, RayConfig, ray_config
-from .sampling import PIXEL_JITTER, jittered_film, pixel_sample, strata, variance_of_mean
+from .sampling import (PIXEL_JITTER, PIXEL_SOBOL, jittered_film, pixel_sample, sobol_film, strata,
+                       variance_of_mean)
 from .scene_arrays import scene_memo
 
 #: The random dimensions of a thin lens's aperture sample (beyond any tracer's own).
@@ -154,6 +156,8 @@ class Batch(NamedTuple):
                                 # spheres m and triangles k, then their indices; _UNKNOWN = not
                                 # yet known, _PER_RAY = trace its rays one by one; (1, 2) for
                                 # batches not tied to a tile
+    luv: np.ndarray             # (2, n) a light sample's two numbers per point (scratch of
+                                # impl.lighting.direct_batch)
 
 
 #: The parameters :func:`impl.rays.ray_config` reads (its parameter table).
@@ -236,7 +240,7 @@ def new_batch(film: Film, R: RayConfig, tile):
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, n)), xy,
                  np.full(((ny + STRIP_ROWS - 1) // STRIP_ROWS, 2 + _cand_width(R)), _UNKNOWN,
-                         np.int64))
+                         np.int64), np.empty((2, n)))
 
 
 @njit(cache=True)
@@ -252,7 +256,7 @@ def new_points(n, R: RayConfig, counters=0):
                  np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, 0)), np.empty((2, 0)),
-                 np.full((1, 2), _UNKNOWN, np.int64))
+                 np.full((1, 2), _UNKNOWN, np.int64), np.empty((2, n)))
 
 
 @njit(inline="always", cache=True)
@@ -261,7 +265,7 @@ def first(T: Batch, m):
     m): what the batch steps loop over when a chunk fills only part of a batch."""
     return Batch(T.x0, T.y0, T.nx, m, T.ray, T.t, T.prim, T.b, T.L, T.acc, T.cnt, T.packet, T.aos,
                  T.aos_b, T.pixel, T.pts, T.active, T.sh, T.sh_w, T.sh_i, T.blocked, T.q, T.qt, T.qp,
-                 T.film, T.xy, T.cand)
+                 T.film, T.xy, T.cand, T.luv)
 
 
 class Pending(NamedTuple):
@@ -339,6 +343,8 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     if pinhole and (spp == 1 or sampler == PIXEL_JITTER):     # every step a vector loop
         jittered_film(spp, k, s, seed, T.pixel[:n], T.xy[0, :n], T.xy[1, :n], T.film[0, :n],
                       T.film[1, :n])
+    elif pinhole and sampler == PIXEL_SOBOL:
+        sobol_film(s, seed, T.xy[0, :n], T.xy[1, :n], T.film[0, :n], T.film[1, :n])
     else:
         i = 0
         for y in range(T.y0, T.y0 + T.n // T.nx):

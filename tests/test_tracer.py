@@ -63,8 +63,12 @@ def test_batch_queries_equal_the_scalar_queries_ray_for_ray(dtype):
 
 
 def _avx2() -> bool:
+    return _cpu_flag("avx2")
+
+
+def _cpu_flag(flag: str) -> bool:
     try:
-        return " avx2" in Path("/proc/cpuinfo").read_text()
+        return f" {flag}" in Path("/proc/cpuinfo").read_text()
     except OSError:
         return False
 
@@ -143,6 +147,48 @@ def test_jittered_film_equals_pixel_sample_bit_for_bit():
         for i in range(300):
             ox, oy = pixel_sample(spp, k, s, 9, pixel[i], PIXEL_JITTER, int(x[i]), int(y[i]))
             assert (fx[i], fy[i]) == (x[i] + ox, y[i] + oy), (spp, s, i)
+
+
+def test_sobol_film_equals_pixel_sample_bit_for_bit():
+    from impl.sampling import PIXEL_SOBOL, pixel_sample, sobol_film
+    rng = np.random.default_rng(SEED)
+    pixel = rng.integers(0, 1 << 20, 300)
+    x, y = (pixel % 640).astype(float), (pixel // 640).astype(float)
+    for spp, s in ((4, 0), (16, 7), (64, 63), (256, 200)):
+        fx, fy = np.empty(300), np.empty(300)
+        sobol_film(s, 9, x, y, fx, fy)
+        for i in range(300):
+            ox, oy = pixel_sample(spp, 0, s, 9, pixel[i], PIXEL_SOBOL, int(x[i]), int(y[i]))
+            assert (fx[i], fy[i]) == (x[i] + ox, y[i] + oy), (spp, s, i)
+
+
+def test_light_uv_sobol_lanes_equal_the_scalar_numbers_bit_for_bit():
+    from impl.lighting import light_uv_sobol, light_uv_sobol_lanes
+    rng = np.random.default_rng(SEED)
+    pixel, sample = rng.integers(0, 1 << 20, 300), rng.integers(0, 64, 300)
+    for light, k, ls in ((0, 0, 1), (2, 3, 4), (5, 15, 16)):
+        u, v = np.empty(300), np.empty(300)
+        light_uv_sobol_lanes(7, pixel, sample, light, k, ls, u, v)
+        for i in range(300):
+            assert (u[i], v[i]) == light_uv_sobol(7, pixel[i], sample[i], light, k, ls), (light, i)
+
+
+@pytest.mark.skipif(not _cpu_flag("avx512dq"), reason="the host has no packed 64-bit multiply")
+def test_sobol_film_loop_vectorises():
+    """The Sobol film positions and light-sample numbers (64-bit scramble hashes,
+    byte-table lookups) compile to packed 64-bit multiplies in 256-bit or wider
+    registers."""
+    from impl.sampling import sobol_film
+    n = 64
+    film = njit(sobol_film.py_func)
+    film(3, 5, np.arange(n, dtype=float), np.ones(n), np.empty(n), np.empty(n))
+    asm = "\n".join(film.inspect_asm().values())
+    assert re.search(r"vpmullq\s+%[yz]mm", asm), "Sobol film positions"
+    from impl.lighting import light_uv_sobol_lanes
+    lanes = njit(light_uv_sobol_lanes.py_func)
+    lanes(7, np.arange(n), np.ones(n, np.int64), 1, 0, 1, np.empty(n), np.empty(n))
+    asm = "\n".join(lanes.inspect_asm().values())
+    assert re.search(r"vpmullq\s+%[yz]mm", asm), "Sobol light samples"
 
 
 @pytest.mark.skipif(not _avx2(), reason="the host has no AVX2")
