@@ -331,7 +331,6 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
     q = int(math.sqrt(light_samples) + 0.5)
     stratified = q * q == light_samples
     n_em = A.em_area.shape[0]
-    em_offset, em_tri, em_cdf, tri_v = A.em_offset, A.em_tri, A.em_cdf, A.tri_v
     for e in range(n_em):
         sh = A.em_shape[e]
         flip = A.shape_flip[sh]
@@ -341,8 +340,8 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
             u1, u2 = light_uv_dims(seed, pixel, sample, e * light_samples + k, k, q, stratified, dmode,
                                    dspp, ddim)
             ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
-                e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, px, py, pz,
-                sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, ks, shininess, c1, c2, c3, fclamp)
+                A, e, u1, u2, flip, scale, er, eg, eb, px, py, pz, sx, sy, sz, vx, vy, vz, rho_r,
+                rho_g, rho_b, ks, shininess, c1, c2, c3, fclamp)
             if not ok:
                 continue
             if shadows:
@@ -525,27 +524,22 @@ def delta_sample(kind, lpx, lpy, lpz, ldx, ldy, ldz, local, li, cos_cutoff, cos_
 
 
 @njit(inline="always", cache=True)
-def area_sample(e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, px, py, pz,
-                sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, ks, shininess, c1, c2, c3, fclamp):
+def area_sample(A: SceneArrays, e, u1, u2, flip, scale, er, eg, eb, px, py, pz, sx, sy, sz, vx, vy,
+                vz, rho_r, rho_g, rho_b, ks, shininess, c1, c2, c3, fclamp):
     """One uniform-by-area sample y of area emitter ``e`` (radiance ``(er, eg, eb)``,
     ``scale`` = its area / the sample count N) lit towards p (thesis 1.4.1):
     ``(lit, l, y, contribution)`` with the estimator L_e A cos θ_y f_att(d) · bracket / N.
     Area emitters radiate from their front side only (``flip``: the shape's normals are
-    flipped)."""
+    flipped); the emitter triangle's unit normal is read from ``A.tri_ng`` (the bits
+    :func:`surface` computes from the vertices)."""
     z = 0.0
-    yx, yy, yz, tri = sample_emitter(e, u1, u2, em_offset, em_tri, em_cdf, tri_v)
+    yx, yy, yz, tri = sample_emitter(e, u1, u2, A.em_offset, A.em_tri, A.em_cdf, A.tri_v)
     lx, ly, lz = yx - px, yy - py, yz - pz
     dist = math.sqrt(lx * lx + ly * ly + lz * lz)
     if dist == 0.0:
         return False, z, z, z, z, z, z, z, z, z
     lx, ly, lz = lx / dist, ly / dist, lz / dist
-    # The emitter triangle's geometric normal, as :func:`surface` computes it.
-    v = tri_v[tri]
-    e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
-    e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
-    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
-    nx, ny, nz = nx * inv, ny * inv, nz * inv
+    nx, ny, nz = A.tri_ng[tri, 0], A.tri_ng[tri, 1], A.tri_ng[tri, 2]
     if flip:
         nx, ny, nz = -nx, -ny, -nz
     cos_y = -(nx * lx + ny * ly + nz * lz)
@@ -755,7 +749,6 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
     q = int(math.sqrt(light_samples) + 0.5)
     stratified = q * q == light_samples
     n_em = A.em_area.shape[0]
-    em_offset, em_tri, em_cdf, tri_v = A.em_offset, A.em_tri, A.em_cdf, A.tri_v
     for e in range(n_em):
         esh = A.em_shape[e]
         flip = A.shape_flip[esh]
@@ -775,9 +768,9 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                     u1, u2 = light_uv(seed, pixel[i], sample[i], e * light_samples + k, k, q,
                                       stratified)
                 ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
-                    e, u1, u2, em_offset, em_tri, em_cdf, tri_v, flip, scale, er, eg, eb, P[0, i],
-                    P[1, i], P[2, i], P[6, i], P[7, i], P[8, i], P[9, i], P[10, i], P[11, i],
-                    P[12, i], P[13, i], P[14, i], ks, shininess, c1, c2, c3, fclamp)
+                    A, e, u1, u2, flip, scale, er, eg, eb, P[0, i], P[1, i], P[2, i], P[6, i],
+                    P[7, i], P[8, i], P[9, i], P[10, i], P[11, i], P[12, i], P[13, i], P[14, i], ks,
+                    shininess, c1, c2, c3, fclamp)
                 if not ok:
                     continue
                 if not shadows:
