@@ -211,8 +211,8 @@ def fresnel_conductor(cos_theta_i, eta, k):
         R   = (R_s + R_p) / 2
 
     The denominators vanish only where the complex form's do: at grazing incidence on
-    an index-matched interface (1 + 0i; R_s = 1, the complex form's value) and, for the second,
-    at normal incidence with the degenerate index 0 + 0i (R_p = R_s).  Grazing
+    an index-matched interface (1 + 0i; R_s = 1, the complex form's value) and, for the
+    second, at normal incidence with the degenerate index 0 + 0i (R_p = R_s).  Grazing
     incidence, total internal reflection (k = 0, a = 0) and Mitsuba's
     ``material="none"`` (0 + 1i) otherwise need no special case: all give 1.  Real
     square roots and divisions only, where the complex form takes a complex root, two

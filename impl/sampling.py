@@ -32,8 +32,9 @@ from core.errors import ParamError
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 
-__all__ = ["check_spp", "strata", "pixel_sample", "jittered_film", "sobol_film", "welford_add", "variance_of_mean",
-           "PIXEL_JITTER", "PIXEL_SOBOL", "PIXEL_SAMPLERS", "SAMPLER_PARAM", "sampler_code"]
+__all__ = ["check_spp", "strata", "pixel_sample", "jittered_film", "sobol_film", "welford_add",
+           "variance_of_mean", "PIXEL_JITTER", "PIXEL_SOBOL", "PIXEL_SAMPLERS", "SAMPLER_PARAM",
+           "sampler_code"]
 
 #: :func:`pixel_sample` sampler codes, and their names (index = code).
 PIXEL_JITTER = 0
