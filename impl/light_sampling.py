@@ -148,17 +148,6 @@ def sample_sphere_cone(cx, cy, cz, r, px, py, pz, u1, u2):
 # ------------------------------------------------------------- emitters ---
 
 @njit(inline="always", cache=True)
-def _tri_normal(v, flip):
-    e1x, e1y, e1z = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
-    e2x, e2y, e2z = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1], v[2, 2] - v[0, 2]
-    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
-    if flip:
-        inv = -inv
-    return nx * inv, ny * inv, nz * inv
-
-
-@njit(inline="always", cache=True)
 def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
     """Next-event estimation: pick a light uniformly and sample a direction from p.
 
@@ -198,7 +187,9 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
         e = i - nd
         sh = A.em_shape[e]
         yx, yy, yz, tri = sample_emitter(e, u1, u2, A.em_offset, A.em_tri, A.em_cdf, A.tri_v)
-        nx, ny, nz = _tri_normal(A.tri_v[tri], A.shape_flip[sh])
+        nx, ny, nz = A.tri_ng[tri, 0], A.tri_ng[tri, 1], A.tri_ng[tri, 2]   # unit normal
+        if A.shape_flip[sh]:
+            nx, ny, nz = -nx, -ny, -nz
         wx, wy, wz = yx - px, yy - py, yz - pz
         d2 = wx * wx + wy * wy + wz * wz
         d = math.sqrt(d2)
