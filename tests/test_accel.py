@@ -251,7 +251,7 @@ def test_wide_bvh_node_records_hold_the_boxes_and_child_references():
     lo, hi = prim_bounds(c, r, v)
     nlo, nhi, na, nb, idx = build_bvh(lo, hi, "sah")
     box, sa, sb = collapse(nlo, nhi, na, nb)
-    acc_f, acc_i = wide_arrays(box, sa, sb, idx, r, v)
+    acc_f, acc_i = wide_arrays(box, sa, sb, idx, c, r, v)
     M = len(box)
     rec = acc_f.view(np.float32)[:M * 8 * WIDTH].reshape(M, 8, WIDTH)
     np.testing.assert_array_equal(rec[:, :6, :], box)
@@ -307,6 +307,81 @@ def test_wide_batches_and_packets_return_brute_force_answers(dtype):
         got[:] = False
         wide_occluded_packets(R, *cols, s_min, s_max, got, size)
         np.testing.assert_array_equal(got, want, err_msg=f"packets of {size}")
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+def test_sphere_lanes_equal_the_scalar_stable_test_bit_for_bit(dtype):
+    """The wide BVH's vector sphere test (four spheres a call) returns, lane by lane, the
+    scalar stable test's t bit for bit and its hit (t > 0) on the cases where its
+    branches decide: rays through the centre, grazing the silhouette (the
+    discriminant's sign decided by rounding), starting inside, on and behind the
+    sphere, small spheres far from the origin (the cancellation the stable form
+    avoids), limits cutting between the roots; a NaN-centre padding lane misses."""
+    from numba import njit
+
+    from impl.accel.wide import LANES, _sph_lanes
+    from impl.intersect import ray_sphere_stable
+
+    @njit
+    def lanes(data, o, d, tmin, tmax, out_t, out_m):
+        tn = np.empty(LANES)
+        for i in range(o.shape[0]):
+            for g in range(data.shape[0] // (4 * LANES)):
+                m = _sph_lanes(data, g * 4 * LANES, o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1],
+                               d[i, 2], tmin[i], tmax[i], tn)
+                for k in range(LANES):
+                    out_t[i, g * LANES + k] = tn[k]
+                    out_m[i, g * LANES + k] = (m >> k) & 1
+
+    @njit
+    def scalar(c, r, o, d, tmin, tmax, out_t):
+        for i in range(o.shape[0]):
+            for j in range(r.shape[0]):
+                out_t[i, j] = ray_sphere_stable(o[i, 0], o[i, 1], o[i, 2], d[i, 0], d[i, 1], d[i, 2],
+                                                c[j, 0], c[j, 1], c[j, 2], r[j], tmin[i], tmax[i])
+
+    rng = np.random.default_rng(SEED + 23)
+    ns = 4 * LANES
+    c = np.concatenate([rng.uniform(-1, 1, (ns - 3, 3)), [[0.0, 0.0, 0.0], [1e4, 0.0, 0.0],
+                                                          [0.0, -3e3, 2.0]]])
+    r = np.concatenate([rng.uniform(0.05, 0.8, ns - 3), [1.0, 1e-2, 0.5]])
+    n = 3000
+    o = rng.uniform(-3, 3, (n, 3))
+    o[:300] = c[rng.integers(0, ns, 300)]                              # from the centres
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    j = rng.integers(0, ns, n)
+    aim = c[j] - o
+    q = rng.integers(0, 3, n)                                          # at a centre, a silhouette, anywhere
+    side = np.cross(aim, u)
+    side /= np.linalg.norm(side, axis=1)[:, None] + 1e-300
+    aim = np.where(q[:, None] == 1, aim + side * r[j][:, None] * rng.uniform(0.999, 1.001, (n, 1)), aim)
+    d = np.where(q[:, None] == 2, u, aim)
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    o[300:400] = c[j[300:400]] + 0.5 * r[j[300:400]][:, None] * u[300:400]     # inside
+    o[400:500] = c[j[400:500]] + r[j[400:500]][:, None] * u[400:500]           # on the surface
+    tmin = rng.choice([0.0, 1e-4, 0.5], n)
+    tmax = rng.choice([np.inf, 1.0, 3.0], n)
+    c, r, o, d, tmin, tmax = (np.asarray(x, dtype) for x in (c, r, o, d, tmin, tmax))
+    data = np.zeros((ns // LANES, 4, LANES), dtype)
+    data[:, :3, :] = c.reshape(ns // LANES, LANES, 3).transpose(0, 2, 1)
+    data[:, 3, :] = r.reshape(ns // LANES, LANES)
+    want = np.empty((n, ns), dtype)
+    scalar(c, r, o, d, tmin, tmax, want)
+    got_t, got_m = np.empty((n, ns)), np.empty((n, ns), np.int64)
+    lanes(data.reshape(-1), o, d, tmin, tmax, got_t, got_m)
+    hit = want > 0
+    aimed = hit[np.arange(n), j]
+    graze = q[500:] == 1
+    assert hit.sum() > 2000 and (want == -1).any() and (want[hit] < 0.5).any()
+    assert 0.2 < aimed[500:][graze].mean() < 0.8, "the silhouette rays should split into hits and misses"
+    np.testing.assert_array_equal(got_m, hit)
+    np.testing.assert_array_equal(got_t[hit], want[hit].astype(np.float64))
+    pad = np.zeros((1, 4, LANES), dtype)
+    pad[0, :3, :] = np.nan
+    pad_t, pad_m = np.empty((n, LANES)), np.empty((n, LANES), np.int64)
+    lanes(pad.reshape(-1), o, d, tmin, tmax, pad_t, pad_m)
+    assert not pad_m.any()
 
 
 def test_grid_lists_every_primitive_in_every_voxel_its_box_overlaps():

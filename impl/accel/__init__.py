@@ -127,7 +127,7 @@ def build(name: str, sph_center, sph_radius, tri_v, prim_shape=None, *, slab_nor
         if need > STACK:
             raise RuntimeError(f"accel {name}: the tree needs a traversal stack of {need} "
                                f"(> {STACK}); the scene is too degenerate for it")
-        acc_f, acc_i = wide_arrays(box32, slot_a, slot_b, idx, sph_radius, tri_v)
+        acc_f, acc_i = wide_arrays(box32, slot_a, slot_b, idx, sph_center, sph_radius, tri_v)
         return Accel(WIDE, nlo[:1].copy(), nhi[:1].copy(), slot_a, slot_b, idx, acc_f, acc_i)
     if name == "bvh-median":
         arrays = build_bvh(lo, hi, "median")

@@ -32,13 +32,16 @@ arithmetic is a choice, not a necessity: with W = 4 (AVX2) or 8 (AVX-512)
 lanes a float64 plane costs as many vector instructions as a float32 one,
 and it needs no error bound on the origin's float32 rounding.
 
-Leaves.  A leaf's triangles are stored again, structure of arrays, in groups
-of :data:`LANES` (``v0``, ``e1 = v1 − v0``, ``e2 = v2 − v0`` per lane, in the
-configured precision: :func:`_leaf_groups`), and a group is tested in one
-vector Möller–Trumbore (:func:`_tri_lanes`, the operations of
-:func:`impl.intersect.ray_triangle` lane by lane, so each lane's hit is the
-scalar test's bit for bit); the lanes' hits are then kept in the tie rule's
-order.  A leaf's spheres keep the scalar test of the configured form.  All
+Leaves.  A leaf's primitives are stored again, structure of arrays, in groups
+of :data:`LANES` (:func:`_leaf_groups`, in the configured precision): its
+spheres (``cx cy cz r`` per lane), then its triangles (``v0``, ``e1 = v1 −
+v0``, ``e2 = v2 − v0`` per lane).  A group is tested in one vector test: the
+stable ray–sphere test (:func:`_sph_lanes`) or Möller–Trumbore
+(:func:`_tri_lanes`), each the operations of the scalar test
+(:func:`impl.intersect.ray_sphere_stable`, :func:`impl.intersect.ray_triangle`)
+lane by lane, so each lane's hit is the scalar test's bit for bit; the lanes'
+hits are then kept in the tie rule's order.  Spheres of the algebraic and
+geometric forms (the thesis's ablation of the test) keep the scalar test.  All
 of a group is tested against the nearest hit at the leaf's entry; a lane hit
 that a smaller limit would have rejected is not nearer, so
 :func:`.closer` drops it and the result is that of one-by-one tests.
@@ -89,18 +92,21 @@ acc_f      (K,) f64           the node records, 8·W float32 words each:
                               words per float64 (read through
                               ``acc_f.view(np.float32)`` and
                               ``.view(np.int32)``), then the leaves'
-                              triangle groups (G, 9, LANES) in the
-                              configured precision (:func:`wide_arrays`)
-acc_i      (4+M·W+G·LANES,)   ``W``, the groups' first word in that
-           i64                precision, ``S = M·W`` slots, slot s's groups
-                              ``grp[s]:grp[s+1]`` (S+1 entries), the lanes'
-                              primitive ids (-1: padding)
+                              sphere and triangle groups (G, 9, LANES)
+                              in the configured precision
+                              (:func:`wide_arrays`)
+acc_i      (4+2·M·W+G·LANES,) ``W``, the groups' first word in that
+           i64                precision, ``S = M·W`` slots, slot s's
+                              sphere groups ``grp[2s]:grp[2s+1]`` and
+                              triangle groups ``grp[2s+1]:grp[2s+2]``
+                              (2S+1 entries), the lanes' primitive ids
+                              (-1: padding)
 =========  =================  ===========================================
 
-Leaves out: compressed (quantised) boxes, vector tests of a leaf's spheres,
-spatial splits, float32 box arithmetic, 8-lane float32 triangle groups (the
-groups are 4 lanes in both precisions: 256-bit ymm arithmetic in float64,
-128-bit xmm in float32).
+Leaves out: compressed (quantised) boxes, vector tests of the algebraic and
+geometric sphere forms, spatial splits, float32 box arithmetic, 8-lane float32
+groups (the groups are 4 lanes in both precisions: 256-bit ymm arithmetic in
+float64, 128-bit xmm in float32).
 
 References: I. Wald, P. Slusallek, C. Benthin, M. Wagner, "Interactive
 rendering with coherent ray tracing", CGF 20(3), 2001; I. Wald, C. Benthin, S. Boulos, "Getting rid of packets —
@@ -118,6 +124,7 @@ import math
 import numpy as np
 from llvmlite import ir
 from numba import njit, prange, types
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 from ..intersect import like, ray_sphere_form
@@ -243,23 +250,32 @@ def collapse(nlo, nhi, na, nb, width: int = WIDTH):
 
 
 @njit(cache=True)
-def _leaf_groups(slot_a, slot_b, idx, ns, tri_v, head):
-    """The leaves' triangles in groups of :data:`LANES`, structure of arrays:
-    ``(grp (S+1,), buf, ids (G·LANES,))`` — slot s's triangles are groups
-    ``grp[s]:grp[s+1]``; ``buf`` (head + G·9·LANES,) in tri_v's precision holds
-    ``head`` words left for the caller, then the groups (G, 9, LANES): a group's
-    rows are v0x v0y v0z, e1 = v1 − v0, e2 = v2 − v0 (as
-    :func:`impl.intersect.ray_triangle` computes them); ``ids`` the lanes'
-    primitive ids (-1: padding, a zero triangle)."""
+def _leaf_groups(slot_a, slot_b, idx, sph_center, sph_radius, tri_v, head):
+    """The leaves' primitives in groups of :data:`LANES`, structure of arrays:
+    ``(grp (2S+1,), buf, ids (G·LANES,))`` — slot s's spheres are groups
+    ``grp[2s]:grp[2s+1]``, its triangles ``grp[2s+1]:grp[2s+2]`` (a slot's groups
+    are consecutive, spheres first); ``buf`` (head + G·9·LANES,) in tri_v's
+    precision holds ``head`` words left for the caller, then the groups (G, 9,
+    LANES).  A triangle group's rows are v0x v0y v0z, e1 = v1 − v0, e2 = v2 − v0
+    (as :func:`impl.intersect.ray_triangle` computes them), a sphere group's
+    cx cy cz r and five rows of zeros; ``ids`` the lanes' primitive ids (spheres
+    0…ns−1 first, then triangles; -1: padding).  Padding lanes miss: a zero
+    triangle (det = 0), a sphere of centre NaN (every comparison of the test
+    false)."""
     S = slot_a.shape[0]
-    grp = np.zeros(S + 1, dtype=np.int64)
+    ns = sph_radius.shape[0]
+    grp = np.zeros(2 * S + 1, dtype=np.int64)
     for s in range(S):
-        c = 0
+        cs = ct = 0
         if slot_b[s] > 0:
             for k in range(slot_a[s], slot_a[s] + slot_b[s]):
-                c += idx[k] >= ns
-        grp[s + 1] = grp[s] + (c + LANES - 1) // LANES
-    G = grp[S]
+                if idx[k] < ns:
+                    cs += 1
+                else:
+                    ct += 1
+        grp[2 * s + 1] = grp[2 * s] + (cs + LANES - 1) // LANES
+        grp[2 * s + 2] = grp[2 * s + 1] + (ct + LANES - 1) // LANES
+    G = grp[2 * S]
     buf = np.empty(head + G * 9 * LANES, dtype=tri_v.dtype)
     data = buf[head:].reshape(G, 9, LANES)
     data[:] = 0.0
@@ -267,35 +283,47 @@ def _leaf_groups(slot_a, slot_b, idx, ns, tri_v, head):
     for s in range(S):
         if slot_b[s] <= 0:
             continue
-        j = grp[s] * LANES
+        js = grp[2 * s] * LANES
+        for g in range(grp[2 * s], grp[2 * s + 1]):
+            data[g, 0:3, :] = np.nan
+        jt = grp[2 * s + 1] * LANES
         for k in range(slot_a[s], slot_a[s] + slot_b[s]):
             p = idx[k]
             if p < ns:
+                g, ln = js // LANES, js % LANES
+                for a in range(3):
+                    data[g, a, ln] = sph_center[p, a]
+                data[g, 3, ln] = sph_radius[p]
+                ids[js] = p
+                js += 1
                 continue
-            g, ln = j // LANES, j % LANES
+            g, ln = jt // LANES, jt % LANES
             v = tri_v[p - ns]
             for a in range(3):
                 data[g, a, ln] = v[0, a]
                 data[g, 3 + a, ln] = v[1, a] - v[0, a]
                 data[g, 6 + a, ln] = v[2, a] - v[0, a]
-            ids[j] = p
-            j += 1
+            ids[jt] = p
+            jt += 1
     return grp, buf, ids
 
 
-def wide_arrays(box32, slot_a, slot_b, idx, sph_radius, tri_v):
+def wide_arrays(box32, slot_a, slot_b, idx, sph_center, sph_radius, tri_v):
     """The ``(acc_f, acc_i)`` of a wide BVH: the node records followed by the leaves'
-    triangle groups (:func:`_leaf_groups`) in the precision of ``tri_v``, and
-    ``[W, word offset of the groups in that precision, S slots, grp (S+1), ids]``.
-    The records are written in place in front of the groups (no copy of either)."""
+    sphere and triangle groups (:func:`_leaf_groups`) in the precision of
+    ``sph_radius``, and ``[W, word offset of the groups in that precision, S slots,
+    grp (2S+1), ids]``.  The records are written in place in front of the groups
+    (no copy of either)."""
     F = np.asarray(sph_radius).dtype            # the kernels' precision (impl.rays.RayConfig)
     tri_v = np.ascontiguousarray(tri_v, dtype=F).reshape(-1, 3, 3)
+    sph_center = np.ascontiguousarray(sph_center, dtype=F).reshape(-1, 3)
+    sph_radius = np.ascontiguousarray(sph_radius, dtype=F)
     m, _, W = box32.shape
     if m * W >= 2 ** 31:
         raise ValueError(f"wide_arrays: {m * W} slots do not fit the int32 child references")
     words = m * 8 * W                           # float32 words of the node records
     off = words if F == np.float32 else words // 2
-    grp, buf, ids = _leaf_groups(slot_a, slot_b, idx, len(sph_radius), tri_v, off)
+    grp, buf, ids = _leaf_groups(slot_a, slot_b, idx, sph_center, sph_radius, tri_v, off)
     rec = buf[:off].view(np.float32).reshape(m, 8, W)
     s = np.arange(m * W, dtype=np.int64)
     ref = np.where(slot_b < 0, slot_a, -s - 1).astype(np.int32).reshape(m, 1, W)
@@ -481,6 +509,73 @@ def _tri_lanes(typingctx, data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out):
 
 
 @intrinsic
+def _sph_lanes(typingctx, data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out):
+    """The stable ray–sphere test (:func:`impl.intersect.ray_sphere_stable`) for the
+    :data:`LANES` spheres of one leaf group in one vector operation per step:
+    ``data`` (R's precision) holds the group's rows ``cx cy cz r`` (:data:`LANES`
+    words each) from word ``base``; the ray (unit direction) and limits are in R's
+    precision.  Lane k's ``t`` goes to ``out[k]`` (float64, exact); returns the
+    mask of the lanes hit with ``t > 0``.
+
+    The scalar test's operations in its order and precision (no fused multiply-add;
+    ``sqrt`` and ``copysign`` exact as the scalar ones), its branches as selects:
+    a lane misses where the scalar test returns −1 (ordered comparisons, so a NaN
+    padding lane misses), and its ``t`` is the scalar test's bit for bit."""
+    F = data.dtype
+    sig = types.int64(data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out)
+
+    def codegen(context, builder, sig, args):
+        ft = context.get_value_type(F)
+        vt = ir.VectorType(ft, LANES)
+        dv = ir.VectorType(ir.DoubleType(), LANES)
+        d_ptr = _data_ptr(context, builder, sig.args[0], args[0])
+        o_ptr = _data_ptr(context, builder, sig.args[10], args[10])
+        base = context.cast(builder, args[1], sig.args[1], types.int64)
+        sc = [context.cast(builder, a, t, F) for a, t in zip(args[2:10], sig.args[2:10])]
+        suffix = f"v{LANES}f{F.bitwidth}"
+        sqrt = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vt, [vt]),
+                                              f"llvm.sqrt.{suffix}")
+        copysign = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vt, [vt, vt]),
+                                                  f"llvm.copysign.{suffix}")
+
+        def splat(x):
+            v = ir.Constant(vt, ir.Undefined)
+            for k in range(LANES):
+                v = builder.insert_element(v, x, ir.Constant(ir.IntType(32), k))
+            return v
+
+        def row(r):
+            p = builder.gep(d_ptr, [builder.add(base, ir.Constant(ir.IntType(64), r * LANES))])
+            return builder.load(builder.bitcast(p, vt.as_pointer()), align=F.bitwidth // 8)
+
+        ox, oy, oz, dx, dy, dz, t_lo, t_hi = (splat(x) for x in sc)
+        cx, cy, cz, r = (row(k) for k in range(4))
+        mul, sub, add, sel = builder.fmul, builder.fsub, builder.fadd, builder.select
+        cmp = builder.fcmp_ordered
+        zero = ir.Constant(vt, [0.0] * LANES)
+        fx, fy, fz = sub(ox, cx), sub(oy, cy), sub(oz, cz)
+        b = builder.fneg(add(add(mul(fx, dx), mul(fy, dy)), mul(fz, dz)))
+        px, py, pz = add(fx, mul(b, dx)), add(fy, mul(b, dy)), add(fz, mul(b, dz))
+        r2 = mul(r, r)
+        disc = sub(r2, add(add(mul(px, px), mul(py, py)), mul(pz, pz)))
+        c = sub(add(add(mul(fx, fx), mul(fy, fy)), mul(fz, fz)), r2)
+        q = add(b, builder.call(copysign, [builder.call(sqrt, [disc]), b]))
+        t0 = builder.fdiv(c, q)
+        swap = cmp(">", t0, q)
+        lo, hi = sel(swap, q, t0), sel(swap, t0, q)
+        in_lo = builder.and_(cmp(">", lo, t_lo), cmp("<", lo, t_hi))
+        in_hi = builder.and_(cmp(">", hi, t_lo), cmp("<", hi, t_hi))
+        t = sel(in_lo, lo, sel(in_hi, hi, ir.Constant(vt, [-1.0] * LANES)))
+        miss = builder.or_(cmp("<", disc, zero), cmp("==", q, zero))
+        hit = builder.and_(builder.not_(miss), cmp(">", t, zero))
+        w = t if F == types.float64 else builder.fpext(t, dv)
+        builder.store(w, builder.bitcast(o_ptr, dv.as_pointer()), align=8)
+        return builder.zext(builder.bitcast(hit, ir.IntType(LANES)), ir.IntType(64))
+
+    return sig, codegen
+
+
+@intrinsic
 def _ptr_as(typingctx, a, g):
     """The data pointer of the contiguous array ``a`` (float64 words) as a pointer to
     the dtype of ``g``'s elements (no array is made: a function compiled without the
@@ -539,7 +634,20 @@ def _trace(T, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, tmax, best_t, best_p, bb1,
         if ref < 0:
             s = -ref - 1
             lim = tmax if any_hit else ulp_above(best_t)
-            if ns > 0:                           # spheres: the scalar brute-force test
+            if ns > 0 and form == 2:             # stable spheres: LANES at a time
+                for g in range(grp[2 * s], grp[2 * s + 1]):
+                    m = _sph_lanes(tri, tri_off + g * _TRI_WORDS, ox, oy, oz, dx, dy, dz, tmin,
+                                   lim, tn)
+                    for k in range(LANES):
+                        tests += ids[g * LANES + k] >= 0
+                        if m & (1 << k):
+                            p = ids[g * LANES + k]
+                            t = like(tmax, tn[k])
+                            if any_hit:
+                                return t, p, zero, zero, nodes, tests
+                            if closer(t, p, best_t, best_p):
+                                best_t, best_p, bb1, bb2 = t, p, zero, zero
+            elif ns > 0:                         # the other forms: the scalar test
                 for k in range(na[s], na[s] + nb[s]):
                     p = idx[k]
                     if p < ns:
@@ -551,7 +659,7 @@ def _trace(T, ref0, t0, ox, oy, oz, dx, dy, dz, tmin, tmax, best_t, best_p, bb1,
                                 return t, p, zero, zero, nodes, tests
                         elif closer(t, p, best_t, best_p):
                             best_t, best_p, bb1, bb2 = t, p, zero, zero
-            for g in range(grp[s], grp[s + 1]):  # triangles: LANES at a time
+            for g in range(grp[2 * s + 1], grp[2 * s + 2]):  # triangles: LANES at a time
                 m = _tri_lanes(tri, tri_off + g * _TRI_WORDS, ox, oy, oz, dx, dy, dz, tmin, lim, tn)
                 for k in range(LANES):
                     tests += ids[g * LANES + k] >= 0
@@ -603,7 +711,8 @@ def wide_bind(R):
     sr = R.sph_radius
     T = (_ptr(R.node_a), _ptr(R.node_b), _ptr(R.prim_idx), _ptr(R.acc_f.view(np.float32)),
          _ptr(R.acc_f.view(np.int32)), _ptr_as(R.acc_f, sr), ai[1],
-         _ptr(ai[3:4 + S]), _ptr(ai[4 + S:]), R.form, _ptr(R.sph_center), _ptr(sr), sr.shape[0])
+         _ptr(ai[3:4 + 2 * S]), _ptr(ai[4 + 2 * S:]), R.form, _ptr(R.sph_center), _ptr(sr),
+         sr.shape[0])
     root = (float(lo[0, 0]), float(lo[0, 1]), float(lo[0, 2]), float(hi[0, 0]),
             float(hi[0, 1]), float(hi[0, 2]))
     return T, root, like(sr, 0.0)
