@@ -352,6 +352,7 @@ def test_sphere_lanes_equal_the_scalar_stable_test_bit_for_bit(dtype):
     u /= np.linalg.norm(u, axis=1)[:, None]
     j = rng.integers(0, ns, n)
     aim = c[j] - o
+    aim = np.where(np.linalg.norm(aim, axis=1)[:, None] > 0, aim, u)     # from that very centre
     q = rng.integers(0, 3, n)                                          # at a centre, a silhouette, anywhere
     side = np.cross(aim, u)
     side /= np.linalg.norm(side, axis=1)[:, None] + 1e-300
