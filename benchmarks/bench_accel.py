@@ -21,7 +21,11 @@
   with counters), ``bvh-wide`` through :func:`impl.accel.wide.wide_closest_batch`
   (the SoA batch entry point, no counters).  ``extra_info`` carries both
   rays/s and the ratio own / Mitsuba (of the medians, and the median of the
-  per-pair ratios).
+  per-pair ratios).  In a round each side's timed pass follows an untimed pass
+  of its own after ``settle`` (:func:`references.raybench.time_mitsuba` makes
+  one), so both run with their thread pools awake; the own pass right after
+  ``settle`` is reported too (``own_rays_per_s_after_idle``): waking numba's
+  OpenMP workers after the process idled can take longer than a pass.
 * ``bench_vs_mitsuba_cpu`` — single-thread CPU time per ray of the wide BVH's
   serial batch loop against Mitsuba's ``ray_intersect_preliminary`` on one
   Dr.Jit thread, rounds alternated (less moved by other processes' load than
@@ -333,14 +337,17 @@ def bench_vs_mitsuba(benchmark, name, rays, precision, structure):
     own_s = median_s(benchmark)
     mi_scene = mitsuba_scene(mitsuba, A.sph_center, A.sph_radius, A.tri_v)
     mi_full_s, t_mi = time_mitsuba(mitsuba, mi_scene, o, d, rounds=ROUNDS, full=True)
-    own, mi = [], []
+    own, own_idle, mi = [], [], []
     for _ in range(ROUNDS):                                          # A B A B ...
         settle()                                  # the other side's threads idle
+        t0 = time.perf_counter()
+        run()                                     # as Mitsuba's first call: untimed in the ratio
+        own_idle.append(time.perf_counter() - t0)
         t0 = time.perf_counter()
         run()
         own.append(time.perf_counter() - t0)
         settle()
-        mi.append(time_mitsuba(mitsuba, mi_scene, o, d, rounds=1)[0])
+        mi.append(time_mitsuba(mitsuba, mi_scene, o, d, rounds=1)[0])   # a call, then the timed one
     # Same rays, same geometry: hit/miss must agree except at silhouettes.
     agree = float(((prim >= 0) == np.isfinite(t_mi)).mean())
     assert agree > 0.99, f"own and Mitsuba hit/miss agree on only {agree:.4f} of the rays"
@@ -350,6 +357,7 @@ def bench_vs_mitsuba(benchmark, name, rays, precision, structure):
     benchmark.extra_info.update(
         variant=mitsuba.variant(), rays=n, own_rays_per_s=n / own_s,
         own_rays_per_s_alternated=n / statistics.median(own),
+        own_rays_per_s_after_idle=n / statistics.median(own_idle),
         mitsuba_preliminary_rays_per_s=n / mi_pre_s, mitsuba_full_rays_per_s=n / mi_full_s,
         ratio_own_vs_mitsuba_preliminary=mi_pre_s / statistics.median(own),
         ratio_own_vs_mitsuba_preliminary_pairs_median=statistics.median(pair),
