@@ -19,13 +19,19 @@ path     cornell_box, diffuse_room                    ``path``            full
   both medians and spreads, their ratio, the own setup/trace split
   (``RenderResult.timings``) and the own rays per second.
 * ``bench_equal_error``: the race to Mitsuba's error at the top of ``LADDER``.
-  Mitsuba renders with its most efficient sampler on the scene (the choice
-  :func:`gibench.ladder.choose_sampler` caches for the report), the own tracer
-  with ``sampler=sobol`` (Sobol pixel, light and BSDF samples); both at the
-  spp of ``LADDER`` (the own side also at ``OWN_EXTRA``), ``SEEDS`` seeds
-  each, own and Mitsuba renders alternated (each after
-  :func:`gibench.interleave.settle`); error = relMSE against the
-  stored 1024-spp reference, the mean over the seeds; time = median.  The own
+  Mitsuba renders with its most efficient sampler on the scene, measured here:
+  every sampler of :data:`references.ladder.SAMPLERS` renders the top rung at
+  ``SEEDS`` seeds and the one with the smallest mean relMSE × median time wins
+  (a relMSE of one render varies by 2–5× from seed to seed on some scenes, so
+  a choice from two renders, as the report's cached probe makes, can fall on a
+  lucky draw; the top rung then renders those seeds again, so the best of four
+  means is the target: if anything, in Mitsuba's favour).  The own tracer
+  renders with ``sampler=sobol`` (Sobol pixel,
+  light and BSDF samples); both at the spp of ``LADDER`` (the own side also at
+  ``OWN_EXTRA``), ``SEEDS`` seeds each, own and Mitsuba renders alternated
+  (each after :func:`gibench.interleave.settle`); error = relMSE against the
+  stored 1024-spp reference, the mean over the seeds (their spread in
+  ``extra_info``); time = median.  The own
   time to Mitsuba's top-rung error is interpolated log-log between the own
   rungs (:func:`time_to_error`: an upper bound, ``<=``, when the own lowest
   rung is already below it; extrapolated, ``~``, when no own rung reaches it);
@@ -56,7 +62,8 @@ ROUNDS = 7
 #: with fewer samples than Mitsuba's lowest rung).
 LADDER = (16, 64)
 OWN_EXTRA = (4,)
-SEEDS = (11, 12, 13)
+#: Seeds of every rung of the equal-error race (and of the choice of Mitsuba's sampler).
+SEEDS = tuple(range(11, 19))
 
 #: (tracer, scene, transport, own params at equal spp).  One shadow ray per emitter and
 #: pixel sample, as Mitsuba's ``direct`` (one emitter sample, plus one BSDF sample) and the
@@ -207,13 +214,25 @@ def time_to_error(points, target):
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("tracer, scene, transport, params", CASES, ids=IDS)
 def bench_equal_error(benchmark, tracer, scene, transport, params):
-    from gibench.ladder import choose_sampler, probe_spps
+    from references.ladder import SAMPLERS
     from references.reference import get_reference
     from reports.metrics import relmse
 
     ref = get_reference(SUITES / scene, transport=transport, spp=1024, passes=8)
-    sampler = choose_sampler(SUITES / scene, transport=transport, reference=ref,
-                             probe_spp=probe_spps(LADDER))["sampler"]
+    candidates = {}
+    for name in SAMPLERS:                                      # Mitsuba's best at the top rung
+        mit = _mitsuba_seeded(scene, transport, LADDER[-1], name)
+        mit(SEEDS[0])                                          # warm-up
+        t, e = [], []
+        for seed in SEEDS:
+            settle()
+            t0 = time.perf_counter()
+            img = mit(seed)
+            t.append(time.perf_counter() - t0)
+            e.append(relmse(ref.image, img))
+        candidates[name] = {"relmse": float(np.mean(e)), "relmse_seeds": e,
+                            "median_s": statistics.median(t)}
+    sampler = min(candidates, key=lambda c: candidates[c]["relmse"] * candidates[c]["median_s"])
     rows = {"own": [], "mitsuba": []}
     for spp in sorted(set(LADDER) | set(OWN_EXTRA)):
         algo = registry.get(tracer)
@@ -246,7 +265,8 @@ def bench_equal_error(benchmark, tracer, scene, transport, params):
     target, mi_s = rows["mitsuba"][-1]["relmse"], rows["mitsuba"][-1]["s"]
     own_s, how = time_to_error([(r["s"], r["relmse"]) for r in rows["own"]], target)
     benchmark.pedantic(lambda: None, rounds=1, iterations=1)
-    benchmark.extra_info.update(rungs=rows, mitsuba_sampler=sampler, target_relmse=target,
+    benchmark.extra_info.update(rungs=rows, mitsuba_sampler=sampler, mitsuba_samplers=candidates,
+                                target_relmse=target,
                                 own_time_to_target_s=own_s, mitsuba_time_s=mi_s,
                                 ratio_own_over_mitsuba=own_s / mi_s, how=how)
     own_txt = ", ".join(f"{r['spp']} spp {r['relmse']:.3g} in {r['s'] * 1e3:.0f} ms" for r in rows["own"])
