@@ -130,14 +130,17 @@ def _probe(scene_path, *, transport, reference, candidates, spp, repeats, define
 
 def choose_sampler(scene_path, *, transport: str, reference, candidates=None,
                    probe_spp=PROBE_SPP, defines: dict | None = None,
-                   cache=SAMPLER_CACHE, repeats: int = 2) -> dict:
+                   cache=SAMPLER_CACHE, repeats: int = 8) -> dict:
     """Mitsuba's most efficient sampler on a scene at the error level compared.
 
     ``probe_spp``: one sample count or several (e.g. :func:`probe_spps` of the
     ladder: 16 and the top rung); at each, every candidate renders ``repeats``
     times after a warm-up (:func:`_probe`), and the one with the smallest
     ``relmse x time`` at the *largest* probe count wins (the top rung's error is
-    the one the equal-error race is read at).
+    the one the equal-error race is read at).  One render's relMSE can move 2–5×
+    from seed to seed (a few pixels at a small bright feature's edge carry most
+    of it), so a choice from one or two renders can fall on a lucky draw of a
+    weaker sampler; hence several repeats.
 
     Returns ``{"sampler", "probe_spp" (the deciding count), "candidates"
     ({name: {"relmse", "median_s", "efficiency", ...}} at that count), "probes"
