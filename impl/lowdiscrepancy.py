@@ -54,11 +54,14 @@ References
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from llvmlite import ir
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 __all__ = ["JOE_KUO", "MAX_DIMENSIONS", "generator_matrices", "sobol_uint", "sobol_point",
-           "sample_1d", "sample_2d", "samples_2d", "sobol_points", "nested_uniform_scramble",
-           "pixel_seed"]
+           "sample_1d", "sample_2d", "pair_hashes", "sample_2d_hashed", "samples_2d",
+           "sobol_points", "nested_uniform_scramble", "pixel_seed"]
 
 #: First rows of Joe & Kuo's ``new-joe-kuo-6.21201`` table (dimension 2 onwards, as
 #: ``(s, a, (m_1, ..., m_s))``); dimension 1 (van der Corput) needs none.
@@ -160,26 +163,51 @@ def _hash2(a, b):
                   ^ np.uint64(0x85EBCA6B))
 
 
-@njit(inline="always", cache=True)
-def _reverse32(x):
-    x = x & _MASK
-    x = ((x >> np.uint64(1)) & np.uint64(0x55555555)) | ((x & np.uint64(0x55555555)) << np.uint64(1))
-    x = ((x >> np.uint64(2)) & np.uint64(0x33333333)) | ((x & np.uint64(0x33333333)) << np.uint64(2))
-    x = ((x >> np.uint64(4)) & np.uint64(0x0F0F0F0F)) | ((x & np.uint64(0x0F0F0F0F)) << np.uint64(4))
-    x = ((x >> np.uint64(8)) & np.uint64(0x00FF00FF)) | ((x & np.uint64(0x00FF00FF)) << np.uint64(8))
-    x = (x >> np.uint64(16)) | ((x & np.uint64(0xFFFF)) << np.uint64(16))
-    return x & _MASK
+def _low32(context, builder, t, v):
+    """An integer argument's low 32 bits as an LLVM i32."""
+    i32 = ir.IntType(32)
+    if t.bitwidth > 32:
+        return builder.trunc(v, i32)
+    return v if t.bitwidth == 32 else builder.zext(v, i32)
 
 
-@njit(inline="always", cache=True)
-def _laine_karras(x, seed):
-    # Burley 2020, listing 2: output bit k depends only on input bits <= k.
-    x = (x + seed) & _MASK
-    x ^= (x * np.uint64(0x6C50B47C)) & _MASK
-    x ^= (x * np.uint64(0xB82F1E52)) & _MASK
-    x ^= (x * np.uint64(0xC7AFE638)) & _MASK
-    x ^= (x * np.uint64(0x8D22F6E6)) & _MASK
-    return x
+@intrinsic
+def _reverse32(typingctx, x):
+    """The bit reversal of the low 32 bits of ``x``, as a uint64 below 2**32.  LLVM's
+    ``bitreverse`` on 32-bit lanes: vectorised, a byte-table shuffle (or one GF(2)
+    affine instruction where the target has GFNI) per vector instead of five rounds
+    of masked shifts in 64-bit lanes."""
+    if not isinstance(x, types.Integer):
+        return None
+
+    def codegen(context, builder, sig, args):
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(i32, [i32]),
+                                            "llvm.bitreverse.i32")
+        r = builder.call(fn, [_low32(context, builder, sig.args[0], args[0])])
+        return builder.zext(r, ir.IntType(64))
+
+    return types.uint64(x), codegen
+
+
+@intrinsic
+def _laine_karras(typingctx, x, seed):
+    """Burley 2020, listing 2 (the Laine–Karras permutation): output bit k depends only
+    on input bits <= k.  Arithmetic modulo 2**32 on the low 32 bits of ``x`` and
+    ``seed``, in 32-bit lanes (the values the 64-bit form masked to 32 bits); the
+    result a uint64 below 2**32."""
+    if not (isinstance(x, types.Integer) and isinstance(seed, types.Integer)):
+        return None
+
+    def codegen(context, builder, sig, args):
+        i32 = ir.IntType(32)
+        v = builder.add(_low32(context, builder, sig.args[0], args[0]),
+                        _low32(context, builder, sig.args[1], args[1]))
+        for c in (0x6C50B47C, 0xB82F1E52, 0xC7AFE638, 0x8D22F6E6):
+            v = builder.xor(v, builder.mul(v, ir.Constant(i32, c)))
+        return builder.zext(v, ir.IntType(64))
+
+    return types.uint64(x, seed), codegen
 
 
 @njit(inline="always", cache=True)
@@ -263,8 +291,22 @@ def sample_2d(pair, index, seed):
     tracer draws a pair per pixel sample and light sample).  The shuffled index is
     i = rev(LK(rev(index))); dimension 0 of point i is rev(i), so that reversal pair
     cancels, and dimension 1 comes from byte tables."""
+    h, h2 = pair_hashes(pair, seed)
+    return sample_2d_hashed(index, h, h2)
+
+
+@njit(inline="always", cache=True)
+def pair_hashes(pair, seed):
+    """The two 64-bit hashes of ``(seed, pair)`` that scramble :func:`sample_2d`'s points:
+    they depend on neither the index, so a caller drawing many indices of one pair and
+    seed (a pixel's samples) computes them once (:func:`sample_2d_hashed`)."""
     h = _mix64(np.uint64(seed) + (np.uint64(2) * np.uint64(pair) + np.uint64(1)) * _GOLDEN)
-    h2 = _mix64(h + _GOLDEN)
+    return h, _mix64(h + _GOLDEN)
+
+
+@njit(inline="always", cache=True)
+def sample_2d_hashed(index, h, h2):
+    """:func:`sample_2d` from its :func:`pair_hashes` ``h``, ``h2``: the same bits."""
     li = _laine_karras(_reverse32(np.uint64(index)), h & _MASK)
     i = _reverse32(li)
     x1 = _sobol1(i)

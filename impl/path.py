@@ -730,7 +730,7 @@ def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, 
     the paths as a wavefront: one vertex of every walking path (:func:`_vertices`), the
     shadow rays of its light samples as one batch, the continuing rays' closest hits as
     another, until every path has ended."""
-    T = new_batch(film, R, tile)
+    T = new_batch(film, R, tile, seed)
     W = _new_walks(T.n)
     for s in range(spp):
         eye_batch(cam, R, T, s, spp, seed, film.packets, film.sampler)

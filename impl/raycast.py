@@ -154,7 +154,7 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx)
 @njit(cache=True)
 def _tile(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, tile, spp, seed):
     """One tile: per sample index, eye rays and hits, shading, accumulation."""
-    T = new_batch(film, R, tile)
+    T = new_batch(film, R, tile, seed)
     sidx = np.empty(T.n, np.int64)
     for s in range(spp):
         eye_batch(cam, R, T, s, spp, seed, film.packets, film.sampler)

@@ -29,12 +29,12 @@ from core.algorithm import Param
 
 from core.errors import ParamError
 
-from .lowdiscrepancy import pixel_seed, sample_2d
+from .lowdiscrepancy import pair_hashes, pixel_seed, sample_2d, sample_2d_hashed
 from .rng import uniform_from, uniform_prefix
 
-__all__ = ["check_spp", "strata", "pixel_sample", "jittered_film", "sobol_film", "welford_add",
-           "variance_of_mean", "PIXEL_JITTER", "PIXEL_SOBOL", "PIXEL_SAMPLERS", "SAMPLER_PARAM",
-           "sampler_code"]
+__all__ = ["check_spp", "strata", "pixel_sample", "jittered_film", "sobol_film_hashes", "sobol_film",
+           "welford_add", "variance_of_mean", "PIXEL_JITTER", "PIXEL_SOBOL", "PIXEL_SAMPLERS",
+           "SAMPLER_PARAM", "sampler_code"]
 
 #: :func:`pixel_sample` sampler codes, and their names (index = code).
 PIXEL_JITTER = 0
@@ -106,15 +106,25 @@ def jittered_film(spp, k, s, seed, pixel, x, y, fx, fy):
 
 
 @njit(cache=True, _nrt=False)
-def sobol_film(s, seed, x, y, fx, fy):
+def sobol_film_hashes(seed, x, y, h, h2):
+    """The scramble hashes of every pixel i of a batch (integer coordinates ``x``, ``y``,
+    float64) for :func:`sobol_film`: :func:`impl.lowdiscrepancy.pair_hashes` of the pixel
+    pair and ``pixel_seed(x, y, seed)`` into ``h[i]``, ``h2[i]`` (uint64).  They do not
+    depend on the sample index: a tile computes them once for all its samples."""
+    for i in range(x.shape[0]):
+        h[i], h2[i] = pair_hashes(PIXEL_PAIR, pixel_seed(np.int64(x[i]), np.int64(y[i]), seed))
+
+
+@njit(cache=True, _nrt=False)
+def sobol_film(s, h, h2, x, y, fx, fy):
     """Film positions (pixels) of sample ``s`` of :data:`PIXEL_SOBOL` for every pixel i of a
     batch: ``x[i] + u``, ``y[i] + v`` with :func:`pixel_sample`'s (u, v) for spp > 1 (same
-    arithmetic, same bits) — the pixel's integer coordinates ``x``, ``y`` (float64).  The
-    scramble and shuffle hashes are 64-bit integer arithmetic and byte-table lookups
-    without branches: LLVM vectorises them over the pixels where the target has packed
-    64-bit multiplies (AVX-512DQ) and gathers."""
+    arithmetic, same bits) — the pixel's integer coordinates ``x``, ``y`` (float64) and its
+    hashes ``h``, ``h2`` (:func:`sobol_film_hashes`).  The index shuffle and value
+    scrambles are 32-bit integer arithmetic, bit reversals and byte-table lookups without
+    branches: LLVM vectorises them over the pixels."""
     for i in range(x.shape[0]):
-        u, v = sample_2d(PIXEL_PAIR, s, pixel_seed(np.int64(x[i]), np.int64(y[i]), seed))
+        u, v = sample_2d_hashed(s, h[i], h2[i])
         fx[i] = x[i] + u
         fy[i] = y[i] + v
 

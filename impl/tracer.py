@@ -81,8 +81,8 @@ from .intersect import like
 from .kernel import batch_kernel
 from .rng import uniform_from, uniform_prefix
 from .rays import PARAMS as RAY_PARAMS, RayConfig, ray_config
-from .sampling import (PIXEL_JITTER, PIXEL_SOBOL, jittered_film, pixel_sample, sobol_film, strata,
-                       variance_of_mean)
+from .sampling import (PIXEL_JITTER, PIXEL_SOBOL, jittered_film, pixel_sample, sobol_film,
+                       sobol_film_hashes, strata, variance_of_mean)
 from .scene_arrays import scene_memo
 
 #: The random dimensions of a thin lens's aperture sample (beyond any tracer's own).
@@ -158,6 +158,9 @@ class Batch(NamedTuple):
                                 # batches not tied to a tile
     luv: np.ndarray             # (2, n) a light sample's two numbers per point (scratch of
                                 # impl.lighting.direct_batch)
+    fh: np.ndarray              # (2, n) uint64 the Sobol film hashes of each column
+                                # (impl.sampling.sobol_film_hashes; (2, 0) unless the
+                                # tile's pixels are Sobol-sampled)
 
 
 #: The parameters :func:`impl.rays.ray_config` reads (its parameter table).
@@ -217,8 +220,10 @@ def run_tiles(kernel, *args):
 
 
 @njit(cache=True)
-def new_batch(film: Film, R: RayConfig, tile):
-    """The batch of tile ``tile`` (of ``film.tile``-square tiles) with zeroed accumulators."""
+def new_batch(film: Film, R: RayConfig, tile, seed):
+    """The batch of tile ``tile`` (of ``film.tile``-square tiles) with zeroed accumulators;
+    with Sobol pixel samples, the pixels' scramble hashes of ``seed`` (once for all the
+    tile's samples)."""
     H, W = film.mean.shape[0], film.mean.shape[1]
     ts = film.tile
     tx = (W + ts - 1) // ts
@@ -233,6 +238,9 @@ def new_batch(film: Film, R: RayConfig, tile):
     for i in range(n):
         pixel[i] = (y0 + i // nx) * W + x0 + i % nx
         xy[0, i], xy[1, i] = x0 + i % nx, y0 + i // nx
+    fh = np.empty((2, n if film.sampler == PIXEL_SOBOL else 0), np.uint64)
+    if film.sampler == PIXEL_SOBOL:
+        sobol_film_hashes(seed, xy[0], xy[1], fh[0], fh[1])
     return Batch(x0, y0, nx, n, np.empty((8, n)), np.empty(n), np.empty(n, np.int64),
                  np.empty((2, n)), np.zeros((3, n)), np.zeros((6, n)), np.zeros((n, C), np.int64),
                  film.packet[tile], np.empty((P, 8)), np.empty((P, 2)), pixel,
@@ -240,7 +248,7 @@ def new_batch(film: Film, R: RayConfig, tile):
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, n)), xy,
                  np.full(((ny + STRIP_ROWS - 1) // STRIP_ROWS, 2 + _cand_width(R)), _UNKNOWN,
-                         np.int64), np.empty((2, n)))
+                         np.int64), np.empty((2, n)), fh)
 
 
 @njit(cache=True)
@@ -256,7 +264,7 @@ def new_points(n, R: RayConfig, counters=0):
                  np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, 0)), np.empty((2, 0)),
-                 np.full((1, 2), _UNKNOWN, np.int64), np.empty((2, n)))
+                 np.full((1, 2), _UNKNOWN, np.int64), np.empty((2, n)), np.empty((2, 0), np.uint64))
 
 
 @njit(inline="always", cache=True)
@@ -265,7 +273,7 @@ def first(T: Batch, m):
     m): what the batch steps loop over when a chunk fills only part of a batch."""
     return Batch(T.x0, T.y0, T.nx, m, T.ray, T.t, T.prim, T.b, T.L, T.acc, T.cnt, T.packet, T.aos,
                  T.aos_b, T.pixel, T.pts, T.active, T.sh, T.sh_w, T.sh_i, T.blocked, T.q, T.qt, T.qp,
-                 T.film, T.xy, T.cand, T.luv)
+                 T.film, T.xy, T.cand, T.luv, T.fh)
 
 
 class Pending(NamedTuple):
@@ -344,7 +352,8 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
         jittered_film(spp, k, s, seed, T.pixel[:n], T.xy[0, :n], T.xy[1, :n], T.film[0, :n],
                       T.film[1, :n])
     elif pinhole and sampler == PIXEL_SOBOL:
-        sobol_film(s, seed, T.xy[0, :n], T.xy[1, :n], T.film[0, :n], T.film[1, :n])
+        sobol_film(s, T.fh[0, :n], T.fh[1, :n], T.xy[0, :n], T.xy[1, :n], T.film[0, :n],
+                   T.film[1, :n])
     else:
         i = 0
         for y in range(T.y0, T.y0 + T.n // T.nx):

@@ -476,7 +476,7 @@ def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, m
     the tile's ray trees level by level (:func:`_trees`).  Per-pixel counters:
     :data:`COUNTERS`, then the tree-depth histogram (``max_depth + 1`` columns); cut
     weights go to ``cut``."""
-    T = new_batch(film, R, tile)
+    T = new_batch(film, R, tile, seed)
     K = _scratch(T.n, max_depth, R)
     for s in range(spp):
         eye_batch(cam, R, T, s, spp, seed, film.packets, film.sampler)

@@ -150,13 +150,15 @@ def test_jittered_film_equals_pixel_sample_bit_for_bit():
 
 
 def test_sobol_film_equals_pixel_sample_bit_for_bit():
-    from impl.sampling import PIXEL_SOBOL, pixel_sample, sobol_film
+    from impl.sampling import PIXEL_SOBOL, pixel_sample, sobol_film, sobol_film_hashes
     rng = np.random.default_rng(SEED)
     pixel = rng.integers(0, 1 << 20, 300)
     x, y = (pixel % 640).astype(float), (pixel // 640).astype(float)
+    h, h2 = np.empty(300, np.uint64), np.empty(300, np.uint64)
+    sobol_film_hashes(9, x, y, h, h2)
     for spp, s in ((4, 0), (16, 7), (64, 63), (256, 200)):
         fx, fy = np.empty(300), np.empty(300)
-        sobol_film(s, 9, x, y, fx, fy)
+        sobol_film(s, h, h2, x, y, fx, fy)
         for i in range(300):
             ox, oy = pixel_sample(spp, 0, s, 9, pixel[i], PIXEL_SOBOL, int(x[i]), int(y[i]))
             assert (fx[i], fy[i]) == (x[i] + ox, y[i] + oy), (spp, s, i)
@@ -173,17 +175,25 @@ def test_light_uv_sobol_lanes_equal_the_scalar_numbers_bit_for_bit():
             assert (u[i], v[i]) == light_uv_sobol(7, pixel[i], sample[i], light, k, ls), (light, i)
 
 
-@pytest.mark.skipif(not _cpu_flag("avx512dq"), reason="the host has no packed 64-bit multiply")
+@pytest.mark.skipif(not _avx2(), reason="the host has no AVX2")
 def test_sobol_film_loop_vectorises():
-    """The Sobol film positions and light-sample numbers (64-bit scramble hashes,
-    byte-table lookups) compile to packed 64-bit multiplies in 256-bit or wider
-    registers."""
+    """The Sobol film positions (the pixels' hashes precomputed; the index shuffle and
+    value scrambles in 32-bit lanes, byte-table lookups) compile to packed 32-bit
+    multiplies."""
     from impl.sampling import sobol_film
     n = 64
     film = njit(sobol_film.py_func)
-    film(3, 5, np.arange(n, dtype=float), np.ones(n), np.empty(n), np.empty(n))
+    h = np.arange(n, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)
+    film(3, h, h + np.uint64(1), np.arange(n, dtype=float), np.ones(n), np.empty(n), np.empty(n))
     asm = "\n".join(film.inspect_asm().values())
-    assert re.search(r"vpmullq\s+%[yz]mm", asm), "Sobol film positions"
+    assert re.search(r"vpmulld\s+%[xyz]mm", asm), "Sobol film positions"
+
+
+@pytest.mark.skipif(not _cpu_flag("avx512dq"), reason="the host has no packed 64-bit multiply")
+def test_sobol_light_numbers_loop_vectorises():
+    """The light-sample numbers (64-bit pixel and pair hashes per point, then the 32-bit
+    scrambles) compile to packed 64-bit multiplies in 256-bit or wider registers."""
+    n = 64
     from impl.lighting import light_uv_sobol_lanes
     lanes = njit(light_uv_sobol_lanes.py_func)
     lanes(7, np.arange(n), np.ones(n, np.int64), 1, 0, 1, np.empty(n), np.empty(n))
@@ -442,7 +452,7 @@ def test_tile_frustum_keeps_every_primitive_an_eye_ray_hits(scene, sampler):
     total = len(A.sph_radius) + len(A.tri_v)
     kept = []
     for tile in range(film.packet.shape[0]):
-        T = new_batch(film, R, tile)
+        T = new_batch(film, R, tile, 5)
         for s in range(4):
             eye_batch(cam, R, T, s, 4, 5, False, film.sampler)
             got = (T.t.copy(), T.prim.copy(), T.b.copy())
@@ -480,7 +490,7 @@ def test_delta_light_lanes_equal_the_scalar_light_samples(params):
     spot = int(np.flatnonzero(A.light_kind == 2)[0])
     lit = dark = band = 0
     for tile in range(0, film.packet.shape[0], 3):
-        T = new_batch(film, R, tile)
+        T = new_batch(film, R, tile, 7)
         sidx = np.empty(T.n, np.int64)
         eye_batch(cam, R, T, 2, 4, 7, False, film.sampler)
         raycast._shade(A, R, M, T, 2, 7, sidx)
