@@ -22,12 +22,11 @@ path     cornell_box, diffuse_room                    ``path``            full
   Mitsuba renders with its most efficient sampler on the scene, measured here:
   every sampler of :data:`references.ladder.SAMPLERS` renders the top rung at
   ``SEEDS`` seeds and the one with the smallest mean relMSE × median time wins
-  (a relMSE of one render varies by 2–5× from seed to seed on some scenes, so
-  a choice from two renders, as the report's cached probe makes, can fall on a
-  lucky draw; the top rung then renders those seeds again, so the best of four
-  means is the target: if anything, in Mitsuba's favour).  The own tracer
-  renders with ``sampler=sobol`` (Sobol pixel,
-  light and BSDF samples); both at the spp of ``LADDER`` (the own side also at
+  (one render's relMSE varies 2–5× from seed to seed on some scenes, so the
+  choice needs several renders; the top rung then renders those seeds again,
+  so the target is the best of four means: if anything, in Mitsuba's favour).
+  The own tracer renders with ``sampler=sobol`` (Sobol pixel, light and BSDF
+  samples); both at the spp of ``LADDER`` (the own side also at
   ``OWN_EXTRA``), ``SEEDS`` seeds each, own and Mitsuba renders alternated
   (each after :func:`gibench.interleave.settle`); error = relMSE against the
   stored 1024-spp reference, the mean over the seeds (their spread in
