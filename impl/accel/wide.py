@@ -435,6 +435,47 @@ def _enter_all(typingctx, box, base, nx, ny, nz, fx, fy, fz, ox, oy, oz, ix, iy,
     return sig, codegen
 
 
+class _Group:
+    """The code generation a leaf group's vector test shares (:func:`_tri_lanes`,
+    :func:`_sph_lanes`; arguments ``data, base, ox, oy, oz, dx, dy, dz, tmin, tmax,
+    out``): ``vt`` the vector of :data:`LANES` words of R's precision, ``ray`` the
+    eight scalars (origin, direction, limits) cast to that precision and splatted,
+    :meth:`row` the group's row r, :meth:`store` a vector into ``out`` (float64,
+    exact), :meth:`mask` the int64 bit mask of a lane predicate."""
+
+    def __init__(self, context, builder, sig, args):
+        self.builder = builder
+        self.F = F = sig.args[0].dtype
+        self.vt = vt = ir.VectorType(context.get_value_type(F), LANES)
+        self.dv = ir.VectorType(ir.DoubleType(), LANES)
+        self.d_ptr = _data_ptr(context, builder, sig.args[0], args[0])
+        self.o_ptr = _data_ptr(context, builder, sig.args[10], args[10])
+        self.base = context.cast(builder, args[1], sig.args[1], types.int64)
+        self.ray = []
+        for a, t in zip(args[2:10], sig.args[2:10]):
+            v = ir.Constant(vt, ir.Undefined)
+            x = context.cast(builder, a, t, F)
+            for k in range(LANES):
+                v = builder.insert_element(v, x, ir.Constant(ir.IntType(32), k))
+            self.ray.append(v)
+
+    def row(self, r):
+        b = self.builder
+        p = b.gep(self.d_ptr, [b.add(self.base, ir.Constant(ir.IntType(64), r * LANES))])
+        return b.load(b.bitcast(p, self.vt.as_pointer()), align=self.F.bitwidth // 8)
+
+    def store(self, k, v):
+        """``out[k·LANES : (k+1)·LANES] = v``."""
+        b = self.builder
+        w = v if self.F == types.float64 else b.fpext(v, self.dv)
+        p = b.gep(self.o_ptr, [ir.Constant(ir.IntType(64), k * LANES)])
+        b.store(w, b.bitcast(p, self.dv.as_pointer()), align=8)
+
+    def mask(self, hit):
+        b = self.builder
+        return b.zext(b.bitcast(hit, ir.IntType(LANES)), ir.IntType(64))
+
+
 @intrinsic
 def _tri_lanes(typingctx, data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out):
     """Möller–Trumbore for the :data:`LANES` triangles of one leaf group in one vector
@@ -450,29 +491,12 @@ def _tri_lanes(typingctx, data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out):
     a miss exactly when its early returns would fire (ordered comparisons), so a
     lane's hit is the scalar test's, bit for bit.  Padding lanes hold a degenerate
     triangle (det = 0: a miss)."""
-    F = data.dtype
     sig = types.int64(data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out)
 
     def codegen(context, builder, sig, args):
-        ft = context.get_value_type(F)
-        vt = ir.VectorType(ft, LANES)
-        dv = ir.VectorType(ir.DoubleType(), LANES)
-        d_ptr = _data_ptr(context, builder, sig.args[0], args[0])
-        o_ptr = _data_ptr(context, builder, sig.args[10], args[10])
-        base = context.cast(builder, args[1], sig.args[1], types.int64)
-        s = [context.cast(builder, a, t, F) for a, t in zip(args[2:10], sig.args[2:10])]
-
-        def splat(x):
-            v = ir.Constant(vt, ir.Undefined)
-            for k in range(LANES):
-                v = builder.insert_element(v, x, ir.Constant(ir.IntType(32), k))
-            return v
-
-        def row(r):
-            p = builder.gep(d_ptr, [builder.add(base, ir.Constant(ir.IntType(64), r * LANES))])
-            return builder.load(builder.bitcast(p, vt.as_pointer()), align=F.bitwidth // 8)
-
-        ox, oy, oz, dx, dy, dz, t_lo, t_hi = (splat(x) for x in s)
+        G = _Group(context, builder, sig, args)
+        vt, row = G.vt, G.row
+        ox, oy, oz, dx, dy, dz, t_lo, t_hi = G.ray
         v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z = (row(r) for r in range(9))
         mul, sub, add = builder.fmul, builder.fsub, builder.fadd
         zero = ir.Constant(vt, [0.0] * LANES)
@@ -500,10 +524,8 @@ def _tri_lanes(typingctx, data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out):
         miss = builder.or_(miss, cmp(">=", t, t_hi))
         hit = builder.and_(builder.not_(miss), cmp(">", t, zero))
         for k, v in enumerate((t, b1, b2)):
-            w = v if F == types.float64 else builder.fpext(v, dv)
-            p = builder.gep(o_ptr, [ir.Constant(ir.IntType(64), k * LANES)])
-            builder.store(w, builder.bitcast(p, dv.as_pointer()), align=8)
-        return builder.zext(builder.bitcast(hit, ir.IntType(LANES)), ir.IntType(64))
+            G.store(k, v)
+        return G.mask(hit)
 
     return sig, codegen
 
@@ -521,34 +543,17 @@ def _sph_lanes(typingctx, data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out):
     ``sqrt`` and ``copysign`` exact as the scalar ones), its branches as selects:
     a lane misses where the scalar test returns −1 (ordered comparisons, so a NaN
     padding lane misses), and its ``t`` is the scalar test's bit for bit."""
-    F = data.dtype
     sig = types.int64(data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out)
 
     def codegen(context, builder, sig, args):
-        ft = context.get_value_type(F)
-        vt = ir.VectorType(ft, LANES)
-        dv = ir.VectorType(ir.DoubleType(), LANES)
-        d_ptr = _data_ptr(context, builder, sig.args[0], args[0])
-        o_ptr = _data_ptr(context, builder, sig.args[10], args[10])
-        base = context.cast(builder, args[1], sig.args[1], types.int64)
-        sc = [context.cast(builder, a, t, F) for a, t in zip(args[2:10], sig.args[2:10])]
-        suffix = f"v{LANES}f{F.bitwidth}"
+        G = _Group(context, builder, sig, args)
+        vt, row = G.vt, G.row
+        suffix = f"v{LANES}f{G.F.bitwidth}"
         sqrt = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vt, [vt]),
                                               f"llvm.sqrt.{suffix}")
         copysign = cgutils.get_or_insert_function(builder.module, ir.FunctionType(vt, [vt, vt]),
                                                   f"llvm.copysign.{suffix}")
-
-        def splat(x):
-            v = ir.Constant(vt, ir.Undefined)
-            for k in range(LANES):
-                v = builder.insert_element(v, x, ir.Constant(ir.IntType(32), k))
-            return v
-
-        def row(r):
-            p = builder.gep(d_ptr, [builder.add(base, ir.Constant(ir.IntType(64), r * LANES))])
-            return builder.load(builder.bitcast(p, vt.as_pointer()), align=F.bitwidth // 8)
-
-        ox, oy, oz, dx, dy, dz, t_lo, t_hi = (splat(x) for x in sc)
+        ox, oy, oz, dx, dy, dz, t_lo, t_hi = G.ray
         cx, cy, cz, r = (row(k) for k in range(4))
         mul, sub, add, sel = builder.fmul, builder.fsub, builder.fadd, builder.select
         cmp = builder.fcmp_ordered
@@ -568,9 +573,8 @@ def _sph_lanes(typingctx, data, base, ox, oy, oz, dx, dy, dz, tmin, tmax, out):
         t = sel(in_lo, lo, sel(in_hi, hi, ir.Constant(vt, [-1.0] * LANES)))
         miss = builder.or_(cmp("<", disc, zero), cmp("==", q, zero))
         hit = builder.and_(builder.not_(miss), cmp(">", t, zero))
-        w = t if F == types.float64 else builder.fpext(t, dv)
-        builder.store(w, builder.bitcast(o_ptr, dv.as_pointer()), align=8)
-        return builder.zext(builder.bitcast(hit, ir.IntType(LANES)), ir.IntType(64))
+        G.store(0, t)
+        return G.mask(hit)
 
     return sig, codegen
 
