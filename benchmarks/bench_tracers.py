@@ -19,12 +19,12 @@ path     cornell_box, diffuse_room                    ``path``            full
   both medians and spreads, their ratio, the own setup/trace split
   (``RenderResult.timings``) and the own rays per second.
 * ``bench_equal_error``: the race to Mitsuba's error at the top of ``LADDER``.
-  Mitsuba renders with its most efficient sampler on the scene, measured here:
-  every sampler of :data:`references.ladder.SAMPLERS` renders the top rung at
-  ``SEEDS`` seeds and the one with the smallest mean relMSE × median time wins
-  (one render's relMSE varies 2–5× from seed to seed on some scenes, so the
-  choice needs several renders; the top rung then renders those seeds again,
-  so the target is the best of four means: if anything, in Mitsuba's favour).
+  Mitsuba renders with its most efficient sampler on the scene, measured in the
+  run: :func:`gibench.ladder.choose_sampler` at the top rung, as many renders
+  per sampler as ``SEEDS`` has, not cached (one render's relMSE varies 2–5×
+  from seed to seed on some scenes, so the choice needs several renders; its
+  seeds are apart from the race's, so the target is not the lucky draw that
+  won the choice).
   The own tracer renders with ``sampler=sobol`` (Sobol pixel, light and BSDF
   samples); both at the spp of ``LADDER`` (the own side also at
   ``OWN_EXTRA``), ``SEEDS`` seeds each, own and Mitsuba renders alternated
@@ -61,7 +61,7 @@ ROUNDS = 7
 #: with fewer samples than Mitsuba's lowest rung).
 LADDER = (16, 64)
 OWN_EXTRA = (4,)
-#: Seeds of every rung of the equal-error race (and of the choice of Mitsuba's sampler).
+#: Seeds of every rung of the equal-error race (their count: the sampler choice's renders).
 SEEDS = tuple(range(11, 19))
 
 #: (tracer, scene, transport, own params at equal spp).  One shadow ray per emitter and
@@ -213,25 +213,14 @@ def time_to_error(points, target):
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("tracer, scene, transport, params", CASES, ids=IDS)
 def bench_equal_error(benchmark, tracer, scene, transport, params):
-    from references.ladder import SAMPLERS
+    from gibench.ladder import choose_sampler
     from references.reference import get_reference
     from reports.metrics import relmse
 
     ref = get_reference(SUITES / scene, transport=transport, spp=1024, passes=8)
-    candidates = {}
-    for name in SAMPLERS:                                      # Mitsuba's best at the top rung
-        mit = _mitsuba_seeded(scene, transport, LADDER[-1], name)
-        mit(SEEDS[0])                                          # warm-up
-        t, e = [], []
-        for seed in SEEDS:
-            settle()
-            t0 = time.perf_counter()
-            img = mit(seed)
-            t.append(time.perf_counter() - t0)
-            e.append(relmse(ref.image, img))
-        candidates[name] = {"relmse": float(np.mean(e)), "relmse_seeds": e,
-                            "median_s": statistics.median(t)}
-    sampler = min(candidates, key=lambda c: candidates[c]["relmse"] * candidates[c]["median_s"])
+    choice = choose_sampler(SUITES / scene, transport=transport, reference=ref,
+                            probe_spp=LADDER[-1], repeats=len(SEEDS), cache=None)
+    sampler, candidates = choice["sampler"], choice["candidates"]
     rows = {"own": [], "mitsuba": []}
     for spp in sorted(set(LADDER) | set(OWN_EXTRA)):
         algo = registry.get(tracer)
