@@ -77,14 +77,16 @@ from .samplers import DIM_INDEPENDENT, dim_2d
 from .scene_arrays import (LIGHT_DIRECTIONAL, LIGHT_PROJECTOR, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD,
                            SceneArrays, triangle_normal)
 from .textures import bitmap, checkerboard
-from .tracer import brute_force, occluded_batch
+from .shading_frame import perturbed_normal, same_side, shadow_terminator
+from .tracer import POINT_ROWS, brute_force, occluded_batch
 
 __all__ = ["SHADOW_EPSILON", "surface", "surface_at", "sphere_surface",
            "diffuse_albedo", "sample_emitter", "direct_light",
            "direct_light_rays", "direct_light_dims", "spot_falloff", "delta_filter", "delta_sample",
            "area_sample", "environment_sample",
            "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
-           "environment_radiance", "sample_cosine_hemisphere", "shadow_filter", "SHADOW_MODES"]
+           "environment_radiance", "sample_cosine_hemisphere", "shadow_filter", "SHADOW_MODES",
+           "mapped_normal", "map_weight", "point_map_weight", "store_point"]
 
 #: Shadow-ray origins move off the surface by this much times (1 + |p|_max).
 SHADOW_EPSILON = 1e-7
@@ -677,8 +679,76 @@ def local_model(params: dict, materials=None) -> LocalModel:
                       int(params["light_samples"]), eta, trans, params.get("sampler") == "sobol")
 
 
-#: Rows of a batch of shading points (:func:`direct_batch`).
-SP_P, SP_G, SP_S, SP_V, SP_RHO = 0, 3, 6, 9, 12
+#: Rows of a batch of shading points (:func:`direct_batch`): the point p, its geometric
+#: normal g (to the side it is lit from), the normal n the BSDF is evaluated about, the
+#: direction v to the viewer, the diffuse reflectance ρ, and for a point under a normal
+#: or bump map the unperturbed shading normal s and the map's code (:func:`mapped_normal`).
+SP_P, SP_G, SP_S, SP_V, SP_RHO, SP_N0, SP_MAP = 0, 3, 6, 9, 12, 15, 18
+assert SP_MAP + 1 == POINT_ROWS
+
+#: ``SP_MAP`` codes: no map (n = s); a map (light leaks cut); a map with Mitsuba's
+#: shadowing function (Estevez et al.'s term as well).
+MAP_NONE, MAP_PLAIN, MAP_SHADOWED = 0.0, 1.0, 2.0
+
+
+@njit(inline="always", cache=True)
+def mapped_normal(A: SceneArrays, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, back):
+    """``(n, code)``: the normal a BSDF of material ``mat`` is evaluated about at a hit of
+    primitive ``prim`` (barycentrics b1, b2; g, s its unit geometric and shading normals on
+    the front side, v the unit direction to the viewer; ``back``: a two-sided material seen
+    from behind), and its ``SP_MAP`` code.  Under a ``normalmap`` or ``bumpmap`` on a
+    triangle, n is the perturbed normal n_p of :func:`impl.shading_frame.perturbed_normal`
+    (on the back side as there); elsewhere s, or −s on the back.  Spheres carry no uv and
+    keep s, as in ``path``."""
+    shade = A.mat_shade[mat]
+    ns = A.sph_radius.shape[0]
+    if shade == 0 or prim < ns:
+        if back:
+            return -sx, -sy, -sz, MAP_NONE
+        return sx, sy, sz, MAP_NONE
+    nx, ny, nz = perturbed_normal(shade, A.mat_shade_scale[mat], A.mat_shade_tex[mat],
+                                  A.mat_shade_uv[mat], A.tex_data, A.tri_v[prim - ns],
+                                  A.tri_uv[prim - ns], b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+                                  back)
+    return nx, ny, nz, MAP_SHADOWED if A.mat_shade_tex[mat, 6] != 0 else MAP_PLAIN
+
+
+@njit(inline="always", cache=True)
+def map_weight(nx, ny, nz, sx, sy, sz, code, wx, wy, wz):
+    """The factor a normal or bump map (Mitsuba's adapters) puts on light scattered into
+    the unit direction w at a point of perturbed normal n and unperturbed shading normal s
+    (``code`` as ``SP_MAP``): 1 without a map; 0 where w lies on opposite sides of s and n
+    (:func:`impl.shading_frame.same_side`: the adapters' cut against light leaking); with
+    the shadowing function Estevez et al.'s term
+    (:func:`impl.shading_frame.shadow_terminator`); else 1.  The nested BSDF's own tests
+    of w against n are the caller's (the Phong bracket about n)."""
+    if code == MAP_NONE:
+        return 1.0
+    if not same_side(nx, ny, nz, sx, sy, sz, wx, wy, wz):
+        return 0.0
+    if code == MAP_SHADOWED:
+        return shadow_terminator(nx, ny, nz, sx, sy, sz, wx, wy, wz)
+    return 1.0
+
+
+@njit(inline="always", cache=True)
+def point_map_weight(P, i, wx, wy, wz):
+    """:func:`map_weight` of shading point i of the point rows ``P`` (``SP_*``)."""
+    return map_weight(P[SP_S, i], P[SP_S + 1, i], P[SP_S + 2, i], P[SP_N0, i], P[SP_N0 + 1, i],
+                      P[SP_N0 + 2, i], P[SP_MAP, i], wx, wy, wz)
+
+
+@njit(inline="always", cache=True)
+def store_point(P, i, px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r, rho_g, rho_b, sx, sy, sz,
+                code):
+    """Write shading point i into the point rows ``P`` (``SP_*``)."""
+    P[SP_P, i], P[SP_P + 1, i], P[SP_P + 2, i] = px, py, pz
+    P[SP_G, i], P[SP_G + 1, i], P[SP_G + 2, i] = gx, gy, gz
+    P[SP_S, i], P[SP_S + 1, i], P[SP_S + 2, i] = nx, ny, nz
+    P[SP_V, i], P[SP_V + 1, i], P[SP_V + 2, i] = vx, vy, vz
+    P[SP_RHO, i], P[SP_RHO + 1, i], P[SP_RHO + 2, i] = rho_r, rho_g, rho_b
+    P[SP_N0, i], P[SP_N0 + 1, i], P[SP_N0 + 2, i] = sx, sy, sz
+    P[SP_MAP, i] = code
 
 
 @batch_kernel
@@ -689,11 +759,13 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
     :func:`impl.tracer.occluded_batch`.  Without ``M.sobol``: the same samples, in the
     same order, and the same light as :func:`direct_light_rays` at every point.
 
-    Reads the points ``T.pts`` (rows p, g, s, v, ρ: ``SP_*``) where ``T.active``,
+    Reads the points ``T.pts`` (rows ``SP_*``) where ``T.active``,
     point i's random numbers those of pixel ``T.pixel[i]`` and pixel sample
     ``sample[i]`` (hashed and stratified within the pixel sample, :func:`light_uv`, or
     with ``M.sobol`` Sobol points over the pixel's samples, :func:`light_uv_sobol`); adds
-    their light to ``T.L`` and their shadow rays to ``nshadow`` (n,).
+    their light to ``T.L`` and their shadow rays to ``nshadow`` (n,).  The Phong bracket
+    is taken about the row ``SP_S``; at a point under a normal or bump map every light
+    sample is also weighted by :func:`map_weight`.
 
     A point, directional or untextured spot light without a specular term and with
     opaque shadows is computed a point per vector lane (:func:`_delta_light_lanes`); the
@@ -727,11 +799,12 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
             if not ok:
                 continue
             tr, tg, tb = delta_filter(A, li, kind, P[0, i], P[1, i], P[2, i], lx, ly, lz)
-            if tr == 0.0 and tg == 0.0 and tb == 0.0:
+            f = point_map_weight(P, i, lx, ly, lz)
+            if (tr == 0.0 and tg == 0.0 and tb == 0.0) or f == 0.0:
                 continue
-            cr = w * tr * rr * (kd * P[12, i] + spec)
-            cg = w * tg * rg * (kd * P[13, i] + spec)
-            cb = w * tb * rb * (kd * P[14, i] + spec)
+            cr = w * tr * rr * (kd * P[12, i] + spec) * f
+            cg = w * tg * rg * (kd * P[13, i] + spec) * f
+            cb = w * tb * rb * (kd * P[14, i] + spec) * f
             if not shadows:
                 L[0, i] += cr
                 L[1, i] += cg
@@ -771,8 +844,10 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                     A, e, u1, u2, flip, scale, er, eg, eb, P[0, i], P[1, i], P[2, i], P[6, i],
                     P[7, i], P[8, i], P[9, i], P[10, i], P[11, i], P[12, i], P[13, i], P[14, i], ks,
                     shininess, c1, c2, c3, fclamp)
-                if not ok:
+                f = point_map_weight(P, i, lx, ly, lz) if ok else 0.0
+                if f == 0.0:
                     continue
+                cr, cg, cb = cr * f, cg * f, cb * f
                 if not shadows:
                     L[0, i] += cr
                     L[1, i] += cg
@@ -803,8 +878,10 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                 ok, lx, ly, lz, cr, cg, cb = environment_sample(
                     u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, P[6, i], P[7, i], P[8, i], P[9, i],
                     P[10, i], P[11, i], P[12, i], P[13, i], P[14, i], ks, shininess)
-                if not ok:
+                f = point_map_weight(P, i, lx, ly, lz) if ok else 0.0
+                if f == 0.0:
                     continue
+                cr, cg, cb = cr * f, cg * f, cb * f
                 if not shadows:
                     L[0, i] += cr
                     L[1, i] += cg
@@ -858,6 +935,15 @@ def _delta_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, li, nshad
             w[0, i] = wt * A.light_rad[li, 0] * (kd * P[12, i] + spec)
             w[1, i] = wt * A.light_rad[li, 1] * (kd * P[13, i] + spec)
             w[2, i] = wt * A.light_rad[li, 2] * (kd * P[14, i] + spec)
+        if flag[i] == _LIT and P[SP_MAP, i] != MAP_NONE:       # under a normal or bump map
+            if kind == LIGHT_DIRECTIONAL:
+                lx, ly, lz = -A.light_dir[li, 0], -A.light_dir[li, 1], -A.light_dir[li, 2]
+            else:
+                lx, ly, lz, _d = _towards(P[0, i], P[1, i], P[2, i], A.light_pos[li, 0],
+                                          A.light_pos[li, 1], A.light_pos[li, 2])
+            f = point_map_weight(P, i, lx, ly, lz)
+            flag[i] = _LIT if f != 0.0 else _DARK
+            w[0, i], w[1, i], w[2, i] = w[0, i] * f, w[1, i] * f, w[2, i] * f
         if flag[i] == _LIT:
             lit += 1
             first = i if first < 0 else first

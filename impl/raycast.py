@@ -28,7 +28,10 @@ Leaves out: indirect light, specular reflection and transmission of other
 surfaces (see ``whitted``), glossy microfacet BSDFs.  Materials other than
 ``diffuse`` raise ``NotImplementedError``; a diffuse reflectance may be a
 ``checkerboard`` or ``bitmap`` texture (looked up at the hit's uv,
-:mod:`impl.textures`).  A ``constant`` environment emitter is seen by eye rays
+:mod:`impl.textures`), and a ``normalmap`` or ``bumpmap`` may wrap it (on
+triangles with uvs, Mitsuba's adapters: the Lambert term about the perturbed
+normal, light samples on opposite sides of the true and the perturbed normal
+dropped, Estevez et al.'s shadowing term; :mod:`impl.shading_frame`).  A ``constant`` environment emitter is seen by eye rays
 that leave the scene and lights surfaces through ``light_samples``
 cosine-weighted shadow rays per pixel sample (:mod:`impl.lighting`).
 The shared direct-lighting helpers live in :mod:`impl.lighting`.
@@ -89,8 +92,8 @@ from core.errors import ParamError, UnsupportedError
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
 from .kernel import batch_kernel, interleaved, task_stride
-from .lighting import (SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo, direct_batch,
-                       environment_radiance, local_model, surface_at)
+from .lighting import (LocalModel, diffuse_albedo, direct_batch, environment_radiance, local_model,
+                       mapped_normal, store_point, surface_at)
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, refine
@@ -111,7 +114,10 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx)
     environment for escaped rays; L_e (front side) + ambient I_a k_a ρ + the Phong
     direct light of every light (:func:`impl.lighting.direct_batch`) at a hit.  A
     one-sided surface seen from behind gets nothing; a two-sided one is shaded on the
-    side it is seen from.  ``sidx`` (n,) is scratch for the points' sample index."""
+    side it is seen from.  Under a normal or bump map the bracket is taken about the
+    perturbed normal (:func:`impl.lighting.mapped_normal`) and each light sample weighted
+    as Mitsuba's adapter weights it (:func:`impl.lighting.map_weight`).  ``sidx`` (n,) is
+    scratch for the points' sample index."""
     pts, active = T.pts, T.active
     amb = M.ambient * M.ka
     for i in range(T.n):
@@ -128,23 +134,20 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx)
         gx, gy, gz, sx, sy, sz = surface_at(A, prim, b1, b2, px, py, pz, A.shape_flip[shape])
         vx, vy, vz = -dx, -dy, -dz
         r = g = b = 0.0
-        cos_v = sx * vx + sy * vy + sz * vz
-        if cos_v > 0.0:                 # emitted radiance L_e, front side only
+        if sx * vx + sy * vy + sz * vz > 0.0:       # emitted radiance L_e, front side only
             r, g, b = A.shape_emit[shape, 0], A.shape_emit[shape, 1], A.shape_emit[shape, 2]
         mat = A.shape_material[shape]
-        if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+        back = A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
+        nx, ny, nz, code = mapped_normal(A, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, back)
+        if back:
             gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-            cos_v = -cos_v
-        if cos_v > 0.0:
+        if nx * vx + ny * vy + nz * vz > 0.0:       # the BSDF sees the viewer above n
             rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
             r += amb * rho_r
             g += amb * rho_g
             b += amb * rho_b
-            pts[SP_P, i], pts[SP_P + 1, i], pts[SP_P + 2, i] = px, py, pz
-            pts[SP_G, i], pts[SP_G + 1, i], pts[SP_G + 2, i] = gx, gy, gz
-            pts[SP_S, i], pts[SP_S + 1, i], pts[SP_S + 2, i] = sx, sy, sz
-            pts[SP_V, i], pts[SP_V + 1, i], pts[SP_V + 2, i] = vx, vy, vz
-            pts[SP_RHO, i], pts[SP_RHO + 1, i], pts[SP_RHO + 2, i] = rho_r, rho_g, rho_b
+            store_point(pts, i, px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r, rho_g, rho_b,
+                        sx, sy, sz, code)
             active[i] = True
         T.L[0, i], T.L[1, i], T.L[2, i] = r, g, b
     sidx[:] = s
@@ -238,5 +241,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap", "projector", "spot texture"}),
+    models=frozenset({"envmap", "projector", "spot texture", "normalmap", "bumpmap"}),
 )

@@ -107,6 +107,9 @@ BATCH_TILE = 24
 #: Rows of a ray batch (``Batch.ray``): origin, unit direction, valid range.
 OX, OY, OZ, DX, DY, DZ, TMIN, TMAX = range(8)
 
+#: Rows of a batch of shading points (``Batch.pts``; named by :mod:`impl.lighting`'s ``SP_*``).
+POINT_ROWS = 19
+
 
 class Film(NamedTuple):
     """A render's outputs, written tile by tile."""
@@ -140,7 +143,8 @@ class Batch(NamedTuple):
     aos: np.ndarray             # (n, 8) the rays in packet_hits' layout (packets only)
     aos_b: np.ndarray           # (n, 2)
     pixel: np.ndarray           # (n,) image index y·W + x of each column
-    pts: np.ndarray             # (15, n) shading points: p, g, s, v, ρ (impl.lighting SP_*)
+    pts: np.ndarray             # (POINT_ROWS, n) shading points: p, g, n, v, ρ, s, map
+                                # (impl.lighting SP_*)
     active: np.ndarray          # (n,) bool: the shading points to light
     sh: np.ndarray              # (8, n) a batch of shadow rays
     sh_w: np.ndarray            # (3, n) their radiance contributions
@@ -244,7 +248,7 @@ def new_batch(film: Film, R: RayConfig, tile, seed):
     return Batch(x0, y0, nx, n, np.empty((8, n)), np.empty(n), np.empty(n, np.int64),
                  np.empty((2, n)), np.zeros((3, n)), np.zeros((6, n)), np.zeros((n, C), np.int64),
                  film.packet[tile], np.empty((P, 8)), np.empty((P, 2)), pixel,
-                 np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
+                 np.empty((POINT_ROWS, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, n)), xy,
                  np.full(((ny + STRIP_ROWS - 1) // STRIP_ROWS, 2 + _cand_width(R)), _UNKNOWN,
@@ -261,7 +265,7 @@ def new_points(n, R: RayConfig, counters=0):
     return Batch(0, 0, n, n, np.empty((8, n)), np.empty(n), np.empty(n, np.int64),
                  np.empty((2, n)), np.zeros((3, n)), np.zeros((6, n)), np.zeros((n, counters), np.int64),
                  np.zeros(2, np.int64), np.empty((0, 8)), np.empty((0, 2)), np.zeros(n, np.int64),
-                 np.empty((15, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
+                 np.empty((POINT_ROWS, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, 0)), np.empty((2, 0)),
                  np.full((1, 2), _UNKNOWN, np.int64), np.empty((2, n)), np.empty((2, 0), np.uint64))

@@ -38,6 +38,13 @@ For every eye ray, the ray tree over *delta* (perfectly specular) surfaces:
   batch's capacity, which draw hashed numbers.
 * Emission ``L_e`` of area emitters met by eye rays and by every ray of a
   delta chain (front side only, as Mitsuba's ``area``).
+* A ``normalmap`` or ``bumpmap`` around any of these (on triangles with uvs,
+  Mitsuba's adapters, :mod:`impl.shading_frame`): the Fresnel factors,
+  reflection and refraction directions and the Lambert term about the
+  perturbed normal n_p; a branch or light sample on opposite sides of the true
+  and the perturbed shading normal carries nothing, and with the shadowing
+  function each is weighted by Estevez et al.'s term
+  (:func:`impl.lighting.map_weight`).
 
 So with the default parameters it estimates exactly what the matched Mitsuba
 reference ``whitted`` (:mod:`references.whitted_integrator`) computes, which
@@ -201,8 +208,8 @@ from core.errors import ParamError
 from .camera import camera_params
 from .kernel import batch_kernel, interleaved, task_stride
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import (SHADOW_MODES, SP_G, SP_P, SP_RHO, SP_S, SP_V, LocalModel, diffuse_albedo,
-                       direct_batch, environment_radiance, local_model, surface_at)
+from .lighting import (SHADOW_MODES, LocalModel, diffuse_albedo, direct_batch, environment_radiance,
+                       local_model, map_weight, mapped_normal, store_point, surface_at)
 from .materials import SpecularArrays, material_arrays
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, leave, ray_config, refine, round_ray
@@ -322,14 +329,20 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
         px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
         gx, gy, gz, sx, sy, sz = surface_at(A, prim, b1, b2, px, py, pz, A.shape_flip[shape])
         vx, vy, vz = -rdx, -rdy, -rdz
-        cos_v = sx * vx + sy * vy + sz * vz
-        if cos_v > 0.0:                  # emitted radiance L_e of an area emitter (front side)
+        if sx * vx + sy * vy + sz * vz > 0.0:   # emitted radiance L_e of an area emitter (front side)
             T.L[0, col] += wr * A.shape_emit[shape, 0]
             T.L[1, col] += wg * A.shape_emit[shape, 1]
             T.L[2, col] += wb * A.shape_emit[shape, 2]
         mat = A.shape_material[shape]
         mkind = A.mat_kind[mat]
         nd = depth + 1
+        # A two-sided opaque BSDF is seen from the front on both sides; under a normal or
+        # bump map the BSDF's normal n is the perturbed one (else s, or -s on the back).
+        back = mkind != MAT_DIELECTRIC and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
+        nx, ny, nz, code = mapped_normal(A, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, back)
+        if back:
+            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+        cos_v = nx * vx + ny * vy + nz * vz
 
         if mkind == MAT_DIELECTRIC:
             # Fresnel split at a smooth interface (thesis 2.4.4), Mitsuba's sign conventions.
@@ -344,40 +357,38 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
             here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
             there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
             if F < 1.0:                  # transmitted: (1 − F) T_s η_ti² (radiance scaling)
-                scale = (1.0 - F) * eta_ti * eta_ti
+                tx, ty, tz = refract(rdx, rdy, rdz, nx, ny, nz, cos_v, cos_t, eta_ti)
+                scale = (1.0 - F) * eta_ti * eta_ti * map_weight(nx, ny, nz, sx, sy, sz, code, tx, ty, tz)
                 twr = wr * scale * S.spec_trans[mat, 0]
                 twg = wg * scale * S.spec_trans[mat, 1]
                 twb = wb * scale * S.spec_trans[mat, 2]
                 if _admit(twr, twg, twb, nd, max_depth, hall_threshold, counts, cut):
-                    tx, ty, tz = refract(rdx, rdy, rdz, sx, sy, sz, cos_v, cos_t, eta_ti)
                     _queue(Q, nd, R, px, py, pz, gx, gy, gz, tx, ty, tz, twr, twg, twb, there, col,
                            RAY_TRANSMISSION)
+            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
+            F *= map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
             rwr = wr * F * S.spec_refl[mat, 0]
             rwg = wg * F * S.spec_refl[mat, 1]
             rwb = wb * F * S.spec_refl[mat, 2]
             if _admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
-                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
                 _queue(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, here, col,
                        RAY_REFLECTION)
             continue
 
-        # Opaque one-sided BSDFs: a two-sided one is seen from the front on both sides.
-        if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
-            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-            cos_v = -cos_v
-        if cos_v <= 0.0:
+        if cos_v <= 0.0:                 # an opaque BSDF sees the viewer below n: black
             continue
 
         if mkind == MAT_CONDUCTOR:
             # Mirror reflection R = I − 2(N·I)N weighted by specular_reflectance × F_conductor.
+            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
+            f = map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
             fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
             fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
             fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
-            rwr = wr * fr * S.spec_refl[mat, 0]
-            rwg = wg * fg * S.spec_refl[mat, 1]
-            rwb = wb * fb * S.spec_refl[mat, 2]
+            rwr = wr * fr * S.spec_refl[mat, 0] * f
+            rwg = wg * fg * S.spec_refl[mat, 1] * f
+            rwb = wb * fb * S.spec_refl[mat, 2] * f
             if _admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
-                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
                 _queue(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, medium, col,
                        RAY_REFLECTION)
             continue
@@ -387,12 +398,8 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
         T.L[0, col] += wr * (amb * rho_r)
         T.L[1, col] += wg * (amb * rho_g)
         T.L[2, col] += wb * (amb * rho_b)
-        pts = C.pts
-        pts[SP_P, i], pts[SP_P + 1, i], pts[SP_P + 2, i] = px, py, pz
-        pts[SP_G, i], pts[SP_G + 1, i], pts[SP_G + 2, i] = gx, gy, gz
-        pts[SP_S, i], pts[SP_S + 1, i], pts[SP_S + 2, i] = sx, sy, sz
-        pts[SP_V, i], pts[SP_V + 1, i], pts[SP_V + 2, i] = vx, vy, vz
-        pts[SP_RHO, i], pts[SP_RHO + 1, i], pts[SP_RHO + 2, i] = rho_r, rho_g, rho_b
+        store_point(C.pts, i, px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r, rho_g, rho_b, sx, sy,
+                    sz, code)
         C.active[i] = True
         K.lsample[i] = sample + K.nleaf[col] * spp
         K.nleaf[col] += 1
@@ -594,5 +601,5 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap", "projector", "spot texture"}),
+    models=frozenset({"envmap", "projector", "spot texture", "normalmap", "bumpmap"}),
 )

@@ -2,10 +2,12 @@
 
 * :func:`impl.textures.bitmap_grad` is the derivative of the bilinear luminance
   (finite differences), and 0 for ``nearest``;
-* ``suites/vocabulary/normalmap.xml`` and ``bumpmap.xml`` (``path``) and
-  ``projector.xml`` and ``spot_texture_direct.xml`` (``path``, ``raycast``,
-  ``whitted``) pass the per-pixel Z-test against Mitsuba on the same XML, and each
-  image's thirds agree in the mean;
+* ``suites/vocabulary/normalmap.xml`` and ``bumpmap.xml`` (``path``),
+  ``maps_direct.xml`` (``raycast``: both maps over diffuse surfaces) and
+  ``maps_whitted.xml`` (``whitted``: a normal-mapped mirror and a bump-mapped glass
+  sheet), and ``projector.xml`` and ``spot_texture_direct.xml`` (``path``,
+  ``raycast``, ``whitted``) pass the per-pixel Z-test against Mitsuba on the same
+  XML, and each image's thirds agree in the mean;
 * negative controls, each of which must fail the Z-test: the normal map ignored,
   the normal map with its tangent t negated (the green channel inverted), the
   panels seen from behind with the normal map's order around ``twosided``
@@ -29,8 +31,9 @@ from core.loader import load_scene
 from gibench import registry
 
 VOCAB = Path(__file__).resolve().parent.parent / "suites" / "vocabulary"
-NORMALMAP, BUMPMAP, PROJECTOR, SPOT = (VOCAB / f"{n}.xml" for n in ("normalmap", "bumpmap", "projector",
-                                                                       "spot_texture_direct"))
+NORMALMAP, BUMPMAP, PROJECTOR, SPOT, MAPS_DIRECT, MAPS_WHITTED = (
+    VOCAB / f"{n}.xml" for n in ("normalmap", "bumpmap", "projector", "spot_texture_direct", "maps_direct",
+                                 "maps_whitted"))
 
 
 # ------------------------------------------------------------ the gradient ---
@@ -88,11 +91,13 @@ def _z(ref, own):
 
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("algorithm, scene_path", [("path", NORMALMAP), ("path", BUMPMAP),
+                                                   ("raycast", MAPS_DIRECT), ("whitted", MAPS_WHITTED),
                                                    ("path", PROJECTOR), ("raycast", PROJECTOR),
                                                    ("whitted", PROJECTOR), ("path", SPOT), ("raycast", SPOT),
                                                    ("whitted", SPOT)],
-                         ids=["path-normalmap", "path-bumpmap", "path-projector", "raycast-projector",
-                              "whitted-projector", "path-spot", "raycast-spot", "whitted-spot"])
+                         ids=["path-normalmap", "path-bumpmap", "raycast-maps", "whitted-maps",
+                              "path-projector", "raycast-projector", "whitted-projector", "path-spot",
+                              "raycast-spot", "whitted-spot"])
 def test_scene_passes_the_ztest_against_mitsuba(algorithm, scene_path):
     """Per pixel (Z-test) and per third of the image (|z| < 4 for each third's mean):
     the own tracer agrees with Mitsuba's matching integrator on the same XML; a 3 %
@@ -121,6 +126,15 @@ def _green_inverted(shading):
     data[:, :, 1] = 1.0 - data[:, :, 1]
     tex["data"] = data
     return {**shading, "texture": tex}
+
+
+def _bump_scale_negated(shading):
+    return {**shading, "scale": -shading["scale"]} if shading["type"] == "bumpmap" else shading
+
+
+def _only_bumpmap(shading):
+    """The normal maps dropped (on ``maps_whitted.xml``: the mirror's among them)."""
+    return shading if shading["type"] == "bumpmap" else None
 
 
 def _order_swapped(scene):
@@ -153,12 +167,19 @@ def _untextured(scene):
     ("path", NORMALMAP, _order_swapped),
     ("path", BUMPMAP, lambda s: _with_shading(s, lambda sh: None)),
     ("path", BUMPMAP, lambda s: _with_shading(s, lambda sh: {**sh, "scale": -sh["scale"]})),
+    ("raycast", MAPS_DIRECT, lambda s: _with_shading(s, _green_inverted)),
+    ("raycast", MAPS_DIRECT, _order_swapped),
+    ("raycast", MAPS_DIRECT, lambda s: _with_shading(s, _bump_scale_negated)),
+    ("whitted", MAPS_WHITTED, lambda s: _with_shading(s, _only_bumpmap)),
+    ("whitted", MAPS_WHITTED, lambda s: _with_shading(s, _bump_scale_negated)),
     ("path", PROJECTOR, _mirrored_slide),
     ("raycast", PROJECTOR, _mirrored_slide),
     ("raycast", SPOT, _mirrored_slide),
     ("whitted", SPOT, _untextured),
 ], ids=["normalmap-ignored", "normalmap-tangent-negated", "normalmap-twosided-order-swapped",
-        "bumpmap-ignored", "bumpmap-scale-negated",
+        "bumpmap-ignored", "bumpmap-scale-negated", "raycast-normalmap-tangent-negated",
+        "raycast-twosided-order-swapped", "raycast-bumpmap-scale-negated", "whitted-mirror-map-ignored",
+        "whitted-glass-bumpmap-scale-negated",
         "path-projector-mirrored", "raycast-projector-mirrored", "raycast-spot-mirrored",
         "whitted-spot-untextured"])
 def test_the_ztest_rejects_a_wrong_rendering(algorithm, scene_path, wrong):
@@ -172,7 +193,7 @@ def test_the_ztest_rejects_a_wrong_rendering(algorithm, scene_path, wrong):
 # ------------------------------------------------------------ refusals ---
 
 @pytest.mark.parametrize("algorithm, scene_path, feature", [
-    ("raycast", NORMALMAP, "normalmap"), ("whitted", BUMPMAP, "bumpmap"),
+    ("zbuffer", MAPS_DIRECT, "normalmap"), ("depthsort", BUMPMAP, "bumpmap"),
     ("distributed", NORMALMAP, "normalmap"), ("distributed", PROJECTOR, "projector"),
     ("radiosity", PROJECTOR, "projector")])
 def test_algorithms_refuse_what_they_do_not_model_by_name(algorithm, scene_path, feature):

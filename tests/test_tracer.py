@@ -497,7 +497,7 @@ def test_delta_light_lanes_equal_the_scalar_light_samples(params):
         P = T.pts
         for i in np.flatnonzero(T.active[:T.n]):
             r, g, b, nsh = lighting._direct_light_rays(
-                *P[:, i], A, M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows,
+                *P[:lighting.SP_N0, i], A, M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows,
                 M.light_samples, 7, T.pixel[i], 2, R, False, A.sph_radius, A.mat_rho,
                 DIM_INDEPENDENT, 0, 0)
             assert (T.L[0, i], T.L[1, i], T.L[2, i]) == (r, g, b), (tile, i)
