@@ -822,6 +822,12 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
     q = int(math.sqrt(light_samples) + 0.5)
     stratified = q * q == light_samples
     n_em = A.em_area.shape[0]
+    lanes = n_em > 0 and ks == 0.0 and seta.shape[0] == 0
+    if lanes:                            # lanes leave map weights to the point-by-point loop
+        for i in range(T.n):
+            if active[i] and P[SP_MAP, i] != MAP_NONE:
+                lanes = False
+                break
     for e in range(n_em):
         esh = A.em_shape[e]
         flip = A.shape_flip[esh]
@@ -831,6 +837,10 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
             if sobol:
                 light_uv_sobol_lanes(seed, pixel[:T.n], sample[:T.n], e, k, light_samples,
                                      luv[0, :T.n], luv[1, :T.n])
+            if lanes:
+                _area_light_lanes(A, R, M, T, e, k, q, stratified, flip, scale, er, eg, eb, sample, seed,
+                                  nshadow)
+                continue
             m = 0
             for i in range(T.n):
                 if not active[i]:
@@ -947,6 +957,20 @@ def _delta_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, li, nshad
         if flag[i] == _LIT:
             lit += 1
             first = i if first < 0 else first
+    _trace_lit_lanes(A, R, M, T, lit, first, nshadow)
+
+
+@njit(inline="always", cache=True)
+def _trace_lit_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, lit, first, nshadow):
+    """Finish a light sample computed a point per lane (``T.sh_i`` the lanes' states,
+    ``lit`` of them ``_LIT``, the first at ``first``; their shadow rays in ``T.sh``, their
+    light in ``T.sh_w``): trace the lit lanes' shadow rays together and add the light of
+    the unoccluded ones to ``T.L``.  Lanes without light are given a lit lane's ray when
+    queries are brute force (:func:`impl.tracer.brute_force`: a lane costs a few vector
+    operations per candidate, and a copy keeps the culling bound), else the lit lanes are
+    moved to the front."""
+    n = T.n
+    sh, w, flag, L = T.sh, T.sh_w, T.sh_i, T.L
     if lit == 0:
         return
     if not M.shadows:
@@ -971,6 +995,114 @@ def _delta_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, li, nshad
             flag[m] = i
             m += 1
     _light_unoccluded(R, T, m, nshadow, A, M.shadow_eta, M.shadow_trans)
+
+
+@njit(inline="always", cache=True)
+def _area_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, e, k, q, stratified, flip, scale,
+                      er, eg, eb, sample, seed, nshadow):
+    """Light sample k of area emitter ``e`` (no specular term, opaque shadows, no normal or
+    bump map) at every active point of batch ``T``, a point per lane: each point's two
+    numbers (:func:`light_uv`, or with ``M.sobol`` those :func:`light_uv_sobol_lanes` left in
+    ``T.luv``), the emitter triangle they pick and the point on it (:func:`sample_emitter`'s
+    search and arithmetic) point by point, then the contribution and the shadow ray by the
+    branch-free :func:`_area_lanes`, and :func:`_trace_lit_lanes`.  The
+    same samples, contributions and shadow rays as the scalar loop of :func:`direct_batch`,
+    so the same image bit for bit."""
+    n = T.n
+    P, luv, flag, sh, w = T.pts, T.luv, T.sh_i, T.sh, T.sh_w
+    lo, hi = A.em_offset[e], A.em_offset[e + 1] - 1
+    cdf = A.em_cdf
+    j = e * M.light_samples + k
+    for i in range(n):
+        if not T.active[i]:
+            flag[i] = -1
+            continue
+        if M.sobol:
+            u1, u2 = luv[0, i], luv[1, i]
+        else:
+            u1, u2 = light_uv(seed, T.pixel[i], sample[i], j, k, q, stratified)
+        a, b = lo, hi                    # sample_emitter's search and remainder
+        while a < b:
+            mid = (a + b) // 2
+            if cdf[mid] < u1:
+                a = mid + 1
+            else:
+                b = mid
+        prev = cdf[a - 1] if a > lo else 0.0
+        width = cdf[a] - prev
+        u1 = min(max((u1 - prev) / width, 0.0), 1.0) if width > 0.0 else 0.5
+        tri = A.em_tri[a]
+        v = A.tri_v[tri]                 # sample_emitter's point on the triangle
+        su = math.sqrt(u1)
+        w1, w2 = u2 * su, 1.0 - su
+        w0 = 1.0 - w1 - w2
+        sh[3, i] = w2 * v[0, 0] + w0 * v[1, 0] + w1 * v[2, 0]
+        sh[4, i] = w2 * v[0, 1] + w0 * v[1, 1] + w1 * v[2, 1]
+        sh[5, i] = w2 * v[0, 2] + w0 * v[1, 2] + w1 * v[2, 2]
+        w[0, i], w[1, i], w[2, i] = A.tri_ng[tri, 0], A.tri_ng[tri, 1], A.tri_ng[tri, 2]
+        flag[i] = 0
+    _area_lanes(flip, scale, er, eg, eb, M.c1, M.c2, M.c3, M.fclamp, R.strategy, R.eps, R.shrink_area,
+                R.sph_radius, P[0, :n], P[1, :n], P[2, :n], P[3, :n], P[4, :n], P[5, :n], P[6, :n],
+                P[7, :n], P[8, :n], P[9, :n], P[10, :n], P[11, :n], P[12, :n], P[13, :n], P[14, :n],
+                sh[0, :n], sh[1, :n], sh[2, :n], sh[3, :n], sh[4, :n], sh[5, :n], sh[6, :n], sh[7, :n],
+                w[0, :n], w[1, :n], w[2, :n], flag[:n])
+    lit, first = 0, -1
+    for i in range(n):
+        if flag[i] == _LIT:
+            lit += 1
+            first = i if first < 0 else first
+    _trace_lit_lanes(A, R, M, T, lit, first, nshadow)
+
+
+@batch_kernel(error_model="numpy")
+def _area_lanes(flip, scale, er, eg, eb, c1, c2, c3, fclamp, strategy, eps, shrink, g, px, py, pz, gx, gy,
+                gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, ox, oy, oz, dx, dy, dz, tmin, tmax, wr, wg,
+                wb, flag):
+    """An area emitter's light sample at every point i (a lane).  On entry ``dx``/``dy``/``dz``
+    hold the point y the sample picked on the emitter, ``wr``/``wg``/``wb`` the unit normal
+    of its triangle, and ``flag`` is 0 for a point to light, −1 otherwise (a lane reads
+    its own column of these before it writes it, so the loop carries no dependence); on
+    exit the contribution of :func:`area_sample` with k_s = 0 is in ``wr``/``wg``/``wb``,
+    the shadow ray of :func:`shadow_towards` in ``ox``..``tmax`` and the state (``_DARK``,
+    ``_LIT``) in ``flag`` — the same operations as those functions, selects for their
+    branches, so LLVM vectorises the loop.  ``g`` is an array of the intersection
+    precision.  (The point on the triangle is taken before: indexed loads of the
+    triangle's vertices keep LLVM from vectorising.)"""
+    sgn = -1.0 if flip else 1.0
+    for i in range(px.shape[0]):
+        live = flag[i] >= 0
+        yx, yy, yz = dx[i], dy[i], dz[i]
+        p_x, p_y, p_z = px[i], py[i], pz[i]
+        lx, ly, lz = yx - p_x, yy - p_y, yz - p_z
+        dist = math.sqrt(lx * lx + ly * ly + lz * lz)
+        lx, ly, lz = lx / dist, ly / dist, lz / dist
+        cos_y = -(sgn * wr[i] * lx + sgn * wg[i] * ly + sgn * wb[i] * lz)
+        # phong_brdf_cos with k_s = 0
+        cos_l = sx[i] * lx + sy[i] * ly + sz[i] * lz
+        cos_v = sx[i] * vx[i] + sy[i] * vy[i] + sz[i] * vz[i]
+        kd = cos_l * INV_PI
+        lit = live & (dist != 0.0) & (cos_y > 0.0) & (cos_l > 0.0) & (cos_v > 0.0) & (kd != 0.0)
+        flag[i] = _LIT if lit else _DARK
+        wt = cos_y * attenuation(dist, c1, c2, c3, fclamp) * scale
+        wr[i] = wt * (kd * rho_r[i]) * er
+        wg[i] = wt * (kd * rho_g[i]) * eg
+        wb[i] = wt * (kd * rho_b[i]) * eb
+        # the shadow ray leaves p on the side of l, aimed from its origin at y
+        side = 1.0 if gx[i] * lx + gy[i] * ly + gz[i] * lz >= 0.0 else -1.0
+        o_x, o_y, o_z, t0 = spawn_select(strategy, like(g, p_x), like(g, p_y), like(g, p_z),
+                                         like(g, side * gx[i]), like(g, side * gy[i]),
+                                         like(g, side * gz[i]), like(g, eps))
+        o_x, o_y, o_z = float(o_x), float(o_y), float(o_z)
+        hx, hy, hz = yx - o_x, yy - o_y, yz - o_z
+        hd = math.sqrt(hx * hx + hy * hy + hz * hz)
+        away = hd != 0.0
+        ih = 1.0 / hd
+        ox[i], oy[i], oz[i] = o_x, o_y, o_z
+        dx[i] = hx * ih if away else 0.0
+        dy[i] = hy * ih if away else 0.0
+        dz[i] = hz * ih if away else 0.0
+        tmin[i] = float(t0)
+        tmax[i] = (hd if away else 0.0) * (1.0 - shrink)
 
 
 @batch_kernel(error_model="numpy")

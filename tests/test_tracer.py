@@ -117,6 +117,21 @@ def test_eye_rays_and_welford_loops_vectorise():
     assert re.search(r"vdivpd\s+%[yz]mm", asm)
 
 
+@pytest.mark.skipif(not _avx2(), reason="the host has no AVX2")
+def test_area_light_lanes_vectorise():
+    """An area emitter's light sample over a batch of points (distances, directions, the
+    shadow rays' offset origins and directions) compiles to packed float64 square roots
+    and divisions, in both intersection precisions."""
+    from impl.lighting import _area_lanes
+    n = 64
+    lanes = njit(error_model="numpy")(_area_lanes.py_func)
+    f = [np.random.default_rng(SEED).uniform(size=n) for _ in range(26)]
+    for g in (np.ones(1), np.ones(1, np.float32)):
+        lanes(False, 0.1, 1.0, 1.0, 1.0, 0.0, 0.0, 1.0, False, 3, 1e-4, 1e-4, g, *f, np.zeros(n, np.int64))
+    for asm in lanes.inspect_asm().values():
+        assert re.search(r"vsqrtpd\s+%[yz]mm", asm) and re.search(r"vdivpd\s+[^\n]*%[yz]mm", asm)
+
+
 def test_pinhole_batch_rays_equal_eye_ray_bit_for_bit():
     """pinhole_rays computes eye_ray's arithmetic: the same bits, float64 and rounded to
     float32, on a rotated, off-centre camera."""
@@ -473,22 +488,39 @@ def test_delta_light_lanes_equal_the_scalar_light_samples(params):
     the scalar sample): each point gets, bit for bit, the light and the shadow-ray count
     of the scalar per-point estimator (impl.lighting._direct_light_rays), in every ray
     configuration; points in the spot's transition band and in shadow are among them."""
+    sc = load_scene(SUITES / "spheres/spot_directional.xml")
+    A = flatten_cached(sc)
+    spot = int(np.flatnonzero(A.light_kind == 2)[0])
+    lit = dark = band = 0
+    for P, i, r, nsh, M in _lanes_against_scalar(sc, {"spp": 4, "light_samples": 1, **params}):
+        lit += r > 0.0
+        dark += nsh > 0 and r == 0.0
+        lx = A.light_pos[spot] - P[0:3, i]
+        cos_t = -(A.light_dir[spot] @ lx) / np.linalg.norm(lx)
+        band += A.light_cos_cutoff[spot] < cos_t < A.light_cos_beam[spot]
+    assert lit > 100 and band > 10
+    assert dark > 10 or not M.shadows
+
+
+def _lanes_against_scalar(sc, params):
+    """Shade a third of the tiles of scene ``sc`` with raycast's batch step (sample 2 of 4,
+    seed 7; its direct light by impl.lighting.direct_batch) and compare every lit point,
+    bit for bit, with the scalar per-point estimator (impl.lighting._direct_light_rays):
+    its light and its shadow-ray count (points on emitters left out).  Yields (points, column, red light, shadow rays,
+    local model) per point."""
     from impl import lighting, raycast
     from impl.camera import camera_params
     from impl.samplers import DIM_INDEPENDENT
     from impl.sampling import sampler_code
     from impl.tracer import eye_batch, new_batch, new_film
 
-    sc = load_scene(SUITES / "spheres/spot_directional.xml")
-    p = registry.get("raycast").parse_params({"spp": 4, "light_samples": 1, **params})
+    p = registry.get("raycast").parse_params(params)
     A = flatten_cached(sc)
     R = tracer.ray_config_cached(sc, A, p, algorithm="raycast")
     M = lighting.local_model(p)
     cam = camera_params(sc.camera)
     W, H = sc.camera.film.width, sc.camera.film.height
     film = new_film(W, H, 1, False, sampler_code(p))
-    spot = int(np.flatnonzero(A.light_kind == 2)[0])
-    lit = dark = band = 0
     for tile in range(0, film.packet.shape[0], 3):
         T = new_batch(film, R, tile, 7)
         sidx = np.empty(T.n, np.int64)
@@ -496,16 +528,29 @@ def test_delta_light_lanes_equal_the_scalar_light_samples(params):
         raycast._shade(A, R, M, T, 2, 7, sidx)
         P = T.pts
         for i in np.flatnonzero(T.active[:T.n]):
+            if A.shape_emit[A.prim_shape[T.prim[i]]].any():
+                continue                 # T.L holds its emission too
             r, g, b, nsh = lighting._direct_light_rays(
                 *P[:lighting.SP_N0, i], A, M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows,
                 M.light_samples, 7, T.pixel[i], 2, R, False, A.sph_radius, A.mat_rho,
                 DIM_INDEPENDENT, 0, 0)
             assert (T.L[0, i], T.L[1, i], T.L[2, i]) == (r, g, b), (tile, i)
             assert T.cnt[i, 0] == nsh, (tile, i)
-            lit += r > 0.0
-            dark += nsh > 0 and r == 0.0
-            lx = A.light_pos[spot] - P[0:3, i]
-            cos_t = -(A.light_dir[spot] @ lx) / np.linalg.norm(lx)
-            band += A.light_cos_cutoff[spot] < cos_t < A.light_cos_beam[spot]
-    assert lit > 100 and band > 10
-    assert dark > 10 or not M.shadows
+            yield P, i, r, nsh, M
+
+
+@pytest.mark.parametrize("params", [{}, {"precision": "float32"}, {"offset": "normal"},
+                                    {"offset": "epsilon"}, {"shadows": False},
+                                    {"accel": "bvh-wide"}, {"c1": 0.5, "c3": 2.0, "fatt_clamp": True}])
+def test_area_light_lanes_equal_the_scalar_light_samples(params):
+    """direct_batch computes an area emitter's light sample at every point of a batch in one
+    branch-free loop (impl.lighting._area_lanes, after the emitter triangle's search point
+    by point): each point of the Cornell box (four stratified light samples; points lit,
+    in shadow, and facing away from the light among them) gets, bit for bit, the light and
+    the shadow-ray count of the scalar per-point estimator, in every ray configuration."""
+    sc = load_scene(SUITES / "cornell/cornell_box.xml")
+    lit = dark = 0
+    for P, i, r, nsh, M in _lanes_against_scalar(sc, {"spp": 4, "light_samples": 4, **params}):
+        lit += r > 0.0
+        dark += r == 0.0
+    assert lit > 1000 and dark > 10
