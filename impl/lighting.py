@@ -741,14 +741,16 @@ def point_map_weight(P, i, wx, wy, wz):
 @njit(inline="always", cache=True)
 def store_point(P, i, px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r, rho_g, rho_b, sx, sy, sz,
                 code):
-    """Write shading point i into the point rows ``P`` (``SP_*``)."""
+    """Write shading point i into the point rows ``P`` (``SP_*``); s only under a map (the
+    readers of ``SP_N0`` look at ``SP_MAP`` first)."""
     P[SP_P, i], P[SP_P + 1, i], P[SP_P + 2, i] = px, py, pz
     P[SP_G, i], P[SP_G + 1, i], P[SP_G + 2, i] = gx, gy, gz
     P[SP_S, i], P[SP_S + 1, i], P[SP_S + 2, i] = nx, ny, nz
     P[SP_V, i], P[SP_V + 1, i], P[SP_V + 2, i] = vx, vy, vz
     P[SP_RHO, i], P[SP_RHO + 1, i], P[SP_RHO + 2, i] = rho_r, rho_g, rho_b
-    P[SP_N0, i], P[SP_N0 + 1, i], P[SP_N0 + 2, i] = sx, sy, sz
     P[SP_MAP, i] = code
+    if code != MAP_NONE:
+        P[SP_N0, i], P[SP_N0 + 1, i], P[SP_N0 + 2, i] = sx, sy, sz
 
 
 @batch_kernel
