@@ -216,7 +216,10 @@ def fresnel_conductor(cos_theta_i, eta, k):
     incidence, total internal reflection (k = 0, a = 0) and Mitsuba's
     ``material="none"`` (0 + 1i) otherwise need no special case: all give 1.  Real
     square roots and divisions only, where the complex form takes a complex root, two
-    complex divisions and three moduli (``hypot``)."""
+    complex divisions and three moduli (``hypot``).  Mitsuba's default ``material="none"``
+    (an ideal mirror) returns that 1 without the arithmetic."""
+    if eta == 0.0 and k == 1.0:
+        return 1.0
     c = min(abs(cos_theta_i), 1.0)
     c2 = c * c
     s2 = 1.0 - c2

@@ -127,6 +127,23 @@ def test_conductor_closed_forms(eta, k):
             assert fresnel_conductor(c, eta, 0.0) == pytest.approx(fresnel_dielectric(c, eta)[0], rel=1e-10)
 
 
+def test_ideal_mirror_shortcut_is_the_formulas_value():
+    """Mitsuba's material="none" (0 + 1i) returns 1 without the arithmetic; the formula
+    itself gives exactly 1 there at every angle (the compiled function's Python source,
+    run without the shortcut), so the shortcut changes no bit."""
+    import inspect
+    import textwrap
+
+    import impl.fresnel as fresnel_module
+    src = textwrap.dedent(inspect.getsource(fresnel_conductor.py_func))
+    src = src[src.index("def "):].replace("if eta == 0.0 and k == 1.0:", "if False:")
+    ns = dict(vars(fresnel_module))
+    exec(src, ns)
+    formula = ns["fresnel_conductor"]
+    for c in np.concatenate([np.linspace(-1.0, 1.0, 2001), [1e-300, 1e-20, -1e-20]]):
+        assert fresnel_conductor(c, 0.0, 1.0) == 1.0 == formula(c, 0.0, 1.0), c
+
+
 def _conductor_complex(c, eta, k):
     """The complex amplitudes of the module's docstring, in Python's complex arithmetic."""
     c = min(abs(c), 1.0)
