@@ -31,9 +31,10 @@ surfaces (see ``whitted``), glossy microfacet BSDFs.  Materials other than
 :mod:`impl.textures`), and a ``normalmap`` or ``bumpmap`` may wrap it (on
 triangles with uvs, Mitsuba's adapters: the Lambert term about the perturbed
 normal, light samples on opposite sides of the true and the perturbed normal
-dropped, Estevez et al.'s shadowing term; :mod:`impl.shading_frame`).  A ``constant`` environment emitter is seen by eye rays
-that leave the scene and lights surfaces through ``light_samples``
-cosine-weighted shadow rays per pixel sample (:mod:`impl.lighting`).
+dropped, Estevez et al.'s shadowing term; :mod:`impl.shading_frame`).  A
+``constant`` environment emitter is seen by eye rays that leave the scene and
+lights surfaces through ``light_samples`` cosine-weighted shadow rays per
+pixel sample (:mod:`impl.lighting`).
 The shared direct-lighting helpers live in :mod:`impl.lighting`.
 
 Parameters
