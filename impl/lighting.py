@@ -706,11 +706,21 @@ def mapped_normal(A: SceneArrays, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx,
         if back:
             return -sx, -sy, -sz, MAP_NONE
         return sx, sy, sz, MAP_NONE
-    nx, ny, nz = perturbed_normal(shade, A.mat_shade_scale[mat], A.mat_shade_tex[mat],
-                                  A.mat_shade_uv[mat], A.tex_data, A.tri_v[prim - ns],
-                                  A.tri_uv[prim - ns], b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz,
-                                  back)
+    nx, ny, nz = _perturbed_normal(shade, A.mat_shade_scale[mat], A.mat_shade_tex[mat],
+                                   A.mat_shade_uv[mat], A.tex_data, A.tri_v[prim - ns],
+                                   A.tri_uv[prim - ns], b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+                                   back)
     return nx, ny, nz, MAP_SHADOWED if A.mat_shade_tex[mat, 6] != 0 else MAP_PLAIN
+
+
+@njit(cache=True)
+def _perturbed_normal(code, scale, tex, uvm, data, v, uv, b1, b2, gx, gy, gz, sx, sy, sz, wx, wy, wz,
+                      back):
+    """:func:`impl.shading_frame.perturbed_normal` compiled once and called, not inlined
+    into every specialisation of the shading kernels: its texture lookups are a large
+    piece of code that only points under a map run."""
+    return perturbed_normal(code, scale, tex, uvm, data, v, uv, b1, b2, gx, gy, gz, sx, sy, sz, wx, wy,
+                            wz, back)
 
 
 @njit(inline="always", cache=True)
@@ -724,6 +734,13 @@ def map_weight(nx, ny, nz, sx, sy, sz, code, wx, wy, wz):
     of w against n are the caller's (the Phong bracket about n)."""
     if code == MAP_NONE:
         return 1.0
+    return _mapped_weight(nx, ny, nz, sx, sy, sz, code, wx, wy, wz)
+
+
+@njit(cache=True)
+def _mapped_weight(nx, ny, nz, sx, sy, sz, code, wx, wy, wz):
+    """:func:`map_weight` under a map, compiled once and called rather than inlined at
+    every light sample's site (only points under a map run it)."""
     if not same_side(nx, ny, nz, sx, sy, sz, wx, wy, wz):
         return 0.0
     if code == MAP_SHADOWED:
