@@ -1073,6 +1073,33 @@ def _area_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, e, k, q, s
     _trace_lit_lanes(A, R, M, T, lit, first, nshadow)
 
 
+@njit(inline="always", cache=True)
+def _lane_diffuse(sx, sy, sz, vx, vy, vz, lx, ly, lz):
+    """:func:`phong_brdf_cos`'s bracket with k_s = 0 at a lane: cos θ_l and cos θ_v about
+    the shading normal s, and k_d's factor cos θ_l / π."""
+    cos_l = sx * lx + sy * ly + sz * lz
+    cos_v = sx * vx + sy * vy + sz * vz
+    return cos_l, cos_v, cos_l * INV_PI
+
+
+@njit(inline="always", cache=True)
+def _lane_shadow_ray(strategy, g, eps, p_x, p_y, p_z, gx, gy, gz, lx, ly, lz, tx, ty, tz):
+    """:func:`shadow_towards` at a lane, branch-free: the origin left from p on the side of
+    l (geometric normal g), its ``tmin``, the unit direction from the origin to the target
+    t and that distance (a zero direction and distance where the origin is t)."""
+    side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
+    o_x, o_y, o_z, t0 = spawn_select(strategy, like(g, p_x), like(g, p_y), like(g, p_z),
+                                     like(g, side * gx), like(g, side * gy),
+                                     like(g, side * gz), like(g, eps))
+    o_x, o_y, o_z = float(o_x), float(o_y), float(o_z)
+    hx, hy, hz = tx - o_x, ty - o_y, tz - o_z
+    hd = math.sqrt(hx * hx + hy * hy + hz * hz)
+    away = hd != 0.0
+    ih = 1.0 / hd
+    return (o_x, o_y, o_z, float(t0), hx * ih if away else 0.0, hy * ih if away else 0.0,
+            hz * ih if away else 0.0, hd if away else 0.0)
+
+
 @batch_kernel(error_model="numpy")
 def _area_lanes(flip, scale, er, eg, eb, c1, c2, c3, fclamp, strategy, eps, shrink, g, px, py, pz, gx, gy,
                 gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, ox, oy, oz, dx, dy, dz, tmin, tmax, wr, wg,
@@ -1096,10 +1123,7 @@ def _area_lanes(flip, scale, er, eg, eb, c1, c2, c3, fclamp, strategy, eps, shri
         dist = math.sqrt(lx * lx + ly * ly + lz * lz)
         lx, ly, lz = lx / dist, ly / dist, lz / dist
         cos_y = -(sgn * wr[i] * lx + sgn * wg[i] * ly + sgn * wb[i] * lz)
-        # phong_brdf_cos with k_s = 0
-        cos_l = sx[i] * lx + sy[i] * ly + sz[i] * lz
-        cos_v = sx[i] * vx[i] + sy[i] * vy[i] + sz[i] * vz[i]
-        kd = cos_l * INV_PI
+        cos_l, cos_v, kd = _lane_diffuse(sx[i], sy[i], sz[i], vx[i], vy[i], vz[i], lx, ly, lz)
         lit = live & (dist != 0.0) & (cos_y > 0.0) & (cos_l > 0.0) & (cos_v > 0.0) & (kd != 0.0)
         flag[i] = _LIT if lit else _DARK
         wt = cos_y * attenuation(dist, c1, c2, c3, fclamp) * scale
@@ -1107,21 +1131,9 @@ def _area_lanes(flip, scale, er, eg, eb, c1, c2, c3, fclamp, strategy, eps, shri
         wg[i] = wt * (kd * rho_g[i]) * eg
         wb[i] = wt * (kd * rho_b[i]) * eb
         # the shadow ray leaves p on the side of l, aimed from its origin at y
-        side = 1.0 if gx[i] * lx + gy[i] * ly + gz[i] * lz >= 0.0 else -1.0
-        o_x, o_y, o_z, t0 = spawn_select(strategy, like(g, p_x), like(g, p_y), like(g, p_z),
-                                         like(g, side * gx[i]), like(g, side * gy[i]),
-                                         like(g, side * gz[i]), like(g, eps))
-        o_x, o_y, o_z = float(o_x), float(o_y), float(o_z)
-        hx, hy, hz = yx - o_x, yy - o_y, yz - o_z
-        hd = math.sqrt(hx * hx + hy * hy + hz * hz)
-        away = hd != 0.0
-        ih = 1.0 / hd
-        ox[i], oy[i], oz[i] = o_x, o_y, o_z
-        dx[i] = hx * ih if away else 0.0
-        dy[i] = hy * ih if away else 0.0
-        dz[i] = hz * ih if away else 0.0
-        tmin[i] = float(t0)
-        tmax[i] = (hd if away else 0.0) * (1.0 - shrink)
+        ox[i], oy[i], oz[i], tmin[i], dx[i], dy[i], dz[i], hd = _lane_shadow_ray(
+            strategy, g, eps, p_x, p_y, p_z, gx[i], gy[i], gz[i], lx, ly, lz, yx, yy, yz)
+        tmax[i] = hd * (1.0 - shrink)
 
 
 @batch_kernel(error_model="numpy")
@@ -1155,31 +1167,19 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
             cos_t = az / math.sqrt(ax * ax + ay * ay + az * az)
             inside = cos_t > cos_cutoff
             band = inside & (cos_t < cos_beam)
-        # phong_brdf_cos with k_s = 0
-        cos_l = sx[i] * lx + sy[i] * ly + sz[i] * lz
-        cos_v = sx[i] * vx[i] + sy[i] * vy[i] + sz[i] * vz[i]
-        kd = cos_l * INV_PI
+        cos_l, cos_v, kd = _lane_diffuse(sx[i], sy[i], sz[i], vx[i], vy[i], vz[i], lx, ly, lz)
         lit = active[i] & inside & (cos_l > 0.0) & (cos_v > 0.0) & (kd != 0.0)
         flag[i] = (_BAND if band else _LIT) if lit else _DARK
         wr[i] = wt * ir * (kd * rho_r[i])
         wg[i] = wt * ig * (kd * rho_g[i])
         wb[i] = wt * ib * (kd * rho_b[i])
-        # the shadow ray leaves p on the side of l
-        side = 1.0 if gx[i] * lx + gy[i] * ly + gz[i] * lz >= 0.0 else -1.0
-        o_x, o_y, o_z, t0 = spawn_select(strategy, like(g, p_x), like(g, p_y), like(g, p_z),
-                                         like(g, side * gx[i]), like(g, side * gy[i]),
-                                         like(g, side * gz[i]), like(g, eps))
-        o_x, o_y, o_z = float(o_x), float(o_y), float(o_z)
-        hx, hy, hz = lpx - o_x, lpy - o_y, lpz - o_z
-        hd = math.sqrt(hx * hx + hy * hy + hz * hz)
-        away = hd != 0.0
-        ih = 1.0 / hd
-        ox[i], oy[i], oz[i] = o_x, o_y, o_z
-        dx[i] = lx if directional else (hx * ih if away else 0.0)
-        dy[i] = ly if directional else (hy * ih if away else 0.0)
-        dz[i] = lz if directional else (hz * ih if away else 0.0)
-        tmin[i] = float(t0)
-        tmax[i] = math.inf if directional else (hd if away else 0.0) * (1.0 - shrink)
+        # the shadow ray leaves p on the side of l (along l for a directional light)
+        ox[i], oy[i], oz[i], tmin[i], hx, hy, hz, hd = _lane_shadow_ray(
+            strategy, g, eps, p_x, p_y, p_z, gx[i], gy[i], gz[i], lx, ly, lz, lpx, lpy, lpz)
+        dx[i] = lx if directional else hx
+        dy[i] = ly if directional else hy
+        dz[i] = lz if directional else hz
+        tmax[i] = math.inf if directional else hd * (1.0 - shrink)
 
 
 @batch_kernel(error_model="numpy")
