@@ -43,21 +43,28 @@ function that takes the index (or a value computed from it) is therefore compile
 for both signatures, its whole call tree twice.  The loops where this was seen (the
 z-buffer's shading, form factors, radiosity, the acceleration structures' query
 kernels, the film filter) take ``np.int64(index)`` first, so both typings pass one
-type; the tracers' tile loops, which pass ``interleaved(c, n, stride)``, compile
-their tile function once.  Other parallel loops (distributed's per-pixel loop,
-raycast's depth pass) are not checked.  A literal
+type.  The tile loops of raycast, whitted and path are task loops, not ``prange``
+(see :func:`run_tasks`); distributed's loops and raycast's depth pass are not
+checked.  A literal
 argument (``False``, ``0``, ``-1``) is such a second type too, beside the variables
 other call sites pass: those calls pass a typed value.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import math
+import os
+import threading
 
 import llvmlite.binding as _llvm
-from numba import njit
+import numba
+import numpy as np
+from numba import njit, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
-__all__ = ["batch_kernel", "interleaved", "task_stride"]
+__all__ = ["batch_kernel", "interleaved", "run_tasks", "take_task", "task_stride"]
 
 #: LLVM's loop vectoriser versions a loop over arrays it cannot prove disjoint with
 #: run-time overlap checks, and gives the loop up (scalar code) when it would need more
@@ -83,17 +90,87 @@ def batch_kernel(fn=None, **options):
     return njit(**opts)(fn)
 
 
+# ------------------------------------------------------------------ tasks ---
+#
+# The tile tracers' renders run on threads of their own rather than in a ``prange`` loop.
+# numba compiles a parallel loop's body as a function of its own and then optimises
+# the loop's module again with every function the body calls linked in: for a tracer
+# that is its whole call tree, optimised twice more, a large part of its cold compile.
+# A task loop (:func:`take_task` in a ``nogil`` function, :func:`run_tasks` starting
+# it on every thread) is a plain loop, and hands out the tasks dynamically as
+# ``prange`` with a chunk size of one was meant to.
+#
+# The arrays a task loop is given keep their reference counts (numba's gufunc hands a
+# ``prange`` body its arrays without them), so a loop whose tasks create array views of
+# the shared arrays at a fine grain (distributed's per-pixel loop, its scalar shading)
+# makes both threads update the same counters atomically: such loops stay ``prange``.
+# The tile tracers' per-ray work is in batch kernels, which count no references.
+
+
+@intrinsic
+def take_task(typingctx, queue):
+    """The next task number of ``queue`` (a 1-D int64 array whose element 0 counts the
+    tasks taken): an atomic fetch-and-add of one (LLVM ``atomicrmw``), so each number goes
+    to exactly one of the threads that share the queue."""
+    if not (isinstance(queue, types.Array) and queue.ndim == 1 and queue.dtype == types.int64):
+        return None
+
+    def codegen(context, builder, sig, args):
+        aryty = sig.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary,
+                                       [context.get_constant(types.intp, 0)])
+        return builder.atomic_rmw("add", ptr, context.get_constant(types.int64, 1), "monotonic")
+
+    return types.int64(queue), codegen
+
+
+_pool = None
+_pool_owner = None
+_pool_lock = threading.Lock()
+
+
+def _threads():
+    """This process's pool of helper threads (made on first use, again after a fork)."""
+    global _pool, _pool_owner
+    with _pool_lock:
+        if _pool is None or _pool_owner != os.getpid():
+            _pool = concurrent.futures.ThreadPoolExecutor(
+                max_workers=max(1, numba.config.NUMBA_NUM_THREADS - 1), thread_name_prefix="gibench-task")
+            _pool_owner = os.getpid()
+        return _pool
+
+
+def run_tasks(kernel, *args):
+    """Run ``kernel(*args, queue)`` on ``numba.get_num_threads()`` threads at once (the
+    caller's and helpers), all sharing one new task queue: the kernel, compiled with
+    ``nogil=True``, takes task numbers with :func:`take_task` until they run out, so each
+    task runs once, on whichever thread is free.  Returns once every thread is done; an
+    exception raised on any thread is raised here (the caller's first), after all of
+    them have stopped writing."""
+    if not kernel.targetoptions.get("nogil"):
+        raise TypeError(f"run_tasks: {kernel.py_func.__name__} must be compiled with nogil=True")
+    queue = np.zeros(1, np.int64)
+    helpers = [_threads().submit(kernel, *args, queue) for _ in range(numba.get_num_threads() - 1)]
+    try:
+        kernel(*args, queue)
+    finally:
+        concurrent.futures.wait(helpers)
+    for f in helpers:
+        f.result()
+
+
 @njit(cache=True)
 def task_stride(n):
-    """A stride s, coprime with ``n``, near n/φ (φ the golden ratio): iteration c of
-    ``prange(n)`` runs task c·s mod n (:func:`interleaved`), a bijection of 0..n−1.
+    """A stride s, coprime with ``n``, near n/φ (φ the golden ratio): task number c runs
+    task c·s mod n (:func:`interleaved`), a bijection of 0..n−1.
 
-    numba's default schedule hands each thread one contiguous block of the iterations;
-    with tasks in image order (tiles, pixels, chunks of eye rays) one thread would get the
-    top of the image — often the cheap sky — and another the bottom.  The golden-ratio
-    stride (a Weyl sequence) spreads every run of consecutive iterations over the whole
-    image, whatever the thread count.  Each task's result does not depend on the thread
-    that runs it."""
+    Tasks in image order (tiles, pixels, chunks of eye rays) differ in cost by region
+    (the sky is cheap); threads that take consecutive numbers would finish their last
+    tasks unevenly where a run of costly ones comes last.  The golden-ratio stride (a
+    Weyl sequence) spreads every run of consecutive numbers over the whole image,
+    whatever the thread count.  Each task's result does not depend on the thread that
+    runs it."""
     if n <= 2:
         return 1
     s = int(n * 0.6180339887498949)
@@ -104,5 +181,5 @@ def task_stride(n):
 
 @njit(inline="always", cache=True)
 def interleaved(c, n, stride):
-    """The task of iteration ``c`` of ``prange(n)`` with :func:`task_stride`'s ``stride``."""
+    """The task of task number ``c`` of ``n`` with :func:`task_stride`'s ``stride``."""
     return (c * stride) % n

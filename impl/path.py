@@ -154,7 +154,7 @@ import time
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene, scene_features
@@ -165,7 +165,7 @@ from .bsdf import to_local, to_world
 from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MaterialArrays,
                         expand_components, with_specular_textures)
 from .camera import camera_params
-from .kernel import batch_kernel, interleaved, task_stride
+from .kernel import batch_kernel, run_tasks, take_task
 from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_with_lights,
                              sample_light)
 from .lighting import diffuse_albedo, environment_radiance, surface_at
@@ -181,7 +181,7 @@ from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sam
                        spectral_arrays, spectrum_at, to_linear_srgb)
 from .tracer import (accumulate, Batch, closest_batch, DX, DY, DZ, eye_batch, Film, film_counters,
                      film_result, new_batch, new_film, occluded_batch, OX, OY, OZ, ray_config_cached,
-                     run_tiles, store, TMAX, TMIN)
+                     store, TMAX, TMIN)
 
 __all__ = ["render", "COUNTERS", "DEBUG_BIAS", "ALGORITHM"]
 
@@ -750,14 +750,15 @@ def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, 
     store(T, film, spp)
 
 
-@njit(parallel=True, cache=True)
+@njit(nogil=True, cache=True)
 def _render_kernel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig,
-                   S: SpectralArrays, P: PathConfig, film: Film, spp, seed):
-    n = film.packet.shape[0]
-    stride = task_stride(n)
-    for c in prange(n):
-        tile = interleaved(c, n, stride)
-        _tile(cam, A, L, B, R, S, P, film, tile, spp, seed)
+                   S: SpectralArrays, P: PathConfig, film: Film, spp, seed, queue):
+    """The film's tiles, taken from ``queue`` (:func:`impl.kernel.run_tasks`)."""
+    n = film.order.shape[0]
+    c = take_task(queue)
+    while c < n:
+        _tile(cam, A, L, B, R, S, P, film, film.order[c], spp, seed)
+        c = take_task(queue)
 
 
 # ------------------------------------------------------------- orchestration ---
@@ -820,7 +821,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
                    DEBUG_BIAS.index(debug_bias), params.get("sampler") == "sobol")
     film = new_film(W, H, len(COUNTERS), bool(params.get("packets", False)), sampler_code(params))
     t1 = time.perf_counter()
-    run_tiles(_render_kernel, cam, A, L, B, R, S, P, film, spp, seed)
+    run_tasks(_render_kernel, cam, A, L, B, R, S, P, film, spp, seed)
     t2 = time.perf_counter()
     counters = film_counters(film, COUNTERS)
     counters["mean_path_length"] = counters["segments"] / max(1, counters["paths"])

@@ -92,7 +92,7 @@ from core.errors import ParamError, UnsupportedError
 
 from .camera import camera_params, eye_ray
 from .intersect import closest_hit
-from .kernel import batch_kernel, interleaved, task_stride
+from .kernel import batch_kernel, run_tasks, take_task
 from .lighting import (LocalModel, diffuse_albedo, direct_batch, environment_radiance, local_model,
                        mapped_normal, store_point, surface_at)
 from .phong import PHONG_PARAMS
@@ -101,7 +101,7 @@ from .rays import RayConfig, refine
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, flatten_cached
 from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
-                     new_batch, new_film, OX, OY, OZ, ray_config_cached, run_tiles, store)
+                     new_batch, new_film, OX, OY, OZ, ray_config_cached, store)
 
 __all__ = ["render", "cast_primary", "ALGORITHM"]
 
@@ -167,13 +167,14 @@ def _tile(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, tile, sp
     store(T, film, spp)
 
 
-@njit(parallel=True, cache=True)
-def _render_kernel(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, spp, seed):
-    n = film.packet.shape[0]
-    stride = task_stride(n)
-    for c in prange(n):
-        tile = interleaved(c, n, stride)
-        _tile(cam, A, R, M, film, tile, spp, seed)
+@njit(nogil=True, cache=True)
+def _render_kernel(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, spp, seed, queue):
+    """The film's tiles, taken from ``queue`` (:func:`impl.kernel.run_tasks`)."""
+    n = film.order.shape[0]
+    c = take_task(queue)
+    while c < n:
+        _tile(cam, A, R, M, film, film.order[c], spp, seed)
+        c = take_task(queue)
 
 
 @njit(parallel=True, cache=True)
@@ -222,7 +223,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     packets = bool(params.get("packets", False))
     film = new_film(W, H, len(COUNTERS), packets, sampler_code(params))
     t1 = time.perf_counter()
-    run_tiles(_render_kernel, cam, A, R, local_model(params), film, spp, seed)
+    run_tasks(_render_kernel, cam, A, R, local_model(params), film, spp, seed)
     t2 = time.perf_counter()
     counters = {"camera_rays": int(W * H * spp), **film_counters(film, COUNTERS)}
     return film_result(film, spp, counters, t0, t1, t2)

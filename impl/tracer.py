@@ -24,8 +24,9 @@ chunk of secondary rays.  :class:`Pending` holds a tile's secondary rays by dept
 too are traced a batch at a time: :func:`push_pending` queues a child ray one
 level deeper, :func:`take_pending` moves up to a batch's worth of one level into
 a batch for :func:`closest_batch`.  A tracer module is thus its transport step plus a
-ten-line tile function and ``prange`` loop (numba cannot cache a kernel that
-takes or closes over another kernel, so the loop itself cannot live here).
+ten-line tile function and task loop (:func:`impl.kernel.run_tasks`; numba cannot
+cache a kernel that takes or closes over another kernel, so the loop itself cannot
+live here).
 
 Hit queries over a batch.  By brute force with the stable ray–sphere form
 (the default), :func:`closest_batch` and :func:`occluded_batch` run the
@@ -66,7 +67,6 @@ import math
 import time
 from typing import NamedTuple
 
-import numba
 import numpy as np
 from numba import njit
 from numba.extending import overload
@@ -90,7 +90,7 @@ DIM_LENS = 1 << 29
 
 __all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "film_result", "new_batch",
            "new_points", "first", "Pending", "new_pending", "push_pending", "take_pending",
-           "ray_config_cached", "run_tiles", "eye_batch", "closest_batch", "occluded_batch",
+           "ray_config_cached", "eye_batch", "closest_batch", "occluded_batch",
            "brute_force", "culled", "accumulate",
            "store", "OX", "OY", "OZ", "DX", "DY", "DZ", "TMIN", "TMAX"]
 
@@ -121,6 +121,7 @@ class Film(NamedTuple):
     packets: bool               # trace eye rays as packets
     tile: int                   # tile side in pixels
     sampler: int                # pixel sampler code (impl.sampling.PIXEL_*)
+    order: np.ndarray           # (tiles,) int64 tiles in the order the threads take them
 
 
 class Batch(NamedTuple):
@@ -184,9 +185,22 @@ def new_film(W: int, H: int, counters: int, packets: bool, sampler: int = 0) -> 
     samples placed by ``sampler`` (:func:`impl.sampling.pixel_sample`'s code).  Tiles are
     the packets' (``TILE``) with packets, else ``BATCH_TILE``."""
     ts = TILE if packets else BATCH_TILE
-    tiles = ((W + ts - 1) // ts) * ((H + ts - 1) // ts)
+    tx, ty = (W + ts - 1) // ts, (H + ts - 1) // ts
     return Film(np.zeros((H, W, 3)), np.zeros((H, W, 3)), np.zeros((H, W, counters), np.int64),
-                np.zeros((tiles, 2), np.int64), bool(packets), ts, int(sampler))
+                np.zeros((tx * ty, 2), np.int64), bool(packets), ts, int(sampler), centre_out(tx, ty))
+
+
+def centre_out(tx: int, ty: int) -> np.ndarray:
+    """The tiles of a tx × ty grid (row-major numbers) by their centre's distance from the
+    image centre, nearest first (ties in row-major order), as Mitsuba 3 hands out its
+    image blocks in a spiral from the centre (``src/render/spiral.cpp``).  Threads take
+    tiles in this order as each frees up (:func:`impl.kernel.run_tasks`): the subject of
+    a view, and with it the costly tiles (secondary rays, many primitives), tends to sit
+    near the centre, so the last tiles taken — which set how long the other threads
+    wait — tend to be the cheap ones at the border."""
+    x, y = np.meshgrid(np.arange(tx), np.arange(ty))
+    d2 = (2 * x - (tx - 1)) ** 2 + (2 * y - (ty - 1)) ** 2
+    return np.argsort(d2.ravel(), kind="stable").astype(np.int64)
 
 
 def film_result(film: Film, spp: int, counters: dict, t0: float, t1: float, t2: float, *,
@@ -211,16 +225,6 @@ def film_counters(film: Film, names) -> dict:
     if film.packets:
         out["packet_nodes"], out["packet_tests"] = (int(v) for v in film.packet.sum(axis=0))
     return out
-
-
-def run_tiles(kernel, *args):
-    """Call a tracer's tile kernel (a ``prange`` over the film's tiles) with one tile per
-    scheduling chunk, so each thread takes the next tile when it finishes one.  numba's
-    default hands each thread one equal block of tiles, and tiles differ in cost (a
-    tile of sky traces no shadow or secondary rays), so one thread would idle while
-    the other finishes its block."""
-    with numba.parallel_chunksize(1):
-        return kernel(*args)
 
 
 @njit(cache=True)

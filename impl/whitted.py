@@ -199,14 +199,14 @@ import time
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from core.algorithm import Algorithm, Param, RenderResult
 from core.scene import Scene
 from core.errors import ParamError
 
 from .camera import camera_params
-from .kernel import batch_kernel, interleaved, task_stride
+from .kernel import batch_kernel, run_tasks, take_task
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import (SHADOW_MODES, LocalModel, diffuse_albedo, direct_batch, environment_radiance,
                        local_model, map_weight, mapped_normal, store_point, surface_at)
@@ -218,7 +218,7 @@ from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten, flatten_cached, scene_memo
 from .tracer import (accumulate, Batch, closest_batch, DX, DY, DZ, eye_batch, first, Film,
                      film_counters, film_result,
-                     new_batch, new_film, new_points, OX, OY, OZ, ray_config_cached, run_tiles, store,
+                     new_batch, new_film, new_points, OX, OY, OZ, ray_config_cached, store,
                      TMAX, TMIN, Pending, new_pending, push_pending, take_pending)
 
 __all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "ALGORITHM"]
@@ -496,14 +496,15 @@ def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, m
         cut[y, x, 1] = K.cut[i, 1] / spp
 
 
-@njit(parallel=True, cache=True)
+@njit(nogil=True, cache=True)
 def _render_kernel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
-                   hall_threshold, film: Film, spp, seed, cut):
-    n = film.packet.shape[0]
-    stride = task_stride(n)
-    for c in prange(n):
-        tile = interleaved(c, n, stride)
-        _tile(cam, A, S, R, M, max_depth, hall_threshold, film, tile, spp, seed, cut)
+                   hall_threshold, film: Film, spp, seed, cut, queue):
+    """The film's tiles, taken from ``queue`` (:func:`impl.kernel.run_tasks`)."""
+    n = film.order.shape[0]
+    c = take_task(queue)
+    while c < n:
+        _tile(cam, A, S, R, M, max_depth, hall_threshold, film, film.order[c], spp, seed, cut)
+        c = take_task(queue)
 
 
 @njit(cache=True)
@@ -547,7 +548,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
                     sampler_code(params))
     cut = np.zeros((H, W, 2))
     t1 = time.perf_counter()
-    run_tiles(_render_kernel, cam, A, S, R, local_model(params, S), max_depth,
+    run_tasks(_render_kernel, cam, A, S, R, local_model(params, S), max_depth,
               float(params["hall_threshold"]), film, spp, seed, cut)
     t2 = time.perf_counter()
     counters = film_counters(film, COUNTERS)

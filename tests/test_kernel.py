@@ -16,7 +16,7 @@ from numba.core.errors import TypingError
 from impl import (accel, bsdf, light_sampling, lighting, path, projector, raycast, rays, shading_frame,
                   spectral, textures, tracer, whitted)
 from impl.accel import wide
-from impl.kernel import batch_kernel
+from impl.kernel import batch_kernel, run_tasks, take_task
 
 BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, lighting._delta_lanes,
                  lighting._copy_lane, lighting._add_lit, whitted._trees,
@@ -77,10 +77,10 @@ def test_a_batch_kernel_computes_what_the_runtime_version_does():
 
 @pytest.mark.parametrize("n", [1, 2, 3, 7, 12, 64, 300, 19200, 65536])
 def test_strided_task_order_visits_every_task_once_and_spreads_each_half(n):
-    """The parallel loops' task order (``impl.kernel.task_stride``): a bijection of
-    0..n−1, and each contiguous half of the iterations (what numba's static schedule
-    gives one of two threads) takes tasks from both halves of the image about evenly —
-    the image order (stride 1) gives one thread all of the top half."""
+    """The task loops' order (``impl.kernel.task_stride``): a bijection of 0..n−1, and
+    each contiguous half of the task numbers takes tasks from both halves of the image
+    about evenly — the image order (stride 1) gives the first half of the numbers all of
+    the top half."""
     from impl.kernel import interleaved, task_stride
 
     s = task_stride(n)
@@ -91,3 +91,70 @@ def test_strided_task_order_visits_every_task_once_and_spreads_each_half(n):
         assert abs((first < n // 2).mean() - 0.5) < 0.05
         naive = np.array([interleaved(c, n, 1) for c in range(n // 2)])   # image order
         assert (naive < n // 2).mean() == 1.0
+
+
+@njit(nogil=True, cache=True)
+def _count_tasks(n, taken, spin, queue):
+    """Task loop: task c adds one to ``taken[c]`` after ``spin`` dependent steps."""
+    c = take_task(queue)
+    while c < n:
+        x = 0.0
+        for k in range(spin):
+            x = x * 0.5 + k
+        taken[c] += 1 if x >= 0.0 else 2
+        c = take_task(queue)
+
+
+@njit(nogil=True, cache=True)
+def _fail_at(n, bad, done, queue):
+    c = take_task(queue)
+    while c < n:
+        if c == bad:
+            raise ValueError("task failed")
+        done[c] = 1
+        c = take_task(queue)
+
+
+@pytest.mark.parametrize("n, spin", [(0, 0), (1, 0), (5, 0), (200_000, 0), (2_000, 2_000)])
+def test_task_queue_runs_every_task_exactly_once(n, spin):
+    """``impl.kernel.run_tasks``: every thread takes numbers from one queue with an atomic
+    fetch-and-add, so each task runs once — a plain read-then-increment would let two
+    threads take the same number, which many tiny tasks (200 000 of them) would show."""
+    import numba
+
+    if numba.get_num_threads() < 2:
+        pytest.skip("one numba thread: no other thread to race")
+    for _ in range(3):                   # the first run may start the helper threads late
+        taken = np.zeros(n, np.int64)
+        run_tasks(_count_tasks, n, taken, spin)
+        assert (taken == 1).all()
+
+
+def test_task_queue_raises_a_kernel_error_after_every_thread_stopped():
+    """The thread that fails stops; the others run the remaining tasks to the end before
+    the error is raised, so nothing writes into the arrays after ``run_tasks`` returns."""
+    import numba
+
+    done = np.zeros(1000, np.int64)
+    with pytest.raises(ValueError, match="task failed"):
+        run_tasks(_fail_at, 1000, 500, done)
+    assert done[500] == 0
+    if numba.get_num_threads() >= 2:
+        assert done.sum() == 999
+
+
+def test_task_queue_refuses_a_kernel_that_holds_the_gil():
+    @njit
+    def holds(queue):
+        return None
+
+    with pytest.raises(TypeError, match="nogil"):
+        run_tasks(holds)
+
+
+def test_the_tracers_render_loops_are_task_loops():
+    """The tile tracers' render loops release the GIL (so :func:`impl.kernel.run_tasks`
+    runs them on every thread) and are not numba ``prange`` loops (whose outlined body
+    numba optimises again with the whole tracer linked in)."""
+    for fn in (raycast._render_kernel, whitted._render_kernel, path._render_kernel):
+        assert fn.targetoptions.get("nogil") and not fn.targetoptions.get("parallel")
