@@ -2,6 +2,7 @@
 (a Dask ``LocalCluster`` here); records flow back to the parent, which alone writes
 the results file and the history database."""
 
+import shutil
 import sqlite3
 
 import pytest
@@ -32,10 +33,16 @@ def _suite(tmp_path):
 
 
 def _run(tmp_path, name, *extra):
+    """One run of the suite against a copy of the repository's reference store under
+    ``tmp_path``: the committed entries are read from it, and whatever a run would
+    write (a re-render) stays in the copy."""
+    store = tmp_path / "store"
+    if not store.exists():
+        shutil.copytree(REPO_ROOT / "references" / "store", store)
     results = tmp_path / name / "results.jsonl"
     db = tmp_path / name / "h.sqlite"
     rc = cli.main(["run", str(_suite(tmp_path)), "--results", str(results), "--history", str(db),
-                   "--no-mitsuba-timing", "--no-progress", *extra])
+                   "--store", str(store), "--no-mitsuba-timing", "--no-progress", *extra])
     recs = ResultStore(results).load()
     rows = sqlite3.connect(db).execute("SELECT scene, metrics FROM results").fetchall()
     return rc, recs, rows
