@@ -162,15 +162,15 @@ def run_tasks(kernel, *args):
 
 @njit(cache=True)
 def task_stride(n):
-    """A stride s, coprime with ``n``, near n/φ (φ the golden ratio): task number c runs
-    task c·s mod n (:func:`interleaved`), a bijection of 0..n−1.
+    """A stride s, coprime with ``n``, near n/φ (φ the golden ratio): iteration c of
+    ``prange(n)`` runs task c·s mod n (:func:`interleaved`), a bijection of 0..n−1.
 
-    Tasks in image order (tiles, pixels, chunks of eye rays) differ in cost by region
-    (the sky is cheap); threads that take consecutive numbers would finish their last
-    tasks unevenly where a run of costly ones comes last.  The golden-ratio stride (a
-    Weyl sequence) spreads every run of consecutive numbers over the whole image,
-    whatever the thread count.  Each task's result does not depend on the thread that
-    runs it."""
+    numba's default schedule hands each thread one contiguous block of the iterations;
+    with tasks in image order (pixels, chunks of eye rays) one thread would get the
+    top of the image — often the cheap sky — and another the bottom.  The golden-ratio
+    stride (a Weyl sequence) spreads every run of consecutive iterations over the whole
+    image, whatever the thread count.  Each task's result does not depend on the thread
+    that runs it."""
     if n <= 2:
         return 1
     s = int(n * 0.6180339887498949)
@@ -181,5 +181,5 @@ def task_stride(n):
 
 @njit(inline="always", cache=True)
 def interleaved(c, n, stride):
-    """The task of task number ``c`` of ``n`` with :func:`task_stride`'s ``stride``."""
+    """The task of iteration ``c`` of ``prange(n)`` with :func:`task_stride`'s ``stride``."""
     return (c * stride) % n

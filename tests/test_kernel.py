@@ -77,10 +77,10 @@ def test_a_batch_kernel_computes_what_the_runtime_version_does():
 
 @pytest.mark.parametrize("n", [1, 2, 3, 7, 12, 64, 300, 19200, 65536])
 def test_strided_task_order_visits_every_task_once_and_spreads_each_half(n):
-    """The task loops' order (``impl.kernel.task_stride``): a bijection of 0..n−1, and
-    each contiguous half of the task numbers takes tasks from both halves of the image
-    about evenly — the image order (stride 1) gives the first half of the numbers all of
-    the top half."""
+    """The parallel loops' task order (``impl.kernel.task_stride``): a bijection of
+    0..n−1, and each contiguous half of the iterations (what numba's static schedule
+    gives one of two threads) takes tasks from both halves of the image about evenly —
+    the image order (stride 1) gives one thread all of the top half."""
     from impl.kernel import interleaved, task_stride
 
     s = task_stride(n)
