@@ -158,3 +158,16 @@ def test_the_tracers_render_loops_are_task_loops():
     numba optimises again with the whole tracer linked in)."""
     for fn in (raycast._render_kernel, whitted._render_kernel, path._render_kernel):
         assert fn.targetoptions.get("nogil") and not fn.targetoptions.get("parallel")
+
+
+@pytest.mark.parametrize("tx, ty", [(1, 1), (7, 5), (8, 6), (1, 9), (40, 30)])
+def test_tiles_are_handed_out_centre_first(tx, ty):
+    """``impl.tracer.centre_out``: every tile once, by non-decreasing distance of its
+    centre from the image centre (the last ones at the corners)."""
+    order = tracer.centre_out(tx, ty)
+    assert order.dtype == np.int64 and sorted(order) == list(range(tx * ty))
+    x, y = order % tx, order // tx
+    d2 = (2 * x - (tx - 1)) ** 2 + (2 * y - (ty - 1)) ** 2
+    assert (np.diff(d2) >= 0).all()
+    corners = {0, tx - 1, (ty - 1) * tx, tx * ty - 1}
+    assert order[-1] in corners
