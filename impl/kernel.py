@@ -53,8 +53,10 @@ other call sites pass: those calls pass a typed value.
 from __future__ import annotations
 
 import concurrent.futures
+import ctypes
 import math
 import os
+import queue
 import threading
 
 import llvmlite.binding as _llvm
@@ -125,38 +127,114 @@ def take_task(typingctx, queue):
     return types.int64(queue), codegen
 
 
-_pool = None
-_pool_owner = None
-_pool_lock = threading.Lock()
+class _Helper:
+    """A helper thread of :func:`run_tasks`: runs the calls put in its inbox, one at a time,
+    each with a :class:`concurrent.futures.Future` for its result.  ``tid`` is its
+    kernel thread id, for :func:`_place`."""
+
+    def __init__(self, k: int):
+        self.inbox = queue.SimpleQueue()
+        started = threading.Event()
+        self.tid = None
+        threading.Thread(target=self._loop, args=(started,), name=f"gibench-task-{k}",
+                         daemon=True).start()
+        started.wait()
+
+    def _loop(self, started: threading.Event) -> None:
+        self.tid = threading.get_native_id()
+        started.set()
+        while True:
+            fn, args, future = self.inbox.get()
+            if future.set_running_or_notify_cancel():
+                try:
+                    future.set_result(fn(*args))
+                except BaseException as exc:     # handed to the caller of run_tasks
+                    future.set_exception(exc)
+
+    def submit(self, fn, *args) -> concurrent.futures.Future:
+        future = concurrent.futures.Future()
+        self.inbox.put((fn, args, future))
+        return future
 
 
-def _threads():
-    """This process's pool of helper threads (made on first use, again after a fork)."""
-    global _pool, _pool_owner
-    with _pool_lock:
-        if _pool is None or _pool_owner != os.getpid():
-            _pool = concurrent.futures.ThreadPoolExecutor(
-                max_workers=max(1, numba.config.NUMBA_NUM_THREADS - 1), thread_name_prefix="gibench-task")
-            _pool_owner = os.getpid()
-        return _pool
+_helpers: list = []
+_helpers_owner = None
+_helpers_lock = threading.Lock()
+
+
+def _threads(n: int) -> list:
+    """``n`` helper threads of this process (made on first use, again after a fork)."""
+    global _helpers, _helpers_owner
+    with _helpers_lock:
+        if _helpers_owner != os.getpid():
+            _helpers, _helpers_owner = [], os.getpid()
+        while len(_helpers) < n:
+            _helpers.append(_Helper(len(_helpers)))
+        return _helpers[:n]
+
+
+def _current_cpu():
+    """The C library's ``sched_getcpu`` (the processor the calling thread runs on), or
+    None where there is none."""
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).sched_getcpu
+    except (AttributeError, OSError):
+        return None
+    fn.restype = ctypes.c_int
+    fn.argtypes = []
+    return fn
+
+
+_getcpu = _current_cpu() if hasattr(os, "sched_setaffinity") else None
+
+
+def _place(helpers: list) -> None:
+    """Give each helper a processor of its own, other than the caller's, before it is
+    woken: each helper's affinity is set to one processor of the caller's affinity mask
+    that the caller is not running on.  Left to the scheduler (every helper's mask reset
+    to the caller's) where the mask has too few processors or the platform cannot pin.
+
+    Why: a woken thread can be queued on the processor of the thread that woke it, and
+    the caller is then busy in the kernel on that processor, so the helper waits for
+    its time slice or for the load balancer to move it, a wait as long as a small
+    render.  OpenMP places its threads likewise on request (``OMP_PROC_BIND``).  The
+    caller itself is not pinned, and the task queue still balances the work if another
+    process holds a helper's processor."""
+    if _getcpu is None or not helpers:
+        return
+    try:
+        allowed = os.sched_getaffinity(0)
+        here = _getcpu()
+        others = sorted(allowed - {here})
+        if here < 0 or len(others) < len(helpers):
+            for h in helpers:
+                os.sched_setaffinity(h.tid, allowed)
+            return
+        for h, cpu in zip(helpers, others):
+            os.sched_setaffinity(h.tid, {cpu})
+    except OSError:                 # a processor taken offline, a sandbox refusing: unplaced
+        return
 
 
 def run_tasks(kernel, *args):
     """Run ``kernel(*args, queue)`` on ``numba.get_num_threads()`` threads at once (the
-    caller's and helpers), all sharing one new task queue: the kernel, compiled with
-    ``nogil=True``, takes task numbers with :func:`take_task` until they run out, so each
-    task runs once, on whichever thread is free.  Returns once every thread is done; an
-    exception raised on any thread is raised here (the caller's first), after all of
-    them have stopped writing."""
+    caller's and helpers, each helper on a processor of its own, :func:`_place`), all
+    sharing one new task queue: the kernel, compiled with ``nogil=True``, takes task
+    numbers with :func:`take_task` until they run out, so each task runs once, on
+    whichever thread is free.  Returns once every thread is done; an exception raised
+    on any thread is raised here (the caller's first), after all of them have stopped
+    writing."""
     if not kernel.targetoptions.get("nogil"):
         raise TypeError(f"run_tasks: {kernel.py_func.__name__} must be compiled with nogil=True")
-    queue = np.zeros(1, np.int64)
-    helpers = [_threads().submit(kernel, *args, queue) for _ in range(numba.get_num_threads() - 1)]
+    tasks = np.zeros(1, np.int64)
+    helpers = _threads(numba.get_num_threads() - 1)
+    _place(helpers)
+    futures = [h.submit(kernel, *args, tasks) for h in helpers]
     try:
-        kernel(*args, queue)
+        kernel(*args, tasks)
     finally:
-        concurrent.futures.wait(helpers)
-    for f in helpers:
+        concurrent.futures.wait(futures)
+    for f in futures:
         f.result()
 
 

@@ -143,6 +143,58 @@ def test_task_queue_raises_a_kernel_error_after_every_thread_stopped():
         assert done.sum() == 999
 
 
+def _placeable():
+    import os
+
+    from impl import kernel
+
+    return kernel._getcpu is not None and len(os.sched_getaffinity(0)) >= 2
+
+
+@pytest.mark.skipif(not _placeable(), reason="needs sched_getcpu and two processors to pin to")
+def test_helpers_run_on_processors_other_than_the_callers():
+    """Before the helpers are woken each is pinned to one processor of the caller's mask
+    that the caller is not on (a helper woken onto the caller's busy processor waits for
+    a time slice there)."""
+    import os
+
+    from impl import kernel
+
+    helpers = kernel._threads(1)
+    allowed = os.sched_getaffinity(0)
+    apart = 0
+    for _ in range(5):                   # the caller may move between the two reads
+        kernel._place(helpers)
+        mask = os.sched_getaffinity(helpers[0].tid)
+        assert len(mask) == 1 and mask <= allowed
+        apart += mask != {kernel._getcpu()}
+    assert apart >= 4
+
+
+@pytest.mark.skipif(not _placeable(), reason="needs sched_getcpu and two processors to pin to")
+def test_helpers_are_left_unpinned_when_the_caller_has_one_processor():
+    """A caller confined to one processor leaves its helpers that processor's mask (no
+    other to pin them to), and the tasks still run once each."""
+    import os
+
+    import numba
+
+    from impl import kernel
+
+    before = os.sched_getaffinity(0)
+    one = {min(before)}
+    helpers = kernel._threads(max(1, numba.get_num_threads() - 1))
+    try:
+        os.sched_setaffinity(0, one)
+        kernel._place(helpers)
+        assert all(os.sched_getaffinity(h.tid) == one for h in helpers)
+        taken = np.zeros(5000, np.int64)
+        run_tasks(_count_tasks, 5000, taken, 10)
+        assert (taken == 1).all()
+    finally:
+        os.sched_setaffinity(0, before)
+
+
 def test_task_queue_refuses_a_kernel_that_holds_the_gil():
     @njit
     def holds(queue):
