@@ -466,8 +466,9 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
     Raises
     ------
     UnsupportedError
-        A texture other than a bitmap as opacity or blend weight; anisotropic roughness
-        under a normal or bump map (the perturbed frame's tangent is not modelled).
+        A texture other than a bitmap or checkerboard as opacity, blend weight or
+        roughness; anisotropic roughness under a normal or bump map (the perturbed
+        frame's tangent is not modelled).
     """
     from .scene_arrays import FILTER_CODES, TEX_BITMAP, TEX_CHECKERBOARD, WRAP_CODES
 

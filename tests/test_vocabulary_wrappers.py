@@ -2,13 +2,15 @@
 the path tracer.
 
 * Each of ``suites/vocabulary/thindielectric.xml``, ``blendbsdf.xml``,
-  ``mask.xml`` and ``textured_roughness.xml`` passes the per-pixel Z-test against Mitsuba's ``path`` (own 256
-  spp against 1024 spp × 8 passes), and the mean of each third of the image
-  lies within 4 standard errors of Mitsuba's.
+  ``mask.xml``, ``textured_roughness.xml`` and ``checker_wrappers.xml`` (a
+  checkerboard as a mask's opacity and as a blend weight) passes the per-pixel
+  Z-test against Mitsuba's ``path`` (own 256 spp against 1024 spp × 8 passes),
+  and the mean of each third of the image lies within 4 standard errors of
+  Mitsuba's.
 * Negative controls: the same renders with the feature ignored or mis-modelled
   fail the Z-test — the thin dielectrics drawn as solid ``dielectric``\\ s, the
   blend weights swapped (w ↔ 1 − w), the masks ignored (opacity 1), the
-  roughness textures replaced by their means.
+  roughness textures and the wrappers' checkerboards replaced by their means.
 * The other algorithms still refuse the four by name (anisotropic roughness:
   ``tests/test_vocabulary_anisotropic.py``).
 * The thin dielectric's reflection probability is Mitsuba's 2R/(1 + R).
@@ -30,7 +32,7 @@ from gibench import registry
 
 VOCAB = Path(__file__).resolve().parent.parent / "suites" / "vocabulary"
 SCENES = {name: VOCAB / f"{name}.xml" for name in ("thindielectric", "blendbsdf", "mask",
-                                                    "textured_roughness")}
+                                                    "textured_roughness", "checker_wrappers")}
 
 
 def _thin_as_dielectric(m):
@@ -54,9 +56,21 @@ def _roughness_as_mean(m):
                                                       "alpha": _scalar_texture_mean(m.textures["alpha"])})
 
 
+def _checkers_as_means(m):
+    """A mask's opacity and a blend weight given as checkerboards replaced by their means."""
+    from impl.materials import _scalar_texture_mean
+
+    if m.opacity is not None and m.opacity["type"] == "checkerboard":
+        m = dataclasses.replace(m, opacity={"type": "constant", "value": _scalar_texture_mean(m.opacity)})
+    w = m.textures.get("weight")
+    if m.kind == "blendbsdf" and w is not None and w["type"] == "checkerboard":
+        m = dataclasses.replace(m, textures={}, params={**m.params, "weight": _scalar_texture_mean(w)})
+    return m
+
+
 #: Per scene, the mis-modelling the Z-test must reject.
 WRONG = {"thindielectric": _thin_as_dielectric, "blendbsdf": _weights_swapped, "mask": _mask_ignored,
-         "textured_roughness": _roughness_as_mean}
+         "textured_roughness": _roughness_as_mean, "checker_wrappers": _checkers_as_means}
 
 
 @pytest.mark.mitsuba
@@ -81,7 +95,8 @@ def test_the_ztest_rejects_the_feature_mis_modelled(name):
 
 @pytest.mark.parametrize("name, feature", [("thindielectric", "thindielectric"),
                                            ("blendbsdf", "blendbsdf"), ("mask", "mask"),
-                                           ("textured_roughness", "textured roughness")])
+                                           ("textured_roughness", "textured roughness"),
+                                           ("checker_wrappers", "mask")])
 def test_other_algorithms_refuse_them_by_name(name, feature):
     scene = load_scene(SCENES[name])
     for algo_name in ("raycast", "whitted", "distributed", "zbuffer", "radiosity"):
