@@ -469,8 +469,15 @@ def spot_falloff(wx, wy, wz, local, li, cos_cutoff, cos_beam, cutoff, inv_tw):
     if cos_t > cos_cutoff:
         f = 1.0
         if cos_t < cos_beam:
-            f = (cutoff - math.acos(min(cos_t, 1.0))) * inv_tw
+            f = cone_edge(cos_t, cutoff, inv_tw)
     return f
+
+
+@njit(inline="always", cache=True)
+def cone_edge(cos_t, cutoff, inv_tw):
+    """A spot's profile between its beam width and its cutoff angle (:func:`spot_falloff`):
+    (cutoff − θ) / (cutoff − beam width), θ = acos(cos_t), ``inv_tw`` = 1 / (cutoff − beam width)."""
+    return (cutoff - math.acos(min(cos_t, 1.0))) * inv_tw
 
 
 @njit(inline="always", cache=True)
@@ -922,8 +929,8 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
 
 
 #: A point's state for one delta light in :func:`_delta_light_lanes` (``Batch.sh_i``): no
-#: light, lit (pending its shadow ray), or in a spot's transition band (lit by the scalar
-#: :func:`delta_sample`, whose ``acos`` does not vectorise).
+#: light, lit (pending its shadow ray), or in a spot's transition band (its profile,
+#: :func:`cone_edge`, left to a loop over those points: its ``acos`` does not vectorise).
 _DARK, _LIT, _BAND = 0, 1, 2
 
 
@@ -953,17 +960,13 @@ def _delta_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, li, nshad
                  sh[5, :n], sh[6, :n], sh[7, :n], w[0, :n], w[1, :n], w[2, :n], flag[:n])
     lit, first = 0, -1
     for i in range(n):
-        if flag[i] == _BAND:             # the spot's cone edge: the scalar sample
-            ok, lx, ly, lz, wt, kd, spec = delta_sample(
-                kind, A.light_pos[li, 0], A.light_pos[li, 1], A.light_pos[li, 2], A.light_dir[li, 0],
-                A.light_dir[li, 1], A.light_dir[li, 2], A.light_local, li, A.light_cos_cutoff[li],
-                A.light_cos_beam[li], A.light_cutoff[li], A.light_inv_tw[li], P[0, i], P[1, i], P[2, i],
-                P[6, i], P[7, i], P[8, i], P[9, i], P[10, i], P[11, i], 0.0, M.shininess, M.c1, M.c2,
-                M.c3, M.fclamp)
-            flag[i] = _LIT if ok else _DARK
-            w[0, i] = wt * A.light_rad[li, 0] * (kd * P[12, i] + spec)
-            w[1, i] = wt * A.light_rad[li, 1] * (kd * P[13, i] + spec)
-            w[2, i] = wt * A.light_rad[li, 2] * (kd * P[14, i] + spec)
+        if flag[i] == _BAND:             # the spot's cone edge: (attenuation, kd, cos θ) in w
+            f = cone_edge(w[2, i], A.light_cutoff[li], A.light_inv_tw[li])
+            flag[i] = _LIT if f != 0.0 else _DARK
+            wt, kd = w[0, i] * f, w[1, i]
+            w[0, i] = wt * A.light_rad[li, 0] * (kd * P[12, i])
+            w[1, i] = wt * A.light_rad[li, 1] * (kd * P[13, i])
+            w[2, i] = wt * A.light_rad[li, 2] * (kd * P[14, i])
         if flag[i] == _LIT and P[SP_MAP, i] != MAP_NONE:       # under a normal or bump map
             if kind == LIGHT_DIRECTIONAL:
                 lx, ly, lz = -A.light_dir[li, 0], -A.light_dir[li, 1], -A.light_dir[li, 2]
@@ -1146,7 +1149,9 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
     shadow ray of :func:`shadow_towards` (:func:`shadow_along` for a directional light)
     into ``ox``..``tmax`` and the state (``_DARK``, ``_LIT``, ``_BAND``) into ``flag`` —
     the same operations as those functions, selects for their branches, so LLVM
-    vectorises the loop.  ``m`` is the spot's world-to-local map, ``g`` an array of the
+    vectorises the loop.  A ``_BAND`` point's profile is not applied here: ``wr``, ``wg``,
+    ``wb`` hold its attenuation, kd and cos θ, for :func:`cone_edge` and the contribution
+    after it.  ``m`` is the spot's world-to-local map, ``g`` an array of the
     intersection precision (the origin's offset is computed in it, :func:`impl.rays.leave`)."""
     for i in range(px.shape[0]):
         p_x, p_y, p_z = px[i], py[i], pz[i]
@@ -1159,7 +1164,7 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
         ly = -ldy if directional else ly
         lz = -ldz if directional else lz
         wt = 1.0 if directional else wt
-        inside, band = True, False
+        inside, band, cos_t = True, False, 1.0
         if spot:        # spot_falloff: in the cone (beyond its beam: the band, left to the scalar path)
             ax = m00 * -lx + m01 * -ly + m02 * -lz
             ay = m10 * -lx + m11 * -ly + m12 * -lz
@@ -1170,9 +1175,9 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
         cos_l, cos_v, kd = _lane_diffuse(sx[i], sy[i], sz[i], vx[i], vy[i], vz[i], lx, ly, lz)
         lit = active[i] & inside & (cos_l > 0.0) & (cos_v > 0.0) & (kd != 0.0)
         flag[i] = (_BAND if band else _LIT) if lit else _DARK
-        wr[i] = wt * ir * (kd * rho_r[i])
-        wg[i] = wt * ig * (kd * rho_g[i])
-        wb[i] = wt * ib * (kd * rho_b[i])
+        wr[i] = wt if band else wt * ir * (kd * rho_r[i])
+        wg[i] = kd if band else wt * ig * (kd * rho_g[i])
+        wb[i] = cos_t if band else wt * ib * (kd * rho_b[i])
         # the shadow ray leaves p on the side of l (along l for a directional light)
         ox[i], oy[i], oz[i], tmin[i], hx, hy, hz, hd = _lane_shadow_ray(
             strategy, g, eps, p_x, p_y, p_z, gx[i], gy[i], gz[i], lx, ly, lz, lpx, lpy, lpz)
