@@ -1165,7 +1165,7 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
         lz = -ldz if directional else lz
         wt = 1.0 if directional else wt
         inside, band, cos_t = True, False, 1.0
-        if spot:        # spot_falloff: in the cone (beyond its beam: the band, left to the scalar path)
+        if spot:        # spot_falloff: in the cone (beyond its beam: the band, its profile left to cone_edge)
             ax = m00 * -lx + m01 * -ly + m02 * -lz
             ay = m10 * -lx + m11 * -ly + m12 * -lz
             az = m20 * -lx + m21 * -ly + m22 * -lz
