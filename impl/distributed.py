@@ -75,6 +75,10 @@ as a model error (suites/distributed.toml).
 
 Glossy surfaces receive light only along their sampled rays (an area emitter
 hit by the continuing ray adds its emission); delta lights do not light them.
+Diffuse hits take their light from :func:`impl.lighting.direct_light_rays`, the
+ray casting's: a projector's image and a spot's ``texture`` included
+(:func:`impl.lighting.delta_filter`); Hall's light-source terms leave those
+images out, and ``shading=hall`` refuses a scene that has one.
 With ``g=smith`` this is what the matched reference
 (:mod:`references.whitted_integrator`, which follows glossy lobes by
 ``bsdf.sample``) computes.
@@ -1100,6 +1104,13 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     from scipy.stats import norm
 
     _check(params)
+    if params["shading"] == "hall":
+        for light in scene.lights:
+            if light.kind == "projector" or light.texture is not None:
+                raise UnsupportedError(
+                    f"distributed: shading=hall: Hall's light-source terms model point, spot and "
+                    f"directional lights; {light.kind} emitter '{light.name or '?'}' has an image "
+                    "(a projector's or a spot's texture), which they leave out")
     S = material_arrays(scene, algorithm="distributed", model="the distributed ray tracer",
                         kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric",
                                "gibench_cooktorrance", "gibench_difftrans"))
@@ -1206,5 +1217,5 @@ ALGORITHM = Algorithm(
     ),
     render=render,
     models=frozenset({"camera motion", "mesh motion", "envmap", "gibench_cooktorrance",
-                      "gibench_difftrans"}),
+                      "gibench_difftrans", "projector", "spot texture"}),
 )

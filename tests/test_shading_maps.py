@@ -6,8 +6,8 @@
   ``maps_direct.xml`` (``raycast``: both maps over diffuse surfaces) and
   ``maps_whitted.xml`` (``whitted``: a normal-mapped mirror and a bump-mapped glass
   sheet), and ``projector.xml`` and ``spot_texture_direct.xml`` (``path``,
-  ``raycast``, ``whitted``) pass the per-pixel Z-test against Mitsuba on the same
-  XML, and each image's thirds agree in the mean;
+  ``raycast``, ``whitted``, ``distributed``) pass the per-pixel Z-test against
+  Mitsuba on the same XML, and each image's thirds agree in the mean;
 * negative controls, each of which must fail the Z-test: the normal map ignored,
   the normal map with its tangent t negated (the green channel inverted), the
   panels seen from behind with the normal map's order around ``twosided``
@@ -65,7 +65,7 @@ def test_bitmap_grad_is_the_derivative_of_the_bilinear_luminance(wrap):
 
 # ------------------------------------------------------------ Z-tests ---
 
-_TRANSPORT = {"path": "full", "raycast": "direct", "whitted": "whitted"}
+_TRANSPORT = {"path": "full", "raycast": "direct", "whitted": "whitted", "distributed": "whitted"}
 
 
 def _render(algorithm: str, scene_path: Path, scene=None, spp: int = 256):
@@ -75,7 +75,7 @@ def _render(algorithm: str, scene_path: Path, scene=None, spp: int = 256):
     ref = get_reference(scene_path, transport=_TRANSPORT[algorithm], spp=1024, passes=8)
     scene = load_scene(scene_path) if scene is None else scene
     params = {"spp": spp}
-    if algorithm in ("raycast", "whitted"):
+    if algorithm in ("raycast", "whitted", "distributed"):
         params["light_samples"] = 1
     if algorithm == "path" and "max_depth" in scene.integrator:
         params["max_depth"] = scene.integrator["max_depth"]     # what the reference renders
@@ -93,11 +93,13 @@ def _z(ref, own):
 @pytest.mark.parametrize("algorithm, scene_path", [("path", NORMALMAP), ("path", BUMPMAP),
                                                    ("raycast", MAPS_DIRECT), ("whitted", MAPS_WHITTED),
                                                    ("path", PROJECTOR), ("raycast", PROJECTOR),
-                                                   ("whitted", PROJECTOR), ("path", SPOT), ("raycast", SPOT),
-                                                   ("whitted", SPOT)],
+                                                   ("whitted", PROJECTOR), ("distributed", PROJECTOR),
+                                                   ("path", SPOT), ("raycast", SPOT), ("whitted", SPOT),
+                                                   ("distributed", SPOT)],
                          ids=["path-normalmap", "path-bumpmap", "raycast-maps", "whitted-maps",
-                              "path-projector", "raycast-projector", "whitted-projector", "path-spot",
-                              "raycast-spot", "whitted-spot"])
+                              "path-projector", "raycast-projector", "whitted-projector",
+                              "distributed-projector", "path-spot", "raycast-spot", "whitted-spot",
+                              "distributed-spot"])
 def test_scene_passes_the_ztest_against_mitsuba(algorithm, scene_path):
     """Per pixel (Z-test) and per third of the image (|z| < 4 for each third's mean):
     the own tracer agrees with Mitsuba's matching integrator on the same XML; a 3 %
@@ -176,12 +178,14 @@ def _untextured(scene):
     ("raycast", PROJECTOR, _mirrored_slide),
     ("raycast", SPOT, _mirrored_slide),
     ("whitted", SPOT, _untextured),
+    ("distributed", PROJECTOR, _mirrored_slide),
+    ("distributed", SPOT, _untextured),
 ], ids=["normalmap-ignored", "normalmap-tangent-negated", "normalmap-twosided-order-swapped",
         "bumpmap-ignored", "bumpmap-scale-negated", "raycast-normalmap-tangent-negated",
         "raycast-twosided-order-swapped", "raycast-bumpmap-scale-negated", "whitted-mirror-map-ignored",
         "whitted-glass-bumpmap-scale-negated",
         "path-projector-mirrored", "raycast-projector-mirrored", "raycast-spot-mirrored",
-        "whitted-spot-untextured"])
+        "whitted-spot-untextured", "distributed-projector-mirrored", "distributed-spot-untextured"])
 def test_the_ztest_rejects_a_wrong_rendering(algorithm, scene_path, wrong):
     """Each deliberately wrong rendering of the scene fails the Z-test."""
     ref, own = _render(algorithm, scene_path, scene=wrong(load_scene(scene_path)))
@@ -194,12 +198,21 @@ def test_the_ztest_rejects_a_wrong_rendering(algorithm, scene_path, wrong):
 
 @pytest.mark.parametrize("algorithm, scene_path, feature", [
     ("zbuffer", MAPS_DIRECT, "normalmap"), ("depthsort", BUMPMAP, "bumpmap"),
-    ("distributed", NORMALMAP, "normalmap"), ("distributed", PROJECTOR, "projector"),
-    ("radiosity", PROJECTOR, "projector")])
+    ("distributed", NORMALMAP, "normalmap"), ("radiosity", PROJECTOR, "projector")])
 def test_algorithms_refuse_what_they_do_not_model_by_name(algorithm, scene_path, feature):
     algo = registry.get(algorithm)
     with pytest.raises(UnsupportedError, match=f"uses '{feature}', which {algorithm} does not model"):
         algo.render(load_scene(scene_path), algo.parse_params({}), seed=0)
+
+
+@pytest.mark.parametrize("scene_path, kind", [(PROJECTOR, "projector"), (SPOT, "spot")])
+def test_halls_shading_refuses_a_lights_image_by_name(scene_path, kind):
+    """distributed models a projector's image and a spot's texture at diffuse hits, but
+    Hall's light-source terms at specular ones leave them out: shading=hall refuses the
+    scene, naming the emitter, before anything is rendered."""
+    algo = registry.get("distributed")
+    with pytest.raises(UnsupportedError, match=f"shading=hall: .*{kind} emitter '.*' has an image"):
+        algo.render(load_scene(scene_path), algo.parse_params({"shading": "hall"}), seed=0)
 
 
 def test_spectral_path_refuses_the_projector():
