@@ -1107,10 +1107,13 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     if params["shading"] == "hall":
         for light in scene.lights:
             if light.kind == "projector" or light.texture is not None:
+                which = f"{light.kind} emitter '{light.name}'" if light.name else f"a {light.kind} emitter"
+                if getattr(scene, "path", None):
+                    which += f" of {scene.path}"
                 raise UnsupportedError(
                     f"distributed: shading=hall: Hall's light-source terms model point, spot and "
-                    f"directional lights; {light.kind} emitter '{light.name or '?'}' has an image "
-                    "(a projector's or a spot's texture), which they leave out")
+                    f"directional lights; {which} has an image (a projector's or a spot's "
+                    "texture), which they leave out")
     S = material_arrays(scene, algorithm="distributed", model="the distributed ray tracer",
                         kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric",
                                "gibench_cooktorrance", "gibench_difftrans"))
