@@ -56,12 +56,12 @@ def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6), jobs: int
     command renderers) are skipped: they compile nothing of gibench's.
     ``algorithms`` (names) restricts it to those, ``precisions`` to the cases whose
     ``precision`` parameter (None where the algorithm has none) is among them.  With
-    ``jobs`` > 1 each (algorithm, precision) pair goes to one of ``jobs`` worker
-    processes as they free up, those with the largest kernels first
-    (:data:`_COMPILE_ORDER`): numba compiles on one core and per argument type, so a
+    ``jobs`` > 1 the (algorithm, precision) pairs go to ``jobs`` worker processes as
+    they free up, the tile tracers of one precision together and the longest compiles
+    first (:func:`_warm_tasks`): numba compiles on one core and per argument type, so a
     float32 ray configuration compiles a tracer's kernels again, apart from its
-    float64 ones (the shared ones compile in each process that needs them; numba's
-    cache writes are atomic).
+    float64 ones (kernels shared across tasks compile in each process that needs them
+    before they are cached; numba's cache writes are atomic).
     Returns one row per render: scene, algorithm, seconds, error.
     """
     if jobs > 1:
@@ -107,36 +107,62 @@ def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6), jobs: int
 
 
 #: The built-in algorithms with the largest kernels (longest cold compiles) first: the
-#: order in which :func:`warm_up` hands them to its worker processes (their default
-#: precision first, then the others' tasks in the same order).
+#: order in which :func:`warm_up` hands its tasks to its worker processes.
 _COMPILE_ORDER = ("path", "distributed", "whitted", "raycast", "radiosity")
 
+#: Algorithms that share most of their kernels (the tile tracers' eye rays, batch queries
+#: and light lanes): at one precision they warm up in one task, one after the other in one
+#: process, so that the second loads the shared kernels from the cache the first filled
+#: instead of compiling them at the same time in another process.
+_SHARED_KERNELS = (("whitted", "raycast"),)
 
-def _warm_algorithm(suite_paths, size, name, precision) -> list[dict]:
-    """:func:`warm_up` of one algorithm at one precision, silent (a worker process's task)."""
-    return warm_up(suite_paths, log=None, size=size, algorithms={name}, precisions={precision})
+
+def _warm_algorithm(suite_paths, size, names, precision) -> list[dict]:
+    """:func:`warm_up` of some algorithms at one precision, silent (a worker process's
+    task), in the order of ``names``."""
+    rows = []
+    for name in names:
+        rows += warm_up(suite_paths, log=None, size=size, algorithms={name}, precisions={precision})
+    return rows
+
+
+def _warm_tasks(pairs) -> list[tuple[tuple[str, ...], object]]:
+    """The worker tasks of the (algorithm, precision) pairs ``pairs``: the algorithms of a
+    :data:`_SHARED_KERNELS` group at one precision in one task, the others one each.
+    Tasks at a precision other than float64 come first: the suites render the other
+    algorithms in float64 too, so such a task's kernels share nothing with the other
+    tasks' and compile longest; then :data:`_COMPILE_ORDER`."""
+    rank = {a: i for i, a in enumerate(_COMPILE_ORDER)}
+    group = {a: g for g in _SHARED_KERNELS for a in g}
+    tasks = {}
+    for name, prec in pairs:
+        members = group.get(name, (name,))
+        key = (members, prec)
+        tasks.setdefault(key, set()).add(name)
+    out = [(tuple(a for a in members if a in names), prec) for (members, prec), names in tasks.items()]
+    return sorted(out, key=lambda t: (t[1] in (None, "float64"), min(rank.get(a, len(rank)) for a in t[0]),
+                                      t[0], str(t[1])))
 
 
 def _warm_up_parallel(suite_paths, size, jobs, log) -> list[dict]:
-    """:func:`warm_up` over ``jobs`` worker processes, one algorithm per task."""
+    """:func:`warm_up` over ``jobs`` worker processes, one task (:func:`_warm_tasks`) at a
+    time each."""
     from concurrent.futures import ProcessPoolExecutor
     import multiprocessing
 
     from . import registry
     from .suite import load_suite
 
-    tasks = set()
+    pairs = set()
     for p in suite_paths:
         for c in load_suite(p).cases:
             if registry.origin(c.algorithm)["source"] == "builtin":
                 algo = registry.get(c.algorithm)
-                tasks.add((algo.name, algo.parse_params(c.params).get("precision")))
-    rank = {a: i for i, a in enumerate(_COMPILE_ORDER)}
-    tasks = sorted(tasks, key=lambda t: (t[1] not in (None, "float64"), rank.get(t[0], len(rank)),
-                                         t[0], str(t[1])))
+                pairs.add((algo.name, algo.parse_params(c.params).get("precision")))
+    tasks = _warm_tasks(pairs)
     rows = []
     with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(_warm_algorithm, suite_paths, size, a, prec) for a, prec in tasks]
+        futures = [pool.submit(_warm_algorithm, suite_paths, size, names, prec) for names, prec in tasks]
         for f in futures:
             part = f.result()
             rows += part

@@ -79,3 +79,19 @@ def test_warm_up_in_worker_processes_renders_the_same_cases(scenes, capsys):
     assert len(lines) == 3
     code, out, _ = run_cli(capsys, "warmup", manifest, "--jobs", "2")
     assert code == 1 and "warmup: 3 renders" in out and "(2 processes)" in out and "1 failed" in out
+
+
+def test_tile_tracers_of_one_precision_warm_up_in_one_task_other_precisions_first():
+    """raycast and whitted share most kernels: at one precision they are one task (one
+    process, whitted first, so raycast loads the shared kernels from the cache); the
+    float32 task, whose kernels no float64 task shares, is handed out first."""
+    from gibench.runner import _warm_tasks
+
+    pairs = {("path", "float64"), ("distributed", "float64"), ("whitted", "float64"),
+             ("raycast", "float64"), ("radiosity", None), ("zbuffer", None), ("whitted", "float32"),
+             ("raycast", "float32")}
+    assert _warm_tasks(pairs) == [(("whitted", "raycast"), "float32"), (("path",), "float64"),
+                                  (("distributed",), "float64"), (("whitted", "raycast"), "float64"),
+                                  (("radiosity",), None), (("zbuffer",), None)]
+    assert _warm_tasks({("raycast", "float32"), ("zbuffer", None)}) == [(("raycast",), "float32"),
+                                                                         (("zbuffer",), None)]
