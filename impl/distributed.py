@@ -202,7 +202,7 @@ import numpy as np
 from numba import njit, prange
 
 from core.algorithm import Algorithm, Param, RenderResult
-from core.scene import Scene
+from core.scene import Scene, scene_features
 from core.errors import ParamError, UnsupportedError
 
 from .accel.packets import NOT_TRACED, packet_buffers, packet_hits, tile_count, tile_rect
@@ -1105,14 +1105,13 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
 
     _check(params)
     if params["shading"] == "hall":
-        for light in scene.lights:
-            if light.kind == "projector" or light.texture is not None:
-                which = f"{light.kind} emitter '{light.name}'" if light.name else f"a {light.kind} emitter"
-                if getattr(scene, "path", None):
-                    which += f" of {scene.path}"
+        found = scene_features(scene)
+        for feature in ("projector", "spot texture"):
+            if feature in found:
+                where = found[feature] + (f" of {scene.path}" if getattr(scene, "path", None) else "")
                 raise UnsupportedError(
                     f"distributed: shading=hall: Hall's light-source terms model point, spot and "
-                    f"directional lights; {which} has an image (a projector's or a spot's "
+                    f"directional lights; {where} has an image (a projector's or a spot's "
                     "texture), which they leave out")
     S = material_arrays(scene, algorithm="distributed", model="the distributed ray tracer",
                         kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric",
