@@ -223,3 +223,51 @@ def test_tiles_are_handed_out_centre_first(tx, ty):
     assert (np.diff(d2) >= 0).all()
     corners = {0, tx - 1, (ty - 1) * tx, tx * ty - 1}
     assert order[-1] in corners
+
+
+def test_the_collector_is_relaxed_during_a_compile_and_restored_after():
+    """A numba compile runs with :data:`impl.kernel.COMPILE_GC_THRESHOLDS` (seen from a
+    callee's compile, nested in its caller's) and leaves the thresholds it found, also
+    when the compile fails."""
+    import gc
+
+    from numba.core import event
+
+    from impl.kernel import COMPILE_GC_THRESHOLDS
+
+    seen = []
+
+    class Probe(event.Listener):
+        def on_start(self, ev):
+            seen.append((ev.data["dispatcher"].py_func.__name__, gc.get_threshold()))
+
+        def on_end(self, ev):
+            pass
+
+    @njit
+    def callee(x):
+        return x + 1
+
+    @njit
+    def caller(x):
+        return callee(x) * 2
+
+    @njit
+    def broken(x):
+        return x.no_such_attribute
+
+    before = gc.get_threshold()
+    gc.set_threshold(500, 7, 9)
+    probe = Probe()
+    event.register("numba:compile", probe)
+    try:
+        assert caller(3) == 8
+        assert gc.get_threshold() == (500, 7, 9)
+        with pytest.raises(TypingError):
+            broken(1)
+        assert gc.get_threshold() == (500, 7, 9)
+    finally:
+        event.unregister("numba:compile", probe)
+        gc.set_threshold(*before)
+    assert ("callee", COMPILE_GC_THRESHOLDS) in seen and ("caller", COMPILE_GC_THRESHOLDS) in seen
+    assert ("broken", COMPILE_GC_THRESHOLDS) in seen
