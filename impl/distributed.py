@@ -909,7 +909,7 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, dmode, spp, jitter_gauss, gamma, 
         jitter_pattern(2, 0.5, seed, pixel, pts)
         m0 = m1 = m2 = 0.0
         q0 = q1 = q2 = 0.0
-        n = 0
+        n = np.int64(0)       # not the literal 0: numba would type the calls below for it too
         cap = max(spp, 4)
         while n < cap:
             if n < 4:

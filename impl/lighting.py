@@ -245,18 +245,21 @@ def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
     ``shadows`` false); (r, g, b, shadow rays).  With ``seta``/``strans`` (the
     :class:`LocalModel` fields ``shadow_eta``/``shadow_trans``) non-empty, a blocked
     sample keeps its light × :func:`shadow_filter` of its segment."""
+    # Every argument that a caller may pass as a literal (``False``, ``0``) goes through
+    # its type (bool(), np.int64()): numba compiles a function once per literal value
+    # it is called with, and _direct_light_rays is a large function.
     if seta is None:
         # Opaque shadows; any two arrays of the right types stand in for the unused filter.
-        # ``through`` false as a bool, not the literal False: a literal argument would
-        # compile _direct_light_rays a second time, for that literal.
         return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
-                                  rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
-                                  light_samples, seed, pixel, sample, R, A.sph_radius.shape[0] < 0,
-                                  A.sph_radius, A.mat_rho, DIM_INDEPENDENT, 0, 0)
+                                  rho_b, A, ks, shininess, c1, c2, c3, fclamp, bool(shadows),
+                                  np.int64(light_samples), np.int64(seed), np.int64(pixel),
+                                  np.int64(sample), R, A.sph_radius.shape[0] < 0, A.sph_radius,
+                                  A.mat_rho, np.int64(DIM_INDEPENDENT), np.int64(0), np.int64(0))
     return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
-                              rho_b, A, ks, shininess, c1, c2, c3, fclamp, shadows,
-                              light_samples, seed, pixel, sample, R, seta.shape[0] > 0, seta,
-                              strans, DIM_INDEPENDENT, 0, 0)
+                              rho_b, A, ks, shininess, c1, c2, c3, fclamp, bool(shadows),
+                              np.int64(light_samples), np.int64(seed), np.int64(pixel),
+                              np.int64(sample), R, seta.shape[0] > 0, seta, strans,
+                              np.int64(DIM_INDEPENDENT), np.int64(0), np.int64(0))
 
 
 @njit(inline="always", cache=True)
@@ -270,9 +273,10 @@ def direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
     more than 30 arguments compiles to a star-args call, which numba cannot inline.)"""
     dmode, dspp, ddim = dims
     return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
-                              A, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-                              pixel, sample, R, A.sph_radius.shape[0] < 0, A.sph_radius, A.mat_rho,
-                              dmode, dspp, ddim)
+                              A, ks, shininess, c1, c2, c3, fclamp, bool(shadows),
+                              np.int64(light_samples), np.int64(seed), np.int64(pixel),
+                              np.int64(sample), R, A.sph_radius.shape[0] < 0, A.sph_radius,
+                              A.mat_rho, np.int64(dmode), np.int64(dspp), np.int64(ddim))
 
 
 @njit(inline="always", cache=True)

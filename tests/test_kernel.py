@@ -271,3 +271,36 @@ def test_the_collector_is_relaxed_during_a_compile_and_restored_after():
         gc.set_threshold(*before)
     assert ("callee", COMPILE_GC_THRESHOLDS) in seen and ("caller", COMPILE_GC_THRESHOLDS) in seen
     assert ("broken", COMPILE_GC_THRESHOLDS) in seen
+
+
+def _literal_signatures(dispatcher):
+    from numba.core import types
+
+    return [sig for sig in dispatcher.signatures if any(isinstance(a, types.Literal) for a in sig)]
+
+
+def test_the_large_shading_kernels_are_not_compiled_for_literal_arguments():
+    """numba compiles a function once more for every literal value a caller passes (a
+    ``False``, a ``0``, a loop counter that starts at 0): the scalar light estimator and
+    distributed's per-sample kernels are large, so their callers pass typed values.  After
+    renders that reach every call site (distributed's pixel loop holds all its samplers'
+    branches; the z-buffer's Gouraud shading calls the estimator with shadows off), none of
+    their compiled signatures holds a literal."""
+    import dataclasses
+    from pathlib import Path
+
+    from core.loader import load_scene
+    from impl import distributed, zbuffer
+
+    suites = Path(__file__).resolve().parent.parent / "suites"
+    for rel, algo, params in (("distributed/gloss.xml", distributed.ALGORITHM, {"spp": 4}),
+                              ("cornell/cornell_box.xml", distributed.ALGORITHM,
+                               {"spp": 4, "dimensions": "stratified"}),
+                              ("cornell/cornell_box.xml", zbuffer.ALGORITHM, {"shading": "gouraud"})):
+        scene = load_scene(suites / rel)
+        film = dataclasses.replace(scene.camera.film, width=4, height=3)
+        scene.camera = dataclasses.replace(scene.camera, film=film)
+        algo.render(scene, algo.parse_params(params), seed=0)
+    for fn in (lighting._direct_light_rays, distributed._radiance, distributed._tree):
+        assert fn.signatures, fn.py_func.__qualname__
+        assert _literal_signatures(fn) == [], fn.py_func.__qualname__
