@@ -90,13 +90,14 @@ for _option in LLVM_OPTIONS:
 # inlining, lowering), which builds millions of short-lived IR objects, many in reference
 # cycles.  With CPython's default thresholds (700, 10, 10) the cyclic collector runs every
 # 700 allocations and fully every hundred of those, each full run walking the whole heap,
-# which keeps growing during the compile: a profile of a cold ray-cast compile had a fifth
-# of the process in the collector.  For the length of a compile the thresholds are raised
-# (:data:`COMPILE_GC_THRESHOLDS`: young collections about 140 times rarer, full ones in
-# proportion; the collector stays enabled, so the cyclic garbage is still freed) and
-# restored afterwards.  Disabling the collector instead would keep all of the compile's
-# cyclic garbage until its end, several times the memory.  The thresholds are the process's, so while a compile runs
-# (numba compiles under one global lock) other threads collect with them too.
+# which keeps growing during the compile: in a profile of a cold compile the collector is
+# a large share of the process (the README has the figures).  For the length of a compile
+# the thresholds are raised (:data:`COMPILE_GC_THRESHOLDS`: young collections about 140
+# times rarer, full ones in proportion; the collector stays enabled, so the cyclic
+# garbage is still freed) and restored afterwards.  Disabling the collector instead would
+# keep all of the compile's cyclic garbage until its end, several times the memory.  The
+# thresholds are the process's, so while a compile runs (numba compiles under one global
+# lock) other threads collect with them too.
 
 #: The collector's thresholds (``gc.set_threshold``) while numba compiles.
 COMPILE_GC_THRESHOLDS = (100_000, 10, 10)

@@ -275,7 +275,8 @@ def test_the_collector_is_relaxed_during_a_compile_and_restored_after():
 
 def _compiled_signatures(dispatcher):
     """The signatures ``dispatcher`` holds compiled in this process or in numba's cache
-    (a function compiled into its callers' cached code need not be loaded itself)."""
+    (a function compiled into its callers' cached code need not be loaded itself; the
+    cache index is read through numba's private ``_cache._cache_file``)."""
     cached = [key[0] for key in dispatcher._cache._cache_file._load_index()]
     return list(dispatcher.signatures) + cached
 
