@@ -54,6 +54,14 @@ plus:
   rays (no shadow rays, delta lights do not light them).  No Mitsuba plugin
   computes them: their reference is the white furnace's closed form
   (``tests/test_thesis_materials.py``);
+* **normal and bump maps** — under Mitsuba's ``normalmap`` or ``bumpmap`` (on
+  triangles with uvs, :mod:`impl.shading_frame`) every branch is taken about the
+  perturbed normal: the Fresnel splits, the sampled glossy, translucent and thesis
+  directions, and the direct light at diffuse hits, each scattered direction and
+  light sample weighted as the adapters weight it (:func:`impl.lighting.map_weight`:
+  no light leaking through the unperturbed shading normal, Estevez et al.'s
+  shadowing term); a moving mesh's maps are evaluated on its triangles at the
+  sample's time.  Hall's light-source terms take the perturbed normal as N;
 * the thesis's Cook–Torrance terms with the V-cavity G are an option
   (``g=vcavity``); the difference from Smith (what Mitsuba uses) is a model
   difference, reported, not tested against Mitsuba.
@@ -75,7 +83,7 @@ as a model error (suites/distributed.toml).
 
 Glossy surfaces receive light only along their sampled rays (an area emitter
 hit by the continuing ray adds its emission); delta lights do not light them.
-Diffuse hits take their light from :func:`impl.lighting.direct_light_rays`, the
+Diffuse hits take their light from :func:`impl.lighting.direct_light_dims`, the
 ray casting's: a projector's image and a spot's ``texture`` included
 (:func:`impl.lighting.delta_filter`); Hall's light-source terms leave those
 images out, and ``shading=hall`` refuses a scene that has one.
@@ -210,8 +218,8 @@ from .camera import SENSOR_THINLENS, camera_params, eye_ray, eye_ray_lens
 from .kernel import batch_kernel, interleaved, task_stride
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import (diffuse_albedo, direct_light_dims, direct_light_rays, environment_radiance,
-                       spot_falloff, surface)
+from .lighting import (diffuse_albedo, direct_light_dims, environment_radiance, map_weight,
+                       mapped_normal_at, spot_falloff, surface)
 from .bsdf import cook_torrance_sample, diffuse_transmission_sample
 from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIFFTRANS,
                         MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, material_arrays)
@@ -534,9 +542,20 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             b += wb * A.shape_emit[shape, 2]
         mat = A.shape_material[shape]
         mkind = S.kind[mat]
+        # A two-sided opaque BSDF is seen from the front on both sides.  Every BSDF is
+        # evaluated and sampled about n: under a normal or bump map the perturbed normal
+        # (Mitsuba's adapters; each scattered direction then weighted by map_weight), else
+        # s, or -s on the back.
+        back = (A.mat_twosided[mat] and mkind != MAT_DIELECTRIC and mkind != MAT_ROUGHDIELECTRIC
+                and mkind != MAT_DIFFTRANS and gx * vx + gy * vy + gz * vz < 0.0)
+        nx, ny, nz, code = mapped_normal_at(A, tri64, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy,
+                                            vz, back)
+        if back:
+            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+        cos_v = nx * vx + ny * vy + nz * vz
 
         if hall and (mkind == MAT_DIELECTRIC or mkind == MAT_CONDUCTOR):
-            hr, hg, hb = _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz,
+            hr, hg, hb = _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, nx, ny, nz,
                                           vx, vy, vz, hall_ks, hall_n, hall_kd, shadows, counts)
             r += wr * hr
             g += wg * hg
@@ -559,26 +578,27 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
             there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
             if F < 1.0:
-                scale = (1.0 - F) * eta_ti * eta_ti
+                tx, ty, tz = refract(rdx, rdy, rdz, nx, ny, nz, cos_v, cos_t, eta_ti)
+                scale = (1.0 - F) * eta_ti * eta_ti * map_weight(nx, ny, nz, sx, sy, sz, code, tx, ty, tz)
                 twr = wr * scale * S.spec_trans[mat, 0]
                 twg = wg * scale * S.spec_trans[mat, 1]
                 twb = wb * scale * S.spec_trans[mat, 2]
                 if _admit(twr, twg, twb, depth + 1, max_depth, hall_threshold, counts, cut_w):
-                    tx, ty, tz = refract(rdx, rdy, rdz, sx, sy, sz, cos_v, cos_t, eta_ti)
                     sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, tx, ty, tz,
                                twr, twg, twb, depth + 1, RAY_TRANSMISSION, there)
+            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
+            F *= map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
             rwr = wr * F * S.spec_refl[mat, 0]
             rwg = wg * F * S.spec_refl[mat, 1]
             rwb = wb * F * S.spec_refl[mat, 2]
             if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
-                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
                            rwr, rwg, rwb, depth + 1, RAY_REFLECTION, here)
             continue
 
         if mkind == MAT_ROUGHDIELECTRIC:
             # Translucency (2.5.6): one direction from the rough interface's BSDF.
-            tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
+            tx_, ty_, tz_, bx, by, bz = _frame(nx, ny, nz)
             wix = tx_ * vx + ty_ * vy + tz_ * vz
             wiy = bx * vx + by * vy + bz * vz
             u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
@@ -589,9 +609,10 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             if w <= 0.0:
                 continue
             counts[_C_GLOSSY] += 1
-            ox_ = tx_ * lx + bx * ly + sx * lz
-            oy_ = ty_ * lx + by * ly + sy * lz
-            oz_ = tz_ * lx + bz * ly + sz * lz
+            ox_ = tx_ * lx + bx * ly + nx * lz
+            oy_ = ty_ * lx + by * ly + ny * lz
+            oz_ = tz_ * lx + bz * ly + nz * lz
+            f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
             if refl:
                 cw = S.spec_refl[mat]
                 nxt = RAY_REFLECTION
@@ -600,7 +621,7 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
                 cw = S.spec_trans[mat]
                 nxt = RAY_TRANSMISSION
                 med = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
-            nwr, nwg, nwb = wr * w * cw[0], wg * w * cw[1], wb * w * cw[2]
+            nwr, nwg, nwb = wr * w * cw[0] * f, wg * w * cw[1] * f, wb * w * cw[2] * f
             if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
                            nwr, nwg, nwb, depth + 1, nxt, med)
@@ -608,7 +629,7 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
 
         if mkind == MAT_DIFFTRANS:
             # Diffuse transmission (2.4.5.3): ρ/π on the viewer's side, τ/π through.
-            tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
+            tx_, ty_, tz_, bx, by, bz = _frame(nx, ny, nz)
             wix = tx_ * vx + ty_ * vy + tz_ * vz
             wiy = bx * vx + by * vy + bz * vz
             u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
@@ -619,25 +640,23 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             if pdf <= 0.0:
                 continue
             counts[_C_GLOSSY] += 1
-            ox_ = tx_ * lx + bx * ly + sx * lz
-            oy_ = ty_ * lx + by * ly + sy * lz
-            oz_ = tz_ * lx + bz * ly + sz * lz
+            ox_ = tx_ * lx + bx * ly + nx * lz
+            oy_ = ty_ * lx + by * ly + ny * lz
+            oz_ = tz_ * lx + bz * ly + nz * lz
+            f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
             nxt = RAY_REFLECTION if lz * cos_v > 0.0 else RAY_TRANSMISSION
-            nwr, nwg, nwb = wr * w_r, wg * w_g, wb * w_b
+            nwr, nwg, nwb = wr * w_r * f, wg * w_g * f, wb * w_b * f
             if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
                            nwr, nwg, nwb, depth + 1, nxt, medium)
             continue
 
-        if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
-            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-            cos_v = -cos_v
-        if cos_v <= 0.0:
+        if cos_v <= 0.0:                 # an opaque BSDF sees the viewer below n: black
             continue
 
         if mkind == MAT_COOKTORRANCE:
             # Cook–Torrance (2.4.5.2): k_d ρ/π + k_s F D G / (4 cos cos), D a roughness mixture.
-            tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
+            tx_, ty_, tz_, bx, by, bz = _frame(nx, ny, nz)
             wix = tx_ * vx + ty_ * vy + tz_ * vz
             wiy = bx * vx + by * vy + bz * vz
             u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
@@ -649,10 +668,11 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             if pdf <= 0.0:
                 continue
             counts[_C_GLOSSY] += 1
-            ox_ = tx_ * lx + bx * ly + sx * lz
-            oy_ = ty_ * lx + by * ly + sy * lz
-            oz_ = tz_ * lx + bz * ly + sz * lz
-            nwr, nwg, nwb = wr * w_r, wg * w_g, wb * w_b
+            ox_ = tx_ * lx + bx * ly + nx * lz
+            oy_ = ty_ * lx + by * ly + ny * lz
+            oz_ = tz_ * lx + bz * ly + nz * lz
+            f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
+            nwr, nwg, nwb = wr * w_r * f, wg * w_g * f, wb * w_b * f
             if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
                            nwr, nwg, nwb, depth + 1, RAY_REFLECTION, medium)
@@ -662,18 +682,19 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
             fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
             fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
-            rwr = wr * fr * S.spec_refl[mat, 0]
-            rwg = wg * fg * S.spec_refl[mat, 1]
-            rwb = wb * fb * S.spec_refl[mat, 2]
+            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
+            f = map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
+            rwr = wr * fr * S.spec_refl[mat, 0] * f
+            rwg = wg * fg * S.spec_refl[mat, 1] * f
+            rwb = wb * fb * S.spec_refl[mat, 2] * f
             if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
-                qx, qy, qz = reflect(rdx, rdy, rdz, sx, sy, sz)
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
                            rwr, rwg, rwb, depth + 1, RAY_REFLECTION, medium)
             continue
 
         if mkind == MAT_ROUGHCONDUCTOR:
             # Gloss (2.5.6): one reflected direction from the microfacet BSDF.
-            tx_, ty_, tz_, bx, by, bz = _frame(sx, sy, sz)
+            tx_, ty_, tz_, bx, by, bz = _frame(nx, ny, nz)
             wix = tx_ * vx + ty_ * vy + tz_ * vz
             wiy = bx * vx + by * vy + bz * vz
             _u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
@@ -686,12 +707,13 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
             fr = fresnel_conductor(cos_ih, S.cond_eta[mat, 0], S.cond_k[mat, 0])
             fg = fresnel_conductor(cos_ih, S.cond_eta[mat, 1], S.cond_k[mat, 1])
             fb = fresnel_conductor(cos_ih, S.cond_eta[mat, 2], S.cond_k[mat, 2])
-            nwr = wr * w * fr * S.spec_refl[mat, 0]
-            nwg = wg * w * fg * S.spec_refl[mat, 1]
-            nwb = wb * w * fb * S.spec_refl[mat, 2]
-            ox_ = tx_ * lx + bx * ly + sx * lz
-            oy_ = ty_ * lx + by * ly + sy * lz
-            oz_ = tz_ * lx + bz * ly + sz * lz
+            ox_ = tx_ * lx + bx * ly + nx * lz
+            oy_ = ty_ * lx + by * ly + ny * lz
+            oz_ = tz_ * lx + bz * ly + nz * lz
+            f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
+            nwr = wr * w * fr * S.spec_refl[mat, 0] * f
+            nwg = wg * w * fg * S.spec_refl[mat, 1] * f
+            nwb = wb * w * fb * S.spec_refl[mat, 2] * f
             if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
                            nwr, nwg, nwb, depth + 1, RAY_REFLECTION, medium)
@@ -700,16 +722,16 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
         # Diffuse: direct light from every emitter (penumbra: area emitters sampled by area).
         rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
         amb = ambient * ka
+        # Leaf k of sample s takes, independent, the light samples of "sample" s + k·spp (leaf
+        # 0 those of raycast); stratified or Sobol, its own dimensions of sample s.
         if dmode == DIM_INDEPENDENT:
-            lr, lg, lb, nsh = direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
-                                                rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3,
-                                                fclamp, shadows, light_samples, seed, pixel,
-                                                sample + leaf * spp, R)
+            lsample, ldim = sample + leaf * spp, 0
         else:
-            lr, lg, lb, nsh = direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
-                                                rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3,
-                                                fclamp, shadows, light_samples, seed, pixel,
-                                                sample, R, (dmode, spp, _X_LIGHT * (leaf + 1)))
+            lsample, ldim = sample, _X_LIGHT * (leaf + 1)
+        lr, lg, lb, nsh = direct_light_dims(px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r,
+                                            rho_g, rho_b, A, ks, shininess, c1, c2, c3, fclamp,
+                                            shadows, light_samples, seed, pixel, lsample, R,
+                                            (dmode, spp, ldim), (sx, sy, sz, code))
         leaf += 1
         counts[_C_SHADOW] += nsh
         counts[_C_DIFFUSE] += 1
@@ -1219,5 +1241,5 @@ ALGORITHM = Algorithm(
     ),
     render=render,
     models=frozenset({"camera motion", "mesh motion", "envmap", "gibench_cooktorrance",
-                      "gibench_difftrans", "projector", "spot texture"}),
+                      "gibench_difftrans", "projector", "spot texture", "normalmap", "bumpmap"}),
 )

@@ -86,7 +86,7 @@ __all__ = ["SHADOW_EPSILON", "surface", "surface_at", "sphere_surface",
            "area_sample", "environment_sample",
            "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
            "environment_radiance", "sample_cosine_hemisphere", "shadow_filter", "SHADOW_MODES",
-           "mapped_normal", "map_weight", "point_map_weight", "store_point"]
+           "mapped_normal", "mapped_normal_at", "map_weight", "point_map_weight", "store_point"]
 
 #: Shadow-ray origins move off the surface by this much times (1 + |p|_max).
 SHADOW_EPSILON = 1e-7
@@ -239,67 +239,45 @@ def direct_light(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, r
 @njit(inline="always", cache=True)
 def direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                       A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                      seed, pixel, sample, R: RayConfig, seta=None, strans=None):
+                      seed, pixel, sample, R: RayConfig):
     """:func:`direct_light` with shadow rays cast by the ray configuration ``R``: the
     sum of every light sample whose shadow ray is unoccluded (all of them with
-    ``shadows`` false); (r, g, b, shadow rays).  With ``seta``/``strans`` (the
-    :class:`LocalModel` fields ``shadow_eta``/``shadow_trans``) non-empty, a blocked
-    sample keeps its light × :func:`shadow_filter` of its segment."""
-    # Every argument that a caller may pass as a literal (``False``, ``0``) goes through
-    # its type (bool(), np.int64()): numba compiles a function once per literal value
-    # it is called with, and _direct_light_rays is a large function.
-    if seta is None:
-        # Opaque shadows; any two arrays of the right types stand in for the unused filter.
-        return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
-                                  rho_b, A, ks, shininess, c1, c2, c3, fclamp, bool(shadows),
-                                  np.int64(light_samples), np.int64(seed), np.int64(pixel),
-                                  np.int64(sample), R, A.sph_radius.shape[0] < 0, A.sph_radius,
-                                  A.mat_rho, np.int64(DIM_INDEPENDENT), np.int64(0), np.int64(0))
-    return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g,
-                              rho_b, A, ks, shininess, c1, c2, c3, fclamp, bool(shadows),
-                              np.int64(light_samples), np.int64(seed), np.int64(pixel),
-                              np.int64(sample), R, seta.shape[0] > 0, seta, strans,
-                              np.int64(DIM_INDEPENDENT), np.int64(0), np.int64(0))
+    ``shadows`` false); (r, g, b, shadow rays)."""
+    return direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
+                             A, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
+                             pixel, sample, R, (DIM_INDEPENDENT, 0, 0), (sx, sy, sz, MAP_NONE))
 
 
 @njit(inline="always", cache=True)
 def direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                       A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                      seed, pixel, sample, R: RayConfig, dims):
-    """:func:`direct_light_rays` (opaque shadows) with the light samples' numbers of
-    pixel sample ``sample`` drawn by :func:`impl.samplers.dim_2d`: ``dims = (dmode,
-    dspp, ddim)``, light sample j is dimension ``ddim + j`` of ``dspp`` samples in mode
-    ``dmode`` (:func:`light_uv_dims`).  (One tuple: a call of an inlined function with
-    more than 30 arguments compiles to a star-args call, which numba cannot inline.)"""
+                      seed, pixel, sample, R: RayConfig, dims, mapped):
+    """:func:`direct_light_rays` with the light samples' numbers of pixel sample
+    ``sample`` drawn as ``dims = (dmode, dspp, ddim)`` says: light sample j is dimension
+    ``ddim + j`` of ``dspp`` samples in mode ``dmode`` (:func:`light_uv_dims`; with
+    ``DIM_INDEPENDENT`` the hashed :func:`light_uv` of ``sample``), and every light
+    sample weighted by :func:`map_weight` with ``mapped = (s0x, s0y, s0z, code)``: under
+    a normal or bump map (``code`` not ``MAP_NONE``) s is the perturbed normal the Phong
+    bracket is taken about and s0 the unperturbed shading normal.  (Tuples: a call of an
+    inlined function with more than 30 arguments compiles to a star-args call, which
+    numba cannot inline.)"""
+    # Every argument that a caller may pass as a literal (``False``, ``0``) goes through
+    # its type (bool(), np.int64(), float()): numba compiles a function once per literal
+    # value it is called with, and _direct_light_rays is a large function.
     dmode, dspp, ddim = dims
+    s0x, s0y, s0z, code = mapped
     return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                               A, ks, shininess, c1, c2, c3, fclamp, bool(shadows),
                               np.int64(light_samples), np.int64(seed), np.int64(pixel),
-                              np.int64(sample), R, A.sph_radius.shape[0] < 0, A.sph_radius,
-                              A.mat_rho, np.int64(dmode), np.int64(dspp), np.int64(ddim))
-
-
-@njit(inline="always", cache=True)
-def _through_shadow(R, A, ox, oy, oz, dx, dy, dz, t0, t1, through, seta, strans, cr, cg, cb):
-    """A shadow ray's verdict on the light (cr, cg, cb) it decides: ``(lit, light)``.  An
-    unoccluded ray keeps it; an occluded one is dark unless ``through`` (transmissive
-    shadows), where :func:`shadow_filter` scales it by the smooth dielectrics crossed."""
-    if not occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
-        return True, cr, cg, cb
-    if not through:
-        return False, cr, cg, cb
-    fr, fg, fb = shadow_filter(R, ox, oy, oz, dx, dy, dz, t0, t1, seta, strans, A.prim_shape,
-                               A.shape_material, A.sph_center, A.sph_radius, A.tri_v, A.tri_n,
-                               A.tri_has_n, A.shape_flip)
-    return True, cr * fr, cg * fg, cb * fb
+                              np.int64(sample), R, np.int64(dmode), np.int64(dspp), np.int64(ddim),
+                              float(s0x), float(s0y), float(s0z), float(code))
 
 
 @njit(cache=True)
 def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                        A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                       seed, pixel, sample, R: RayConfig, through, seta, strans, dmode, dspp, ddim):
-    """The body of :func:`direct_light_rays`; ``through``: blocked samples pass the
-    dielectrics of ``seta``/``strans`` (:func:`shadow_filter`)."""
+                       seed, pixel, sample, R: RayConfig, dmode, dspp, ddim, s0x, s0y, s0z, code):
+    """The body of :func:`direct_light_dims` (opaque shadows)."""
     r = g = b = 0.0
     nshadow = 0
     for li in range(A.light_kind.shape[0]):
@@ -312,11 +290,12 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
         if not ok:
             continue
         tr, tg, tb = delta_filter(A, li, kind, px, py, pz, lx, ly, lz)
-        if tr == 0.0 and tg == 0.0 and tb == 0.0:
+        f = map_weight(sx, sy, sz, s0x, s0y, s0z, code, lx, ly, lz)
+        if (tr == 0.0 and tg == 0.0 and tb == 0.0) or f == 0.0:
             continue
-        cr = w * tr * A.light_rad[li, 0] * (kd * rho_r + spec)
-        cg = w * tg * A.light_rad[li, 1] * (kd * rho_g + spec)
-        cb = w * tb * A.light_rad[li, 2] * (kd * rho_b + spec)
+        cr = w * tr * A.light_rad[li, 0] * (kd * rho_r + spec) * f
+        cg = w * tg * A.light_rad[li, 1] * (kd * rho_g + spec) * f
+        cb = w * tb * A.light_rad[li, 2] * (kd * rho_b + spec) * f
         if shadows:
             nshadow += 1
             if kind == LIGHT_DIRECTIONAL:
@@ -325,9 +304,7 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
                 ox, oy, oz, dx, dy, dz, t0, t1 = shadow_towards(
                     R, px, py, pz, gx, gy, gz, lx, ly, lz, A.light_pos[li, 0], A.light_pos[li, 1],
                     A.light_pos[li, 2], R.shrink_point)
-            lit, cr, cg, cb = _through_shadow(R, A, ox, oy, oz, dx, dy, dz, t0, t1, through, seta,
-                                              strans, cr, cg, cb)
-            if not lit:
+            if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
                 continue
         r += cr
         g += cg
@@ -348,15 +325,15 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
             ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
                 A, e, u1, u2, flip, scale, er, eg, eb, px, py, pz, sx, sy, sz, vx, vy, vz, rho_r,
                 rho_g, rho_b, ks, shininess, c1, c2, c3, fclamp)
-            if not ok:
+            f = map_weight(sx, sy, sz, s0x, s0y, s0z, code, lx, ly, lz) if ok else 0.0
+            if f == 0.0:
                 continue
+            cr, cg, cb = cr * f, cg * f, cb * f
             if shadows:
                 nshadow += 1
                 ox, oy, oz, dx, dy, dz, t0, t1 = shadow_towards(R, px, py, pz, gx, gy, gz, lx, ly,
                                                                 lz, yx, yy, yz, R.shrink_area)
-                lit, cr, cg, cb = _through_shadow(R, A, ox, oy, oz, dx, dy, dz, t0, t1, through, seta,
-                                                  strans, cr, cg, cb)
-                if not lit:
+                if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
                     continue
             r += cr
             g += cg
@@ -372,14 +349,14 @@ def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rh
             ok, lx, ly, lz, cr, cg, cb = environment_sample(
                 u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, sx, sy, sz, vx, vy, vz,
                 rho_r, rho_g, rho_b, ks, shininess)
-            if not ok:
+            f = map_weight(sx, sy, sz, s0x, s0y, s0z, code, lx, ly, lz) if ok else 0.0
+            if f == 0.0:
                 continue
+            cr, cg, cb = cr * f, cg * f, cb * f
             if shadows:
                 nshadow += 1
                 ox, oy, oz, dx, dy, dz, t0, t1 = shadow_along(R, px, py, pz, gx, gy, gz, lx, ly, lz)
-                lit, cr, cg, cb = _through_shadow(R, A, ox, oy, oz, dx, dy, dz, t0, t1, through, seta,
-                                                  strans, cr, cg, cb)
-                if not lit:
+                if occluded(R, ox, oy, oz, dx, dy, dz, t0, t1):
                     continue
             r += cr
             g += cg
@@ -711,6 +688,14 @@ def mapped_normal(A: SceneArrays, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx,
     triangle, n is the perturbed normal n_p of :func:`impl.shading_frame.perturbed_normal`
     (on the back side as there); elsewhere s, or −s on the back.  Spheres carry no uv and
     keep s, as in ``path``."""
+    return mapped_normal_at(A, A.tri_v, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, back)
+
+
+@njit(inline="always", cache=True)
+def mapped_normal_at(A: SceneArrays, tri_v, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+                     back):
+    """:func:`mapped_normal` with the triangles' vertices ``tri_v`` (T, 3, 3) in place of
+    the scene's own (a moving mesh's at the sample's time)."""
     shade = A.mat_shade[mat]
     ns = A.sph_radius.shape[0]
     if shade == 0 or prim < ns:
@@ -718,7 +703,7 @@ def mapped_normal(A: SceneArrays, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx,
             return -sx, -sy, -sz, MAP_NONE
         return sx, sy, sz, MAP_NONE
     nx, ny, nz = _perturbed_normal(shade, A.mat_shade_scale[mat], A.mat_shade_tex[mat],
-                                   A.mat_shade_uv[mat], A.tex_data, A.tri_v[prim - ns],
+                                   A.mat_shade_uv[mat], A.tex_data, tri_v[prim - ns],
                                    A.tri_uv[prim - ns], b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz,
                                    back)
     return nx, ny, nz, MAP_SHADOWED if A.mat_shade_tex[mat, 6] != 0 else MAP_PLAIN

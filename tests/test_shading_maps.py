@@ -4,15 +4,17 @@
   (finite differences), and 0 for ``nearest``;
 * ``suites/vocabulary/normalmap.xml`` and ``bumpmap.xml`` (``path``),
   ``maps_direct.xml`` (``raycast``: both maps over diffuse surfaces) and
-  ``maps_whitted.xml`` (``whitted``: a normal-mapped mirror and a bump-mapped glass
-  sheet), and ``projector.xml`` and ``spot_texture_direct.xml`` (``path``,
+  ``maps_whitted.xml`` (``whitted`` and ``distributed``: a normal-mapped mirror and a
+  bump-mapped glass sheet), ``maps_distributed.xml`` (``distributed``: a normal-mapped
+  rough gold wall and a bump-mapped rough glass sheet), and ``projector.xml`` and ``spot_texture_direct.xml`` (``path``,
   ``raycast``, ``whitted``, ``distributed``) pass the per-pixel Z-test against
   Mitsuba on the same XML, and each image's thirds agree in the mean;
 * negative controls, each of which must fail the Z-test: the normal map ignored,
   the normal map with its tangent t negated (the green channel inverted), the
   panels seen from behind with the normal map's order around ``twosided``
   swapped, the
-  bump map ignored, the bump map with its scale negated, the projector's image
+  bump map ignored, the bump map with its scale negated (in ``distributed`` too), the
+  rough wall's normal map ignored, the projector's image
   and the spot's texture mirrored left to right, the spot's texture ignored;
 * the algorithms that do not model a part refuse it by name.
 """
@@ -31,9 +33,9 @@ from core.loader import load_scene
 from gibench import registry
 
 VOCAB = Path(__file__).resolve().parent.parent / "suites" / "vocabulary"
-NORMALMAP, BUMPMAP, PROJECTOR, SPOT, MAPS_DIRECT, MAPS_WHITTED = (
+NORMALMAP, BUMPMAP, PROJECTOR, SPOT, MAPS_DIRECT, MAPS_WHITTED, MAPS_DISTRIBUTED = (
     VOCAB / f"{n}.xml" for n in ("normalmap", "bumpmap", "projector", "spot_texture_direct", "maps_direct",
-                                 "maps_whitted"))
+                                 "maps_whitted", "maps_distributed"))
 
 
 # ------------------------------------------------------------ the gradient ---
@@ -92,11 +94,14 @@ def _z(ref, own):
 @pytest.mark.mitsuba
 @pytest.mark.parametrize("algorithm, scene_path", [("path", NORMALMAP), ("path", BUMPMAP),
                                                    ("raycast", MAPS_DIRECT), ("whitted", MAPS_WHITTED),
+                                                   ("distributed", MAPS_WHITTED),
+                                                   ("distributed", MAPS_DISTRIBUTED),
                                                    ("path", PROJECTOR), ("raycast", PROJECTOR),
                                                    ("whitted", PROJECTOR), ("distributed", PROJECTOR),
                                                    ("path", SPOT), ("raycast", SPOT), ("whitted", SPOT),
                                                    ("distributed", SPOT)],
                          ids=["path-normalmap", "path-bumpmap", "raycast-maps", "whitted-maps",
+                              "distributed-maps-whitted", "distributed-maps-glossy",
                               "path-projector", "raycast-projector", "whitted-projector",
                               "distributed-projector", "path-spot", "raycast-spot", "whitted-spot",
                               "distributed-spot"])
@@ -174,6 +179,8 @@ def _untextured(scene):
     ("raycast", MAPS_DIRECT, lambda s: _with_shading(s, _bump_scale_negated)),
     ("whitted", MAPS_WHITTED, lambda s: _with_shading(s, _only_bumpmap)),
     ("whitted", MAPS_WHITTED, lambda s: _with_shading(s, _bump_scale_negated)),
+    ("distributed", MAPS_DISTRIBUTED, lambda s: _with_shading(s, _only_bumpmap)),
+    ("distributed", MAPS_DISTRIBUTED, lambda s: _with_shading(s, _bump_scale_negated)),
     ("path", PROJECTOR, _mirrored_slide),
     ("raycast", PROJECTOR, _mirrored_slide),
     ("raycast", SPOT, _mirrored_slide),
@@ -183,7 +190,8 @@ def _untextured(scene):
 ], ids=["normalmap-ignored", "normalmap-tangent-negated", "normalmap-twosided-order-swapped",
         "bumpmap-ignored", "bumpmap-scale-negated", "raycast-normalmap-tangent-negated",
         "raycast-twosided-order-swapped", "raycast-bumpmap-scale-negated", "whitted-mirror-map-ignored",
-        "whitted-glass-bumpmap-scale-negated",
+        "whitted-glass-bumpmap-scale-negated", "distributed-normalmaps-ignored",
+        "distributed-rough-glass-bumpmap-scale-negated",
         "path-projector-mirrored", "raycast-projector-mirrored", "raycast-spot-mirrored",
         "whitted-spot-untextured", "distributed-projector-mirrored", "distributed-spot-untextured"])
 def test_the_ztest_rejects_a_wrong_rendering(algorithm, scene_path, wrong):
@@ -198,7 +206,7 @@ def test_the_ztest_rejects_a_wrong_rendering(algorithm, scene_path, wrong):
 
 @pytest.mark.parametrize("algorithm, scene_path, feature", [
     ("zbuffer", MAPS_DIRECT, "normalmap"), ("depthsort", BUMPMAP, "bumpmap"),
-    ("distributed", NORMALMAP, "normalmap"), ("radiosity", PROJECTOR, "projector")])
+    ("radiosity", MAPS_DIRECT, "normalmap"), ("radiosity", PROJECTOR, "projector")])
 def test_algorithms_refuse_what_they_do_not_model_by_name(algorithm, scene_path, feature):
     algo = registry.get(algorithm)
     with pytest.raises(UnsupportedError, match=f"uses '{feature}', which {algorithm} does not model"):

@@ -492,7 +492,7 @@ def test_delta_light_lanes_equal_the_scalar_light_samples(params):
     A = flatten_cached(sc)
     spot = int(np.flatnonzero(A.light_kind == 2)[0])
     lit = dark = band = 0
-    for P, i, r, nsh, M in _lanes_against_scalar(sc, {"spp": 4, "light_samples": 1, **params}):
+    for P, i, r, nsh, M, *_ in _lanes_against_scalar(sc, {"spp": 4, "light_samples": 1, **params}):
         lit += r > 0.0
         dark += nsh > 0 and r == 0.0
         lx = A.light_pos[spot] - P[0:3, i]
@@ -502,12 +502,38 @@ def test_delta_light_lanes_equal_the_scalar_light_samples(params):
     assert dark > 10 or not M.shadows
 
 
+@pytest.mark.parametrize("params", [{}, {"shadows": False}, {"precision": "float32"}])
+def test_the_scalar_light_samples_weigh_a_normal_or_bump_map_as_the_batch_does(params):
+    """Under normal and bump maps (suites/vocabulary/maps_direct.xml: a point light and a
+    rectangle light over mapped diffuse surfaces, two of them two-sided panels seen from
+    behind) the scalar per-point estimator that distributed ray tracing calls
+    (impl.lighting._direct_light_rays, given the perturbed normal, the unperturbed one and
+    the map's code) weights every light sample as direct_batch does: the same light and
+    shadow-ray count at every point, bit for bit.  The weights matter: at some points the
+    same estimator without them (code MAP_NONE) gives other light."""
+    from impl import lighting
+    from impl.samplers import DIM_INDEPENDENT
+
+    sc = load_scene(SUITES / "vocabulary/maps_direct.xml")
+    A = flatten_cached(sc)
+    mapped = weighed = 0
+    for P, i, r, nsh, M, pixel, R in _lanes_against_scalar(sc, {"spp": 4, "light_samples": 4, **params}):
+        if P[lighting.SP_MAP, i] == lighting.MAP_NONE:
+            continue
+        mapped += 1
+        plain = lighting._direct_light_rays(
+            *P[:lighting.SP_N0, i], A, M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows,
+            M.light_samples, 7, pixel, 2, R, DIM_INDEPENDENT, 0, 0, 0.0, 0.0, 0.0, lighting.MAP_NONE)
+        weighed += plain[0] != r
+    assert mapped > 500 and weighed > 50
+
+
 def _lanes_against_scalar(sc, params):
     """Shade a third of the tiles of scene ``sc`` with raycast's batch step (sample 2 of 4,
     seed 7; its direct light by impl.lighting.direct_batch) and compare every lit point,
     bit for bit, with the scalar per-point estimator (impl.lighting._direct_light_rays):
     its light and its shadow-ray count (points on emitters left out).  Yields (points, column, red light, shadow rays,
-    local model) per point."""
+    local model, pixel, ray configuration) per point."""
     from impl import lighting, raycast
     from impl.camera import camera_params
     from impl.samplers import DIM_INDEPENDENT
@@ -532,11 +558,11 @@ def _lanes_against_scalar(sc, params):
                 continue                 # T.L holds its emission too
             r, g, b, nsh = lighting._direct_light_rays(
                 *P[:lighting.SP_N0, i], A, M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows,
-                M.light_samples, 7, T.pixel[i], 2, R, False, A.sph_radius, A.mat_rho,
-                DIM_INDEPENDENT, 0, 0)
+                M.light_samples, 7, T.pixel[i], 2, R, DIM_INDEPENDENT, 0, 0,
+                *P[lighting.SP_N0:lighting.SP_MAP + 1, i])
             assert (T.L[0, i], T.L[1, i], T.L[2, i]) == (r, g, b), (tile, i)
             assert T.cnt[i, 0] == nsh, (tile, i)
-            yield P, i, r, nsh, M
+            yield P, i, r, nsh, M, T.pixel[i], R
 
 
 @pytest.mark.parametrize("params", [{}, {"precision": "float32"}, {"offset": "normal"},
@@ -550,7 +576,7 @@ def test_area_light_lanes_equal_the_scalar_light_samples(params):
     the shadow-ray count of the scalar per-point estimator, in every ray configuration."""
     sc = load_scene(SUITES / "cornell/cornell_box.xml")
     lit = dark = 0
-    for P, i, r, nsh, M in _lanes_against_scalar(sc, {"spp": 4, "light_samples": 4, **params}):
+    for P, i, r, nsh, M, *_ in _lanes_against_scalar(sc, {"spp": 4, "light_samples": 4, **params}):
         lit += r > 0.0
         dark += r == 0.0
     assert lit > 1000 and dark > 10
