@@ -7,6 +7,8 @@ tracer   scenes                                       Mitsuba integrator  transp
 raycast  the raycast ``ztest`` group                  ``direct``          direct
 whitted  the whitted ``ztest`` group                  ``whitted`` (ours,  whitted
                                                       references/whitted_integrator.py)
+distrib. gloss (the distributed ``ztest`` group)      ``whitted`` (ours,  whitted
+                                                      following glossy lobes)
 path     cornell_box, diffuse_room                    ``path``            full
 ======== ============================================ =================== ===========
 
@@ -77,6 +79,7 @@ CASES = (
        for s in ("spheres/mirror_sphere.xml", "spheres/glass_sphere.xml", "spheres/nested_glass.xml",
                  "spheres/whitted_classic.xml", "spheres/sphere_grid.xml",
                  "cornell/cornell_mirror_glass.xml")]
+    + [("distributed", "distributed/gloss.xml", "whitted", {"spp": 16, "light_samples": 1})]
     + [("path", s, "full", {"spp": 16}) for s in ("cornell/cornell_box.xml", "cornell/diffuse_room.xml")]
 )
 IDS = [f"{t}-{s.split('/')[1][:-4]}" for t, s, _, _ in CASES]

@@ -215,7 +215,7 @@ from core.errors import ParamError, UnsupportedError
 
 from .accel.packets import NOT_TRACED, packet_buffers, packet_hits, tile_count, tile_rect
 from .camera import SENSOR_THINLENS, camera_params, eye_ray, eye_ray_lens
-from .kernel import batch_kernel, interleaved, task_stride
+from .kernel import batch_kernel, by_reference, dereference, interleaved, task_stride
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import (diffuse_albedo, direct_light_dims, environment_radiance, map_weight,
@@ -382,7 +382,7 @@ def _frame(nx, ny, nz):
 
 
 @batch_kernel
-def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, hall_ks,
+def _hall_highlights(scene, R, materials, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, hall_ks,
                      hall_n, hall_kd, shadows, counts):
     """Hall's light-source terms at a specular surface (thesis 2.4.5.5, Fig. 2.20):
     k_sr Σ_j I_j F(V·H_j) (N·H_j)^n + k_dr Σ_j I_j F_dr (N·L_j) for lights on the
@@ -394,8 +394,10 @@ def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx
     surfaces along their reflected and transmitted rays.  I_j is the light's
     intensity / d² (point; spot times Mitsuba's cone fall-off: 1 inside the beam
     width, linear in angle to 0 at the cutoff, nothing outside) or irradiance
-    (directional); reflection terms cast shadow rays.
+    (directional); reflection terms cast shadow rays.  ``scene`` and ``materials``: the
+    flattened scene and its material arrays by reference (:func:`impl.kernel.by_reference`).
     """
+    A, S = dereference(scene), dereference(materials)
     r = g = b = 0.0
     for li in range(A.light_kind.shape[0]):
         if A.light_kind[li] == LIGHT_DIRECTIONAL:
@@ -466,17 +468,25 @@ def _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx
 
 
 @batch_kernel
-def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays, R: RayConfig, sph_c,
-          tri64, trin64, hall, hall_ks, hall_n, hall_t, hall_tr, hall_kd, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
-          shadows, light_samples, seed, pixel, sample, spp, dmode, stack_f, stack_i, counts, cut_w,
-          pre_t, pre_prim, pre_b1, pre_b2):
-    """Radiance (r, g, b) of one eye ray: whitted's ray tree plus sampled glossy bounces.
-    ``sph_c``, ``tri64``, ``trin64``: sphere centres, triangle vertices and shading
-    normals (float64) at the sample's time, for shading.
+def _tree(ray, scene, materials, R: RayConfig, sph_c, tri64, trin64, HL, shade, seed, pixel, sample, spp,
+          dmode, stack_f, stack_i, counts, cut_w, pre):
+    """Radiance (r, g, b) of one eye ray ``ray = (o, d, tmin, tmax)``: whitted's ray tree
+    plus sampled glossy bounces.  ``scene`` and ``materials``: the flattened scene and its
+    material arrays by reference (:func:`impl.kernel.by_reference`: this runs per
+    sample).  ``sph_c``, ``tri64``, ``trin64``: sphere centres, triangle vertices and
+    shading normals (float64) at the sample's time, for shading; ``HL`` Hall's switch and
+    parameters, ``shade`` the tree's and Phong's (as :func:`_trees`).
 
-    ``pre_*``: the eye ray's closest hit as :func:`impl.rays.hit` returns it, traced
-    in a packet; ``pre_prim = NOT_TRACED`` traces it here like every other ray.
+    ``pre = (t, prim, b1, b2)``: the eye ray's closest hit as :func:`impl.rays.hit`
+    returns it, traced in a packet; ``prim = NOT_TRACED`` traces it here like every
+    other ray.
     """
+    A, S = dereference(scene), dereference(materials)
+    ox, oy, oz, dx, dy, dz, tmin, tmax = ray
+    hall, hall_ks, hall_n, hall_t, hall_tr, hall_kd = HL[0] > 0.0, HL[1], HL[2], HL[3], HL[4], HL[5]
+    (gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+     light_samples) = shade
+    pre_t, pre_prim, pre_b1, pre_b2 = pre
     ns = A.sph_radius.shape[0]
     r = g = b = 0.0
     stack_f[0, 0] = ox
@@ -555,7 +565,7 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
         cos_v = nx * vx + ny * vy + nz * vz
 
         if hall and (mkind == MAT_DIELECTRIC or mkind == MAT_CONDUCTOR):
-            hr, hg, hb = _hall_highlights(A, R, S, mat, mkind, px, py, pz, gx, gy, gz, nx, ny, nz,
+            hr, hg, hb = _hall_highlights(scene, R, materials, mat, mkind, px, py, pz, gx, gy, gz, nx, ny, nz,
                                           vx, vy, vz, hall_ks, hall_n, hall_kd, shadows, counts)
             r += wr * hr
             g += wg * hg
@@ -729,7 +739,7 @@ def _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A: SceneArrays, S: MaterialArrays,
         else:
             lsample, ldim = sample, _X_LIGHT * (leaf + 1)
         lr, lg, lb, nsh = direct_light_dims(px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r,
-                                            rho_g, rho_b, A, ks, shininess, c1, c2, c3, fclamp,
+                                            rho_g, rho_b, scene, ks, shininess, c1, c2, c3, fclamp,
                                             shadows, light_samples, seed, pixel, lsample, R,
                                             (dmode, spp, ldim), (sx, sy, sz, code))
         leaf += 1
@@ -770,12 +780,10 @@ def _bsdf_u(dmode, seed, pixel, sample, spp, bounce):
     return dim_1d(dmode, seed, pixel, sample, spp, _X_BSDF + 1 + 2 * bounce), u1, u2
 
 
-@batch_kernel
-def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, fy, sample, spp, dmode, gmodel,
-              max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-              light_samples, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1,
-              pre_b2):
-    """Radiance of the pixel sample number ``sample`` at film position (fx, fy).
+@njit(inline="always", cache=True)
+def _radiance(cam, scene, materials, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, fy, sample, spp,
+              dmode, shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1, pre_b2):
+    """Radiance of the pixel sample number ``sample`` (of ``spp``) at film position (fx, fy).
 
     The sample's own lens point and shutter time; moving spheres are placed at
     that time in the per-pixel copies ``cen`` (intersection precision) and
@@ -784,8 +792,9 @@ def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, f
     arrays), the ray configuration the tree (and its shadow rays) intersects
     with is rebuilt around them, and a moving camera's eye ray is moved and
     turned with the camera.
-    ``pre_*``: the eye ray's hit traced in a packet (static scenes only), or
-    ``pre_prim = NOT_TRACED``.
+    ``scene``, ``materials``: the flattened scene and its material arrays by reference
+    (:func:`impl.kernel.by_reference`), for the tree.  ``pre_*``: the eye ray's hit
+    traced in a packet (static scenes only), or ``pre_prim = NOT_TRACED``.
     """
     ox, oy, oz, dx, dy, dz, tmin, tmax, _ = _eye(cam, seed, pixel, sample, spp, dmode, fx, fy)
     counts[_C_SAMPLES] += 1
@@ -812,12 +821,30 @@ def _radiance(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, f
     Rt = RayConfig(R.form, R.strategy, R.eps, R.shrink_point, R.shrink_area, cen, R.sph_radius, tri,
                    R.accel, R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx, R.acc_f, R.acc_i,
                    R.batch_brute)
-    return _tree(ox, oy, oz, dx, dy, dz, tmin, tmax, A, S, Rt, cen64, tri64, trin64, HL[0] > 0.0, HL[1],
-                 HL[2], HL[3], HL[4], HL[5], gmodel,
-                 max_depth, hall_threshold,
-                 ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-                 pixel, sample, spp, dmode, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1,
-                 pre_b2)
+    return _tree((ox, oy, oz, dx, dy, dz, tmin, tmax), scene, materials, Rt, cen64, tri64, trin64, HL, shade,
+                 seed, pixel, sample, spp, dmode, stack_f, stack_i, counts, cut_w,
+                 (pre_t, pre_prim, pre_b1, pre_b2))
+
+
+@batch_kernel
+def _trees(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, film, first, spp, dmode, shade,
+           seed, pixel, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b, rgb):
+    """:func:`_radiance` of the pixel samples ``first``, ``first + 1``, ... (of ``spp``) at
+    the film positions ``film`` (k, 2) into ``rgb`` (k, 3).  ``pre_t``, ``pre_prim``,
+    ``pre_b`` ((k,), (k,), (k, 2)): their eye hits traced in a packet, or ``pre_prim[q] =
+    NOT_TRACED``.  ``shade = (G model, max_depth, hall_threshold, k_a, I_a, k_s, n, c1, c2,
+    c3, fatt_clamp, shadows, light_samples)``.
+
+    A call passes the flattened scene field by field, which cost more than the ray tree
+    itself when it was made per sample: the callers pass a pixel's samples at once (or
+    one at a time where the sampler needs each value before choosing the next), and the
+    tree of each sample gets the scene by reference."""
+    scene, materials = by_reference(A), by_reference(S)
+    for q in range(film.shape[0]):
+        rgb[q, 0], rgb[q, 1], rgb[q, 2] = _radiance(
+            cam, scene, materials, R, M, HL, cen, cen64, tri, tri64, trin64, film[q, 0], film[q, 1],
+            first + q, spp, dmode, shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[q],
+            pre_prim[q], pre_b[q, 0], pre_b[q, 1])
 
 
 @njit(cache=True)
@@ -847,12 +874,17 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, dmode, spp, jitter_gauss, gamma, 
     """One pixel's sample records ``rec[:n] = (x, y, weight, r, g, b)``; returns n."""
     W = int(cam[14])
     pixel = y * W + x
+    shade = (gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+             light_samples)
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
     cut_w = np.zeros(2)
     cen = R.sph_center.copy()
     cen64 = A.sph_center.copy()
     tri, tri64, trin64 = _triangle_copies(A, R, M)
+    k = max(spp, 8)                          # film positions and values of a call of _trees
+    film, rgb = np.empty((k, 2)), np.empty((k, 3))
+    pre_t, pre_prim, pre_b = np.zeros(k), np.full(k, NOT_TRACED, dtype=np.int64), np.zeros((k, 2))
     if sampler == SMP_ADAPTIVE:
         # Whitted's adaptive supersampling: squares of (corner, size, depth, 5 value indices).
         cap = max(spp, 5)
@@ -869,12 +901,11 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, dmode, spp, jitter_gauss, gamma, 
         pos[3, 0], pos[3, 1] = 1.0, 1.0
         pos[4, 0], pos[4, 1] = 0.5, 0.5
         for i in range(5):
-            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pos[i, 0], y + pos[i, 1], i, cap, dmode, gmodel,
-                                   max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
-                                   fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
-                                   counts, cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
-            vals[i, 0], vals[i, 1], vals[i, 2] = rr, gg, bb
-        n = 5
+            film[i, 0], film[i, 1] = x + pos[i, 0], y + pos[i, 1]
+        _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:5], np.int64(0), cap, dmode, shade,
+               seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:5], pre_prim[:5], pre_b[:5], rgb[:5])
+        vals[:5] = rgb[:5]
+        n = np.int64(5)       # not the literal 5: numba would type the calls below for it too
         sq_f[0, 0], sq_f[0, 1], sq_f[0, 2] = 0.0, 0.0, 1.0
         sq_i[0, 0], sq_i[0, 1], sq_i[0, 2], sq_i[0, 3], sq_i[0, 4], sq_i[0, 5] = 0, 1, 2, 3, 4, 0
         sp = 1
@@ -889,12 +920,11 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, dmode, spp, jitter_gauss, gamma, 
                 adaptive_children(x0, y0, size, pts)
                 for q in range(8):
                     pos[n + q, 0], pos[n + q, 1] = pts[q, 0], pts[q, 1]
-                    rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pts[q, 0], y + pts[q, 1], n + q, cap, dmode,
-                                           gmodel, max_depth, hall_threshold, ka, ambient, ks,
-                                           shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                                           seed, pixel, stack_f, stack_i, counts, cut_w, 0.0,
-                                           np.int64(NOT_TRACED), 0.0, 0.0)
-                    vals[n + q, 0], vals[n + q, 1], vals[n + q, 2] = rr, gg, bb
+                    film[q, 0], film[q, 1] = x + pts[q, 0], y + pts[q, 1]
+                _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:8], n, cap, dmode, shade,
+                       seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:8], pre_prim[:8], pre_b[:8],
+                       rgb[:8])
+                vals[n:n + 8] = rgb[:8]
                 e_b, e_l, e_r, e_t = n, n + 1, n + 2, n + 3
                 c = idx[4]
                 h = 0.5 * size
@@ -939,10 +969,10 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, dmode, spp, jitter_gauss, gamma, 
             else:
                 fx = uniform(seed + _STREAM, pixel, n, 6)
                 fy = uniform(seed + _STREAM, pixel, n, 7)
-            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + fx, y + fy, n, cap, dmode, gmodel, max_depth,
-                                   hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
-                                   shadows, light_samples, seed, pixel, stack_f, stack_i, counts,
-                                   cut_w, 0.0, np.int64(NOT_TRACED), 0.0, 0.0)
+            film[0, 0], film[0, 1] = x + fx, y + fy
+            _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:1], n, cap, dmode, shade, seed,
+                   pixel, stack_f, stack_i, counts, cut_w, pre_t[:1], pre_prim[:1], pre_b[:1], rgb[:1])
+            rr, gg, bb = rgb[0, 0], rgb[0, 1], rgb[0, 2]
             _store(rec, n, x + fx, y + fy, 1.0, rr, gg, bb)
             c = n + 1.0
             d0, d1, d2 = rr - m0, gg - m1, bb - m2
@@ -960,11 +990,11 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, dmode, spp, jitter_gauss, gamma, 
     pts = np.zeros((spp, 2))
     n = _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts)
     for s in range(n):
-        rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, x + pts[s, 0], y + pts[s, 1], s, n, dmode, gmodel, max_depth,
-                               hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp,
-                               shadows, light_samples, seed, pixel, stack_f, stack_i, counts, cut_w,
-                               0.0, np.int64(NOT_TRACED), 0.0, 0.0)
-        _store(rec, s, x + pts[s, 0], y + pts[s, 1], 1.0, rr, gg, bb)
+        film[s, 0], film[s, 1] = x + pts[s, 0], y + pts[s, 1]
+    _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:n], np.int64(0), n, dmode, shade, seed,
+           pixel, stack_f, stack_i, counts, cut_w, pre_t[:n], pre_prim[:n], pre_b[:n], rgb[:n])
+    for s in range(n):
+        _store(rec, s, film[s, 0], film[s, 1], 1.0, rgb[s, 0], rgb[s, 1], rgb[s, 2])
     return n
 
 
@@ -999,6 +1029,8 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, s
     W, H = int(cam[14]), int(cam[15])
     x0, y0, nx, ny = tile_rect(tile, W, H)
     P = nx * ny
+    shade = (gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+             light_samples)
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
     cut_w = np.zeros(2)
@@ -1013,6 +1045,7 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, s
         npt[i] = _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts[i])
         n_max = max(n_max, npt[i])
     rays, hit_t, hit_p, hit_b = packet_buffers(P)
+    film, rgb = np.empty((1, 2)), np.empty((1, 3))
     who = np.empty(P, dtype=np.int64)      # packet ray j is pixel who[j] of the tile
     for s in range(n_max):
         m = 0
@@ -1032,11 +1065,11 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, s
             x, y = x0 + i % nx, y0 + i // nx
             pixel = y * W + x
             fx, fy = x + pts[i, s, 0], y + pts[i, s, 1]
-            rr, gg, bb = _radiance(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, fx, fy, s, npt[i], dmode, gmodel,
-                                   max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
-                                   fclamp, shadows, light_samples, seed, pixel, stack_f, stack_i,
-                                   counts[pixel], cut_w, hit_t[j], hit_p[j], hit_b[j, 0], hit_b[j, 1])
-            _store(recs[pixel], s, fx, fy, 1.0, rr, gg, bb)
+            film[0, 0], film[0, 1] = fx, fy
+            _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:1], s, npt[i], dmode, shade,
+                   seed, pixel, stack_f, stack_i, counts[pixel], cut_w, hit_t[j:j + 1], hit_p[j:j + 1],
+                   hit_b[j:j + 1], rgb[:1])
+            _store(recs[pixel], s, fx, fy, 1.0, rgb[0, 0], rgb[0, 1], rgb[0, 2])
     for i in range(P):
         nrec[(y0 + i // nx) * W + x0 + i % nx] = npt[i]
 

@@ -68,7 +68,8 @@ from numba import njit, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-__all__ = ["batch_kernel", "interleaved", "run_tasks", "take_task", "task_stride"]
+__all__ = ["batch_kernel", "by_reference", "dereference", "interleaved", "run_tasks", "take_task",
+           "task_stride"]
 
 #: LLVM's loop vectoriser versions a loop over arrays it cannot prove disjoint with
 #: run-time overlap checks, and gives the loop up (scalar code) when it would need more
@@ -82,6 +83,48 @@ LLVM_OPTIONS = ("-runtime-memory-check-threshold=4096", "-vectorize-memory-check
                 "-memory-check-merge-threshold=4096")
 for _option in LLVM_OPTIONS:
     _llvm.set_option("gibench", _option)
+
+
+# ------------------------------------------------------------ by reference ---
+#
+# numba passes a tuple to a function it calls (one not inlined) field by field: every
+# array of the flattened scene as its pointer, sizes and strides, several hundred
+# scalars, most of them on the stack, at every call.  For a function called per sample
+# (distributed's ray tree) that copying cost more than the tree itself.  by_reference
+# copies the tuple once onto the caller's stack and passes its address; the callee
+# reads it with dereference, and LLVM loads only the fields the callee uses.  The
+# pointer is valid for the caller's frame: pass it down, never return or store it.
+
+
+@intrinsic
+def by_reference(typingctx, value):
+    """A pointer (``types.CPointer``) to a copy of ``value`` in the calling function's
+    stack frame (allocated once, at its entry), for a callee to read with
+    :func:`dereference`; a pointer given to it is returned as it is, so a helper can take
+    either.  The copy borrows the arrays' references."""
+    if isinstance(value, types.CPointer):
+        return value(value), lambda context, builder, sig, args: args[0]
+
+    def codegen(context, builder, sig, args):
+        ptr = cgutils.alloca_once(builder, context.get_data_type(value))
+        context.pack_value(builder, value, args[0], ptr)
+        return ptr
+    return types.CPointer(value)(value), codegen
+
+
+@intrinsic
+def dereference(typingctx, ptr):
+    """The value :func:`by_reference` copied to the address ``ptr`` (a new reference
+    where numba counts references)."""
+    if not isinstance(ptr, types.CPointer):
+        return None
+
+    def codegen(context, builder, sig, args):
+        value = context.unpack_value(builder, ptr.dtype, args[0])
+        if context.enable_nrt:
+            context.nrt.incref(builder, ptr.dtype, value)
+        return value
+    return ptr.dtype(ptr), codegen
 
 
 # ---------------------------------------------------- compile-time collection ---

@@ -65,7 +65,7 @@ from numba import njit
 
 from .envmap import envmap_draw, envmap_radiance
 from .fresnel import fresnel_dielectric
-from .kernel import batch_kernel
+from .kernel import batch_kernel, by_reference, dereference
 from .rays import RayConfig, hit, legacy_config, leave, occluded, refine, round_ray
 from .intersect import like
 from .offset import spawn_select
@@ -258,16 +258,17 @@ def direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
     ``DIM_INDEPENDENT`` the hashed :func:`light_uv` of ``sample``), and every light
     sample weighted by :func:`map_weight` with ``mapped = (s0x, s0y, s0z, code)``: under
     a normal or bump map (``code`` not ``MAP_NONE``) s is the perturbed normal the Phong
-    bracket is taken about and s0 the unperturbed shading normal.  (Tuples: a call of an
-    inlined function with more than 30 arguments compiles to a star-args call, which
-    numba cannot inline.)"""
+    bracket is taken about and s0 the unperturbed shading normal.  ``A`` may be the
+    flattened scene or a reference to it (:func:`impl.kernel.by_reference`; the light
+    loop gets it by reference).  (Tuples: a call of an inlined function with more than
+    30 arguments compiles to a star-args call, which numba cannot inline.)"""
     # Every argument that a caller may pass as a literal (``False``, ``0``) goes through
     # its type (bool(), np.int64(), float()): numba compiles a function once per literal
     # value it is called with, and _direct_light_rays is a large function.
     dmode, dspp, ddim = dims
     s0x, s0y, s0z, code = mapped
     return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
-                              A, ks, shininess, c1, c2, c3, fclamp, bool(shadows),
+                              by_reference(A), ks, shininess, c1, c2, c3, fclamp, bool(shadows),
                               np.int64(light_samples), np.int64(seed), np.int64(pixel),
                               np.int64(sample), R, np.int64(dmode), np.int64(dspp), np.int64(ddim),
                               float(s0x), float(s0y), float(s0z), float(code))
@@ -275,9 +276,11 @@ def direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
 
 @njit(cache=True)
 def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
-                       A: SceneArrays, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
+                       scene, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
                        seed, pixel, sample, R: RayConfig, dmode, dspp, ddim, s0x, s0y, s0z, code):
-    """The body of :func:`direct_light_dims` (opaque shadows)."""
+    """The body of :func:`direct_light_dims` (opaque shadows); ``scene`` the flattened
+    scene by reference."""
+    A = dereference(scene)
     r = g = b = 0.0
     nshadow = 0
     for li in range(A.light_kind.shape[0]):

@@ -486,7 +486,7 @@ def test_delta_light_lanes_equal_the_scalar_light_samples(params):
     """direct_batch computes a point, spot or directional light at every point of a batch
     in one branch-free loop (impl.lighting._delta_lanes; the spot's cone edge goes back to
     the scalar sample): each point gets, bit for bit, the light and the shadow-ray count
-    of the scalar per-point estimator (impl.lighting._direct_light_rays), in every ray
+    of the scalar per-point estimator (impl.lighting.direct_light_dims), in every ray
     configuration; points in the spot's transition band and in shadow are among them."""
     sc = load_scene(SUITES / "spheres/spot_directional.xml")
     A = flatten_cached(sc)
@@ -507,7 +507,7 @@ def test_the_scalar_light_samples_weigh_a_normal_or_bump_map_as_the_batch_does(p
     """Under normal and bump maps (suites/vocabulary/maps_direct.xml: a point light and a
     rectangle light over mapped diffuse surfaces, two of them two-sided panels seen from
     behind) the scalar per-point estimator that distributed ray tracing calls
-    (impl.lighting._direct_light_rays, given the perturbed normal, the unperturbed one and
+    (impl.lighting.direct_light_dims, given the perturbed normal, the unperturbed one and
     the map's code) weights every light sample as direct_batch does: the same light and
     shadow-ray count at every point, bit for bit.  The weights matter: at some points the
     same estimator without them (code MAP_NONE) gives other light."""
@@ -521,9 +521,9 @@ def test_the_scalar_light_samples_weigh_a_normal_or_bump_map_as_the_batch_does(p
         if P[lighting.SP_MAP, i] == lighting.MAP_NONE:
             continue
         mapped += 1
-        plain = lighting._direct_light_rays(
+        plain = lighting.direct_light_dims(
             *P[:lighting.SP_N0, i], A, M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows,
-            M.light_samples, 7, pixel, 2, R, DIM_INDEPENDENT, 0, 0, 0.0, 0.0, 0.0, lighting.MAP_NONE)
+            M.light_samples, 7, pixel, 2, R, (DIM_INDEPENDENT, 0, 0), (0.0, 0.0, 0.0, lighting.MAP_NONE))
         weighed += plain[0] != r
     assert mapped > 500 and weighed > 50
 
@@ -531,7 +531,7 @@ def test_the_scalar_light_samples_weigh_a_normal_or_bump_map_as_the_batch_does(p
 def _lanes_against_scalar(sc, params):
     """Shade a third of the tiles of scene ``sc`` with raycast's batch step (sample 2 of 4,
     seed 7; its direct light by impl.lighting.direct_batch) and compare every lit point,
-    bit for bit, with the scalar per-point estimator (impl.lighting._direct_light_rays):
+    bit for bit, with the scalar per-point estimator (impl.lighting.direct_light_dims):
     its light and its shadow-ray count (points on emitters left out).  Yields (points, column, red light, shadow rays,
     local model, pixel, ray configuration) per point."""
     from impl import lighting, raycast
@@ -556,10 +556,10 @@ def _lanes_against_scalar(sc, params):
         for i in np.flatnonzero(T.active[:T.n]):
             if A.shape_emit[A.prim_shape[T.prim[i]]].any():
                 continue                 # T.L holds its emission too
-            r, g, b, nsh = lighting._direct_light_rays(
+            r, g, b, nsh = lighting.direct_light_dims(
                 *P[:lighting.SP_N0, i], A, M.ks, M.shininess, M.c1, M.c2, M.c3, M.fclamp, M.shadows,
-                M.light_samples, 7, T.pixel[i], 2, R, DIM_INDEPENDENT, 0, 0,
-                *P[lighting.SP_N0:lighting.SP_MAP + 1, i])
+                M.light_samples, 7, T.pixel[i], 2, R, (DIM_INDEPENDENT, 0, 0),
+                tuple(P[lighting.SP_N0:lighting.SP_MAP + 1, i]))
             assert (T.L[0, i], T.L[1, i], T.L[2, i]) == (r, g, b), (tile, i)
             assert T.cnt[i, 0] == nsh, (tile, i)
             yield P, i, r, nsh, M, T.pixel[i], R
