@@ -868,12 +868,13 @@ def _store(rec, i, fx, fy, w, r, g, b):
 
 
 @njit(cache=True)
-def _pixel(cam, A, S, R, M, HL, x, y, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
-           adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
-           fclamp, shadows, light_samples, seed, rec, counts):
-    """One pixel's sample records ``rec[:n] = (x, y, weight, r, g, b)``; returns n."""
+def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
+         adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
+         fclamp, shadows, light_samples, seed, recs, nrec, counts_all):
+    """The sample records of row ``y``'s pixels: pixel p's ``recs[p, :n] = (x, y, weight,
+    r, g, b)`` and ``nrec[p] = n``.  A row per call: the call passes the scene's arrays,
+    and the scratch arrays are made once per row."""
     W = int(cam[14])
-    pixel = y * W + x
     shade = (gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
              light_samples)
     stack_f = np.empty((max_depth + 2, 11))
@@ -885,117 +886,122 @@ def _pixel(cam, A, S, R, M, HL, x, y, sampler, dmode, spp, jitter_gauss, gamma, 
     k = max(spp, 8)                          # film positions and values of a call of _trees
     film, rgb = np.empty((k, 2)), np.empty((k, 3))
     pre_t, pre_prim, pre_b = np.zeros(k), np.full(k, NOT_TRACED, dtype=np.int64), np.zeros((k, 2))
-    if sampler == SMP_ADAPTIVE:
-        # Whitted's adaptive supersampling: squares of (corner, size, depth, 5 value indices).
-        cap = max(spp, 5)
-        vals = np.zeros((cap, 3))
-        pos = np.zeros((cap, 2))
-        wts = np.zeros(cap)
-        pts = np.zeros((8, 2))
-        sq_f = np.zeros((4 * adaptive_depth + 4, 3))
-        sq_i = np.zeros((4 * adaptive_depth + 4, 6), dtype=np.int64)
-        # Root: corners c00, c10, c01, c11 and the centre.
-        pos[0, 0], pos[0, 1] = 0.0, 0.0
-        pos[1, 0], pos[1, 1] = 1.0, 0.0
-        pos[2, 0], pos[2, 1] = 0.0, 1.0
-        pos[3, 0], pos[3, 1] = 1.0, 1.0
-        pos[4, 0], pos[4, 1] = 0.5, 0.5
-        for i in range(5):
-            film[i, 0], film[i, 1] = x + pos[i, 0], y + pos[i, 1]
-        _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:5], np.int64(0), cap, dmode, shade,
-               seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:5], pre_prim[:5], pre_b[:5], rgb[:5])
-        vals[:5] = rgb[:5]
-        n = np.int64(5)       # not the literal 5: numba would type the calls below for it too
-        sq_f[0, 0], sq_f[0, 1], sq_f[0, 2] = 0.0, 0.0, 1.0
-        sq_i[0, 0], sq_i[0, 1], sq_i[0, 2], sq_i[0, 3], sq_i[0, 4], sq_i[0, 5] = 0, 1, 2, 3, 4, 0
-        sp = 1
-        idx = np.zeros(5, dtype=np.int64)
-        while sp > 0:
-            sp -= 1
-            x0, y0, size = sq_f[sp, 0], sq_f[sp, 1], sq_f[sp, 2]
-            for q in range(5):
-                idx[q] = sq_i[sp, q]
-            d = sq_i[sp, 5]
-            if d < adaptive_depth and n + 8 <= cap and adaptive_disagree(vals, idx, threshold):
-                adaptive_children(x0, y0, size, pts)
-                for q in range(8):
-                    pos[n + q, 0], pos[n + q, 1] = pts[q, 0], pts[q, 1]
-                    film[q, 0], film[q, 1] = x + pts[q, 0], y + pts[q, 1]
-                _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:8], n, cap, dmode, shade,
-                       seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:8], pre_prim[:8], pre_b[:8],
-                       rgb[:8])
-                vals[n:n + 8] = rgb[:8]
-                e_b, e_l, e_r, e_t = n, n + 1, n + 2, n + 3
-                c = idx[4]
-                h = 0.5 * size
-                # Quadrants (corners c00, c10, c01, c11, centre), pushed 11, 01, 10, 00.
-                quads = ((x0 + h, y0 + h, e_r, idx[3], c, e_t, n + 7),
-                         (x0, y0 + h, e_l, c, idx[2], e_t, n + 6),
-                         (x0 + h, y0, e_b, idx[1], c, e_r, n + 5),
-                         (x0, y0, idx[0], e_b, e_l, c, n + 4))
-                # (corner order per quadrant: c00, c10, c01, c11)
-                quad_c = ((c, e_r, e_t, idx[3]), (e_l, c, idx[2], e_t),
-                          (e_b, idx[1], c, e_r), (idx[0], e_b, e_l, c))
-                for k in range(4):
-                    qx0, qy0 = quads[k][0], quads[k][1]
-                    sq_f[sp, 0], sq_f[sp, 1], sq_f[sp, 2] = qx0, qy0, h
-                    sq_i[sp, 0] = quad_c[k][0]
-                    sq_i[sp, 1] = quad_c[k][1]
-                    sq_i[sp, 2] = quad_c[k][2]
-                    sq_i[sp, 3] = quad_c[k][3]
-                    sq_i[sp, 4] = quads[k][6]
-                    sq_i[sp, 5] = d + 1
-                    sp += 1
-                n += 8
-            else:
-                a = size * size / 5.0            # a leaf: its five samples share its area
+    for x in range(W):
+        pixel = y * W + x
+        rec, counts = recs[pixel], counts_all[pixel]
+        if sampler == SMP_ADAPTIVE:
+            # Whitted's adaptive supersampling: squares of (corner, size, depth, 5 value indices).
+            cap = max(spp, 5)
+            vals = np.zeros((cap, 3))
+            pos = np.zeros((cap, 2))
+            wts = np.zeros(cap)
+            pts = np.zeros((8, 2))
+            sq_f = np.zeros((4 * adaptive_depth + 4, 3))
+            sq_i = np.zeros((4 * adaptive_depth + 4, 6), dtype=np.int64)
+            # Root: corners c00, c10, c01, c11 and the centre.
+            pos[0, 0], pos[0, 1] = 0.0, 0.0
+            pos[1, 0], pos[1, 1] = 1.0, 0.0
+            pos[2, 0], pos[2, 1] = 0.0, 1.0
+            pos[3, 0], pos[3, 1] = 1.0, 1.0
+            pos[4, 0], pos[4, 1] = 0.5, 0.5
+            for i in range(5):
+                film[i, 0], film[i, 1] = x + pos[i, 0], y + pos[i, 1]
+            _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:5], np.int64(0), cap, dmode, shade,
+                   seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:5], pre_prim[:5], pre_b[:5], rgb[:5])
+            vals[:5] = rgb[:5]
+            n = np.int64(5)       # not the literal 5: numba would type the calls below for it too
+            sq_f[0, 0], sq_f[0, 1], sq_f[0, 2] = 0.0, 0.0, 1.0
+            sq_i[0, 0], sq_i[0, 1], sq_i[0, 2], sq_i[0, 3], sq_i[0, 4], sq_i[0, 5] = 0, 1, 2, 3, 4, 0
+            sp = 1
+            idx = np.zeros(5, dtype=np.int64)
+            while sp > 0:
+                sp -= 1
+                x0, y0, size = sq_f[sp, 0], sq_f[sp, 1], sq_f[sp, 2]
                 for q in range(5):
-                    wts[idx[q]] += a
-        for i in range(n):
-            _store(rec, i, x + pos[i, 0], y + pos[i, 1], wts[i], vals[i, 0], vals[i, 1], vals[i, 2])
-        return n
+                    idx[q] = sq_i[sp, q]
+                d = sq_i[sp, 5]
+                if d < adaptive_depth and n + 8 <= cap and adaptive_disagree(vals, idx, threshold):
+                    adaptive_children(x0, y0, size, pts)
+                    for q in range(8):
+                        pos[n + q, 0], pos[n + q, 1] = pts[q, 0], pts[q, 1]
+                        film[q, 0], film[q, 1] = x + pts[q, 0], y + pts[q, 1]
+                    _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:8], n, cap, dmode, shade,
+                           seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:8], pre_prim[:8], pre_b[:8],
+                           rgb[:8])
+                    vals[n:n + 8] = rgb[:8]
+                    e_b, e_l, e_r, e_t = n, n + 1, n + 2, n + 3
+                    c = idx[4]
+                    h = 0.5 * size
+                    # Quadrants (corners c00, c10, c01, c11, centre), pushed 11, 01, 10, 00.
+                    quads = ((x0 + h, y0 + h, e_r, idx[3], c, e_t, n + 7),
+                             (x0, y0 + h, e_l, c, idx[2], e_t, n + 6),
+                             (x0 + h, y0, e_b, idx[1], c, e_r, n + 5),
+                             (x0, y0, idx[0], e_b, e_l, c, n + 4))
+                    # (corner order per quadrant: c00, c10, c01, c11)
+                    quad_c = ((c, e_r, e_t, idx[3]), (e_l, c, idx[2], e_t),
+                              (e_b, idx[1], c, e_r), (idx[0], e_b, e_l, c))
+                    for k in range(4):
+                        qx0, qy0 = quads[k][0], quads[k][1]
+                        sq_f[sp, 0], sq_f[sp, 1], sq_f[sp, 2] = qx0, qy0, h
+                        sq_i[sp, 0] = quad_c[k][0]
+                        sq_i[sp, 1] = quad_c[k][1]
+                        sq_i[sp, 2] = quad_c[k][2]
+                        sq_i[sp, 3] = quad_c[k][3]
+                        sq_i[sp, 4] = quads[k][6]
+                        sq_i[sp, 5] = d + 1
+                        sp += 1
+                    n += 8
+                else:
+                    a = size * size / 5.0            # a leaf: its five samples share its area
+                    for q in range(5):
+                        wts[idx[q]] += a
+            for i in range(n):
+                _store(rec, i, x + pos[i, 0], y + pos[i, 1], wts[i], vals[i, 0], vals[i, 1], vals[i, 2])
+            nrec[pixel] = n
+            continue
 
-    if sampler == SMP_STATISTICAL:
-        # 4 stratified samples, then uniform ones until the CI is narrow enough.
-        pts = np.zeros((4, 2))
-        jitter_pattern(2, 0.5, seed, pixel, pts)
-        m0 = m1 = m2 = 0.0
-        q0 = q1 = q2 = 0.0
-        n = np.int64(0)       # not the literal 0: numba would type the calls below for it too
-        cap = max(spp, 4)
-        while n < cap:
-            if n < 4:
-                fx, fy = pts[n, 0], pts[n, 1]
-            else:
-                fx = uniform(seed + _STREAM, pixel, n, 6)
-                fy = uniform(seed + _STREAM, pixel, n, 7)
-            film[0, 0], film[0, 1] = x + fx, y + fy
-            _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:1], n, cap, dmode, shade, seed,
-                   pixel, stack_f, stack_i, counts, cut_w, pre_t[:1], pre_prim[:1], pre_b[:1], rgb[:1])
-            rr, gg, bb = rgb[0, 0], rgb[0, 1], rgb[0, 2]
-            _store(rec, n, x + fx, y + fy, 1.0, rr, gg, bb)
-            c = n + 1.0
-            d0, d1, d2 = rr - m0, gg - m1, bb - m2
-            m0 += d0 / c
-            m1 += d1 / c
-            m2 += d2 / c
-            q0 += d0 * (rr - m0)
-            q1 += d1 * (gg - m1)
-            q2 += d2 * (bb - m2)
-            n += 1
-            if statistical_done(n, q0, q1, q2, z, tolerance):
-                break
-        return n
+        if sampler == SMP_STATISTICAL:
+            # 4 stratified samples, then uniform ones until the CI is narrow enough.
+            pts = np.zeros((4, 2))
+            jitter_pattern(2, 0.5, seed, pixel, pts)
+            m0 = m1 = m2 = 0.0
+            q0 = q1 = q2 = 0.0
+            n = np.int64(0)       # not the literal 0: numba would type the calls below for it too
+            cap = max(spp, 4)
+            while n < cap:
+                if n < 4:
+                    fx, fy = pts[n, 0], pts[n, 1]
+                else:
+                    fx = uniform(seed + _STREAM, pixel, n, 6)
+                    fy = uniform(seed + _STREAM, pixel, n, 7)
+                film[0, 0], film[0, 1] = x + fx, y + fy
+                _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:1], n, cap, dmode, shade, seed,
+                       pixel, stack_f, stack_i, counts, cut_w, pre_t[:1], pre_prim[:1], pre_b[:1], rgb[:1])
+                rr, gg, bb = rgb[0, 0], rgb[0, 1], rgb[0, 2]
+                _store(rec, n, x + fx, y + fy, 1.0, rr, gg, bb)
+                c = n + 1.0
+                d0, d1, d2 = rr - m0, gg - m1, bb - m2
+                m0 += d0 / c
+                m1 += d1 / c
+                m2 += d2 / c
+                q0 += d0 * (rr - m0)
+                q1 += d1 * (gg - m1)
+                q2 += d2 * (bb - m2)
+                n += 1
+                if statistical_done(n, q0, q1, q2, z, tolerance):
+                    break
+            nrec[pixel] = n
+            continue
 
-    pts = np.zeros((spp, 2))
-    n = _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts)
-    for s in range(n):
-        film[s, 0], film[s, 1] = x + pts[s, 0], y + pts[s, 1]
-    _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:n], np.int64(0), n, dmode, shade, seed,
-           pixel, stack_f, stack_i, counts, cut_w, pre_t[:n], pre_prim[:n], pre_b[:n], rgb[:n])
-    for s in range(n):
-        _store(rec, s, film[s, 0], film[s, 1], 1.0, rgb[s, 0], rgb[s, 1], rgb[s, 2])
-    return n
+        pts = np.zeros((spp, 2))
+        n = _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts)
+        for s in range(n):
+            film[s, 0], film[s, 1] = x + pts[s, 0], y + pts[s, 1]
+        _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:n], np.int64(0), n, dmode, shade, seed,
+               pixel, stack_f, stack_i, counts, cut_w, pre_t[:n], pre_prim[:n], pre_b[:n], rgb[:n])
+        for s in range(n):
+            _store(rec, s, film[s, 0], film[s, 1], 1.0, rgb[s, 0], rgb[s, 1], rgb[s, 2])
+        nrec[pixel] = n
 
 
 @njit(inline="always", cache=True)
@@ -1024,7 +1030,7 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, s
           recs, nrec, counts, packet_counts):
     """One 8×8 tile of a fixed-count sampler: per sample index s, the eye rays of the
     tile's pixels that have a sample s (the pattern positions and lens points of
-    :func:`_pixel`) traced as one packet, then each one's ray tree from its eye hit.
+    :func:`_row`) traced as one packet, then each one's ray tree from its eye hit.
     Static scenes only (the packet is traced through R's tree as built)."""
     W, H = int(cam[14]), int(cam[15])
     x0, y0, nx, ny = tile_rect(tile, W, H)
@@ -1092,14 +1098,12 @@ def _render_tiles(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma,
 def _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
                    tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1,
                    c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts):
-    W, H = int(cam[14]), int(cam[15])
-    stride = task_stride(W * H)
-    for c in prange(W * H):
-        pixel = interleaved(c, W * H, stride)
-        nrec[pixel] = _pixel(cam, A, S, R, M, HL, pixel % W, pixel // W, sampler, dmode, spp, jitter_gauss, gamma,
-                             sigma, threshold, adaptive_depth, tolerance, z, gmodel, max_depth,
-                             hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-                             light_samples, seed, recs[pixel], counts[pixel])
+    H = int(cam[15])
+    stride = task_stride(H)
+    for c in prange(H):
+        _row(cam, A, S, R, M, HL, interleaved(c, H, stride), sampler, dmode, spp, jitter_gauss, gamma,
+             sigma, threshold, adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient,
+             ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts)
 
 
 # ------------------------------------------------------------- orchestration ---
