@@ -869,8 +869,8 @@ def _store(rec, i, fx, fy, w, r, g, b):
 
 @njit(cache=True)
 def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
-         adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3,
-         fclamp, shadows, light_samples, seed, recs, nrec, counts_all):
+         adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1,
+         c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts_all):
     """The sample records of row ``y``'s pixels: pixel p's ``recs[p, :n] = (x, y, weight,
     r, g, b)`` and ``nrec[p] = n``.  A row per call: the call passes the scene's arrays,
     and the scratch arrays are made once per row."""
@@ -906,8 +906,9 @@ def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma
             pos[4, 0], pos[4, 1] = 0.5, 0.5
             for i in range(5):
                 film[i, 0], film[i, 1] = x + pos[i, 0], y + pos[i, 1]
-            _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:5], np.int64(0), cap, dmode, shade,
-                   seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:5], pre_prim[:5], pre_b[:5], rgb[:5])
+            _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:5], np.int64(0), cap, dmode,
+                   shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:5], pre_prim[:5], pre_b[:5],
+                   rgb[:5])
             vals[:5] = rgb[:5]
             n = np.int64(5)       # not the literal 5: numba would type the calls below for it too
             sq_f[0, 0], sq_f[0, 1], sq_f[0, 2] = 0.0, 0.0, 1.0
@@ -925,9 +926,9 @@ def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma
                     for q in range(8):
                         pos[n + q, 0], pos[n + q, 1] = pts[q, 0], pts[q, 1]
                         film[q, 0], film[q, 1] = x + pts[q, 0], y + pts[q, 1]
-                    _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:8], n, cap, dmode, shade,
-                           seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:8], pre_prim[:8], pre_b[:8],
-                           rgb[:8])
+                    _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:8], n, cap, dmode,
+                           shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:8], pre_prim[:8],
+                           pre_b[:8], rgb[:8])
                     vals[n:n + 8] = rgb[:8]
                     e_b, e_l, e_r, e_t = n, n + 1, n + 2, n + 3
                     c = idx[4]
@@ -975,8 +976,9 @@ def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma
                     fx = uniform(seed + _STREAM, pixel, n, 6)
                     fy = uniform(seed + _STREAM, pixel, n, 7)
                 film[0, 0], film[0, 1] = x + fx, y + fy
-                _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:1], n, cap, dmode, shade, seed,
-                       pixel, stack_f, stack_i, counts, cut_w, pre_t[:1], pre_prim[:1], pre_b[:1], rgb[:1])
+                _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:1], n, cap, dmode, shade,
+                       seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:1], pre_prim[:1], pre_b[:1],
+                       rgb[:1])
                 rr, gg, bb = rgb[0, 0], rgb[0, 1], rgb[0, 2]
                 _store(rec, n, x + fx, y + fy, 1.0, rr, gg, bb)
                 c = n + 1.0
@@ -997,8 +999,8 @@ def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma
         n = _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts)
         for s in range(n):
             film[s, 0], film[s, 1] = x + pts[s, 0], y + pts[s, 1]
-        _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:n], np.int64(0), n, dmode, shade, seed,
-               pixel, stack_f, stack_i, counts, cut_w, pre_t[:n], pre_prim[:n], pre_b[:n], rgb[:n])
+        _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:n], np.int64(0), n, dmode, shade,
+               seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:n], pre_prim[:n], pre_b[:n], rgb[:n])
         for s in range(n):
             _store(rec, s, film[s, 0], film[s, 1], 1.0, rgb[s, 0], rgb[s, 1], rgb[s, 2])
         nrec[pixel] = n

@@ -3,18 +3,18 @@
 * :func:`impl.textures.bitmap_grad` is the derivative of the bilinear luminance
   (finite differences), and 0 for ``nearest``;
 * ``suites/vocabulary/normalmap.xml`` and ``bumpmap.xml`` (``path``),
-  ``maps_direct.xml`` (``raycast``: both maps over diffuse surfaces) and
-  ``maps_whitted.xml`` (``whitted`` and ``distributed``: a normal-mapped mirror and a
-  bump-mapped glass sheet), ``maps_distributed.xml`` (``distributed``: a normal-mapped
-  rough gold wall and a bump-mapped rough glass sheet), and ``projector.xml`` and ``spot_texture_direct.xml`` (``path``,
-  ``raycast``, ``whitted``, ``distributed``) pass the per-pixel Z-test against
-  Mitsuba on the same XML, and each image's thirds agree in the mean;
+  ``maps_direct.xml`` (``raycast``: both maps over diffuse surfaces),
+  ``maps_whitted.xml`` (``whitted`` and ``distributed``: a normal-mapped mirror and
+  a bump-mapped glass sheet), ``maps_distributed.xml`` (``distributed``: a
+  normal-mapped rough gold wall and a bump-mapped rough glass sheet), and
+  ``projector.xml`` and ``spot_texture_direct.xml`` (``path``, ``raycast``,
+  ``whitted``, ``distributed``) pass the per-pixel Z-test against Mitsuba on the
+  same XML, and each image's thirds agree in the mean;
 * negative controls, each of which must fail the Z-test: the normal map ignored,
   the normal map with its tangent t negated (the green channel inverted), the
   panels seen from behind with the normal map's order around ``twosided``
-  swapped, the
-  bump map ignored, the bump map with its scale negated (in ``distributed`` too), the
-  rough wall's normal map ignored, the projector's image
+  swapped, the bump map ignored, the bump map with its scale negated (in
+  ``distributed`` too), the rough wall's normal map ignored, the projector's image
   and the spot's texture mirrored left to right, the spot's texture ignored;
 * the algorithms that do not model a part refuse it by name.
 """
