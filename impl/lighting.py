@@ -274,12 +274,14 @@ def direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
                               float(s0x), float(s0y), float(s0z), float(code))
 
 
-@njit(cache=True)
+@batch_kernel
 def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                        scene, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
                        seed, pixel, sample, R: RayConfig, dmode, dspp, ddim, s0x, s0y, s0z, code):
     """The body of :func:`direct_light_dims` (opaque shadows); ``scene`` the flattened
-    scene by reference."""
+    scene by reference.  Compiled without numba's runtime whoever calls it first (its
+    callers include runtime-on functions, the z-buffer's shading): with the runtime,
+    reading the scene back would count a reference to each of its arrays at every call."""
     A = dereference(scene)
     r = g = b = 0.0
     nshadow = 0
