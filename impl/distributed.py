@@ -1083,29 +1083,34 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, s
 
 
 @njit(parallel=True, cache=True)
-def _render_tiles(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
-                  hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-                  light_samples, seed, recs, nrec, counts, packet_counts):
+def _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
+                   adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks,
+                   shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts,
+                   packet_counts):
+    """The film's tasks in parallel: rows of pixels (:func:`_row`), or with packets
+    (``packet_counts`` (tiles, 2), else (0, 2)) 8×8 tiles (:func:`_tile`), in a
+    golden-ratio order (:func:`impl.kernel.interleaved`).
+
+    One loop for both: numba compiles a kernel with its whole call tree linked in, so a
+    second kernel would compile the ray tree once more.  A ``prange`` loop, not a task
+    loop (:func:`impl.kernel.run_tasks`): the tasks take views of the shared record and
+    counter arrays per pixel (per packet ray), and numba's parallel body gets its arrays
+    without reference counts, where a task loop's threads would update the same counts
+    atomically."""
     W, H = int(cam[14]), int(cam[15])
-    n = tile_count(W, H)
+    packets = packet_counts.shape[0] > 0
+    n = tile_count(W, H) if packets else H
     stride = task_stride(n)
     for c in prange(n):
-        tile = interleaved(c, n, stride)
-        _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel,
-              max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-              light_samples, seed, recs, nrec, counts, packet_counts[tile])
-
-
-@njit(parallel=True, cache=True)
-def _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold, adaptive_depth,
-                   tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1,
-                   c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts):
-    H = int(cam[15])
-    stride = task_stride(H)
-    for c in prange(H):
-        _row(cam, A, S, R, M, HL, interleaved(c, H, stride), sampler, dmode, spp, jitter_gauss, gamma,
-             sigma, threshold, adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient,
-             ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts)
+        task = interleaved(np.int64(c), n, stride)
+        if packets:
+            _tile(cam, A, S, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel,
+                  max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
+                  light_samples, seed, recs, nrec, counts, packet_counts[task])
+        else:
+            _row(cam, A, S, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
+                 adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks,
+                 shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts)
 
 
 # ------------------------------------------------------------- orchestration ---
@@ -1217,14 +1222,10 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
              params["ka"], params["ambient"], params["ks"], params["shininess"], params["c1"],
              params["c2"], params["c3"], params["fatt_clamp"], params["shadows"],
              params["light_samples"], seed, recs, nrec, counts)
-    if packets:
-        packet_counts = np.zeros((tile_count(W, H), 2), dtype=np.int64)
-        _render_tiles(cam, A, S, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
-                      float(params["gamma"]), float(params["sigma"]), *shade, packet_counts)
-    else:
-        _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
-                       float(params["gamma"]), float(params["sigma"]), float(params["threshold"]),
-                       int(params["adaptive_depth"]), float(params["tolerance"]), z, *shade)
+    packet_counts = np.zeros((tile_count(W, H) if packets else 0, 2), dtype=np.int64)
+    _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
+                   float(params["gamma"]), float(params["sigma"]), float(params["threshold"]),
+                   int(params["adaptive_depth"]), float(params["tolerance"]), z, *shade, packet_counts)
     mean, var = reconstruct(recs, nrec, W, H, fkind, stddev)
     totals = counts.sum(axis=0)
     counters = {name: int(v) for name, v in zip(COUNTERS, totals)}

@@ -194,9 +194,10 @@ def batch_kernel(fn=None, **options):
 #
 # The arrays a task loop is given keep their reference counts (numba's gufunc hands a
 # ``prange`` body its arrays without them), so a loop whose tasks create array views of
-# the shared arrays at a fine grain (distributed's per-pixel loop, its scalar shading)
-# makes both threads update the same counters atomically: such loops stay ``prange``.
-# The tile tracers' per-ray work is in batch kernels, which count no references.
+# the shared arrays at a fine grain (a view per ray) makes both threads update the same
+# counters atomically: such loops stay ``prange`` (distributed's rows and packet tiles,
+# which take a view per pixel or per packet ray).  The tile tracers' per-ray work is in
+# batch kernels, which count no references.
 
 
 @intrinsic

@@ -723,7 +723,9 @@ def _to_srgb(S: SpectralArrays, T: Batch, W: Walks):
                                                          W.f[_W_L1, c], W.f[_W_L2, c])
 
 
-@njit(cache=True)
+# Inlined into the task loop: as a function of its own it would be one more module that
+# numba optimises and generates machine code for with the whole tracer linked in.
+@njit(inline="always", cache=True)
 def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S: SpectralArrays,
           P: PathConfig, film: Film, tile, spp, seed):
     """One tile (:mod:`impl.tracer`): per sample index, the eye rays and their hits, then

@@ -116,15 +116,6 @@ def _face_normal(pos, tri, t, flip):
     return nx * inv, ny * inv, nz * inv
 
 
-@njit(parallel=True, cache=True)
-def _face_kernel(pos, tri, tri_shape, tri_prim, tri_flip, used, eye, A: SceneArrays, pp, out):
-    for c in prange(tri.shape[0]):
-        t = np.int64(c)                # one index type in both typings of the loop (impl.kernel)
-        if not used[t]:
-            continue
-        _face_one(pos, tri, tri_shape, tri_prim, tri_flip, t, eye, A, pp, out)
-
-
 @njit(cache=True)
 def _face_one(pos, tri, tri_shape, tri_prim, tri_flip, t, eye, A, pp, out):
     """Flat shading (1.5.1): the model once per polygon, at its centroid with the face normal."""
@@ -139,15 +130,6 @@ def _face_one(pos, tri, tri_shape, tri_prim, tri_flip, t, eye, A, pp, out):
     out[t, 0], out[t, 1], out[t, 2] = r, g, bb
 
 
-@njit(parallel=True, cache=True)
-def _vertex_kernel(pos, nrm, vshape, used, eye, A: SceneArrays, pp, out):
-    for c in prange(pos.shape[0]):
-        v = np.int64(c)                # one index type in both typings of the loop (impl.kernel)
-        if not used[v]:
-            continue
-        _vertex_one(pos, nrm, vshape, v, eye, A, pp, out)
-
-
 @njit(cache=True)
 def _vertex_one(pos, nrm, vshape, v, eye, A, pp, out):
     """Gouraud (1.5.4): the model at a vertex with its vertex normal (also the geometric one)."""
@@ -159,8 +141,9 @@ def _vertex_one(pos, nrm, vshape, v, eye, A, pp, out):
 def face_colours(soup, used_tri: np.ndarray, eye: np.ndarray, A: SceneArrays, pp: np.ndarray) -> np.ndarray:
     """Flat shading: (T, 3) colour per triangle (rows of unused triangles are 0)."""
     out = np.zeros((soup.n_triangles, 3))
-    _face_kernel(soup.pos, soup.tri, soup.tri_shape, soup.tri_prim, soup.tri_flip,
-                 used_tri.astype(np.int64), eye, A, pp, out)
+    _stage_kernel(_FACES, soup.n_triangles, used_tri.astype(np.int64), *_no_pixels(), soup.pos, soup.nrm,
+                  soup.tri, soup.tri_shape, soup.tri_prim, soup.tri_flip, _NO_V, _NO_FCOL, _NO_VTERM,
+                  eye, A, pp, out)
     return out
 
 
@@ -171,7 +154,9 @@ def vertex_terms(soup, used_tri: np.ndarray, eye: np.ndarray, A: SceneArrays, pp
     vshape = np.zeros(len(soup.pos), np.int64)
     vshape[soup.tri.ravel()] = np.repeat(soup.tri_shape, 3)
     out = np.zeros((len(soup.pos), 9))
-    _vertex_kernel(soup.pos, soup.nrm, vshape, used_v, eye, A, pp, out)
+    _stage_kernel(_VERTICES, len(soup.pos), used_v, *_no_pixels(), soup.pos, soup.nrm, soup.tri,
+                  soup.tri_shape, soup.tri_prim, soup.tri_flip, vshape, _NO_FCOL, _NO_VTERM, eye, A, pp,
+                  out)
     return out
 
 
@@ -213,21 +198,48 @@ def _pixel(mode, t, b1, b2, scr_src, scr_bary, pos, nrm, tri, tri_shape, tri_pri
                        shape, tri_prim[src], s1, s2, A, pp, pixel, 0)
 
 
+#: The stages of :func:`_stage_kernel`: the model at the used triangles (flat), at the
+#: used vertices (Gouraud), then per pixel of the visibility buffer (every mode).
+_FACES, _VERTICES, _PIXELS = 0, 1, 2
+_NO_V = np.zeros(0, np.int64)
+_NO_FCOL = np.zeros((1, 3))
+_NO_VTERM = np.zeros((1, 9))
+
+
+def _no_pixels():
+    """The visibility-buffer arguments of a stage that does not read them."""
+    return (np.int64(0), np.zeros((0, 0), np.int64), np.zeros((0, 0, 2)), np.zeros(0, np.int64),
+            np.zeros((0, 3, 3)))
+
+
 @njit(parallel=True, cache=True)
-def _resolve_kernel(mode, vis_id, vis_b, scr_src, scr_bary, pos, nrm, tri, tri_shape, tri_prim, tri_flip,
-                    fcol, vterm, eye, A: SceneArrays, pp, image):
-    H, W = vis_id.shape
-    for c in prange(H * W):
-        pixel = np.int64(c)            # one index type in both typings of the loop (impl.kernel)
-        y, x = pixel // W, pixel % W
-        t = vis_id[y, x]
-        if t < 0:
-            continue
-        r, g, b = _pixel(mode, t, vis_b[y, x, 0], vis_b[y, x, 1], scr_src, scr_bary, pos, nrm, tri,
-                         tri_shape, tri_prim, tri_flip, fcol, vterm, eye, A, pp, pixel)
-        image[y, x, 0] = r
-        image[y, x, 1] = g
-        image[y, x, 2] = b
+def _stage_kernel(stage, n, used, mode, vis_id, vis_b, scr_src, scr_bary, pos, nrm, tri, tri_shape,
+                  tri_prim, tri_flip, vshape, fcol, vterm, eye, A: SceneArrays, pp, out):
+    """One stage of shading, its ``n`` items in parallel into the rows of ``out``: flat
+    colours of the used triangles ((T, 3)), Gouraud terms of the used vertices ((V, 9)),
+    or the pixels of the visibility buffer ``vis_id`` (H, W) in shading ``mode`` ((H·W, 3)).
+
+    One kernel for the three: each compiles the illumination model (and numba optimises a
+    ``prange`` loop's module again with it linked in), so three kernels compiled it three
+    times."""
+    W = vis_id.shape[1]
+    for c in prange(n):
+        i = np.int64(c)                # one index type in both typings of the loop (impl.kernel)
+        if stage == _FACES:
+            if used[i]:
+                _face_one(pos, tri, tri_shape, tri_prim, tri_flip, i, eye, A, pp, out)
+        elif stage == _VERTICES:
+            if used[i]:
+                _vertex_one(pos, nrm, vshape, i, eye, A, pp, out)
+        else:
+            y, x = i // W, i % W
+            t = vis_id[y, x]
+            if t >= 0:
+                r, g, b = _pixel(mode, t, vis_b[y, x, 0], vis_b[y, x, 1], scr_src, scr_bary, pos, nrm,
+                                 tri, tri_shape, tri_prim, tri_flip, fcol, vterm, eye, A, pp, i)
+                out[i, 0] = r
+                out[i, 1] = g
+                out[i, 2] = b
 
 
 def resolve(mode: int, vis, scr, soup, eye: np.ndarray, A: SceneArrays, pp: np.ndarray) -> tuple[np.ndarray, dict]:
@@ -246,7 +258,8 @@ def resolve(mode: int, vis, scr, soup, eye: np.ndarray, A: SceneArrays, pp: np.n
     else:
         evals = int((vis.id >= 0).sum())
     H, W = vis.id.shape
-    image = np.zeros((H, W, 3))
-    _resolve_kernel(mode, vis.id, vis.b, scr.src, scr.bary, soup.pos, soup.nrm, soup.tri, soup.tri_shape,
-                    soup.tri_prim, soup.tri_flip, fcol, vterm, eye, A, pp, image)
-    return image, {"shading_evaluations": evals}
+    image = np.zeros((H * W, 3))
+    _stage_kernel(_PIXELS, H * W, _NO_V, np.int64(mode), vis.id, vis.b, scr.src, scr.bary, soup.pos,
+                  soup.nrm, soup.tri, soup.tri_shape, soup.tri_prim, soup.tri_flip, _NO_V, fcol, vterm,
+                  eye, A, pp, image)
+    return image.reshape(H, W, 3), {"shading_evaluations": evals}

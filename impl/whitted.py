@@ -219,7 +219,7 @@ from .scene_arrays import MATERIAL_CODES, SceneArrays, flatten, flatten_cached, 
 from .tracer import (accumulate, Batch, closest_batch, DX, DY, DZ, eye_batch, first, Film,
                      film_counters, film_result,
                      new_batch, new_film, new_points, OX, OY, OZ, ray_config_cached, store,
-                     TMAX, TMIN, Pending, new_pending, push_pending, take_pending)
+                     TMAX, Pending, new_pending, push_pending, take_pending)
 
 __all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "ALGORITHM"]
 
@@ -476,7 +476,9 @@ def _trees(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
         T.cnt[i, nc + K.deepest[i]] += 1
 
 
-@njit(cache=True)
+# Inlined into the task loop: as a function of its own it would be one more module that
+# numba optimises and generates machine code for with the whole tracer linked in.
+@njit(inline="always", cache=True)
 def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
           hall_threshold, film: Film, tile, spp, seed, cut):
     """One tile (:mod:`impl.tracer`): per sample index, the eye rays and their hits, then
@@ -505,21 +507,6 @@ def _render_kernel(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: Loca
     while c < n:
         _tile(cam, A, S, R, M, max_depth, hall_threshold, film, film.order[c], spp, seed, cut)
         c = take_task(queue)
-
-
-@njit(cache=True)
-def _trace_one(ox, oy, oz, dx, dy, dz, A: SceneArrays, S: SpecularArrays, R: RayConfig, max_depth,
-               hall_threshold, M: LocalModel, seed):
-    """:func:`_trees` of a batch of one ray (tmin = 0): its radiance, per-ray counters
-    and cut weights."""
-    T = new_points(1, R, len(COUNTERS) + max_depth + 1)
-    T.ray[OX, 0], T.ray[OY, 0], T.ray[OZ, 0] = ox, oy, oz
-    T.ray[DX, 0], T.ray[DY, 0], T.ray[DZ, 0] = dx, dy, dz
-    T.ray[TMIN, 0], T.ray[TMAX, 0] = 0.0, np.inf
-    K = _scratch(1, max_depth, R)
-    _trees(A, S, R, M, max_depth, hall_threshold, seed, np.int64(0), np.int64(1), T,
-           np.bool_(False), K)
-    return T.L[:, 0].copy(), T.cnt[0].copy(), K.cut[0].copy()
 
 
 # ------------------------------------------------------------- orchestration ---
@@ -573,8 +560,16 @@ def trace(scene: Scene, origin, direction, params: dict | None = None, *, seed: 
     d = np.asarray(direction, dtype=np.float64)
     d = d / np.linalg.norm(d)
     R = ray_config(A, p, algorithm="whitted")
-    rgb, cnt, cut_w = _trace_one(o[0], o[1], o[2], d[0], d[1], d[2], A, S, R, p["max_depth"],
-                                 float(p["hall_threshold"]), local_model(p, S), seed)
+    max_depth = int(p["max_depth"])
+    # The tile kernel's own batch step on a batch of one ray, called with the types the
+    # tile kernel passes: numba reuses its compiled version (a kernel of its own around
+    # it would compile the whole ray tree again).
+    T = new_points(1, R, len(COUNTERS) + max_depth + 1)
+    T.ray[:TMAX + 1, 0] = (o[0], o[1], o[2], d[0], d[1], d[2], 0.0, np.inf)
+    K = _scratch(1, max_depth, R)
+    _trees(A, S, R, local_model(p, S), max_depth, float(p["hall_threshold"]), int(seed), np.int64(0),
+           np.int64(1), T, np.bool_(False), K)
+    rgb, cnt, cut_w = T.L[:, 0].copy(), T.cnt[0].copy(), K.cut[0].copy()
     counts, hist = cnt[:len(COUNTERS)], cnt[len(COUNTERS):]
     counters = {name: int(v) for name, v in zip(COUNTERS, counts)}
     counters["tree_depth_histogram"] = [int(v) for v in hist]
