@@ -870,14 +870,12 @@ def _store(rec, i, fx, fy, w, r, g, b):
 
 @njit(cache=True)
 def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
-         adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1,
-         c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts_all):
+         adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts_all):
     """The sample records of row ``y``'s pixels: pixel p's ``recs[p, :n] = (x, y, weight,
-    r, g, b)`` and ``nrec[p] = n``.  A row per call: the call passes the scene's arrays,
-    and the scratch arrays are made once per row."""
+    r, g, b)`` and ``nrec[p] = n``; ``shade`` as :func:`_trees` takes it.  A row per call:
+    the call passes the scene's arrays, and the scratch arrays are made once per row."""
     W = int(cam[14])
-    shade = (gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-             light_samples)
+    max_depth = shade[1]
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
     cut_w = np.zeros(2)
@@ -1028,9 +1026,8 @@ def _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts):
 
 
 @njit(cache=True)
-def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
-          hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples, seed,
-          recs, nrec, counts, packet_counts):
+def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, shade, seed, recs,
+          nrec, counts, packet_counts):
     """One 8×8 tile of a fixed-count sampler: per sample index s, the eye rays of the
     tile's pixels that have a sample s (the pattern positions and lens points of
     :func:`_row`) traced as one packet, then each one's ray tree from its eye hit.
@@ -1038,8 +1035,7 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, s
     W, H = int(cam[14]), int(cam[15])
     x0, y0, nx, ny = tile_rect(tile, W, H)
     P = nx * ny
-    shade = (gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-             light_samples)
+    max_depth = shade[1]
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
     cut_w = np.zeros(2)
@@ -1085,12 +1081,11 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, s
 
 @njit(parallel=True, cache=True)
 def _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
-                   adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks,
-                   shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts,
-                   packet_counts):
+                   adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts, packet_counts):
     """The film's tasks in parallel: rows of pixels (:func:`_row`), or with packets
     (``packet_counts`` (tiles, 2), else (0, 2)) 8×8 tiles (:func:`_tile`), in a
-    golden-ratio order (:func:`impl.kernel.interleaved`).
+    golden-ratio order (:func:`impl.kernel.interleaved`); ``shade`` as :func:`_trees`
+    takes it.
 
     One loop for both: numba compiles a kernel with its whole call tree linked in, so a
     second kernel would compile the ray tree once more.  A ``prange`` loop, not a task
@@ -1105,13 +1100,11 @@ def _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma
     for c in prange(n):
         task = interleaved(np.int64(c), n, stride)
         if packets:
-            _tile(cam, A, S, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel,
-                  max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
-                  light_samples, seed, recs, nrec, counts, packet_counts[task])
+            _tile(cam, A, S, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma, shade, seed,
+                  recs, nrec, counts, packet_counts[task])
         else:
             _row(cam, A, S, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
-                 adaptive_depth, tolerance, z, gmodel, max_depth, hall_threshold, ka, ambient, ks,
-                 shininess, c1, c2, c3, fclamp, shadows, light_samples, seed, recs, nrec, counts)
+                 adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts)
 
 
 # ------------------------------------------------------------- orchestration ---
@@ -1226,12 +1219,13 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     shade = (G_MODELS[params["g"]], params["max_depth"], float(params["hall_threshold"]),
              params["ka"], params["ambient"], params["ks"], params["shininess"], params["c1"],
              params["c2"], params["c3"], params["fatt_clamp"], params["shadows"],
-             params["light_samples"], seed, recs, nrec, counts)
+             params["light_samples"])
     packet_counts = np.zeros((tile_count(W, H) if packets else 0, 2), dtype=np.int64)
     t1 = time.perf_counter()
     _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
                    float(params["gamma"]), float(params["sigma"]), float(params["threshold"]),
-                   int(params["adaptive_depth"]), float(params["tolerance"]), z, *shade, packet_counts)
+                   int(params["adaptive_depth"]), float(params["tolerance"]), z, shade, seed, recs, nrec,
+                   counts, packet_counts)
     t2 = time.perf_counter()
     mean, var = reconstruct(recs, nrec, W, H, fkind, stddev)
     totals = counts.sum(axis=0)
