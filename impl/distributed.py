@@ -383,8 +383,8 @@ def _frame(nx, ny, nz):
 
 
 @batch_kernel
-def _hall_highlights(scene, R, materials, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, hall_ks,
-                     hall_n, hall_kd, shadows, counts):
+def _hall_highlights(scene, rays, materials, mat, mkind, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+                     hall_ks, hall_n, hall_kd, shadows, counts):
     """Hall's light-source terms at a specular surface (thesis 2.4.5.5, Fig. 2.20):
     k_sr Σ_j I_j F(V·H_j) (N·H_j)^n + k_dr Σ_j I_j F_dr (N·L_j) for lights on the
     viewer's side (F_dr: the surface's ``specular_reflectance`` as its colour curve)
@@ -395,10 +395,11 @@ def _hall_highlights(scene, R, materials, mat, mkind, px, py, pz, gx, gy, gz, sx
     surfaces along their reflected and transmitted rays.  I_j is the light's
     intensity / d² (point; spot times Mitsuba's cone fall-off: 1 inside the beam
     width, linear in angle to 0 at the cutoff, nothing outside) or irradiance
-    (directional); reflection terms cast shadow rays.  ``scene`` and ``materials``: the
-    flattened scene and its material arrays by reference (:func:`impl.kernel.by_reference`).
+    (directional); reflection terms cast shadow rays.  ``scene``, ``rays`` and
+    ``materials``: the flattened scene, the ray configuration and the material arrays by
+    reference (:func:`impl.kernel.by_reference`).
     """
-    A, S = dereference(scene), dereference(materials)
+    A, S, R = dereference(scene), dereference(materials), dereference(rays)
     r = g = b = 0.0
     for li in range(A.light_kind.shape[0]):
         if A.light_kind[li] == LIGHT_DIRECTIONAL:
@@ -469,20 +470,24 @@ def _hall_highlights(scene, R, materials, mat, mkind, px, py, pz, gx, gy, gz, sx
 
 
 @batch_kernel
-def _tree(ray, scene, materials, R: RayConfig, sph_c, tri64, trin64, HL, shade, seed, pixel, sample, spp,
-          dmode, stack_f, stack_i, counts, cut_w, pre):
+def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pre):
     """Radiance (r, g, b) of one eye ray ``ray = (o, d, tmin, tmax)``: whitted's ray tree
-    plus sampled glossy bounces.  ``scene`` and ``materials``: the flattened scene and its
-    material arrays by reference (:func:`impl.kernel.by_reference`: this runs per
-    sample).  ``sph_c``, ``tri64``, ``trin64``: sphere centres, triangle vertices and
-    shading normals (float64) at the sample's time, for shading; ``HL`` Hall's switch and
-    parameters, ``shade`` the tree's and Phong's (as :func:`_trees`).
+    plus sampled glossy bounces.  This runs per sample, so what it reads goes by
+    reference (:func:`impl.kernel.by_reference`): ``scene`` and ``materials`` the
+    flattened scene and its material arrays, ``rays`` the ray configuration every ray of
+    the tree is intersected with, ``work = (sph_c, tri64, trin64, HL, shade, stack_f,
+    stack_i, counts, cut_w)``: sphere centres, triangle vertices and shading normals
+    (float64) at the sample's time, for shading; Hall's switch and parameters; the tree's
+    and Phong's parameters (``shade`` as :func:`_trees` takes it); the ray stack; the
+    pixel's counters and cut weights.  (By value, the arrays of these tuples went member
+    by member at every call.)
 
     ``pre = (t, prim, b1, b2)``: the eye ray's closest hit as :func:`impl.rays.hit`
     returns it, traced in a packet; ``prim = NOT_TRACED`` traces it here like every
     other ray.
     """
-    A, S = dereference(scene), dereference(materials)
+    A, S, R = dereference(scene), dereference(materials), dereference(rays)
+    sph_c, tri64, trin64, HL, shade, stack_f, stack_i, counts, cut_w = dereference(work)
     ox, oy, oz, dx, dy, dz, tmin, tmax = ray
     hall, hall_ks, hall_n, hall_t, hall_tr, hall_kd = HL[0] > 0.0, HL[1], HL[2], HL[3], HL[4], HL[5]
     (gmodel, max_depth, hall_threshold, ka, ambient, ks, shininess, c1, c2, c3, fclamp, shadows,
@@ -566,8 +571,8 @@ def _tree(ray, scene, materials, R: RayConfig, sph_c, tri64, trin64, HL, shade, 
         cos_v = nx * vx + ny * vy + nz * vz
 
         if hall and (mkind == MAT_DIELECTRIC or mkind == MAT_CONDUCTOR):
-            hr, hg, hb = _hall_highlights(scene, R, materials, mat, mkind, px, py, pz, gx, gy, gz, nx, ny, nz,
-                                          vx, vy, vz, hall_ks, hall_n, hall_kd, shadows, counts)
+            hr, hg, hb = _hall_highlights(scene, rays, materials, mat, mkind, px, py, pz, gx, gy, gz, nx, ny,
+                                          nz, vx, vy, vz, hall_ks, hall_n, hall_kd, shadows, counts)
             r += wr * hr
             g += wg * hg
             b += wb * hb
@@ -741,7 +746,7 @@ def _tree(ray, scene, materials, R: RayConfig, sph_c, tri64, trin64, HL, shade, 
             lsample, ldim = sample, _X_LIGHT * (leaf + 1)
         lr, lg, lb, nsh = direct_light_dims(px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r,
                                             rho_g, rho_b, scene, ks, shininess, c1, c2, c3, fclamp,
-                                            shadows, light_samples, seed, pixel, lsample, R,
+                                            shadows, light_samples, seed, pixel, lsample, rays,
                                             (dmode, spp, ldim), (sx, sy, sz, code))
         leaf += 1
         counts[_C_SHADOW] += nsh
@@ -782,20 +787,19 @@ def _bsdf_u(dmode, seed, pixel, sample, spp, bounce):
 
 
 @njit(inline="always", cache=True)
-def _radiance(cam, scene, materials, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, fx, fy, sample, spp,
-              dmode, shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b1, pre_b2):
+def _radiance(cam, scene, materials, rays, work, M: Motion, cen, cen64, tri, tri64, trin64, fx, fy, sample,
+              spp, dmode, seed, pixel, counts, pre_t, pre_prim, pre_b1, pre_b2):
     """Radiance of the pixel sample number ``sample`` (of ``spp``) at film position (fx, fy).
 
     The sample's own lens point and shutter time; moving spheres are placed at
     that time in the per-pixel copies ``cen`` (intersection precision) and
     ``cen64`` (shading) of the sphere centres, moving triangles in ``tri`` /
     ``tri64`` / ``trin64`` (copies when meshes move, else the scene's own
-    arrays), the ray configuration the tree (and its shadow rays) intersects
-    with is rebuilt around them, and a moving camera's eye ray is moved and
-    turned with the camera.
-    ``scene``, ``materials``: the flattened scene and its material arrays by reference
-    (:func:`impl.kernel.by_reference`), for the tree.  ``pre_*``: the eye ray's hit
-    traced in a packet (static scenes only), or ``pre_prim = NOT_TRACED``.
+    arrays), which the ray configuration ``rays`` and the tree's ``work`` hold
+    (:func:`_trees`), and a moving camera's eye ray is moved and turned with the
+    camera.  ``scene``, ``materials``, ``rays``, ``work``: the tree's inputs by
+    reference (:func:`_tree`).  ``pre_*``: the eye ray's hit traced in a packet (static
+    scenes only), or ``pre_prim = NOT_TRACED``.
     """
     ox, oy, oz, dx, dy, dz, tmin, tmax, _ = _eye(cam, seed, pixel, sample, spp, dmode, fx, fy)
     counts[_C_SAMPLES] += 1
@@ -818,34 +822,39 @@ def _radiance(cam, scene, materials, R, M: Motion, HL, cen, cen64, tri, tri64, t
             qx, qy, qz = _rotate(C[7], C[8], C[9], tau, ox - C[1], oy - C[2], oz - C[3])
             ox, oy, oz = C[1] + qx + C[4] * tau, C[2] + qy + C[5] * tau, C[3] + qz + C[6] * tau
             dx, dy, dz = _rotate(C[7], C[8], C[9], tau, dx, dy, dz)
-    # The structure (if any) is static: render() traces scenes with moving shapes by brute force.
-    Rt = RayConfig(R.form, R.strategy, R.eps, R.shrink_point, R.shrink_area, cen, R.sph_radius, tri,
-                   R.accel, R.node_lo, R.node_hi, R.node_a, R.node_b, R.prim_idx, R.acc_f, R.acc_i,
-                   R.batch_brute)
-    return _tree((ox, oy, oz, dx, dy, dz, tmin, tmax), scene, materials, Rt, cen64, tri64, trin64, HL, shade,
-                 seed, pixel, sample, spp, dmode, stack_f, stack_i, counts, cut_w,
-                 (pre_t, pre_prim, pre_b1, pre_b2))
+    return _tree((ox, oy, oz, dx, dy, dz, tmin, tmax), scene, materials, rays, work, seed, pixel, sample,
+                 spp, dmode, (pre_t, pre_prim, pre_b1, pre_b2))
 
 
 @batch_kernel
-def _trees(cam, A, S, R, M: Motion, HL, cen, cen64, tri, tri64, trin64, film, first, spp, dmode, shade,
-           seed, pixel, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b, rgb):
+def _trees(cam, scene, materials, config, motion, HL, cen, cen64, tri, tri64, trin64, film, first, spp, dmode,
+           shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t, pre_prim, pre_b, rgb):
     """:func:`_radiance` of the pixel samples ``first``, ``first + 1``, ... (of ``spp``) at
     the film positions ``film`` (k, 2) into ``rgb`` (k, 3).  ``pre_t``, ``pre_prim``,
     ``pre_b`` ((k,), (k,), (k, 2)): their eye hits traced in a packet, or ``pre_prim[q] =
     NOT_TRACED``.  ``shade = (G model, max_depth, hall_threshold, k_a, I_a, k_s, n, c1, c2,
     c3, fatt_clamp, shadows, light_samples)``.
 
-    A call passes the flattened scene field by field, which cost more than the ray tree
-    itself when it was made per sample: the callers pass a pixel's samples at once (or
-    one at a time where the sampler needs each value before choosing the next), and the
-    tree of each sample gets the scene by reference."""
-    scene, materials = by_reference(A), by_reference(S)
+    ``scene``, ``materials``, ``config``, ``motion``: the flattened scene, its material
+    arrays, the ray configuration and the :class:`Motion` arrays by reference
+    (:func:`impl.kernel.by_reference`, made once per row or tile by the caller).  A call
+    of a separate function passes a tuple's arrays member by member, which cost more
+    than the ray tree itself when it was made per sample: the callers pass a pixel's
+    samples at once (or one at a time where the sampler needs each value before choosing
+    the next), and the tree of each sample gets what it reads by reference, copied here
+    once per call."""
+    R, M = dereference(config), dereference(motion)
+    # The rays intersect the pixel's copies of the sphere centres and triangles (moved to
+    # each sample's time in place); the structure (if any) is static: render() traces
+    # scenes with moving shapes by brute force.
+    rays = by_reference(RayConfig(R.form, R.strategy, R.eps, R.shrink_point, R.shrink_area, cen,
+                                  R.sph_radius, tri, R.accel, R.node_lo, R.node_hi, R.node_a, R.node_b,
+                                  R.prim_idx, R.acc_f, R.acc_i, R.batch_brute))
+    work = by_reference((cen64, tri64, trin64, HL, shade, stack_f, stack_i, counts, cut_w))
     for q in range(film.shape[0]):
         rgb[q, 0], rgb[q, 1], rgb[q, 2] = _radiance(
-            cam, scene, materials, R, M, HL, cen, cen64, tri, tri64, trin64, film[q, 0], film[q, 1],
-            first + q, spp, dmode, shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[q],
-            pre_prim[q], pre_b[q, 0], pre_b[q, 1])
+            cam, scene, materials, rays, work, M, cen, cen64, tri, tri64, trin64, film[q, 0], film[q, 1],
+            first + q, spp, dmode, seed, pixel, counts, pre_t[q], pre_prim[q], pre_b[q, 0], pre_b[q, 1])
 
 
 @njit(cache=True)
@@ -873,8 +882,10 @@ def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma
          adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts_all):
     """The sample records of row ``y``'s pixels: pixel p's ``recs[p, :n] = (x, y, weight,
     r, g, b)`` and ``nrec[p] = n``; ``shade`` as :func:`_trees` takes it.  A row per call:
-    the call passes the scene's arrays, and the scratch arrays are made once per row."""
+    the call passes the scene's arrays, and the scratch arrays and the references
+    :func:`_trees` takes are made once per row."""
     W = int(cam[14])
+    scene, materials, config, motion = by_reference(A), by_reference(S), by_reference(R), by_reference(M)
     max_depth = shade[1]
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
@@ -905,9 +916,9 @@ def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma
             pos[4, 0], pos[4, 1] = 0.5, 0.5
             for i in range(5):
                 film[i, 0], film[i, 1] = x + pos[i, 0], y + pos[i, 1]
-            _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:5], np.int64(0), cap, dmode,
-                   shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:5], pre_prim[:5], pre_b[:5],
-                   rgb[:5])
+            _trees(cam, scene, materials, config, motion, HL, cen, cen64, tri, tri64, trin64, film[:5],
+                   np.int64(0), cap, dmode, shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:5],
+                   pre_prim[:5], pre_b[:5], rgb[:5])
             vals[:5] = rgb[:5]
             n = np.int64(5)       # not the literal 5: numba would type the calls below for it too
             sq_f[0, 0], sq_f[0, 1], sq_f[0, 2] = 0.0, 0.0, 1.0
@@ -925,9 +936,9 @@ def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma
                     for q in range(8):
                         pos[n + q, 0], pos[n + q, 1] = pts[q, 0], pts[q, 1]
                         film[q, 0], film[q, 1] = x + pts[q, 0], y + pts[q, 1]
-                    _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:8], n, cap, dmode,
-                           shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:8], pre_prim[:8],
-                           pre_b[:8], rgb[:8])
+                    _trees(cam, scene, materials, config, motion, HL, cen, cen64, tri, tri64, trin64,
+                           film[:8], n, cap, dmode, shade, seed, pixel, stack_f, stack_i, counts, cut_w,
+                           pre_t[:8], pre_prim[:8], pre_b[:8], rgb[:8])
                     vals[n:n + 8] = rgb[:8]
                     e_b, e_l, e_r, e_t = n, n + 1, n + 2, n + 3
                     c = idx[4]
@@ -975,9 +986,9 @@ def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma
                     fx = uniform(seed + _STREAM, pixel, n, 6)
                     fy = uniform(seed + _STREAM, pixel, n, 7)
                 film[0, 0], film[0, 1] = x + fx, y + fy
-                _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:1], n, cap, dmode, shade,
-                       seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:1], pre_prim[:1], pre_b[:1],
-                       rgb[:1])
+                _trees(cam, scene, materials, config, motion, HL, cen, cen64, tri, tri64, trin64, film[:1], n,
+                       cap, dmode, shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:1], pre_prim[:1],
+                       pre_b[:1], rgb[:1])
                 rr, gg, bb = rgb[0, 0], rgb[0, 1], rgb[0, 2]
                 _store(rec, n, x + fx, y + fy, 1.0, rr, gg, bb)
                 c = n + 1.0
@@ -998,8 +1009,9 @@ def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma
         n = _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts)
         for s in range(n):
             film[s, 0], film[s, 1] = x + pts[s, 0], y + pts[s, 1]
-        _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:n], np.int64(0), n, dmode, shade,
-               seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:n], pre_prim[:n], pre_b[:n], rgb[:n])
+        _trees(cam, scene, materials, config, motion, HL, cen, cen64, tri, tri64, trin64, film[:n], np.int64(0),
+               n, dmode, shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:n], pre_prim[:n],
+               pre_b[:n], rgb[:n])
         for s in range(n):
             _store(rec, s, film[s, 0], film[s, 1], 1.0, rgb[s, 0], rgb[s, 1], rgb[s, 2])
         nrec[pixel] = n
@@ -1035,6 +1047,7 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, s
     W, H = int(cam[14]), int(cam[15])
     x0, y0, nx, ny = tile_rect(tile, W, H)
     P = nx * ny
+    scene, materials, config, motion = by_reference(A), by_reference(S), by_reference(R), by_reference(M)
     max_depth = shade[1]
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
@@ -1071,9 +1084,9 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, s
             pixel = y * W + x
             fx, fy = x + pts[i, s, 0], y + pts[i, s, 1]
             film[0, 0], film[0, 1] = fx, fy
-            _trees(cam, A, S, R, M, HL, cen, cen64, tri, tri64, trin64, film[:1], s, npt[i], dmode, shade,
-                   seed, pixel, stack_f, stack_i, counts[pixel], cut_w, hit_t[j:j + 1], hit_p[j:j + 1],
-                   hit_b[j:j + 1], rgb[:1])
+            _trees(cam, scene, materials, config, motion, HL, cen, cen64, tri, tri64, trin64, film[:1], s,
+                   npt[i], dmode, shade, seed, pixel, stack_f, stack_i, counts[pixel], cut_w, hit_t[j:j + 1],
+                   hit_p[j:j + 1], hit_b[j:j + 1], rgb[:1])
             _store(recs[pixel], s, fx, fy, 1.0, rgb[0, 0], rgb[0, 1], rgb[0, 2])
     for i in range(P):
         nrec[(y0 + i // nx) * W + x0 + i % nx] = npt[i]

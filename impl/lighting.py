@@ -258,10 +258,11 @@ def direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
     ``DIM_INDEPENDENT`` the hashed :func:`light_uv` of ``sample``), and every light
     sample weighted by :func:`map_weight` with ``mapped = (s0x, s0y, s0z, code)``: under
     a normal or bump map (``code`` not ``MAP_NONE``) s is the perturbed normal the Phong
-    bracket is taken about and s0 the unperturbed shading normal.  ``A`` may be the
-    flattened scene or a reference to it (:func:`impl.kernel.by_reference`; the light
-    loop gets it by reference).  (Tuples: a call of an inlined function with more than
-    30 arguments compiles to a star-args call, which numba cannot inline.)"""
+    bracket is taken about and s0 the unperturbed shading normal.  ``A`` and ``R`` may be
+    the flattened scene and the ray configuration or references to them
+    (:func:`impl.kernel.by_reference`; the light loop gets both by reference).  (Tuples:
+    a call of an inlined function with more than 30 arguments compiles to a star-args
+    call, which numba cannot inline.)"""
     # Every argument that a caller may pass as a literal (``False``, ``0``) goes through
     # its type (bool(), np.int64(), float()): numba compiles a function once per literal
     # value it is called with, and _direct_light_rays is a large function.
@@ -270,19 +271,20 @@ def direct_light_dims(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho
     return _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                               by_reference(A), ks, shininess, c1, c2, c3, fclamp, bool(shadows),
                               np.int64(light_samples), np.int64(seed), np.int64(pixel),
-                              np.int64(sample), R, np.int64(dmode), np.int64(dspp), np.int64(ddim),
-                              float(s0x), float(s0y), float(s0z), float(code))
+                              np.int64(sample), by_reference(R), np.int64(dmode), np.int64(dspp),
+                              np.int64(ddim), float(s0x), float(s0y), float(s0z), float(code))
 
 
 @batch_kernel
 def _direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
                        scene, ks, shininess, c1, c2, c3, fclamp, shadows, light_samples,
-                       seed, pixel, sample, R: RayConfig, dmode, dspp, ddim, s0x, s0y, s0z, code):
-    """The body of :func:`direct_light_dims` (opaque shadows); ``scene`` the flattened
-    scene by reference.  Compiled without numba's runtime whoever calls it first (its
-    callers include runtime-on functions, the z-buffer's shading): with the runtime,
-    reading the scene back would count a reference to each of its arrays at every call."""
-    A = dereference(scene)
+                       seed, pixel, sample, rays, dmode, dspp, ddim, s0x, s0y, s0z, code):
+    """The body of :func:`direct_light_dims` (opaque shadows); ``scene`` and ``rays`` the
+    flattened scene and the ray configuration by reference.  Compiled without numba's
+    runtime whoever calls it first (its callers include runtime-on functions, the
+    z-buffer's shading): with the runtime, reading them back would count a reference to
+    each of their arrays at every call."""
+    A, R = dereference(scene), dereference(rays)
     r = g = b = 0.0
     nshadow = 0
     for li in range(A.light_kind.shape[0]):
