@@ -23,7 +23,10 @@ plus:
   (:mod:`impl.microfacet`: Beckmann D, G = Smith (default) or the thesis's
   V-cavity, ``g=smith|vcavity``), weighted f·cos/pdf × conductor Fresnel ×
   ``specular_reflectance``; visible-normal or D·cos sampling per the
-  material's ``sample_visible``;
+  material's ``sample_visible``.  A textured ``specular_reflectance`` of a
+  conductor, rough conductor or smooth dielectric multiplies the reflected
+  branch by its value at the hit, as Mitsuba's ``eval`` of the texture does
+  (:func:`impl.lighting.specular_tint`; not with ``shading=hall``);
 * **translucency** — at a ``roughdielectric`` one sampled direction,
   reflected with probability F(wi·m) else refracted (Mitsuba's lobe choice),
   weight f·|cos|/pdf (radiance scaling η² on transmission) ×
@@ -220,10 +223,11 @@ from .kernel import batch_kernel, by_reference, dereference, interleaved, task_s
 from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import (diffuse_albedo, direct_light_dims, environment_radiance, map_weight,
-                       mapped_normal_at, spot_falloff, surface)
+                       mapped_normal_at, specular_tint, spot_falloff, surface)
 from .bsdf import cook_torrance_sample, diffuse_transmission_sample
 from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIFFTRANS,
-                        MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, material_arrays)
+                        MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, material_arrays,
+                        with_specular_textures_cached)
 from .microfacet import G_SMITH, G_VCAVITY, conductor_sample, dielectric_sample
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
@@ -604,9 +608,10 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
                                twr, twg, twb, depth + 1, RAY_TRANSMISSION, there)
             qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
             F *= map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
-            rwr = wr * F * S.spec_refl[mat, 0]
-            rwg = wg * F * S.spec_refl[mat, 1]
-            rwb = wb * F * S.spec_refl[mat, 2]
+            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+            rwr = wr * F * S.spec_refl[mat, 0] * kr
+            rwg = wg * F * S.spec_refl[mat, 1] * kg
+            rwb = wb * F * S.spec_refl[mat, 2] * kb
             if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
                            rwr, rwg, rwb, depth + 1, RAY_REFLECTION, here)
@@ -700,9 +705,10 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
             qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
             f = map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
-            rwr = wr * fr * S.spec_refl[mat, 0] * f
-            rwg = wg * fg * S.spec_refl[mat, 1] * f
-            rwb = wb * fb * S.spec_refl[mat, 2] * f
+            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+            rwr = wr * fr * S.spec_refl[mat, 0] * f * kr
+            rwg = wg * fg * S.spec_refl[mat, 1] * f * kg
+            rwb = wb * fb * S.spec_refl[mat, 2] * f * kb
             if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
                            rwr, rwg, rwb, depth + 1, RAY_REFLECTION, medium)
@@ -727,9 +733,10 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             oy_ = ty_ * lx + by * ly + ny * lz
             oz_ = tz_ * lx + bz * ly + nz * lz
             f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
-            nwr = wr * w * fr * S.spec_refl[mat, 0] * f
-            nwg = wg * w * fg * S.spec_refl[mat, 1] * f
-            nwb = wb * w * fb * S.spec_refl[mat, 2] * f
+            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+            nwr = wr * w * fr * S.spec_refl[mat, 0] * f * kr
+            nwg = wg * w * fg * S.spec_refl[mat, 1] * f * kg
+            nwb = wb * w * fb * S.spec_refl[mat, 2] * f * kb
             if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
                            nwr, nwg, nwb, depth + 1, RAY_REFLECTION, medium)
@@ -1190,6 +1197,13 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
                     f"distributed: shading=hall: Hall's light-source terms model point, spot and "
                     f"directional lights; {where} has an image (a projector's or a spot's "
                     "texture), which they leave out")
+        if "textured specular reflectance" in found:
+            where = found["textured specular reflectance"] + (
+                f" of {scene.path}" if getattr(scene, "path", None) else "")
+            raise UnsupportedError(
+                f"distributed: shading=hall: Hall's highlights take a surface's "
+                f"specular_reflectance as one colour; {where} is a texture")
+    scene = with_specular_textures_cached(scene)
     S = material_arrays(scene, algorithm="distributed", model="the distributed ray tracer",
                         kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric",
                                "gibench_cooktorrance", "gibench_difftrans"))
@@ -1297,5 +1311,6 @@ ALGORITHM = Algorithm(
     ),
     render=render,
     models=frozenset({"camera motion", "mesh motion", "envmap", "gibench_cooktorrance",
-                      "gibench_difftrans", "projector", "spot texture", "normalmap", "bumpmap"}),
+                      "gibench_difftrans", "projector", "spot texture", "normalmap", "bumpmap",
+                      "textured specular reflectance"}),
 )

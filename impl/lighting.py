@@ -1310,3 +1310,17 @@ def diffuse_albedo(A: SceneArrays, mat, prim, b1, b2):
             return bitmap(A.tex_data, A.mat_tex_offset[mat], A.mat_tex_size[mat, 0],
                           A.mat_tex_size[mat, 1], A.mat_tex_wrap[mat], A.mat_tex_filter[mat], uu, vv)
     return A.mat_rho[mat, 0], A.mat_rho[mat, 1], A.mat_rho[mat, 2]
+
+
+@njit(inline="always", cache=True)
+def specular_tint(A: SceneArrays, mat, prim, b1, b2):
+    """The factor (r, g, b) a conductor's, rough conductor's or smooth dielectric's
+    reflected light takes at a hit: its textured ``specular_reflectance`` there, which
+    :func:`impl.materials.with_specular_textures` moved to the material's texture slot
+    (Mitsuba multiplies the reflected light by the texture's ``eval``), else 1 — the
+    constant ``specular_reflectance`` is the caller's per-material factor.  Such BSDFs
+    have no diffuse texture of their own, so a texture code on them is always the moved
+    one."""
+    if A.mat_tex[mat] == 0:
+        return 1.0, 1.0, 1.0
+    return diffuse_albedo(A, mat, prim, b1, b2)

@@ -386,6 +386,19 @@ def with_specular_textures(scene: Scene) -> Scene:
     return dataclasses.replace(scene, materials=mats)
 
 
+def with_specular_textures_cached(scene: Scene) -> Scene:
+    """:func:`with_specular_textures`, remembered per scene object
+    (:func:`impl.scene_arrays.scene_memo`), so that the renders of one scene flatten the
+    same moved scene once."""
+    from .scene_arrays import scene_memo
+
+    def moved():                 # None when nothing moves: the memo must not hold the scene itself
+        m = with_specular_textures(scene)
+        return None if m is scene else m
+
+    return scene_memo(scene, "specular_textures", moved) or scene
+
+
 def expand_components(scene: Scene, *, algorithm: str = "path") -> Scene:
     """``scene`` with the two components of every ``blendbsdf`` appended to its materials
     (so that each component has its own row in every per-material array; shapes keep

@@ -28,6 +28,9 @@ For every eye ray, the ray tree over *delta* (perfectly specular) surfaces:
   compressed when light enters a denser medium).  Normals point outward, so a
   ray enters when cos θ_i = N·(−I) > 0; ``eta = int_ior / ext_ior``.
   Total internal reflection leaves the reflected branch only (F = 1).
+* A textured ``specular_reflectance`` (``checkerboard`` or ``bitmap``, on shapes with
+  uvs) of either: its value at the hit multiplies the reflected branch, as Mitsuba
+  multiplies by the texture's ``eval`` (:func:`impl.lighting.specular_tint`).
 * At the first non-delta (``diffuse``) hit of a branch: the direct light of
   every emitter — delta lights and area emitters (``light_samples`` shadow
   rays each) — with the Phong/Lambert model of ``raycast``
@@ -209,8 +212,8 @@ from .camera import camera_params
 from .kernel import batch_kernel, run_tasks, take_task
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import (SHADOW_MODES, LocalModel, diffuse_albedo, direct_batch, environment_radiance,
-                       local_model, map_weight, mapped_normal, store_point, surface_at)
-from .materials import SpecularArrays, material_arrays
+                       local_model, map_weight, mapped_normal, specular_tint, store_point, surface_at)
+from .materials import SpecularArrays, material_arrays, with_specular_textures_cached
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, leave, ray_config, refine, round_ray
 from .phong import PHONG_PARAMS
@@ -367,9 +370,10 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
                            RAY_TRANSMISSION)
             qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
             F *= map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
-            rwr = wr * F * S.spec_refl[mat, 0]
-            rwg = wg * F * S.spec_refl[mat, 1]
-            rwb = wb * F * S.spec_refl[mat, 2]
+            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+            rwr = wr * F * S.spec_refl[mat, 0] * kr
+            rwg = wg * F * S.spec_refl[mat, 1] * kg
+            rwb = wb * F * S.spec_refl[mat, 2] * kb
             if _admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
                 _queue(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, here, col,
                        RAY_REFLECTION)
@@ -385,9 +389,10 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
             fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
             fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
             fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
-            rwr = wr * fr * S.spec_refl[mat, 0] * f
-            rwg = wg * fg * S.spec_refl[mat, 1] * f
-            rwb = wb * fb * S.spec_refl[mat, 2] * f
+            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+            rwr = wr * fr * S.spec_refl[mat, 0] * f * kr
+            rwg = wg * fg * S.spec_refl[mat, 1] * f * kg
+            rwb = wb * fb * S.spec_refl[mat, 2] * f * kb
             if _admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
                 _queue(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, medium, col,
                        RAY_REFLECTION)
@@ -525,6 +530,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     """Render ``scene`` with the Whitted ray tracer; ``params`` as from ``ALGORITHM.parse_params``."""
     t0 = time.perf_counter()
     _check(params)
+    scene = with_specular_textures_cached(scene)
     S = scene_memo(scene, "whitted.materials", lambda: material_arrays(scene))
     A = flatten_cached(scene)
     R = ray_config_cached(scene, A, params, algorithm="whitted")
@@ -554,6 +560,7 @@ def trace(scene: Scene, origin, direction, params: dict | None = None, *, seed: 
     """
     p = ALGORITHM.parse_params(params or {})
     _check(p)
+    scene = with_specular_textures_cached(scene)
     S = material_arrays(scene)
     A = flatten(scene)
     o = np.asarray(origin, dtype=np.float64)
@@ -597,5 +604,6 @@ ALGORITHM = Algorithm(
         *RAY_PARAMS,
     ),
     render=render,
-    models=frozenset({"envmap", "projector", "spot texture", "normalmap", "bumpmap"}),
+    models=frozenset({"envmap", "projector", "spot texture", "normalmap", "bumpmap",
+                      "textured specular reflectance"}),
 )

@@ -25,20 +25,27 @@ def path_against_mitsuba(scene_file, materials=None, **fields):
     stored Mitsuba ``path`` reference (1024 spp × 8 passes): (reference, render, z).
     ``materials`` (a function of one material) or ``fields`` (scene field → function
     of one of its items) change the loaded scene first, e.g. to mis-model a feature."""
+    return against_mitsuba(scene_file, "path", {"spp": 256}, "full", materials, **fields)
+
+
+def against_mitsuba(scene_file, algorithm, params, transport, materials=None, **fields):
+    """Own ``algorithm`` with ``params`` (seed 0) of ``scene_file`` and the Z-test against
+    the stored Mitsuba reference of ``transport`` (1024 spp × 8 passes): (reference,
+    render, z); ``materials`` and ``fields`` as :func:`path_against_mitsuba` takes them."""
     from core.loader import load_scene
     from gibench import registry
     from references.reference import get_reference
     from reports.metrics import z_test
 
-    algo = registry.get("path")
-    ref = get_reference(scene_file, transport="full", spp=1024, passes=8)
+    algo = registry.get(algorithm)
+    ref = get_reference(scene_file, transport=transport, spp=1024, passes=8)
     scene = load_scene(scene_file)
     if materials is not None:
         fields["materials"] = materials
     if fields:
         scene = dataclasses.replace(scene, **{k: [fn(x) for x in getattr(scene, k)]
                                                for k, fn in fields.items()})
-    own = algo.render(scene, algo.parse_params({"spp": 256}), seed=0)
+    own = algo.render(scene, algo.parse_params(params), seed=0)
     z = z_test(ref.image, own.image, reference_variance=ref.variance, test_variance=own.variance)
     return ref, own, z
 
