@@ -231,13 +231,14 @@ from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIF
 from .microfacet import G_SMITH, G_VCAVITY, conductor_sample, dielectric_sample
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
-from .rays import RayConfig, hit, leave, occluded, ray_config, refine, round_ray
+from .rays import RayConfig, hit, leave, occluded, refine, round_ray
 from .rng import uniform, uniform_from, uniform_prefix
 from .samplers import (DIM_INDEPENDENT, DIM_SOBOL, DIM_STRATIFIED, adaptive_children, adaptive_disagree,
                        camera_sobol, lens_stratified,
                        dim_1d, dim_2d, gaussian_jitter_pattern, jitter_pattern, poisson_disk_pattern,
                        random_pattern, sobol_pattern, statistical_done, uniform_pattern)
-from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten
+from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten_cached, scene_memo
+from .tracer import ray_config_cached
 from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit
 
 __all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS", "Motion", "motion_arrays"]
@@ -1184,8 +1185,6 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     ``RenderResult.timings`` splits the wall time as the tile tracers do: ``setup_s``
     (materials, flattened scene, ray configuration, sample records), ``trace_s`` (the
     kernel) and ``finish_s`` (reconstruction filter, counters)."""
-    from scipy.stats import norm
-
     t0 = time.perf_counter()
     _check(params)
     if params["shading"] == "hall":
@@ -1204,10 +1203,13 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
                 f"distributed: shading=hall: Hall's highlights take a surface's "
                 f"specular_reflectance as one colour; {where} is a texture")
     scene = with_specular_textures_cached(scene)
-    S = material_arrays(scene, algorithm="distributed", model="the distributed ray tracer",
-                        kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric",
-                               "gibench_cooktorrance", "gibench_difftrans"))
-    A = flatten(scene)
+    # The scene's arrays and ray configurations are built once per scene object (as the
+    # tile tracers do): a render of the same scene reuses them.
+    S = scene_memo(scene, "distributed.materials", lambda: material_arrays(
+        scene, algorithm="distributed", model="the distributed ray tracer",
+        kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric",
+               "gibench_cooktorrance", "gibench_difftrans")))
+    A = flatten_cached(scene)
     cam = camera_params(scene.camera, lens=True)
     H, W = scene.camera.film.height, scene.camera.film.width
     fkind, stddev = film_filter(scene.camera.film, params["rfilter"])
@@ -1239,8 +1241,12 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
                 f"distributed: accel={params['accel']} is built over static primitives; a scene "
                 "with moving spheres or meshes is traced with accel=none (or auto)")
         params = {**params, "accel": "none"}
-    R = ray_config(A, params, algorithm="distributed")
-    z = float(norm.ppf(0.5 * (1.0 + params["confidence"])))
+    R = ray_config_cached(scene, A, params, algorithm="distributed")
+    z = 0.0                      # the statistical sampler's normal quantile (the others ignore it)
+    if params["sampler"] == "statistical":
+        from scipy.stats import norm
+
+        z = float(norm.ppf(0.5 * (1.0 + params["confidence"])))
     HL = np.array([1.0 if params["shading"] == "hall" else 0.0, params["hall_ks"], params["hall_n"],
                    params["hall_t"], params["hall_tr"], params["hall_kd"]])
     shade = (G_MODELS[params["g"]], params["max_depth"], float(params["hall_threshold"]),
