@@ -23,7 +23,9 @@ plus:
   (:mod:`impl.microfacet`: Beckmann D, G = Smith (default) or the thesis's
   V-cavity, ``g=smith|vcavity``), weighted f·cos/pdf × conductor Fresnel ×
   ``specular_reflectance``; visible-normal or D·cos sampling per the
-  material's ``sample_visible``.  A textured ``specular_reflectance`` of a
+  material's ``sample_visible``; a textured ``alpha`` (a ``bitmap`` or
+  ``checkerboard``, read as Mitsuba's ``eval_1``) at the hit.  A textured
+  ``specular_reflectance`` of a
   conductor, rough conductor or smooth dielectric multiplies the reflected
   branch by its value at the hit, as Mitsuba's ``eval`` of the texture does
   (:func:`impl.lighting.specular_tint`; not with ``shading=hall``);
@@ -227,7 +229,7 @@ from .lighting import (diffuse_albedo, direct_light_dims, environment_radiance, 
 from .bsdf import cook_torrance_sample, diffuse_transmission_sample
 from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIFFTRANS,
                         MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, material_arrays,
-                        with_specular_textures_cached)
+                        with_specular_textures_cached, wrapper_arrays)
 from .microfacet import G_SMITH, G_VCAVITY, conductor_sample, dielectric_sample
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
@@ -238,6 +240,7 @@ from .samplers import (DIM_INDEPENDENT, DIM_SOBOL, DIM_STRATIFIED, adaptive_chil
                        dim_1d, dim_2d, gaussian_jitter_pattern, jitter_pattern, poisson_disk_pattern,
                        random_pattern, sobol_pattern, statistical_done, uniform_pattern)
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten_cached, scene_memo
+from .textures import scalar_texture
 from .tracer import ray_config_cached
 from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit
 
@@ -404,7 +407,8 @@ def _hall_highlights(scene, rays, materials, mat, mkind, px, py, pz, gx, gy, gz,
     ``materials``: the flattened scene, the ray configuration and the material arrays by
     reference (:func:`impl.kernel.by_reference`).
     """
-    A, S, R = dereference(scene), dereference(materials), dereference(rays)
+    A, R = dereference(scene), dereference(rays)
+    S, _wraps = dereference(materials)
     r = g = b = 0.0
     for li in range(A.light_kind.shape[0]):
         if A.light_kind[li] == LIGHT_DIRECTIONAL:
@@ -478,8 +482,10 @@ def _hall_highlights(scene, rays, materials, mat, mkind, px, py, pz, gx, gy, gz,
 def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pre):
     """Radiance (r, g, b) of one eye ray ``ray = (o, d, tmin, tmax)``: whitted's ray tree
     plus sampled glossy bounces.  This runs per sample, so what it reads goes by
-    reference (:func:`impl.kernel.by_reference`): ``scene`` and ``materials`` the
-    flattened scene and its material arrays, ``rays`` the ray configuration every ray of
+    reference (:func:`impl.kernel.by_reference`): ``scene`` the flattened scene,
+    ``materials`` its (:class:`impl.materials.MaterialArrays`,
+    :class:`impl.materials.WrapperArrays`) pair (the latter for a textured
+    roughness), ``rays`` the ray configuration every ray of
     the tree is intersected with, ``work = (sph_c, tri64, trin64, HL, shade, stack_f,
     stack_i, counts, cut_w)``: sphere centres, triangle vertices and shading normals
     (float64) at the sample's time, for shading; Hall's switch and parameters; the tree's
@@ -491,7 +497,8 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
     returns it, traced in a packet; ``prim = NOT_TRACED`` traces it here like every
     other ray.
     """
-    A, S, R = dereference(scene), dereference(materials), dereference(rays)
+    A, R = dereference(scene), dereference(rays)
+    S, wraps = dereference(materials)
     sph_c, tri64, trin64, HL, shade, stack_f, stack_i, counts, cut_w = dereference(work)
     ox, oy, oz, dx, dy, dz, tmin, tmax = ray
     hall, hall_ks, hall_n, hall_t, hall_tr, hall_kd = HL[0] > 0.0, HL[1], HL[2], HL[3], HL[4], HL[5]
@@ -625,7 +632,8 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             wiy = bx * vx + by * vy + bz * vz
             u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
             bounce += 1
-            lx, ly, lz, w, pdf, refl, _eti = dielectric_sample(S.alpha[mat], gmodel, S.visible[mat] == 1,
+            lx, ly, lz, w, pdf, refl, _eti = dielectric_sample(_alpha(A, S, wraps, mat, prim, b1, b2), gmodel,
+                                                              S.visible[mat] == 1,
                                                               S.diel_eta[mat], wix, wiy, cos_v,
                                                               u0, u1, u2)
             if w <= 0.0:
@@ -722,7 +730,8 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             wiy = bx * vx + by * vy + bz * vz
             _u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
             bounce += 1
-            lx, ly, lz, w, pdf, cos_ih = conductor_sample(S.alpha[mat], gmodel, S.visible[mat] == 1,
+            lx, ly, lz, w, pdf, cos_ih = conductor_sample(_alpha(A, S, wraps, mat, prim, b1, b2), gmodel,
+                                                          S.visible[mat] == 1,
                                                           wix, wiy, cos_v, u1, u2)
             if w <= 0.0:
                 continue
@@ -763,6 +772,19 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
         g += wg * (amb * rho_g + lg)
         b += wb * (amb * rho_b + lb)
     return r, g, b
+
+
+@njit(inline="always", cache=True)
+def _alpha(A, S, wraps, mat, prim, b1, b2):
+    """The Beckmann roughness α of a rough conductor or dielectric at a hit: a textured
+    ``alpha`` (slot 2 of the :class:`impl.materials.WrapperArrays` ``wraps``) read at
+    the triangle's uv as Mitsuba's ``eval_1`` (:func:`impl.textures.scalar_texture`, not
+    clipped), else the constant (on spheres the texture's mean, as path has it)."""
+    ns = A.sph_radius.shape[0]
+    if wraps.ptex[mat, 2, 0] == 0 or prim < ns:
+        return S.alpha[mat]
+    return scalar_texture(wraps.ptex[mat, 2], wraps.ptex_uv[mat, 2], wraps.ptex_c[mat, 2, 0],
+                          wraps.ptex_c[mat, 2, 1], wraps.ptex_data, A.tri_uv[prim - ns], b1, b2, False)
 
 
 @njit(inline="always", cache=True)
@@ -844,13 +866,13 @@ def _trees(cam, scene, materials, config, motion, HL, cen, cen64, tri, tri64, tr
     c3, fatt_clamp, shadows, light_samples)``.
 
     ``scene``, ``materials``, ``config``, ``motion``: the flattened scene, its material
-    arrays, the ray configuration and the :class:`Motion` arrays by reference
-    (:func:`impl.kernel.by_reference`, made once per row or tile by the caller).  A call
-    of a separate function passes a tuple's arrays member by member, which cost more
-    than the ray tree itself when it was made per sample: the callers pass a pixel's
-    samples at once (or one at a time where the sampler needs each value before choosing
-    the next), and the tree of each sample gets what it reads by reference, copied here
-    once per call."""
+    and wrapper arrays (:func:`_tree`), the ray configuration and the :class:`Motion`
+    arrays by reference (:func:`impl.kernel.by_reference`, made once per row or tile by
+    the caller).  A call of a separate function passes a tuple's arrays member by
+    member, which cost more than the ray tree itself when it was made per sample: the
+    callers pass a pixel's samples at once (or one at a time where the sampler needs each
+    value before choosing the next), and the tree of each sample gets what it reads by
+    reference, copied here once per call."""
     R, M = dereference(config), dereference(motion)
     # The rays intersect the pixel's copies of the sphere centres and triangles (moved to
     # each sample's time in place); the structure (if any) is static: render() traces
@@ -886,14 +908,15 @@ def _store(rec, i, fx, fy, w, r, g, b):
 
 
 @njit(cache=True)
-def _row(cam, A, S, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
+def _row(cam, A, S, wraps, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
          adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts_all):
     """The sample records of row ``y``'s pixels: pixel p's ``recs[p, :n] = (x, y, weight,
     r, g, b)`` and ``nrec[p] = n``; ``shade`` as :func:`_trees` takes it.  A row per call:
     the call passes the scene's arrays, and the scratch arrays and the references
     :func:`_trees` takes are made once per row."""
     W = int(cam[14])
-    scene, materials, config, motion = by_reference(A), by_reference(S), by_reference(R), by_reference(M)
+    scene, config, motion = by_reference(A), by_reference(R), by_reference(M)
+    materials = by_reference((S, wraps))
     max_depth = shade[1]
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
@@ -1046,8 +1069,8 @@ def _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts):
 
 
 @njit(cache=True)
-def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, shade, seed, recs,
-          nrec, counts, packet_counts):
+def _tile(cam, A, S, wraps, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, shade, seed,
+          recs, nrec, counts, packet_counts):
     """One 8×8 tile of a fixed-count sampler: per sample index s, the eye rays of the
     tile's pixels that have a sample s (the pattern positions and lens points of
     :func:`_row`) traced as one packet, then each one's ray tree from its eye hit.
@@ -1055,7 +1078,8 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, s
     W, H = int(cam[14]), int(cam[15])
     x0, y0, nx, ny = tile_rect(tile, W, H)
     P = nx * ny
-    scene, materials, config, motion = by_reference(A), by_reference(S), by_reference(R), by_reference(M)
+    scene, config, motion = by_reference(A), by_reference(R), by_reference(M)
+    materials = by_reference((S, wraps))
     max_depth = shade[1]
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
@@ -1101,12 +1125,13 @@ def _tile(cam, A, S, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, s
 
 
 @njit(parallel=True, cache=True)
-def _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
+def _render_kernel(cam, A, S, wraps, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
                    adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts, packet_counts):
     """The film's tasks in parallel: rows of pixels (:func:`_row`), or with packets
     (``packet_counts`` (tiles, 2), else (0, 2)) 8×8 tiles (:func:`_tile`), in a
-    golden-ratio order (:func:`impl.kernel.interleaved`); ``shade`` as :func:`_trees`
-    takes it.
+    golden-ratio order (:func:`impl.kernel.interleaved`); ``S`` and ``wraps`` the
+    material and wrapper arrays :func:`_tree` reads (as a pair: a tuple of tuples cannot
+    be a parallel loop's argument), ``shade`` as :func:`_trees` takes it.
 
     One loop for both: numba compiles a kernel with its whole call tree linked in, so a
     second kernel would compile the ray tree once more.  A ``prange`` loop, not a task
@@ -1121,10 +1146,10 @@ def _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma
     for c in prange(n):
         task = interleaved(np.int64(c), n, stride)
         if packets:
-            _tile(cam, A, S, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma, shade, seed,
-                  recs, nrec, counts, packet_counts[task])
+            _tile(cam, A, S, wraps, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma, shade,
+                  seed, recs, nrec, counts, packet_counts[task])
         else:
-            _row(cam, A, S, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
+            _row(cam, A, S, wraps, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
                  adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts)
 
 
@@ -1209,6 +1234,8 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
         scene, algorithm="distributed", model="the distributed ray tracer",
         kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric",
                "gibench_cooktorrance", "gibench_difftrans")))
+    # A textured roughness: the wrappers' texture slots (the scene's other wrappers are refused).
+    wraps = scene_memo(scene, "distributed.wrappers", lambda: wrapper_arrays(scene, algorithm="distributed"))
     A = flatten_cached(scene)
     cam = camera_params(scene.camera, lens=True)
     H, W = scene.camera.film.height, scene.camera.film.width
@@ -1255,7 +1282,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
              params["light_samples"])
     packet_counts = np.zeros((tile_count(W, H) if packets else 0, 2), dtype=np.int64)
     t1 = time.perf_counter()
-    _render_kernel(cam, A, S, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
+    _render_kernel(cam, A, S, wraps, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
                    float(params["gamma"]), float(params["sigma"]), float(params["threshold"]),
                    int(params["adaptive_depth"]), float(params["tolerance"]), z, shade, seed, recs, nrec,
                    counts, packet_counts)
@@ -1318,5 +1345,5 @@ ALGORITHM = Algorithm(
     render=render,
     models=frozenset({"camera motion", "mesh motion", "envmap", "gibench_cooktorrance",
                       "gibench_difftrans", "projector", "spot texture", "normalmap", "bumpmap",
-                      "textured specular reflectance"}),
+                      "textured specular reflectance", "textured roughness"}),
 )

@@ -176,7 +176,7 @@ from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
 from .shading_frame import perturbed_normal, same_side, shadow_terminator, tangent
-from .textures import bitmap, checkerboard, luminance
+from .textures import bitmap, checkerboard, luminance, scalar_texture
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
 from .tracer import (accumulate, Batch, closest_batch, DX, DY, DZ, eye_batch, Film, film_counters,
@@ -207,41 +207,16 @@ def _power(a, b):
     return a2 / s if s > 0.0 and math.isfinite(s) else (1.0 if math.isinf(a) else 0.0)
 
 
-@njit(cache=True)
-def _scalar_texture(rec, m, c0, c1, data, t, b1, b2, clip):
-    """A scalar texture at a triangle's point: ``rec`` its record (code 1 checkerboard of
-    the values c0 / c1, 2 bitmap: first texel in ``data``, width, height, wrap, filter),
-    ``m`` its to_uv map, ``t`` the triangle's vertex uvs, (b1, b2) the barycentrics.  Read
-    as Mitsuba's ``eval_1`` (a bitmap: the luminance of the bilinear RGB; a checkerboard:
-    c0 on the squares where its colour lookup gives color1, as Mitsuba), clipped to
-    [0, 1] when ``clip``.  A plain call with a few arguments, not inlined: it runs only
-    at points whose material has a texture there."""
-    b0 = 1.0 - b1 - b2
-    u = b0 * t[0, 0] + b1 * t[1, 0] + b2 * t[2, 0]
-    v = b0 * t[0, 1] + b1 * t[1, 1] + b2 * t[2, 1]
-    uu = m[0, 0] * u + m[0, 1] * v + m[0, 2]
-    vv = m[1, 0] * u + m[1, 1] * v + m[1, 2]
-    if rec[0] == 1:                  # checkerboard (impl.scene_arrays.TEX_CHECKERBOARD)
-        # Mitsuba 3.9.1's checkerboard.eval_1 takes color0 where its colour eval takes
-        # color1 (src/textures/checkerboard.cpp: the two tests are negations of each
-        # other); a scalar checkerboard follows eval_1.
-        x = c1 if checkerboard(uu, vv) else c0
-    else:
-        r, g, b = bitmap(data, rec[1], rec[2], rec[3], rec[4], rec[5], uu, vv)
-        x = luminance(r, g, b)
-    return min(max(x, 0.0), 1.0) if clip else x
-
-
 @njit(inline="always", cache=True)
 def _scalar_param(B, mat, slot, value, ns, prim, tri_uv, b1, b2):
     """A scalar parameter of ``mat`` at a hit: slot 0 a mask's opacity, 1 a blend weight
     (both clipped to [0, 1], as Mitsuba), 2 a roughness (α_u), 3 α_v; its texture's value
-    (:func:`_scalar_texture`) on triangles, ``value`` (the constant, or the texture's
-    mean on spheres) without a texture."""
+    (:func:`impl.textures.scalar_texture`) on triangles, ``value`` (the constant, or the
+    texture's mean on spheres) without a texture."""
     if B.ptex[mat, slot, 0] == 0 or prim < ns:
         return value
-    return _scalar_texture(B.ptex[mat, slot], B.ptex_uv[mat, slot], B.ptex_c[mat, slot, 0],
-                           B.ptex_c[mat, slot, 1], B.ptex_data, tri_uv[prim - ns], b1, b2, slot < 2)
+    return scalar_texture(B.ptex[mat, slot], B.ptex_uv[mat, slot], B.ptex_c[mat, slot, 0],
+                          B.ptex_c[mat, slot, 1], B.ptex_data, tri_uv[prim - ns], b1, b2, slot < 2)
 
 
 @njit(inline="always", cache=True)

@@ -23,7 +23,9 @@ Mitsuba's ``raw = false`` does; float EXR as stored) by
 (:mod:`impl.scene_arrays`).
 
 :func:`bitmap_grad` is the gradient in uv of a bitmap's luminance (Mitsuba's
-``eval_1_grad``), which a ``bumpmap`` reads (:mod:`impl.shading_frame`).
+``eval_1_grad``), which a ``bumpmap`` reads (:mod:`impl.shading_frame`), and
+:func:`scalar_texture` a scalar texture's value at a triangle's point (Mitsuba's
+``eval_1``: a mask's opacity, a blend weight, a roughness).
 
 Leaves out: MIP-mapping and ray differentials (Mitsuba's bitmap does not
 filter over the pixel footprint either), the ``raw`` flag's effect on spectral
@@ -37,7 +39,7 @@ import math
 from numba import njit
 
 __all__ = ["WRAP_REPEAT", "WRAP_CLAMP", "WRAP_MIRROR", "FILTER_BILINEAR", "FILTER_NEAREST",
-           "checkerboard", "bitmap", "bitmap_grad", "luminance", "wrap_index"]
+           "checkerboard", "bitmap", "bitmap_grad", "luminance", "scalar_texture", "wrap_index"]
 
 WRAP_REPEAT, WRAP_CLAMP, WRAP_MIRROR = 0, 1, 2
 FILTER_BILINEAR, FILTER_NEAREST = 0, 1
@@ -126,3 +128,28 @@ def bitmap_grad(data, offset, w, h, wrap, filt, m00, m01, m10, m11, u, v):
     dfx = (1.0 - fy) * (f10 - f00) + fy * (f11 - f01)
     dfy = (1.0 - fx) * (f01 - f00) + fx * (f11 - f10)
     return w * (m00 * dfx + m10 * dfy), h * (m01 * dfx + m11 * dfy)
+
+
+@njit(cache=True)
+def scalar_texture(rec, m, c0, c1, data, t, b1, b2, clip):
+    """A scalar texture at a triangle's point: ``rec`` its record (code 1 checkerboard of
+    the values c0 / c1, 2 bitmap: first texel in ``data``, width, height, wrap, filter),
+    ``m`` its to_uv map, ``t`` the triangle's vertex uvs, (b1, b2) the barycentrics.  Read
+    as Mitsuba's ``eval_1`` (a bitmap: the luminance of the bilinear RGB; a checkerboard:
+    c0 on the squares where its colour lookup gives color1, as Mitsuba), clipped to
+    [0, 1] when ``clip``.  A plain call with a few arguments, not inlined: it runs only
+    at points whose material has a texture there."""
+    b0 = 1.0 - b1 - b2
+    u = b0 * t[0, 0] + b1 * t[1, 0] + b2 * t[2, 0]
+    v = b0 * t[0, 1] + b1 * t[1, 1] + b2 * t[2, 1]
+    uu = m[0, 0] * u + m[0, 1] * v + m[0, 2]
+    vv = m[1, 0] * u + m[1, 1] * v + m[1, 2]
+    if rec[0] == 1:                  # checkerboard (impl.scene_arrays.TEX_CHECKERBOARD)
+        # Mitsuba 3.9.1's checkerboard.eval_1 takes color0 where its colour eval takes
+        # color1 (src/textures/checkerboard.cpp: the two tests are negations of each
+        # other); a scalar checkerboard follows eval_1.
+        x = c1 if checkerboard(uu, vv) else c0
+    else:
+        r, g, b = bitmap(data, rec[1], rec[2], rec[3], rec[4], rec[5], uu, vv)
+        x = luminance(r, g, b)
+    return min(max(x, 0.0), 1.0) if clip else x
