@@ -20,12 +20,12 @@ plus:
 
 * **gloss** — at a ``roughconductor`` the branch continues along *one*
   reflected direction sampled from the Cook–Torrance/Walter microfacet BSDF
-  (:mod:`impl.microfacet`: Beckmann D, G = Smith (default) or the thesis's
-  V-cavity, ``g=smith|vcavity``), weighted f·cos/pdf × conductor Fresnel ×
-  ``specular_reflectance``; visible-normal or D·cos sampling per the
-  material's ``sample_visible``; a textured ``alpha`` (a ``bitmap`` or
-  ``checkerboard``, read as Mitsuba's ``eval_1``) at the hit.  A textured
-  ``specular_reflectance`` of a
+  (:mod:`impl.microfacet`: Beckmann or GGX D, the material's ``distribution``;
+  G = Smith (default) or the thesis's V-cavity, ``g=smith|vcavity``), weighted
+  f·cos/pdf × conductor Fresnel × ``specular_reflectance``; visible-normal or
+  D·cos sampling per the material's ``sample_visible``; a textured ``alpha`` (a
+  ``bitmap`` or ``checkerboard``, read as Mitsuba's ``eval_1``) at the hit;
+  isotropic roughness only.  A textured ``specular_reflectance`` of a
   conductor, rough conductor or smooth dielectric multiplies the reflected
   branch by its value at the hit, as Mitsuba's ``eval`` of the texture does
   (:func:`impl.lighting.specular_tint`; not with ``shading=hall``);
@@ -228,8 +228,8 @@ from .lighting import (diffuse_albedo, direct_light_dims, environment_radiance, 
                        mapped_normal_at, specular_tint, spot_falloff, surface)
 from .bsdf import cook_torrance_sample, diffuse_transmission_sample
 from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIFFTRANS,
-                        MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, material_arrays,
-                        with_specular_textures_cached, wrapper_arrays)
+                        MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, distribution_codes,
+                        material_arrays, with_specular_textures_cached, wrapper_arrays)
 from .microfacet import G_SMITH, G_VCAVITY, conductor_sample, dielectric_sample
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
@@ -408,7 +408,7 @@ def _hall_highlights(scene, rays, materials, mat, mkind, px, py, pz, gx, gy, gz,
     reference (:func:`impl.kernel.by_reference`).
     """
     A, R = dereference(scene), dereference(rays)
-    S, _wraps = dereference(materials)
+    S, _wraps, _dist = dereference(materials)
     r = g = b = 0.0
     for li in range(A.light_kind.shape[0]):
         if A.light_kind[li] == LIGHT_DIRECTIONAL:
@@ -484,8 +484,8 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
     plus sampled glossy bounces.  This runs per sample, so what it reads goes by
     reference (:func:`impl.kernel.by_reference`): ``scene`` the flattened scene,
     ``materials`` its (:class:`impl.materials.MaterialArrays`,
-    :class:`impl.materials.WrapperArrays`) pair (the latter for a textured
-    roughness), ``rays`` the ray configuration every ray of
+    :class:`impl.materials.WrapperArrays`, distribution codes) (the wrappers for a
+    textured roughness; :func:`impl.materials.distribution_codes`), ``rays`` the ray configuration every ray of
     the tree is intersected with, ``work = (sph_c, tri64, trin64, HL, shade, stack_f,
     stack_i, counts, cut_w)``: sphere centres, triangle vertices and shading normals
     (float64) at the sample's time, for shading; Hall's switch and parameters; the tree's
@@ -498,7 +498,7 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
     other ray.
     """
     A, R = dereference(scene), dereference(rays)
-    S, wraps = dereference(materials)
+    S, wraps, dist = dereference(materials)
     sph_c, tri64, trin64, HL, shade, stack_f, stack_i, counts, cut_w = dereference(work)
     ox, oy, oz, dx, dy, dz, tmin, tmax = ray
     hall, hall_ks, hall_n, hall_t, hall_tr, hall_kd = HL[0] > 0.0, HL[1], HL[2], HL[3], HL[4], HL[5]
@@ -635,7 +635,7 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             lx, ly, lz, w, pdf, refl, _eti = dielectric_sample(_alpha(A, S, wraps, mat, prim, b1, b2), gmodel,
                                                               S.visible[mat] == 1,
                                                               S.diel_eta[mat], wix, wiy, cos_v,
-                                                              u0, u1, u2)
+                                                              u0, u1, u2, dist[mat])
             if w <= 0.0:
                 continue
             counts[_C_GLOSSY] += 1
@@ -732,7 +732,7 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             bounce += 1
             lx, ly, lz, w, pdf, cos_ih = conductor_sample(_alpha(A, S, wraps, mat, prim, b1, b2), gmodel,
                                                           S.visible[mat] == 1,
-                                                          wix, wiy, cos_v, u1, u2)
+                                                          wix, wiy, cos_v, u1, u2, dist[mat])
             if w <= 0.0:
                 continue
             counts[_C_GLOSSY] += 1
@@ -776,7 +776,7 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
 
 @njit(inline="always", cache=True)
 def _alpha(A, S, wraps, mat, prim, b1, b2):
-    """The Beckmann roughness α of a rough conductor or dielectric at a hit: a textured
+    """The roughness α of a rough conductor or dielectric at a hit: a textured
     ``alpha`` (slot 2 of the :class:`impl.materials.WrapperArrays` ``wraps``) read at
     the triangle's uv as Mitsuba's ``eval_1`` (:func:`impl.textures.scalar_texture`, not
     clipped), else the constant (on spheres the texture's mean, as path has it)."""
@@ -908,7 +908,7 @@ def _store(rec, i, fx, fy, w, r, g, b):
 
 
 @njit(cache=True)
-def _row(cam, A, S, wraps, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
+def _row(cam, A, S, wraps, dist, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
          adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts_all):
     """The sample records of row ``y``'s pixels: pixel p's ``recs[p, :n] = (x, y, weight,
     r, g, b)`` and ``nrec[p] = n``; ``shade`` as :func:`_trees` takes it.  A row per call:
@@ -916,7 +916,7 @@ def _row(cam, A, S, wraps, R, M, HL, y, sampler, dmode, spp, jitter_gauss, gamma
     :func:`_trees` takes are made once per row."""
     W = int(cam[14])
     scene, config, motion = by_reference(A), by_reference(R), by_reference(M)
-    materials = by_reference((S, wraps))
+    materials = by_reference((S, wraps, dist))
     max_depth = shade[1]
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
@@ -1069,7 +1069,7 @@ def _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, pixel, pts):
 
 
 @njit(cache=True)
-def _tile(cam, A, S, wraps, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, shade, seed,
+def _tile(cam, A, S, wraps, dist, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, shade, seed,
           recs, nrec, counts, packet_counts):
     """One 8×8 tile of a fixed-count sampler: per sample index s, the eye rays of the
     tile's pixels that have a sample s (the pattern positions and lens points of
@@ -1079,7 +1079,7 @@ def _tile(cam, A, S, wraps, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, g
     x0, y0, nx, ny = tile_rect(tile, W, H)
     P = nx * ny
     scene, config, motion = by_reference(A), by_reference(R), by_reference(M)
-    materials = by_reference((S, wraps))
+    materials = by_reference((S, wraps, dist))
     max_depth = shade[1]
     stack_f = np.empty((max_depth + 2, 11))
     stack_i = np.empty((max_depth + 2, 2), dtype=np.int64)
@@ -1125,13 +1125,14 @@ def _tile(cam, A, S, wraps, R, M, HL, tile, sampler, dmode, spp, jitter_gauss, g
 
 
 @njit(parallel=True, cache=True)
-def _render_kernel(cam, A, S, wraps, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
+def _render_kernel(cam, A, S, wraps, dist, R, M, HL, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
                    adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts, packet_counts):
     """The film's tasks in parallel: rows of pixels (:func:`_row`), or with packets
     (``packet_counts`` (tiles, 2), else (0, 2)) 8×8 tiles (:func:`_tile`), in a
-    golden-ratio order (:func:`impl.kernel.interleaved`); ``S`` and ``wraps`` the
-    material and wrapper arrays :func:`_tree` reads (as a pair: a tuple of tuples cannot
-    be a parallel loop's argument), ``shade`` as :func:`_trees` takes it.
+    golden-ratio order (:func:`impl.kernel.interleaved`); ``S``, ``wraps`` and ``dist``
+    the material arrays, the wrapper arrays and the microfacet distributions
+    :func:`_tree` reads (apart: a tuple of tuples cannot be a parallel loop's argument),
+    ``shade`` as :func:`_trees` takes it.
 
     One loop for both: numba compiles a kernel with its whole call tree linked in, so a
     second kernel would compile the ray tree once more.  A ``prange`` loop, not a task
@@ -1146,11 +1147,11 @@ def _render_kernel(cam, A, S, wraps, R, M, HL, sampler, dmode, spp, jitter_gauss
     for c in prange(n):
         task = interleaved(np.int64(c), n, stride)
         if packets:
-            _tile(cam, A, S, wraps, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma, shade,
-                  seed, recs, nrec, counts, packet_counts[task])
+            _tile(cam, A, S, wraps, dist, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma,
+                  shade, seed, recs, nrec, counts, packet_counts[task])
         else:
-            _row(cam, A, S, wraps, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma, threshold,
-                 adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts)
+            _row(cam, A, S, wraps, dist, R, M, HL, task, sampler, dmode, spp, jitter_gauss, gamma, sigma,
+                 threshold, adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts)
 
 
 # ------------------------------------------------------------- orchestration ---
@@ -1233,9 +1234,10 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     S = scene_memo(scene, "distributed.materials", lambda: material_arrays(
         scene, algorithm="distributed", model="the distributed ray tracer",
         kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric",
-               "gibench_cooktorrance", "gibench_difftrans")))
+               "gibench_cooktorrance", "gibench_difftrans"), distributions=("beckmann", "ggx")))
     # A textured roughness: the wrappers' texture slots (the scene's other wrappers are refused).
     wraps = scene_memo(scene, "distributed.wrappers", lambda: wrapper_arrays(scene, algorithm="distributed"))
+    dist = scene_memo(scene, "distributed.distributions", lambda: distribution_codes(scene))
     A = flatten_cached(scene)
     cam = camera_params(scene.camera, lens=True)
     H, W = scene.camera.film.height, scene.camera.film.width
@@ -1282,7 +1284,7 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
              params["light_samples"])
     packet_counts = np.zeros((tile_count(W, H) if packets else 0, 2), dtype=np.int64)
     t1 = time.perf_counter()
-    _render_kernel(cam, A, S, wraps, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
+    _render_kernel(cam, A, S, wraps, dist, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
                    float(params["gamma"]), float(params["sigma"]), float(params["threshold"]),
                    int(params["adaptive_depth"]), float(params["tolerance"]), z, shade, seed, recs, nrec,
                    counts, packet_counts)

@@ -163,7 +163,16 @@ def test_bad_parameters_and_materials_are_refused(tmp_path):
         '<string name="distribution" value="beckmann"/>', '<string name="distribution" value="ggx"/>', 1)
     p = tmp_path / "ggx.xml"
     p.write_text(text)
-    with pytest.raises(NotImplementedError, match="distributed: shape 'gold': distribution 'ggx'"):
+    # GGX is modelled (Z-tested in tests/test_vocabulary_*.py): the file's distribution is read.
+    ggx, beckmann = render(p, spp=4), render(SUITES / "distributed/gloss.xml", spp=4)
+    assert np.isfinite(ggx.image).all() and not np.array_equal(ggx.image, beckmann.image)
+    aniso = '<float name="alpha_u" value="0.1"/><float name="alpha_v" value="0.3"/>'
+    text = (SUITES / "distributed/gloss.xml").read_text().replace('<float name="alpha" value="0.25"/>',
+                                                                 aniso, 1)
+    p = tmp_path / "aniso.xml"
+    p.write_text(text)
+    with pytest.raises(UnsupportedError, match="uses 'anisotropic roughness', which distributed does not "
+                                               "model"):
         render(p)
     with pytest.raises(NotImplementedError, match="shape 'gold' has a 'roughconductor' BSDF, which the "
                                                    "Whitted ray tracer does not model"):

@@ -7,7 +7,8 @@ path tracer and in Whitted and distributed ray tracing.
   mean of each third of the image lies within 4 standard errors of Mitsuba's.
 * ``textured_specular_whitted.xml`` (the right panel a smooth gold conductor) in
   ``whitted`` and ``distributed``, and ``textured_specular_glossy.xml`` (the right panel
-  a Beckmann roughconductor) in ``distributed``, against the matched Mitsuba ``whitted``
+  a Beckmann roughconductor) and ``textured_specular.xml`` itself (GGX) in
+  ``distributed``, against the matched Mitsuba ``whitted``
   reference (own 64 spp for whitted, 256 for distributed, 16 light samples), per pixel
   and per third.
 * Negative control: the textures replaced by their mean colours fail the Z-test.
@@ -32,7 +33,8 @@ SCENE = VOC / "textured_specular.xml"
 #: (algorithm, scene) of the ray tracers' cases, against Mitsuba's whitted reference.
 RAY_TRACED = [("whitted", VOC / "textured_specular_whitted.xml"),
               ("distributed", VOC / "textured_specular_whitted.xml"),
-              ("distributed", VOC / "textured_specular_glossy.xml")]
+              ("distributed", VOC / "textured_specular_glossy.xml"),
+              ("distributed", SCENE)]
 #: Whitted's deterministic splits at 64 spp; distributed's sampled lobes at 256, where the
 #: rough panel's rare bright samples (its reflection of the area light) are not too
 #: few for the sample variance.

@@ -13,9 +13,10 @@ the path tracer (the textured roughness in distributed ray tracing too).
   roughness textures and the wrappers' checkerboards replaced by their means.
 * The other algorithms still refuse the four by name (anisotropic roughness:
   ``tests/test_vocabulary_anisotropic.py``), except the textured roughness, which
-  distributed ray tracing models: ``textured_roughness_glossy.xml`` (the GGX panel
-  Beckmann) passes the Z-test against Mitsuba's matched ``whitted`` reference, and fails
-  it with the textures replaced by their means.
+  distributed ray tracing models: ``textured_roughness.xml`` and
+  ``textured_roughness_glossy.xml`` (its GGX panel Beckmann) pass the Z-test against
+  Mitsuba's matched ``whitted`` reference, and fail it with the textures replaced by
+  their means.
 * The thin dielectric's reflection probability is Mitsuba's 2R/(1 + R).
 """
 
@@ -116,22 +117,27 @@ def test_other_algorithms_refuse_them_by_name(name, feature):
 #: where each third's mean still agrees.
 GLOSSY = VOCAB / "textured_roughness_glossy.xml"
 GLOSSY_PARAMS = {"spp": 256, "light_samples": 16}
+#: Both in distributed ray tracing: the Beckmann variant and the file itself (GGX panel).
+DISTRIBUTED = [GLOSSY, SCENES["textured_roughness"]]
 
 
 @pytest.mark.mitsuba
-def test_distributed_textured_roughness_passes_the_ztest_against_mitsuba_whitted():
+@pytest.mark.parametrize("scene_file", DISTRIBUTED, ids=lambda p: p.stem)
+def test_distributed_textured_roughness_passes_the_ztest_against_mitsuba_whitted(scene_file):
     """Distributed ray tracing (256 spp, 16 light samples) reads a rough conductor's and a
     rough dielectric's ``alpha`` from a bitmap or a checkerboard at the hit and agrees with
     the matched Mitsuba reference (which follows glossy lobes by ``bsdf.sample``), per
     pixel and per third of the image."""
-    assert_passes_by_pixel_and_thirds("textured_roughness_glossy (distributed)", *against_mitsuba(
-        GLOSSY, "distributed", GLOSSY_PARAMS, "whitted"))
+    assert_passes_by_pixel_and_thirds(f"{scene_file.stem} (distributed)", *against_mitsuba(
+        scene_file, "distributed", GLOSSY_PARAMS, "whitted"))
 
 
 @pytest.mark.mitsuba
-def test_distributed_ztest_rejects_the_roughness_as_its_mean():
-    ref, own, z = against_mitsuba(GLOSSY, "distributed", GLOSSY_PARAMS, "whitted", materials=_roughness_as_mean)
-    print(f"\ntextured_roughness_glossy (distributed, _roughness_as_mean): {z}")
+@pytest.mark.parametrize("scene_file", DISTRIBUTED, ids=lambda p: p.stem)
+def test_distributed_ztest_rejects_the_roughness_as_its_mean(scene_file):
+    ref, own, z = against_mitsuba(scene_file, "distributed", GLOSSY_PARAMS, "whitted",
+                                  materials=_roughness_as_mean)
+    print(f"\n{scene_file.stem} (distributed, _roughness_as_mean): {z}")
     assert not z.passed
 
 
