@@ -483,15 +483,15 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
     """Radiance (r, g, b) of one eye ray ``ray = (o, d, tmin, tmax)``: whitted's ray tree
     plus sampled glossy bounces.  This runs per sample, so what it reads goes by
     reference (:func:`impl.kernel.by_reference`): ``scene`` the flattened scene,
-    ``materials`` its (:class:`impl.materials.MaterialArrays`,
-    :class:`impl.materials.WrapperArrays`, distribution codes) (the wrappers for a
-    textured roughness; :func:`impl.materials.distribution_codes`), ``rays`` the ray configuration every ray of
-    the tree is intersected with, ``work = (sph_c, tri64, trin64, HL, shade, stack_f,
-    stack_i, counts, cut_w)``: sphere centres, triangle vertices and shading normals
-    (float64) at the sample's time, for shading; Hall's switch and parameters; the tree's
-    and Phong's parameters (``shade`` as :func:`_trees` takes it); the ray stack; the
-    pixel's counters and cut weights.  (By value, the arrays of these tuples went member
-    by member at every call.)
+    ``materials`` its :class:`impl.materials.MaterialArrays`, its
+    :class:`impl.materials.WrapperArrays` (for a textured roughness) and its microfacet
+    distributions (:func:`impl.materials.distribution_codes`), ``rays`` the ray
+    configuration every ray of the tree is intersected with, ``work = (sph_c, tri64,
+    trin64, HL, shade, stack_f, stack_i, counts, cut_w)``: sphere centres, triangle
+    vertices and shading normals (float64) at the sample's time, for shading; Hall's
+    switch and parameters; the tree's and Phong's parameters (``shade`` as
+    :func:`_trees` takes it); the ray stack; the pixel's counters and cut weights.  (By
+    value, the arrays of these tuples went member by member at every call.)
 
     ``pre = (t, prim, b1, b2)``: the eye ray's closest hit as :func:`impl.rays.hit`
     returns it, traced in a packet; ``prim = NOT_TRACED`` traces it here like every
