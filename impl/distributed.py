@@ -240,7 +240,7 @@ from .samplers import (DIM_INDEPENDENT, DIM_SOBOL, DIM_STRATIFIED, adaptive_chil
                        dim_1d, dim_2d, gaussian_jitter_pattern, jitter_pattern, poisson_disk_pattern,
                        random_pattern, sobol_pattern, statistical_done, uniform_pattern)
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten_cached, scene_memo
-from .textures import scalar_texture
+from .textures import scalar_param
 from .tracer import ray_config_cached
 from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit
 
@@ -777,14 +777,9 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
 @njit(inline="always", cache=True)
 def _alpha(A, S, wraps, mat, prim, b1, b2):
     """The roughness α of a rough conductor or dielectric at a hit: a textured
-    ``alpha`` (slot 2 of the :class:`impl.materials.WrapperArrays` ``wraps``) read at
-    the triangle's uv as Mitsuba's ``eval_1`` (:func:`impl.textures.scalar_texture`, not
-    clipped), else the constant (on spheres the texture's mean, as path has it)."""
-    ns = A.sph_radius.shape[0]
-    if wraps.ptex[mat, 2, 0] == 0 or prim < ns:
-        return S.alpha[mat]
-    return scalar_texture(wraps.ptex[mat, 2], wraps.ptex_uv[mat, 2], wraps.ptex_c[mat, 2, 0],
-                          wraps.ptex_c[mat, 2, 1], wraps.ptex_data, A.tri_uv[prim - ns], b1, b2, False)
+    ``alpha`` (slot 2 of the :class:`impl.materials.WrapperArrays` ``wraps``) read as
+    path reads it (:func:`impl.textures.scalar_param`), else the constant."""
+    return scalar_param(wraps, mat, 2, S.alpha[mat], A.sph_radius.shape[0], prim, A.tri_uv, b1, b2)
 
 
 @njit(inline="always", cache=True)
@@ -1215,19 +1210,15 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     _check(params)
     if params["shading"] == "hall":
         found = scene_features(scene)
-        for feature in ("projector", "spot texture"):
+        image = ("Hall's light-source terms model point, spot and directional lights; {} has an image "
+                 "(a projector's or a spot's texture), which they leave out")
+        for feature, why in (("projector", image), ("spot texture", image),
+                             ("textured specular reflectance",
+                              "Hall's highlights take a surface's specular_reflectance as one colour; "
+                              "{} is a texture")):
             if feature in found:
                 where = found[feature] + (f" of {scene.path}" if getattr(scene, "path", None) else "")
-                raise UnsupportedError(
-                    f"distributed: shading=hall: Hall's light-source terms model point, spot and "
-                    f"directional lights; {where} has an image (a projector's or a spot's "
-                    "texture), which they leave out")
-        if "textured specular reflectance" in found:
-            where = found["textured specular reflectance"] + (
-                f" of {scene.path}" if getattr(scene, "path", None) else "")
-            raise UnsupportedError(
-                f"distributed: shading=hall: Hall's highlights take a surface's "
-                f"specular_reflectance as one colour; {where} is a texture")
+                raise UnsupportedError("distributed: shading=hall: " + why.format(where))
     scene = with_specular_textures_cached(scene)
     # The scene's arrays and ray configurations are built once per scene object (as the
     # tile tracers do): a render of the same scene reuses them.

@@ -176,7 +176,7 @@ from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
 from .shading_frame import perturbed_normal, same_side, shadow_terminator, tangent
-from .textures import bitmap, checkerboard, luminance, scalar_texture
+from .textures import bitmap, checkerboard, luminance, scalar_param
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
 from .tracer import (accumulate, Batch, closest_batch, DX, DY, DZ, eye_batch, Film, film_counters,
@@ -208,29 +208,18 @@ def _power(a, b):
 
 
 @njit(inline="always", cache=True)
-def _scalar_param(B, mat, slot, value, ns, prim, tri_uv, b1, b2):
-    """A scalar parameter of ``mat`` at a hit: slot 0 a mask's opacity, 1 a blend weight
-    (both clipped to [0, 1], as Mitsuba), 2 a roughness (α_u), 3 α_v; its texture's value
-    (:func:`impl.textures.scalar_texture`) on triangles, ``value`` (the constant, or the
-    texture's mean on spheres) without a texture."""
-    if B.ptex[mat, slot, 0] == 0 or prim < ns:
-        return value
-    return scalar_texture(B.ptex[mat, slot], B.ptex_uv[mat, slot], B.ptex_c[mat, slot, 0],
-                          B.ptex_c[mat, slot, 1], B.ptex_data, tri_uv[prim - ns], b1, b2, slot < 2)
-
-
-@njit(inline="always", cache=True)
 def _roughness(B, mat, ns, prim, tri_uv, b1, b2):
     """(α_u, α_v) of ``mat`` at a hit: the constants or their textures' values
-    (:func:`_scalar_param`, slots 2 and 3); α_v = α_u unless the row is anisotropic."""
+    (:func:`impl.textures.scalar_param`, slots 2 and 3); α_v = α_u unless the row is
+    anisotropic."""
     alpha = B.alpha[mat]
     if B.ptex[mat, 2, 0] != 0:
-        alpha = _scalar_param(B, mat, 2, alpha, ns, prim, tri_uv, b1, b2)
+        alpha = scalar_param(B, mat, 2, alpha, ns, prim, tri_uv, b1, b2)
     alpha_v = alpha
     if B.aniso[mat] != 0:
         alpha_v = B.alpha_v[mat]
         if B.ptex[mat, 3, 0] != 0:
-            alpha_v = _scalar_param(B, mat, 3, alpha_v, ns, prim, tri_uv, b1, b2)
+            alpha_v = scalar_param(B, mat, 3, alpha_v, ns, prim, tri_uv, b1, b2)
     return alpha, alpha_v
 
 
@@ -472,13 +461,13 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         u0s = uniform_from(h, dim + 3)
         opac = B.opacity[mat]
         if opac < 1.0:
-            opac = _scalar_param(B, mat, 0, opac, ns, prim, A.tri_uv, b1, b2)
+            opac = scalar_param(B, mat, 0, opac, ns, prim, A.tri_uv, b1, b2)
         smat = mat
         blend = B.kind[mat] == MAT_BLEND
         bw = 0.0
         ck = 0
         if blend:
-            bw = _scalar_param(B, mat, 1, B.blend_w[mat], ns, prim, A.tri_uv, b1, b2)
+            bw = scalar_param(B, mat, 1, B.blend_w[mat], ns, prim, A.tri_uv, b1, b2)
             us = u0s / opac if opac < 1.0 else u0s     # the nested BSDF's share of u0
             if us > bw:
                 smat = B.comp[mat, 0]

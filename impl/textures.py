@@ -25,7 +25,8 @@ Mitsuba's ``raw = false`` does; float EXR as stored) by
 :func:`bitmap_grad` is the gradient in uv of a bitmap's luminance (Mitsuba's
 ``eval_1_grad``), which a ``bumpmap`` reads (:mod:`impl.shading_frame`), and
 :func:`scalar_texture` a scalar texture's value at a triangle's point (Mitsuba's
-``eval_1``: a mask's opacity, a blend weight, a roughness).
+``eval_1``), which :func:`scalar_param` reads for a material's mask opacity, blend
+weight or roughness.
 
 Leaves out: MIP-mapping and ray differentials (Mitsuba's bitmap does not
 filter over the pixel footprint either), the ``raw`` flag's effect on spectral
@@ -39,7 +40,8 @@ import math
 from numba import njit
 
 __all__ = ["WRAP_REPEAT", "WRAP_CLAMP", "WRAP_MIRROR", "FILTER_BILINEAR", "FILTER_NEAREST",
-           "checkerboard", "bitmap", "bitmap_grad", "luminance", "scalar_texture", "wrap_index"]
+           "checkerboard", "bitmap", "bitmap_grad", "luminance", "scalar_param", "scalar_texture",
+           "wrap_index"]
 
 WRAP_REPEAT, WRAP_CLAMP, WRAP_MIRROR = 0, 1, 2
 FILTER_BILINEAR, FILTER_NEAREST = 0, 1
@@ -153,3 +155,18 @@ def scalar_texture(rec, m, c0, c1, data, t, b1, b2, clip):
         r, g, b = bitmap(data, rec[1], rec[2], rec[3], rec[4], rec[5], uu, vv)
         x = luminance(r, g, b)
     return min(max(x, 0.0), 1.0) if clip else x
+
+
+@njit(inline="always", cache=True)
+def scalar_param(T, mat, slot, value, ns, prim, tri_uv, b1, b2):
+    """A scalar parameter of material ``mat`` at a hit (primitive ``prim``, barycentrics
+    (b1, b2); ``ns`` spheres come first): slot 0 a mask's opacity, 1 a blend weight (both
+    clipped to [0, 1], as Mitsuba), 2 a roughness (α_u), 3 α_v.  Its texture's value
+    (:func:`scalar_texture`) on triangles, ``value`` (the constant, or the texture's mean
+    on spheres) without a texture.  ``T`` holds the slots' textures as
+    :class:`impl.materials.WrapperArrays` has them (``ptex``, ``ptex_uv``, ``ptex_c``,
+    ``ptex_data``; path's BSDF arrays carry the same fields)."""
+    if T.ptex[mat, slot, 0] == 0 or prim < ns:
+        return value
+    return scalar_texture(T.ptex[mat, slot], T.ptex_uv[mat, slot], T.ptex_c[mat, slot, 0],
+                          T.ptex_c[mat, slot, 1], T.ptex_data, tri_uv[prim - ns], b1, b2, slot < 2)
