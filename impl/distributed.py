@@ -188,21 +188,43 @@ shadows         bool    true            cast shadow rays
 packets         bool    false           eye rays of 8×8 tiles as coherent packets
 ==============  ======  ==============  ==========================================
 
-Packets (thesis 2.6): with ``packets=true`` the kernel runs over 8×8 pixel
+Structure
+---------
+Two drivers trace the same ray trees with the same random numbers.  The
+fixed-count samplers ``uniform``, ``random``, ``jitter`` and ``sobol`` on a
+static scene (no motion blur) with ``shading=cook-torrance`` run on the
+tracer core of :mod:`impl.tracer`, as ``whitted``
+does: tile by tile (``BATCH_TILE``² pixels per task), each sample index's eye
+rays as one batch, the ray trees traced level by level (a wavefront of
+reflection and transmission rays, the deepest level first), each chunk of rays
+as one batch query and its diffuse leaves lit together
+(:func:`impl.lighting.direct_batch`, the light numbers of
+:func:`impl.lighting.direct_light_dims` per leaf); with a box filter each
+pixel's samples are averaged in the tile, otherwise their records go to the
+reconstruction filter.  Every other case — ``poisson``, ``adaptive`` and
+``statistical`` (a pixel's sample count or next sample depends on its earlier
+ones), motion blur (each sample's scene at its own time) and Hall's model —
+traces each sample's tree on its own, depth first (:func:`_tree`).
+Leaf k of a sample's tree draws the same light numbers in both, but "leaf k"
+counts the leaves in the order each driver meets them, which differs below a
+Fresnel split: there the two images differ within their noise, elsewhere they
+are the same bit for bit.
+
+Packets (thesis 2.6): with ``packets=true`` either driver runs over 8×8 pixel
 tiles; for each sample index the eye rays of the tile's pixels that have that
-sample — the same pattern position, lens point and rounding as the per-pixel
-kernel — are traced as one packet through the tree, and each sample's ray tree
-starts from its precomputed eye hit (secondary and shadow rays single-ray:
-incoherent, packets of them are out of scope).  Same records, image and
-counters as ``packets=false`` bit for bit (the reconstruction is unchanged),
-plus ``packet_nodes`` / ``packet_tests``.  Fixed-count samplers only:
+sample — the same pattern position, lens point and rounding as without
+packets — are traced as one packet through the tree, and each sample's ray tree
+starts from its precomputed eye hit (secondary and shadow rays as without
+packets: incoherent, packets of them are out of scope).  Same image and
+counters as ``packets=false`` bit for bit, plus ``packet_nodes`` /
+``packet_tests``.  Fixed-count samplers only:
 ``adaptive`` and ``statistical`` decide each pixel's next sample from its
 previous ones, so a tile has no common sample index to batch, and
 ``packets=true`` with them is refused; so are scenes with moving spheres
 (traced by brute force, there is no tree to send packets through).
 
-Leaves out: indirect diffuse light and caustics (as ``whitted``), GGX and
-anisotropic roughness, delta lights on glossy surfaces, moving emitters,
+Leaves out: indirect diffuse light and caustics (as ``whitted``), anisotropic
+roughness, delta lights on glossy surfaces, moving emitters,
 deforming (non-rigid) meshes, motion other than linear in τ.
 """
 
@@ -221,11 +243,12 @@ from core.errors import ParamError, UnsupportedError
 
 from .accel.packets import NOT_TRACED, packet_buffers, packet_hits, tile_count, tile_rect
 from .camera import SENSOR_THINLENS, camera_params, eye_ray, eye_ray_lens
-from .kernel import batch_kernel, by_reference, dereference, interleaved, task_stride
-from .filters import S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
+from .kernel import batch_kernel, by_reference, dereference, interleaved, run_tasks, take_task, task_stride
+from .filters import FILTER_BOX, S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import (diffuse_albedo, direct_light_dims, environment_radiance, map_weight,
-                       mapped_normal_at, specular_tint, spot_falloff, surface)
+from .lighting import (SP_DDIM, SP_DSPP, LocalModel, diffuse_albedo, direct_batch, direct_light_dims,
+                       environment_radiance, local_model, map_weight, mapped_normal, mapped_normal_at,
+                       specular_tint, spot_falloff, store_point, surface, surface_at)
 from .bsdf import cook_torrance_sample, diffuse_transmission_sample
 from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIFFTRANS,
                         MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, distribution_codes,
@@ -241,13 +264,18 @@ from .samplers import (DIM_INDEPENDENT, DIM_SOBOL, DIM_STRATIFIED, adaptive_chil
                        random_pattern, sobol_pattern, statistical_done, uniform_pattern)
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten_cached, scene_memo
 from .textures import scalar_param
-from .tracer import ray_config_cached
-from .whitted import IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, _admit
+from .tracer import (DX, DY, DZ, OX, OY, OZ, TMAX, TMIN, Batch, Film, accumulate, closest_batch, first,
+                     new_batch, new_film, ray_config_cached, store, take_pending)
+from .whitted import (IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, TreeWork, admit, queue_child,
+                      tree_work)
 
 __all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS", "Motion", "motion_arrays"]
 
 SAMPLERS = ("uniform", "random", "jitter", "poisson", "adaptive", "statistical", "sobol")
 SMP_UNIFORM, SMP_RANDOM, SMP_JITTER, SMP_POISSON, SMP_ADAPTIVE, SMP_STATISTICAL, SMP_SOBOL = range(7)
+#: The samplers whose renders of a static scene go through the tracer core in tile batches
+#: (a fixed sample count per pixel, each pattern drawn before its samples are traced).
+BATCH_SAMPLERS = ("uniform", "random", "jitter", "sobol")
 #: ``dimensions``: how the lens, time, light and BSDF numbers of a sample are drawn.
 DIMENSIONS = ("independent", "stratified")
 G_MODELS = {"smith": G_SMITH, "vcavity": G_VCAVITY}
@@ -611,7 +639,7 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
                 twr = wr * scale * S.spec_trans[mat, 0]
                 twg = wg * scale * S.spec_trans[mat, 1]
                 twb = wb * scale * S.spec_trans[mat, 2]
-                if _admit(twr, twg, twb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                if admit(twr, twg, twb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                     sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, tx, ty, tz,
                                twr, twg, twb, depth + 1, RAY_TRANSMISSION, there)
             qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
@@ -620,7 +648,7 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             rwr = wr * F * S.spec_refl[mat, 0] * kr
             rwg = wg * F * S.spec_refl[mat, 1] * kg
             rwb = wb * F * S.spec_refl[mat, 2] * kb
-            if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+            if admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
                            rwr, rwg, rwb, depth + 1, RAY_REFLECTION, here)
             continue
@@ -652,7 +680,7 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
                 nxt = RAY_TRANSMISSION
                 med = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
             nwr, nwg, nwb = wr * w * cw[0] * f, wg * w * cw[1] * f, wb * w * cw[2] * f
-            if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+            if admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
                            nwr, nwg, nwb, depth + 1, nxt, med)
             continue
@@ -676,7 +704,7 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
             nxt = RAY_REFLECTION if lz * cos_v > 0.0 else RAY_TRANSMISSION
             nwr, nwg, nwb = wr * w_r * f, wg * w_g * f, wb * w_b * f
-            if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+            if admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
                            nwr, nwg, nwb, depth + 1, nxt, medium)
             continue
@@ -703,7 +731,7 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             oz_ = tz_ * lx + bz * ly + nz * lz
             f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
             nwr, nwg, nwb = wr * w_r * f, wg * w_g * f, wb * w_b * f
-            if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+            if admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
                            nwr, nwg, nwb, depth + 1, RAY_REFLECTION, medium)
             continue
@@ -718,7 +746,7 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             rwr = wr * fr * S.spec_refl[mat, 0] * f * kr
             rwg = wg * fg * S.spec_refl[mat, 1] * f * kg
             rwb = wb * fb * S.spec_refl[mat, 2] * f * kb
-            if _admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+            if admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
                            rwr, rwg, rwb, depth + 1, RAY_REFLECTION, medium)
             continue
@@ -747,7 +775,7 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             nwr = wr * w * fr * S.spec_refl[mat, 0] * f * kr
             nwg = wg * w * fg * S.spec_refl[mat, 1] * f * kg
             nwb = wb * w * fb * S.spec_refl[mat, 2] * f * kb
-            if _admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+            if admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
                            nwr, nwg, nwb, depth + 1, RAY_REFLECTION, medium)
             continue
@@ -1149,6 +1177,306 @@ def _render_kernel(cam, A, S, wraps, dist, R, M, HL, sampler, dmode, spp, jitter
                  threshold, adaptive_depth, tolerance, z, shade, seed, recs, nrec, counts)
 
 
+# ------------------------------------------------------------ tile batches ---
+#
+# Fixed-count samplers on static scenes go through the tracer core (:mod:`impl.tracer`)
+# as whitted does: a tile's eye rays of one sample index form a batch, and the tile's
+# ray trees are traced level by level, each chunk of rays as one batch query and its
+# diffuse leaves lit together (:func:`impl.lighting.direct_batch`).  The other cases
+# (adaptive and statistical samplers, Poisson patterns, motion blur, Hall's model)
+# keep the per-sample trees above.
+
+
+@batch_kernel
+def _shade_batch(A: SceneArrays, S: MaterialArrays, wraps, dist, R: RayConfig, M: LocalModel, gmodel, dmode,
+                 max_depth, hall_threshold, seed, sample, spp, T: Batch, K: TreeWork, C: Batch, m, depth,
+                 eye):
+    """:func:`_tree`'s step at the ``m`` rays of depth ``depth`` in batch ``C`` (hits
+    traced), as :func:`impl.whitted._shade` takes it for whitted: each ray's light into
+    its eye ray's ``T.L``, its children queued one level deeper (``K.Q``) — both
+    Fresnel branches at a smooth dielectric, the mirror branch at a conductor, one
+    sampled direction at a glossy, translucent or thesis surface (the ``K.nbsdf``-th of
+    its sample, :func:`_bsdf_u`) — and its diffuse leaves lit together, leaf l of the
+    sample with the light numbers :func:`_tree` gives it.  ``eye``: the rays are ``T``'s
+    own eye rays (unit weight, column = ray)."""
+    Q = K.Q
+    amb = M.ambient * M.ka
+    for i in range(m):
+        C.active[i] = False
+        col = i if eye else K.col[i]
+        if eye:
+            wr = wg = wb = 1.0
+            medium = 0.0
+            kind = RAY_EYE
+        else:
+            wr, wg, wb, medium = K.w[0, i], K.w[1, i], K.w[2, i], K.w[3, i]
+            kind = K.kind[i]
+        counts, cut = T.cnt[col], K.cut[col]
+        counts[_C_EYE if kind == RAY_EYE else _C_REFL if kind == RAY_REFLECTION else _C_TRANS] += 1
+        pixel = T.pixel[col]
+        rox, roy, roz = C.ray[OX, i], C.ray[OY, i], C.ray[OZ, i]
+        rdx, rdy, rdz = C.ray[DX, i], C.ray[DY, i], C.ray[DZ, i]
+        prim = C.prim[i]
+        if prim < 0:                     # escaped: a constant environment, if any, else black
+            er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
+            T.L[0, col] += wr * er
+            T.L[1, col] += wg * eg
+            T.L[2, col] += wb * eb
+            continue
+        t, b1, b2 = C.t[i], C.b[0, i], C.b[1, i]
+        shape = A.prim_shape[prim]
+        px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
+        gx, gy, gz, sx, sy, sz = surface_at(A, prim, b1, b2, px, py, pz, A.shape_flip[shape])
+        vx, vy, vz = -rdx, -rdy, -rdz
+        if sx * vx + sy * vy + sz * vz > 0.0:
+            T.L[0, col] += wr * A.shape_emit[shape, 0]
+            T.L[1, col] += wg * A.shape_emit[shape, 1]
+            T.L[2, col] += wb * A.shape_emit[shape, 2]
+        mat = A.shape_material[shape]
+        mkind = S.kind[mat]
+        nd = depth + 1
+        back = (A.mat_twosided[mat] and mkind != MAT_DIELECTRIC and mkind != MAT_ROUGHDIELECTRIC
+                and mkind != MAT_DIFFTRANS and gx * vx + gy * vy + gz * vz < 0.0)
+        nx, ny, nz, code = mapped_normal(A, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, back)
+        if back:
+            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+        cos_v = nx * vx + ny * vy + nz * vz
+
+        if mkind == MAT_DIELECTRIC:
+            eta = S.diel_eta[mat]
+            if medium > 0.0:
+                expected = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+                if abs(medium - expected) > IOR_TOLERANCE:
+                    counts[_C_IOR] += 1
+            F, cos_t, eta_it, eta_ti = fresnel_dielectric(cos_v, eta)
+            if F == 1.0 and cos_t == 0.0:
+                counts[_C_TIR] += 1
+            here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+            there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
+            if F < 1.0:
+                tx, ty, tz = refract(rdx, rdy, rdz, nx, ny, nz, cos_v, cos_t, eta_ti)
+                scale = (1.0 - F) * eta_ti * eta_ti * map_weight(nx, ny, nz, sx, sy, sz, code, tx, ty, tz)
+                twr = wr * scale * S.spec_trans[mat, 0]
+                twg = wg * scale * S.spec_trans[mat, 1]
+                twb = wb * scale * S.spec_trans[mat, 2]
+                if admit(twr, twg, twb, nd, max_depth, hall_threshold, counts, cut):
+                    queue_child(Q, nd, R, px, py, pz, gx, gy, gz, tx, ty, tz, twr, twg, twb, there, col,
+                                RAY_TRANSMISSION)
+            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
+            F *= map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
+            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+            rwr = wr * F * S.spec_refl[mat, 0] * kr
+            rwg = wg * F * S.spec_refl[mat, 1] * kg
+            rwb = wb * F * S.spec_refl[mat, 2] * kb
+            if admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
+                queue_child(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, here, col,
+                            RAY_REFLECTION)
+            continue
+
+        if mkind == MAT_ROUGHDIELECTRIC or mkind == MAT_DIFFTRANS or (
+                cos_v > 0.0 and (mkind == MAT_COOKTORRANCE or mkind == MAT_ROUGHCONDUCTOR)):
+            # One sampled direction (gloss, translucency, the thesis's surfaces; 2.5.6).
+            tx_, ty_, tz_, bx, by, bz = _frame(nx, ny, nz)
+            wix = tx_ * vx + ty_ * vy + tz_ * vz
+            wiy = bx * vx + by * vy + bz * vz
+            u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, K.nbsdf[col])
+            K.nbsdf[col] += 1
+            nxt, med = RAY_REFLECTION, medium
+            if mkind == MAT_ROUGHDIELECTRIC:
+                lx, ly, lz, w, pdf, refl, _eti = dielectric_sample(
+                    _alpha(A, S, wraps, mat, prim, b1, b2), gmodel, S.visible[mat] == 1, S.diel_eta[mat],
+                    wix, wiy, cos_v, u0, u1, u2, dist[mat])
+                if w <= 0.0:
+                    continue
+                if refl:
+                    cr, cg, cb = S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2]
+                    med = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+                else:
+                    cr, cg, cb = S.spec_trans[mat, 0], S.spec_trans[mat, 1], S.spec_trans[mat, 2]
+                    nxt = RAY_TRANSMISSION
+                    med = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
+                cr, cg, cb = w * cr, w * cg, w * cb
+            elif mkind == MAT_DIFFTRANS:
+                lx, ly, lz, cr, cg, cb, pdf = diffuse_transmission_sample(
+                    S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2], S.spec_trans[mat, 0],
+                    S.spec_trans[mat, 1], S.spec_trans[mat, 2], wix, wiy, cos_v, u0, u1, u2)
+                if pdf <= 0.0:
+                    continue
+                if lz * cos_v <= 0.0:
+                    nxt = RAY_TRANSMISSION
+            elif mkind == MAT_COOKTORRANCE:
+                lx, ly, lz, cr, cg, cb, pdf = cook_torrance_sample(
+                    S.spec_trans[mat, 0], S.spec_trans[mat, 1], S.cond_eta[mat], S.cond_k[mat], gmodel,
+                    S.diel_eta[mat], S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2],
+                    wix, wiy, cos_v, u0, u1, u2)
+                if pdf <= 0.0:
+                    continue
+            else:
+                lx, ly, lz, w, pdf, cos_ih = conductor_sample(
+                    _alpha(A, S, wraps, mat, prim, b1, b2), gmodel, S.visible[mat] == 1, wix, wiy, cos_v,
+                    u1, u2, dist[mat])
+                if w <= 0.0:
+                    continue
+                kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+                cr = w * fresnel_conductor(cos_ih, S.cond_eta[mat, 0], S.cond_k[mat, 0]) * S.spec_refl[mat, 0]
+                cg = w * fresnel_conductor(cos_ih, S.cond_eta[mat, 1], S.cond_k[mat, 1]) * S.spec_refl[mat, 1]
+                cb = w * fresnel_conductor(cos_ih, S.cond_eta[mat, 2], S.cond_k[mat, 2]) * S.spec_refl[mat, 2]
+                cr, cg, cb = cr * kr, cg * kg, cb * kb
+            counts[_C_GLOSSY] += 1
+            ox_ = tx_ * lx + bx * ly + nx * lz
+            oy_ = ty_ * lx + by * ly + ny * lz
+            oz_ = tz_ * lx + bz * ly + nz * lz
+            f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
+            nwr, nwg, nwb = wr * cr * f, wg * cg * f, wb * cb * f
+            if admit(nwr, nwg, nwb, nd, max_depth, hall_threshold, counts, cut):
+                queue_child(Q, nd, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_, nwr, nwg, nwb, med, col, nxt)
+            continue
+
+        if cos_v <= 0.0:                 # an opaque BSDF sees the viewer below n: black
+            continue
+
+        if mkind == MAT_CONDUCTOR:
+            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
+            f = map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
+            fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
+            fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
+            fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
+            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+            rwr = wr * fr * S.spec_refl[mat, 0] * f * kr
+            rwg = wg * fg * S.spec_refl[mat, 1] * f * kg
+            rwb = wb * fb * S.spec_refl[mat, 2] * f * kb
+            if admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
+                queue_child(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, medium, col,
+                            RAY_REFLECTION)
+            continue
+
+        # Diffuse: a leaf, lit with the rest of the chunk's below; the ambient term now.
+        rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+        T.L[0, col] += wr * (amb * rho_r)
+        T.L[1, col] += wg * (amb * rho_g)
+        T.L[2, col] += wb * (amb * rho_b)
+        store_point(C.pts, i, px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r, rho_g, rho_b, sx, sy,
+                    sz, code)
+        leaf = K.nleaf[col]
+        if dmode == DIM_INDEPENDENT:
+            K.lsample[i] = sample + leaf * spp
+        else:
+            K.lsample[i] = sample
+            C.pts[SP_DSPP, i] = spp
+            C.pts[SP_DDIM, i] = _X_LIGHT * (leaf + 1)
+        K.nleaf[col] = leaf + 1
+        C.active[i] = True
+        counts[_C_DIFFUSE] += 1
+    if eye:
+        direct_batch(A, R, M, T, K.lsample, seed, T.cnt[:, _C_SHADOW])
+        return
+    nsh = K.nshadow[:, 0]
+    for i in range(m):
+        C.L[0, i] = C.L[1, i] = C.L[2, i] = 0.0
+        nsh[i] = 0
+        C.pixel[i] = T.pixel[K.col[i]]
+    direct_batch(A, R, M, first(C, m), K.lsample, seed, nsh)
+    for i in range(m):
+        if C.active[i]:
+            col = K.col[i]
+            T.L[0, col] += K.w[0, i] * C.L[0, i]
+            T.L[1, col] += K.w[1, i] * C.L[1, i]
+            T.L[2, col] += K.w[2, i] * C.L[2, i]
+            T.cnt[col, _C_SHADOW] += nsh[i]
+            C.active[i] = False
+
+
+@batch_kernel
+def _trees_batch(A: SceneArrays, S: MaterialArrays, wraps, dist, R: RayConfig, M: LocalModel, gmodel, dmode,
+                 max_depth, hall_threshold, seed, sample, spp, T: Batch, K: TreeWork):
+    """The radiance ``T.L`` of the batch's eye rays (``T.ray``, unrounded): their ray
+    trees level by level as :func:`impl.whitted._trees` traces them, the deepest pending
+    level first, a chunk of at most one batch at a time (:func:`_shade_batch`).  In a
+    packet tile (``T.aos`` not empty) the eye rays go through the tree as one packet
+    (:func:`impl.accel.packets.packet_hits`), as the per-sample packet tiles trace them."""
+    n = T.n
+    for i in range(n):
+        T.L[0, i] = T.L[1, i] = T.L[2, i] = 0.0
+        K.nleaf[i] = 0
+        K.nbsdf[i] = 0
+        T.cnt[i, _C_SAMPLES] += 1
+        (T.ray[OX, i], T.ray[OY, i], T.ray[OZ, i], T.ray[DX, i], T.ray[DY, i],
+         T.ray[DZ, i]) = round_ray(R, T.ray[OX, i], T.ray[OY, i], T.ray[OZ, i], T.ray[DX, i],
+                                   T.ray[DY, i], T.ray[DZ, i])
+    if T.aos.shape[0] > 0:               # packets: the eye rays through the tree together
+        for i in range(n):
+            for c in range(8):
+                T.aos[i, c] = T.ray[c, i]
+        packet_hits(R, T.aos, n, T.t, T.prim, T.aos_b, T.packet)
+        for i in range(n):
+            T.b[0, i], T.b[1, i] = T.aos_b[i, 0], T.aos_b[i, 1]
+    else:
+        closest_batch(R, T.ray, n, T.t, T.prim, T.b, T.q, T.qt, T.qp)
+    # Typed values, not literals: a literal argument would compile _shade_batch again.
+    _shade_batch(A, S, wraps, dist, R, M, gmodel, dmode, max_depth, hall_threshold, seed, sample, spp, T,
+                 K, T, n, np.int64(1), np.bool_(True))
+    Q, C = K.Q, K.C
+    d = np.int64(2)
+    while d >= 2:
+        if Q.count[d] == 0:
+            d -= 1
+            continue
+        m = take_pending(Q, d, C.ray, K.w, K.col, K.kind, C.n)
+        closest_batch(R, C.ray, m, C.t, C.prim, C.b, C.q, C.qt, C.qp)
+        _shade_batch(A, S, wraps, dist, R, M, gmodel, dmode, max_depth, hall_threshold, seed, sample, spp,
+                     T, K, C, m, d, np.bool_(False))
+        if Q.count[d + 1] > 0:           # its children first: a block holds one chunk's
+            d += 1
+
+
+# Inlined into the task loop, as whitted's tile.
+@njit(inline="always", cache=True)
+def _batch_tile(cam, A: SceneArrays, S: MaterialArrays, wraps, dist, R: RayConfig, M: LocalModel,
+                film: Film, tile, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
+                hall_threshold, seed, recs):
+    """One tile: each pixel's sample pattern (:func:`_pattern`, as :func:`_row` draws
+    it), then per sample index s the tile's eye rays (:func:`_eye`) and their trees
+    (:func:`_trees_batch`).  With a box filter each pixel's samples are averaged here
+    (:func:`impl.tracer.accumulate`: the box filter's mean and variance of the mean);
+    otherwise (``recs`` not empty) each sample's record goes to ``recs[pixel, s]`` for
+    :func:`impl.filters.reconstruct`.  Counters (:data:`COUNTERS`) into ``film.cnt``."""
+    T = new_batch(film, R, tile, seed)
+    n = T.n
+    K = tree_work(n, max_depth, R)
+    pts = np.empty((n, spp, 2))
+    for i in range(n):
+        _pattern(sampler, spp, jitter_gauss, gamma, sigma, seed, T.pixel[i], pts[i])
+    records = recs.shape[0] > 0
+    for s in range(spp):
+        for i in range(n):
+            fx, fy = T.xy[0, i] + pts[i, s, 0], T.xy[1, i] + pts[i, s, 1]
+            T.film[0, i], T.film[1, i] = fx, fy
+            (T.ray[OX, i], T.ray[OY, i], T.ray[OZ, i], T.ray[DX, i], T.ray[DY, i], T.ray[DZ, i],
+             T.ray[TMIN, i], T.ray[TMAX, i], _) = _eye(cam, seed, T.pixel[i], s, spp, dmode, fx, fy)
+        _trees_batch(A, S, wraps, dist, R, M, gmodel, dmode, max_depth, hall_threshold, seed, s, spp, T, K)
+        if records:
+            for i in range(n):
+                p = T.pixel[i]
+                recs[p, s, S_X], recs[p, s, S_Y], recs[p, s, S_W] = T.film[0, i], T.film[1, i], 1.0
+                recs[p, s, S_R], recs[p, s, S_G], recs[p, s, S_B] = T.L[0, i], T.L[1, i], T.L[2, i]
+        else:
+            accumulate(T, s)
+    store(T, film, spp)
+
+
+@njit(nogil=True, cache=True)
+def _batch_kernel(cam, A: SceneArrays, S: MaterialArrays, wraps, dist, R: RayConfig, M: LocalModel,
+                  film: Film, sampler, dmode, spp, jitter_gauss, gamma, sigma, gmodel, max_depth,
+                  hall_threshold, seed, recs, queue):
+    """The film's tiles, taken from ``queue`` (:func:`impl.kernel.run_tasks`)."""
+    n = film.order.shape[0]
+    c = take_task(queue)
+    while c < n:
+        _batch_tile(cam, A, S, wraps, dist, R, M, film, film.order[c], sampler, dmode, spp, jitter_gauss,
+                    gamma, sigma, gmodel, max_depth, hall_threshold, seed, recs)
+        c = take_task(queue)
+
+
 # ------------------------------------------------------------- orchestration ---
 
 def _check(p: dict) -> None:
@@ -1237,10 +1565,6 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     sampler = SAMPLERS.index(params["sampler"])
     dmode = (DIM_SOBOL if params["sampler"] == "sobol" else
              DIM_STRATIFIED if params.get("dimensions", "independent") == "stratified" else DIM_INDEPENDENT)
-    cap = max(spp, 5)
-    recs = np.zeros((W * H, cap, 6))
-    nrec = np.zeros(W * H, dtype=np.int64)
-    counts = np.zeros((W * H, len(COUNTERS)), dtype=np.int64)
     M = motion_arrays(scene, A)
     packets = bool(params.get("packets", False))
     if packets and params["sampler"] in ("adaptive", "statistical"):
@@ -1274,18 +1598,39 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
              params["c2"], params["c3"], params["fatt_clamp"], params["shadows"],
              params["light_samples"])
     packet_counts = np.zeros((tile_count(W, H) if packets else 0, 2), dtype=np.int64)
+    batched = (params["sampler"] in BATCH_SAMPLERS and params["shading"] != "hall" and not moving_shapes
+               and M.cam[0] == 0.0)
+    # Sample records for the reconstruction filter; a box filter's tile batches average
+    # their pixels' samples themselves and keep none.
+    records = not batched or fkind != FILTER_BOX
+    cap = max(spp, 5)
+    recs = np.zeros((W * H if records else 0, cap, 6))
+    nrec = np.full(W * H, spp if batched else 0, dtype=np.int64)
     t1 = time.perf_counter()
-    _render_kernel(cam, A, S, wraps, dist, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
-                   float(params["gamma"]), float(params["sigma"]), float(params["threshold"]),
-                   int(params["adaptive_depth"]), float(params["tolerance"]), z, shade, seed, recs, nrec,
-                   counts, packet_counts)
+    if batched:
+        film = new_film(W, H, len(COUNTERS), packets)
+        light = local_model(params)._replace(sobol=False, dims=dmode)   # distributed's light numbers
+        run_tasks(_batch_kernel, cam, A, S, wraps, dist, R, light, film, sampler, dmode, spp,
+                  params["jitter"] == "gaussian", float(params["gamma"]), float(params["sigma"]), shade[0],
+                  shade[1], shade[2], seed, recs)
+        counts = film.cnt.reshape(W * H, len(COUNTERS))
+    else:
+        counts = np.zeros((W * H, len(COUNTERS)), dtype=np.int64)
+        _render_kernel(cam, A, S, wraps, dist, R, M, HL, sampler, dmode, spp, params["jitter"] == "gaussian",
+                       float(params["gamma"]), float(params["sigma"]), float(params["threshold"]),
+                       int(params["adaptive_depth"]), float(params["tolerance"]), z, shade, seed, recs, nrec,
+                       counts, packet_counts)
     t2 = time.perf_counter()
-    mean, var = reconstruct(recs, nrec, W, H, fkind, stddev)
+    if records:
+        mean, var = reconstruct(recs, nrec, W, H, fkind, stddev)
+    else:
+        mean, var = film.mean, film.var
     totals = counts.sum(axis=0)
     counters = {name: int(v) for name, v in zip(COUNTERS, totals)}
     counters["mean_spp"] = counters["samples"] / (W * H)
     if packets:
-        counters["packet_nodes"], counters["packet_tests"] = (int(v) for v in packet_counts.sum(axis=0))
+        pc = film.packet if batched else packet_counts
+        counters["packet_nodes"], counters["packet_tests"] = (int(v) for v in pc.sum(axis=0))
     spp_img = counts[:, _C_SAMPLES].reshape(H, W).astype(np.float32)
     return RenderResult(image=mean.astype(np.float32), variance=var.astype(np.float32),
                         counters=counters, aovs={"spp": spp_img},

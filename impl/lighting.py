@@ -656,6 +656,9 @@ class LocalModel(NamedTuple):
                                 # 0 for an opaque material; empty (0,): shadow rays stop at anything
     shadow_trans: np.ndarray    # (M, 3) its specular_transmittance
     sobol: bool                 # light samples from Owen-scrambled Sobol points (light_uv_sobol)
+    dims: int                   # else with a mode of impl.samplers other than DIM_INDEPENDENT:
+                                # a point's light sample j is 2-D dimension SP_DDIM + j of its
+                                # pixel sample of SP_DSPP (light_uv_dims, distributed's numbers)
 
 
 def local_model(params: dict, materials=None) -> LocalModel:
@@ -671,15 +674,18 @@ def local_model(params: dict, materials=None) -> LocalModel:
     return LocalModel(float(params["ka"]), float(params["ambient"]), float(params["ks"]),
                       float(params["shininess"]), float(params["c1"]), float(params["c2"]),
                       float(params["c3"]), bool(params["fatt_clamp"]), bool(params["shadows"]),
-                      int(params["light_samples"]), eta, trans, params.get("sampler") == "sobol")
+                      int(params["light_samples"]), eta, trans, params.get("sampler") == "sobol",
+                      DIM_INDEPENDENT)
 
 
 #: Rows of a batch of shading points (:func:`direct_batch`): the point p, its geometric
 #: normal g (to the side it is lit from), the normal n the BSDF is evaluated about, the
 #: direction v to the viewer, the diffuse reflectance ρ, and for a point under a normal
-#: or bump map the unperturbed shading normal s and the map's code (:func:`mapped_normal`).
-SP_P, SP_G, SP_S, SP_V, SP_RHO, SP_N0, SP_MAP = 0, 3, 6, 9, 12, 15, 18
-assert SP_MAP + 1 == POINT_ROWS
+#: or bump map the unperturbed shading normal s and the map's code (:func:`mapped_normal`);
+#: with ``LocalModel.dims`` the pixel sample count and first light dimension of the point's
+#: light samples (:func:`light_uv_dims`; exact integers in float64).
+SP_P, SP_G, SP_S, SP_V, SP_RHO, SP_N0, SP_MAP, SP_DSPP, SP_DDIM = 0, 3, 6, 9, 12, 15, 18, 19, 20
+assert SP_DDIM + 1 == POINT_ROWS
 
 #: ``SP_MAP`` codes: no map (n = s); a map (light leaks cut); a map with Mitsuba's
 #: shadowing function (Estevez et al.'s term as well).
@@ -783,8 +789,9 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
 
     Reads the points ``T.pts`` (rows ``SP_*``) where ``T.active``,
     point i's random numbers those of pixel ``T.pixel[i]`` and pixel sample
-    ``sample[i]`` (hashed and stratified within the pixel sample, :func:`light_uv`, or
-    with ``M.sobol`` Sobol points over the pixel's samples, :func:`light_uv_sobol`); adds
+    ``sample[i]`` (hashed and stratified within the pixel sample, :func:`light_uv`; with
+    ``M.sobol`` Sobol points over the pixel's samples, :func:`light_uv_sobol`; with
+    ``M.dims`` the point's own dimensions, :func:`_point_uv`); adds
     their light to ``T.L`` and their shadow rays to ``nshadow`` (n,).  The Phong bracket
     is taken about the row ``SP_S``; at a point under a normal or bump map every light
     sample is also weighted by :func:`map_weight`.
@@ -867,11 +874,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
             for i in range(T.n):
                 if not active[i]:
                     continue
-                if sobol:
-                    u1, u2 = luv[0, i], luv[1, i]
-                else:
-                    u1, u2 = light_uv(seed, pixel[i], sample[i], e * light_samples + k, k, q,
-                                      stratified)
+                u1, u2 = _point_uv(M, T, i, sample, seed, e * light_samples + k, k, q, stratified)
                 ok, lx, ly, lz, yx, yy, yz, cr, cg, cb = area_sample(
                     A, e, u1, u2, flip, scale, er, eg, eb, P[0, i], P[1, i], P[2, i], P[6, i],
                     P[7, i], P[8, i], P[9, i], P[10, i], P[11, i], P[12, i], P[13, i], P[14, i], ks,
@@ -902,11 +905,7 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
             for i in range(T.n):
                 if not active[i]:
                     continue
-                if sobol:
-                    u1, u2 = luv[0, i], luv[1, i]
-                else:
-                    u1, u2 = light_uv(seed, pixel[i], sample[i], n_em * light_samples + k, k, q,
-                                      stratified)
+                u1, u2 = _point_uv(M, T, i, sample, seed, n_em * light_samples + k, k, q, stratified)
                 ok, lx, ly, lz, cr, cg, cb = environment_sample(
                     u1, u2, er, eg, eb, img, frame, epdf, ecdf, light_samples, P[6, i], P[7, i], P[8, i], P[9, i],
                     P[10, i], P[11, i], P[12, i], P[13, i], P[14, i], ks, shininess)
@@ -922,6 +921,22 @@ def direct_batch(A: SceneArrays, R: RayConfig, M: LocalModel, T, sample, seed, n
                 ray = shadow_along(R, P[0, i], P[1, i], P[2, i], P[3, i], P[4, i], P[5, i], lx, ly, lz)
                 m = _queue_shadow(sh, sh_w, sh_i, m, i, ray, cr, cg, cb)
             _light_unoccluded(R, T, m, nshadow, A, seta, strans)
+
+
+@njit(inline="always", cache=True)
+def _point_uv(M: LocalModel, T, i, sample, seed, j, k, q, stratified):
+    """The two numbers of light sample ``j`` (sample ``k`` of its light) at shading point i
+    of batch ``T``, pixel sample ``sample[i]``: with ``M.sobol`` those
+    :func:`light_uv_sobol_lanes` left in ``T.luv``; with ``M.dims`` dimension
+    ``SP_DDIM + j`` of the point's ``SP_DSPP`` samples (:func:`light_uv_dims`); else the
+    hashed :func:`light_uv`."""
+    if M.sobol:
+        return T.luv[0, i], T.luv[1, i]
+    if M.dims != DIM_INDEPENDENT:
+        P = T.pts
+        return dim_2d(M.dims, seed, T.pixel[i], sample[i], np.int64(P[SP_DSPP, i]),
+                      np.int64(P[SP_DDIM, i]) + j)
+    return light_uv(seed, T.pixel[i], sample[i], j, k, q, stratified)
 
 
 #: A point's state for one delta light in :func:`_delta_light_lanes` (``Batch.sh_i``): no
@@ -1020,14 +1035,13 @@ def _area_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, e, k, q, s
                       er, eg, eb, sample, seed, nshadow):
     """Light sample k of area emitter ``e`` (no specular term, opaque shadows, no normal or
     bump map) at every active point of batch ``T``, a point per lane: each point's two
-    numbers (:func:`light_uv`, or with ``M.sobol`` those :func:`light_uv_sobol_lanes` left in
-    ``T.luv``), the emitter triangle they pick and the point on it (:func:`sample_emitter`'s
+    numbers (:func:`_point_uv`), the emitter triangle they pick and the point on it (:func:`sample_emitter`'s
     search and arithmetic) point by point, then the contribution and the shadow ray by the
     branch-free :func:`_area_lanes`, and :func:`_trace_lit_lanes`.  The
     same samples, contributions and shadow rays as the scalar loop of :func:`direct_batch`,
     so the same image bit for bit."""
     n = T.n
-    P, luv, flag, sh, w = T.pts, T.luv, T.sh_i, T.sh, T.sh_w
+    P, flag, sh, w = T.pts, T.sh_i, T.sh, T.sh_w
     lo, hi = A.em_offset[e], A.em_offset[e + 1] - 1
     cdf = A.em_cdf
     j = e * M.light_samples + k
@@ -1035,10 +1049,7 @@ def _area_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, e, k, q, s
         if not T.active[i]:
             flag[i] = -1
             continue
-        if M.sobol:
-            u1, u2 = luv[0, i], luv[1, i]
-        else:
-            u1, u2 = light_uv(seed, T.pixel[i], sample[i], j, k, q, stratified)
+        u1, u2 = _point_uv(M, T, i, sample, seed, j, k, q, stratified)
         a, b = lo, hi                    # sample_emitter's search and remainder
         while a < b:
             mid = (a + b) // 2

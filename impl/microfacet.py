@@ -180,8 +180,11 @@ def erfinv(y):
     """Inverse error function on (−1, 1) (±inf at ±1).
 
     M. Giles' single-precision approximation ("Approximating the erfinv
-    function", GPU Computing Gems, 2011) — the one Dr.Jit uses — refined by two
-    Newton steps on ``erf`` to double precision.
+    function", GPU Computing Gems, 2011) — the one Dr.Jit uses — refined by one
+    Newton step on ``erf`` (quadratic convergence from its ~1e-7 relative error):
+    within 1e-11 of the root for |y| ≤ 1 − 10⁻⁶, the range the visible-normal
+    sampler's clamped numbers reach; nearer ±1, where erf is flat to double
+    precision, the root itself is ill-conditioned.
     """
     if y <= -1.0:
         return -math.inf
@@ -211,10 +214,8 @@ def erfinv(y):
         p = 1.00167406 + p * w
         p = 2.83297682 + p * w
     x = p * y
-    for _ in range(2):
-        # Newton on erf(x) − y: derivative 2/√π e^{−x²}.
-        x -= (math.erf(x) - y) / (2.0 * _INV_SQRT_PI * math.exp(-x * x))
-    return x
+    # Newton on erf(x) − y: derivative 2/√π e^{−x²}.
+    return x - (math.erf(x) - y) / (2.0 * _INV_SQRT_PI * math.exp(-x * x))
 
 
 # ------------------------------------------------------------ distributions ---

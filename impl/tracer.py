@@ -108,7 +108,7 @@ BATCH_TILE = 24
 OX, OY, OZ, DX, DY, DZ, TMIN, TMAX = range(8)
 
 #: Rows of a batch of shading points (``Batch.pts``; named by :mod:`impl.lighting`'s ``SP_*``).
-POINT_ROWS = 19
+POINT_ROWS = 21
 
 
 class Film(NamedTuple):
@@ -144,7 +144,7 @@ class Batch(NamedTuple):
     aos: np.ndarray             # (n, 8) the rays in packet_hits' layout (packets only)
     aos_b: np.ndarray           # (n, 2)
     pixel: np.ndarray           # (n,) image index y·W + x of each column
-    pts: np.ndarray             # (POINT_ROWS, n) shading points: p, g, n, v, ρ, s, map
+    pts: np.ndarray             # (POINT_ROWS, n) shading points: p, g, n, v, ρ, s, map, light dims
                                 # (impl.lighting SP_*)
     active: np.ndarray          # (n,) bool: the shading points to light
     sh: np.ndarray              # (8, n) a batch of shadow rays

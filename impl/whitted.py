@@ -243,7 +243,7 @@ IOR_TOLERANCE = 1e-5
 # ------------------------------------------------------------------ kernels ---
 
 @njit(inline="always", cache=True)
-def _admit(wr, wg, wb, depth, max_depth, hall_threshold, counts, cut_w):
+def admit(wr, wg, wb, depth, max_depth, hall_threshold, counts, cut_w):
     """Whether a child branch of weight w and depth ``depth`` is traced; counts the cuts."""
     wmax = max(wr, wg, wb)
     if wmax <= 0.0:                  # contributes exactly nothing
@@ -260,8 +260,9 @@ def _admit(wr, wg, wb, depth, max_depth, hall_threshold, counts, cut_w):
 
 
 class TreeWork(NamedTuple):
-    """The working state of a tile's ray trees (:func:`_trees`): the pending rays by depth,
-    a batch for a chunk of them, and per eye-ray column what the sample has done so far."""
+    """The working state of a tile's ray trees (:func:`_trees`, and ``distributed``'s): the
+    pending rays by depth, a batch for a chunk of them, and per eye-ray column what the
+    sample has done so far."""
 
     Q: Pending                  # reflection and transmission rays by depth (capacity 2B each)
     C: Batch                    # a chunk of at most B of them, traced and shaded together
@@ -271,18 +272,19 @@ class TreeWork(NamedTuple):
     lsample: np.ndarray         # (B,) the light-sample index of each diffuse leaf of a chunk
     nshadow: np.ndarray         # (B, 1) the shadow rays each leaf cast
     nleaf: np.ndarray           # (n,) diffuse leaves of each eye ray's tree so far
+    nbsdf: np.ndarray           # (n,) BSDF directions it sampled so far (distributed's gloss)
     deepest: np.ndarray         # (n,) the depth of each tree's deepest traced ray
     cut: np.ndarray             # (n, 2) summed weights of branches cut (Hall, depth), over samples
 
 
 @njit(cache=True)
-def _scratch(n, max_depth, R: RayConfig):
+def tree_work(n, max_depth, R: RayConfig):
     """The :class:`TreeWork` for a tile of ``n`` eye rays (chunks of B = n rays): depths
     1 .. max_depth + 1, each holding the children of one chunk (two per ray at most)."""
     return TreeWork(new_pending(max_depth + 2, 2 * n), new_points(n, R),
                     np.empty((4, n)), np.empty(n, np.int64), np.empty(n, np.int64),
                     np.empty(n, np.int64), np.zeros((n, 1), np.int64), np.zeros(n, np.int64),
-                    np.zeros(n, np.int64), np.zeros((n, 2)))
+                    np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros((n, 2)))
 
 
 @batch_kernel
@@ -365,18 +367,18 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
                 twr = wr * scale * S.spec_trans[mat, 0]
                 twg = wg * scale * S.spec_trans[mat, 1]
                 twb = wb * scale * S.spec_trans[mat, 2]
-                if _admit(twr, twg, twb, nd, max_depth, hall_threshold, counts, cut):
-                    _queue(Q, nd, R, px, py, pz, gx, gy, gz, tx, ty, tz, twr, twg, twb, there, col,
-                           RAY_TRANSMISSION)
+                if admit(twr, twg, twb, nd, max_depth, hall_threshold, counts, cut):
+                    queue_child(Q, nd, R, px, py, pz, gx, gy, gz, tx, ty, tz, twr, twg, twb, there, col,
+                                RAY_TRANSMISSION)
             qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
             F *= map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
             kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
             rwr = wr * F * S.spec_refl[mat, 0] * kr
             rwg = wg * F * S.spec_refl[mat, 1] * kg
             rwb = wb * F * S.spec_refl[mat, 2] * kb
-            if _admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
-                _queue(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, here, col,
-                       RAY_REFLECTION)
+            if admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
+                queue_child(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, here, col,
+                            RAY_REFLECTION)
             continue
 
         if cos_v <= 0.0:                 # an opaque BSDF sees the viewer below n: black
@@ -393,9 +395,9 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
             rwr = wr * fr * S.spec_refl[mat, 0] * f * kr
             rwg = wg * fg * S.spec_refl[mat, 1] * f * kg
             rwb = wb * fb * S.spec_refl[mat, 2] * f * kb
-            if _admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
-                _queue(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, medium, col,
-                       RAY_REFLECTION)
+            if admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
+                queue_child(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, medium, col,
+                            RAY_REFLECTION)
             continue
 
         # Diffuse: a leaf, lit by every emitter below (thesis 2.2); ambient term now.
@@ -429,7 +431,7 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
 
 
 @njit(inline="always", cache=True)
-def _queue(Q: Pending, depth, R: RayConfig, px, py, pz, gx, gy, gz, dx, dy, dz, wr, wg, wb,
+def queue_child(Q: Pending, depth, R: RayConfig, px, py, pz, gx, gy, gz, dx, dy, dz, wr, wg, wb,
            medium, col, kind):
     """Queue a child ray of depth ``depth``, leaving the surface to the side it goes to (R's
     offset), rounded to R's precision as it will be intersected and shaded."""
@@ -491,7 +493,7 @@ def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, m
     :data:`COUNTERS`, then the tree-depth histogram (``max_depth + 1`` columns); cut
     weights go to ``cut``."""
     T = new_batch(film, R, tile, seed)
-    K = _scratch(T.n, max_depth, R)
+    K = tree_work(T.n, max_depth, R)
     for s in range(spp):
         eye_batch(cam, R, T, s, spp, seed, film.packets, film.sampler)
         _trees(A, S, R, M, max_depth, hall_threshold, seed, s, spp, T, np.bool_(True), K)
@@ -573,7 +575,7 @@ def trace(scene: Scene, origin, direction, params: dict | None = None, *, seed: 
     # it would compile the whole ray tree again).
     T = new_points(1, R, len(COUNTERS) + max_depth + 1)
     T.ray[:TMAX + 1, 0] = (o[0], o[1], o[2], d[0], d[1], d[2], 0.0, np.inf)
-    K = _scratch(1, max_depth, R)
+    K = tree_work(1, max_depth, R)
     _trees(A, S, R, local_model(p, S), max_depth, float(p["hall_threshold"]), int(seed), np.int64(0),
            np.int64(1), T, np.bool_(False), K)
     rgb, cnt, cut_w = T.L[:, 0].copy(), T.cnt[0].copy(), K.cut[0].copy()

@@ -285,11 +285,12 @@ def test_the_large_shading_kernels_are_not_compiled_for_literal_arguments():
     """numba compiles a function once more for every literal value a caller passes (a
     ``False``, a ``0``, a loop counter that starts at 0): the scalar light estimator and
     distributed's ray-tree kernel are large, so their callers pass typed values.  After
-    renders that reach every call site (distributed's pixel loop holds all its samplers'
-    branches, its packet tiles call the tree kernel too; the z-buffer's Gouraud shading
+    renders that reach every call site (distributed's pixel loop holds all its per-sample
+    samplers' branches, its packet tiles call the tree kernel too, its tile batches call their
+    shading step for eye rays and for deeper chunks; the z-buffer's Gouraud shading
     calls the estimator with shadows off), none of their compiled signatures, here or in
-    the cache, holds a literal, and every call site of the tree kernel has one and the same
-    signature (the arrays it is given sliced alike)."""
+    the cache, holds a literal, and every call site of the tree kernel and of the batch
+    shading step has one and the same signature (the arrays it is given sliced alike)."""
     import dataclasses
     from pathlib import Path
 
@@ -299,18 +300,22 @@ def test_the_large_shading_kernels_are_not_compiled_for_literal_arguments():
     from impl import distributed, zbuffer
 
     suites = Path(__file__).resolve().parent.parent / "suites"
-    for rel, algo, params in (("distributed/gloss.xml", distributed.ALGORITHM, {"spp": 4}),
-                              ("distributed/gloss.xml", distributed.ALGORITHM, {"spp": 4, "packets": True}),
-                              ("cornell/cornell_box.xml", distributed.ALGORITHM,
-                               {"spp": 4, "dimensions": "stratified"}),
+    # Poisson patterns go through the per-sample trees (pixel loop, packet tiles), the
+    # other fixed-count samplers through the tile batches (with and without packets).
+    gloss, D = "distributed/gloss.xml", distributed.ALGORITHM
+    for rel, algo, params in ((gloss, D, {"spp": 4, "sampler": "poisson"}),
+                              (gloss, D, {"spp": 4, "sampler": "poisson", "packets": True}),
+                              (gloss, D, {"spp": 4, "packets": True}),
+                              ("cornell/cornell_box.xml", D, {"spp": 4, "dimensions": "stratified"}),
                               ("cornell/cornell_box.xml", zbuffer.ALGORITHM, {"shading": "gouraud"})):
         scene = load_scene(suites / rel)
         film = dataclasses.replace(scene.camera.film, width=4, height=3)
         scene.camera = dataclasses.replace(scene.camera, film=film)
         algo.render(scene, algo.parse_params(params), seed=0)
-    for fn in (lighting._direct_light_rays, distributed._trees):
+    for fn in (lighting._direct_light_rays, distributed._trees, distributed._shade_batch):
         sigs = _compiled_signatures(fn)
         assert sigs, fn.py_func.__qualname__
         assert [s for s in sigs if any(isinstance(a, types.Literal) for a in s)] == [], \
             fn.py_func.__qualname__
     assert len(set(_compiled_signatures(distributed._trees))) == 1
+    assert len(set(_compiled_signatures(distributed._shade_batch))) == 1
