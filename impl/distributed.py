@@ -245,10 +245,9 @@ from .accel.packets import NOT_TRACED, packet_buffers, packet_hits, tile_count, 
 from .camera import SENSOR_THINLENS, camera_params, eye_ray, eye_ray_lens
 from .kernel import batch_kernel, by_reference, dereference, interleaved, run_tasks, take_task, task_stride
 from .filters import FILTER_BOX, S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
-from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import (SP_DDIM, SP_DSPP, LocalModel, diffuse_albedo, direct_batch, direct_light_dims,
-                       environment_radiance, local_model, map_weight, mapped_normal, mapped_normal_at,
-                       specular_tint, spot_falloff, store_point, surface, surface_at)
+from .fresnel import fresnel_conductor, fresnel_dielectric
+from .lighting import (SP_DDIM, SP_DSPP, LocalModel, diffuse_albedo, direct_light_dims, environment_radiance,
+                       local_model, map_weight, mapped_normal_at, specular_tint, spot_falloff, surface)
 from .bsdf import cook_torrance_sample, diffuse_transmission_sample
 from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIFFTRANS,
                         MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, distribution_codes,
@@ -266,8 +265,8 @@ from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten_ca
 from .textures import scalar_param
 from .tracer import (DX, DY, DZ, OX, OY, OZ, TMAX, TMIN, Batch, Film, accumulate, closest_batch, first,
                      new_batch, new_film, ray_config_cached, store, take_pending)
-from .whitted import (IOR_TOLERANCE, RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, TreeWork, admit, queue_child,
-                      tree_work)
+from .whitted import (RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, TreeWork, admit, arrive, conductor_mirror,
+                      dielectric_split, diffuse_leaf, light_leaves, queue_child, queue_delta, tree_work)
 
 __all__ = ["render", "ALGORITHM", "SAMPLERS", "COUNTERS", "Motion", "motion_arrays"]
 
@@ -623,161 +622,39 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
             wb *= hall_ks
 
         if mkind == MAT_DIELECTRIC:
-            eta = S.diel_eta[mat]
-            if medium > 0.0:
-                expected = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-                if abs(medium - expected) > IOR_TOLERANCE:
-                    counts[_C_IOR] += 1
-            F, cos_t, eta_it, eta_ti = fresnel_dielectric(cos_v, eta)
-            if F == 1.0 and cos_t == 0.0:
-                counts[_C_TIR] += 1
-            here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-            there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
-            if F < 1.0:
-                tx, ty, tz = refract(rdx, rdy, rdz, nx, ny, nz, cos_v, cos_t, eta_ti)
-                scale = (1.0 - F) * eta_ti * eta_ti * map_weight(nx, ny, nz, sx, sy, sz, code, tx, ty, tz)
-                twr = wr * scale * S.spec_trans[mat, 0]
-                twg = wg * scale * S.spec_trans[mat, 1]
-                twb = wb * scale * S.spec_trans[mat, 2]
-                if admit(twr, twg, twb, depth + 1, max_depth, hall_threshold, counts, cut_w):
-                    sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, tx, ty, tz,
-                               twr, twg, twb, depth + 1, RAY_TRANSMISSION, there)
-            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
-            F *= map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
-            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
-            rwr = wr * F * S.spec_refl[mat, 0] * kr
-            rwg = wg * F * S.spec_refl[mat, 1] * kg
-            rwb = wb * F * S.spec_refl[mat, 2] * kb
+            twr, twg, twb, tx, ty, tz, there, rwr, rwg, rwb, qx, qy, qz, here = dielectric_split(
+                A, S, mat, prim, b1, b2, rdx, rdy, rdz, nx, ny, nz, sx, sy, sz, code, cos_v, medium, wr, wg,
+                wb, counts)
+            if admit(twr, twg, twb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, tx, ty, tz,
+                           twr, twg, twb, depth + 1, RAY_TRANSMISSION, there)
             if admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
                            rwr, rwg, rwb, depth + 1, RAY_REFLECTION, here)
             continue
 
-        if mkind == MAT_ROUGHDIELECTRIC:
-            # Translucency (2.5.6): one direction from the rough interface's BSDF.
-            tx_, ty_, tz_, bx, by, bz = _frame(nx, ny, nz)
-            wix = tx_ * vx + ty_ * vy + tz_ * vz
-            wiy = bx * vx + by * vy + bz * vz
-            u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
+        if _sampled(mkind, cos_v):
+            # One sampled direction: gloss and translucency (2.5.6), the thesis's Cook–Torrance
+            # and diffuse transmission (2.4.5.2-3).
+            ok, ox_, oy_, oz_, nwr, nwg, nwb, nxt, med = _sample_lobe(
+                A, S, wraps, dist, gmodel, mat, mkind, prim, b1, b2,
+                (px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, nx, ny, nz, code), medium, (wr, wg, wb),
+                (dmode, seed, pixel, sample, spp), bounce, counts)
             bounce += 1
-            lx, ly, lz, w, pdf, refl, _eti = dielectric_sample(_alpha(A, S, wraps, mat, prim, b1, b2), gmodel,
-                                                              S.visible[mat] == 1,
-                                                              S.diel_eta[mat], wix, wiy, cos_v,
-                                                              u0, u1, u2, dist[mat])
-            if w <= 0.0:
-                continue
-            counts[_C_GLOSSY] += 1
-            ox_ = tx_ * lx + bx * ly + nx * lz
-            oy_ = ty_ * lx + by * ly + ny * lz
-            oz_ = tz_ * lx + bz * ly + nz * lz
-            f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
-            if refl:
-                cw = S.spec_refl[mat]
-                nxt = RAY_REFLECTION
-                med = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-            else:
-                cw = S.spec_trans[mat]
-                nxt = RAY_TRANSMISSION
-                med = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
-            nwr, nwg, nwb = wr * w * cw[0] * f, wg * w * cw[1] * f, wb * w * cw[2] * f
-            if admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
+            if ok and admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
                            nwr, nwg, nwb, depth + 1, nxt, med)
-            continue
-
-        if mkind == MAT_DIFFTRANS:
-            # Diffuse transmission (2.4.5.3): ρ/π on the viewer's side, τ/π through.
-            tx_, ty_, tz_, bx, by, bz = _frame(nx, ny, nz)
-            wix = tx_ * vx + ty_ * vy + tz_ * vz
-            wiy = bx * vx + by * vy + bz * vz
-            u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
-            bounce += 1
-            lx, ly, lz, w_r, w_g, w_b, pdf = diffuse_transmission_sample(
-                S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2], S.spec_trans[mat, 0],
-                S.spec_trans[mat, 1], S.spec_trans[mat, 2], wix, wiy, cos_v, u0, u1, u2)
-            if pdf <= 0.0:
-                continue
-            counts[_C_GLOSSY] += 1
-            ox_ = tx_ * lx + bx * ly + nx * lz
-            oy_ = ty_ * lx + by * ly + ny * lz
-            oz_ = tz_ * lx + bz * ly + nz * lz
-            f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
-            nxt = RAY_REFLECTION if lz * cos_v > 0.0 else RAY_TRANSMISSION
-            nwr, nwg, nwb = wr * w_r * f, wg * w_g * f, wb * w_b * f
-            if admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
-                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
-                           nwr, nwg, nwb, depth + 1, nxt, medium)
             continue
 
         if cos_v <= 0.0:                 # an opaque BSDF sees the viewer below n: black
             continue
 
-        if mkind == MAT_COOKTORRANCE:
-            # Cook–Torrance (2.4.5.2): k_d ρ/π + k_s F D G / (4 cos cos), D a roughness mixture.
-            tx_, ty_, tz_, bx, by, bz = _frame(nx, ny, nz)
-            wix = tx_ * vx + ty_ * vy + tz_ * vz
-            wiy = bx * vx + by * vy + bz * vz
-            u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
-            bounce += 1
-            lx, ly, lz, w_r, w_g, w_b, pdf = cook_torrance_sample(
-                S.spec_trans[mat, 0], S.spec_trans[mat, 1], S.cond_eta[mat], S.cond_k[mat], gmodel,
-                S.diel_eta[mat], S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2],
-                wix, wiy, cos_v, u0, u1, u2)
-            if pdf <= 0.0:
-                continue
-            counts[_C_GLOSSY] += 1
-            ox_ = tx_ * lx + bx * ly + nx * lz
-            oy_ = ty_ * lx + by * ly + ny * lz
-            oz_ = tz_ * lx + bz * ly + nz * lz
-            f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
-            nwr, nwg, nwb = wr * w_r * f, wg * w_g * f, wb * w_b * f
-            if admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
-                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
-                           nwr, nwg, nwb, depth + 1, RAY_REFLECTION, medium)
-            continue
-
         if mkind == MAT_CONDUCTOR:
-            fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
-            fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
-            fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
-            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
-            f = map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
-            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
-            rwr = wr * fr * S.spec_refl[mat, 0] * f * kr
-            rwg = wg * fg * S.spec_refl[mat, 1] * f * kg
-            rwb = wb * fb * S.spec_refl[mat, 2] * f * kb
+            rwr, rwg, rwb, qx, qy, qz = conductor_mirror(A, S, mat, prim, b1, b2, rdx, rdy, rdz, nx, ny, nz,
+                                                         sx, sy, sz, code, cos_v, wr, wg, wb)
             if admit(rwr, rwg, rwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
                 sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, qx, qy, qz,
                            rwr, rwg, rwb, depth + 1, RAY_REFLECTION, medium)
-            continue
-
-        if mkind == MAT_ROUGHCONDUCTOR:
-            # Gloss (2.5.6): one reflected direction from the microfacet BSDF.
-            tx_, ty_, tz_, bx, by, bz = _frame(nx, ny, nz)
-            wix = tx_ * vx + ty_ * vy + tz_ * vz
-            wiy = bx * vx + by * vy + bz * vz
-            _u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
-            bounce += 1
-            lx, ly, lz, w, pdf, cos_ih = conductor_sample(_alpha(A, S, wraps, mat, prim, b1, b2), gmodel,
-                                                          S.visible[mat] == 1,
-                                                          wix, wiy, cos_v, u1, u2, dist[mat])
-            if w <= 0.0:
-                continue
-            counts[_C_GLOSSY] += 1
-            fr = fresnel_conductor(cos_ih, S.cond_eta[mat, 0], S.cond_k[mat, 0])
-            fg = fresnel_conductor(cos_ih, S.cond_eta[mat, 1], S.cond_k[mat, 1])
-            fb = fresnel_conductor(cos_ih, S.cond_eta[mat, 2], S.cond_k[mat, 2])
-            ox_ = tx_ * lx + bx * ly + nx * lz
-            oy_ = ty_ * lx + by * ly + ny * lz
-            oz_ = tz_ * lx + bz * ly + nz * lz
-            f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
-            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
-            nwr = wr * w * fr * S.spec_refl[mat, 0] * f * kr
-            nwg = wg * w * fg * S.spec_refl[mat, 1] * f * kg
-            nwb = wb * w * fb * S.spec_refl[mat, 2] * f * kb
-            if admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut_w):
-                sp = _push(stack_f, stack_i, sp, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_,
-                           nwr, nwg, nwb, depth + 1, RAY_REFLECTION, medium)
             continue
 
         # Diffuse: direct light from every emitter (penumbra: area emitters sampled by area).
@@ -837,6 +714,94 @@ def _bsdf_u(dmode, seed, pixel, sample, spp, bounce):
         return uniform_from(h, dim), uniform_from(h, dim + 1), uniform_from(h, dim + 2)
     u1, u2 = dim_2d(dmode, seed, pixel, sample, spp, _X_BSDF + 2 * bounce)
     return dim_1d(dmode, seed, pixel, sample, spp, _X_BSDF + 1 + 2 * bounce), u1, u2
+
+
+@njit(inline="always", cache=True)
+def _sampled(mkind, cos_v):
+    """Whether a hit on material kind ``mkind`` continues along one sampled direction: a
+    rough dielectric or diffuse transmitter from either side, a rough conductor or
+    Cook–Torrance surface seen from above its normal (cos_v > 0)."""
+    return mkind == MAT_ROUGHDIELECTRIC or mkind == MAT_DIFFTRANS or (
+        cos_v > 0.0 and (mkind == MAT_COOKTORRANCE or mkind == MAT_ROUGHCONDUCTOR))
+
+
+@njit(inline="always", cache=True)
+def _sample_lobe(A, S, wraps, dist, gmodel, mat, mkind, prim, b1, b2, hit, medium, weight, dims, bounce,
+                 counts):
+    """The one direction a ray of weight ``weight`` continues along at a :func:`_sampled`
+    hit (``hit = (p, g, s, v, n, map code)``), drawn from the material's BSDF about n with
+    the numbers of the sample's ``bounce``-th sampled direction (:func:`_bsdf_u` of
+    ``dims = (dmode, seed, pixel, sample, spp)``; u0 the lobe choice), and the child's
+    weight: ``weight`` × f·|cos|/pdf × the material's colour × the map's
+    :func:`impl.lighting.map_weight`: ``(ok, direction, weight r, g, b, ray kind,
+    medium)``, ``ok`` false where the sample carries nothing; a sample that does counts
+    as a glossy bounce in ``counts``.
+
+    * ``roughconductor`` (gloss, 2.5.6): the Cook–Torrance/Walter microfacet BSDF
+      (:func:`impl.microfacet.conductor_sample`: the material's D, G = ``gmodel``,
+      visible-normal or D·cos sampling, a textured α read at the hit) × conductor
+      Fresnel at the microfacet × ``specular_reflectance`` (× its texture);
+    * ``roughdielectric`` (translucency, 2.5.6): reflected with probability F(wi·m), else
+      refracted (η² on transmission; :func:`impl.microfacet.dielectric_sample`) ×
+      ``specular_reflectance`` / ``specular_transmittance``, the ray then in the medium
+      on its side;
+    * ``gibench_cooktorrance`` (2.4.5.2): k_d ρ/π + k_s F D G / (4 cos cos), D a roughness
+      mixture (:func:`impl.bsdf.cook_torrance_sample`);
+    * ``gibench_difftrans`` (2.4.5.3): ρ/π on the viewer's side, τ/π through it
+      (:func:`impl.bsdf.diffuse_transmission_sample`)."""
+    px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, nx, ny, nz, code = hit
+    cos_v = nx * vx + ny * vy + nz * vz
+    dmode, seed, pixel, sample, spp = dims
+    u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
+    tx, ty, tz, bx, by, bz = _frame(nx, ny, nz)
+    wix = tx * vx + ty * vy + tz * vz
+    wiy = bx * vx + by * vy + bz * vz
+    nxt, med = RAY_REFLECTION, medium
+    if mkind == MAT_ROUGHDIELECTRIC:
+        lx, ly, lz, w, pdf, refl, _eti = dielectric_sample(
+            _alpha(A, S, wraps, mat, prim, b1, b2), gmodel, S.visible[mat] == 1, S.diel_eta[mat], wix, wiy,
+            cos_v, u0, u1, u2, dist[mat])
+        ok = w > 0.0
+        if refl:
+            cr, cg, cb = S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2]
+            med = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+        else:
+            cr, cg, cb = S.spec_trans[mat, 0], S.spec_trans[mat, 1], S.spec_trans[mat, 2]
+            nxt = RAY_TRANSMISSION
+            med = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
+        cr, cg, cb = w * cr, w * cg, w * cb
+    elif mkind == MAT_DIFFTRANS:
+        lx, ly, lz, cr, cg, cb, pdf = diffuse_transmission_sample(
+            S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2], S.spec_trans[mat, 0],
+            S.spec_trans[mat, 1], S.spec_trans[mat, 2], wix, wiy, cos_v, u0, u1, u2)
+        ok = pdf > 0.0
+        if lz * cos_v <= 0.0:
+            nxt = RAY_TRANSMISSION
+    elif mkind == MAT_COOKTORRANCE:
+        lx, ly, lz, cr, cg, cb, pdf = cook_torrance_sample(
+            S.spec_trans[mat, 0], S.spec_trans[mat, 1], S.cond_eta[mat], S.cond_k[mat], gmodel,
+            S.diel_eta[mat], S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2], wix, wiy, cos_v,
+            u0, u1, u2)
+        ok = pdf > 0.0
+    else:
+        lx, ly, lz, w, pdf, cos_ih = conductor_sample(
+            _alpha(A, S, wraps, mat, prim, b1, b2), gmodel, S.visible[mat] == 1, wix, wiy, cos_v, u1, u2,
+            dist[mat])
+        ok = w > 0.0
+        fr = fresnel_conductor(cos_ih, S.cond_eta[mat, 0], S.cond_k[mat, 0])
+        fg = fresnel_conductor(cos_ih, S.cond_eta[mat, 1], S.cond_k[mat, 1])
+        fb = fresnel_conductor(cos_ih, S.cond_eta[mat, 2], S.cond_k[mat, 2])
+        kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+        cr = w * fr * S.spec_refl[mat, 0] * kr
+        cg = w * fg * S.spec_refl[mat, 1] * kg
+        cb = w * fb * S.spec_refl[mat, 2] * kb
+    dx = tx * lx + bx * ly + nx * lz
+    dy = ty * lx + by * ly + ny * lz
+    dz = tz * lx + bz * ly + nz * lz
+    f = map_weight(nx, ny, nz, sx, sy, sz, code, dx, dy, dz) if ok else 0.0
+    if ok:
+        counts[_C_GLOSSY] += 1
+    return ok, dx, dy, dz, weight[0] * (cr * f), weight[1] * (cg * f), weight[2] * (cb * f), nxt, med
 
 
 @njit(inline="always", cache=True)
@@ -1199,164 +1164,29 @@ def _shade_batch(A: SceneArrays, S: MaterialArrays, wraps, dist, R: RayConfig, M
     its sample, :func:`_bsdf_u`) — and its diffuse leaves lit together, leaf l of the
     sample with the light numbers :func:`_tree` gives it.  ``eye``: the rays are ``T``'s
     own eye rays (unit weight, column = ray)."""
-    Q = K.Q
     amb = M.ambient * M.ka
     for i in range(m):
-        C.active[i] = False
-        col = i if eye else K.col[i]
-        if eye:
-            wr = wg = wb = 1.0
-            medium = 0.0
-            kind = RAY_EYE
-        else:
-            wr, wg, wb, medium = K.w[0, i], K.w[1, i], K.w[2, i], K.w[3, i]
-            kind = K.kind[i]
+        col, wr, wg, wb, medium, kind, prim, b1, b2, mat, hit = arrive(A, R, T, K, C, i, eye)
+        if prim < 0:
+            continue
         counts, cut = T.cnt[col], K.cut[col]
-        counts[_C_EYE if kind == RAY_EYE else _C_REFL if kind == RAY_REFLECTION else _C_TRANS] += 1
-        pixel = T.pixel[col]
-        rox, roy, roz = C.ray[OX, i], C.ray[OY, i], C.ray[OZ, i]
-        rdx, rdy, rdz = C.ray[DX, i], C.ray[DY, i], C.ray[DZ, i]
-        prim = C.prim[i]
-        if prim < 0:                     # escaped: a constant environment, if any, else black
-            er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
-            T.L[0, col] += wr * er
-            T.L[1, col] += wg * eg
-            T.L[2, col] += wb * eb
-            continue
-        t, b1, b2 = C.t[i], C.b[0, i], C.b[1, i]
-        shape = A.prim_shape[prim]
-        px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
-        gx, gy, gz, sx, sy, sz = surface_at(A, prim, b1, b2, px, py, pz, A.shape_flip[shape])
-        vx, vy, vz = -rdx, -rdy, -rdz
-        if sx * vx + sy * vy + sz * vz > 0.0:
-            T.L[0, col] += wr * A.shape_emit[shape, 0]
-            T.L[1, col] += wg * A.shape_emit[shape, 1]
-            T.L[2, col] += wb * A.shape_emit[shape, 2]
-        mat = A.shape_material[shape]
         mkind = S.kind[mat]
-        nd = depth + 1
-        back = (A.mat_twosided[mat] and mkind != MAT_DIELECTRIC and mkind != MAT_ROUGHDIELECTRIC
-                and mkind != MAT_DIFFTRANS and gx * vx + gy * vy + gz * vz < 0.0)
-        nx, ny, nz, code = mapped_normal(A, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, back)
-        if back:
-            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-        cos_v = nx * vx + ny * vy + nz * vz
-
-        if mkind == MAT_DIELECTRIC:
-            eta = S.diel_eta[mat]
-            if medium > 0.0:
-                expected = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-                if abs(medium - expected) > IOR_TOLERANCE:
-                    counts[_C_IOR] += 1
-            F, cos_t, eta_it, eta_ti = fresnel_dielectric(cos_v, eta)
-            if F == 1.0 and cos_t == 0.0:
-                counts[_C_TIR] += 1
-            here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-            there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
-            if F < 1.0:
-                tx, ty, tz = refract(rdx, rdy, rdz, nx, ny, nz, cos_v, cos_t, eta_ti)
-                scale = (1.0 - F) * eta_ti * eta_ti * map_weight(nx, ny, nz, sx, sy, sz, code, tx, ty, tz)
-                twr = wr * scale * S.spec_trans[mat, 0]
-                twg = wg * scale * S.spec_trans[mat, 1]
-                twb = wb * scale * S.spec_trans[mat, 2]
-                if admit(twr, twg, twb, nd, max_depth, hall_threshold, counts, cut):
-                    queue_child(Q, nd, R, px, py, pz, gx, gy, gz, tx, ty, tz, twr, twg, twb, there, col,
-                                RAY_TRANSMISSION)
-            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
-            F *= map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
-            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
-            rwr = wr * F * S.spec_refl[mat, 0] * kr
-            rwg = wg * F * S.spec_refl[mat, 1] * kg
-            rwb = wb * F * S.spec_refl[mat, 2] * kb
-            if admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
-                queue_child(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, here, col,
-                            RAY_REFLECTION)
+        if queue_delta(K.Q, R, A, S, mkind, mat, prim, b1, b2, hit, medium, (wr, wg, wb), col, depth + 1,
+                       max_depth, hall_threshold, counts, cut):
             continue
-
-        if mkind == MAT_ROUGHDIELECTRIC or mkind == MAT_DIFFTRANS or (
-                cos_v > 0.0 and (mkind == MAT_COOKTORRANCE or mkind == MAT_ROUGHCONDUCTOR)):
-            # One sampled direction (gloss, translucency, the thesis's surfaces; 2.5.6).
-            tx_, ty_, tz_, bx, by, bz = _frame(nx, ny, nz)
-            wix = tx_ * vx + ty_ * vy + tz_ * vz
-            wiy = bx * vx + by * vy + bz * vz
-            u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, K.nbsdf[col])
+        px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, nx, ny, nz, code = hit
+        if _sampled(mkind, nx * vx + ny * vy + nz * vz):     # one sampled direction (2.4.5, 2.5.6)
+            ok, dx, dy, dz, nwr, nwg, nwb, nxt, med = _sample_lobe(
+                A, S, wraps, dist, gmodel, mat, mkind, prim, b1, b2, hit, medium, (wr, wg, wb),
+                (dmode, seed, T.pixel[col], sample, spp), K.nbsdf[col], counts)
             K.nbsdf[col] += 1
-            nxt, med = RAY_REFLECTION, medium
-            if mkind == MAT_ROUGHDIELECTRIC:
-                lx, ly, lz, w, pdf, refl, _eti = dielectric_sample(
-                    _alpha(A, S, wraps, mat, prim, b1, b2), gmodel, S.visible[mat] == 1, S.diel_eta[mat],
-                    wix, wiy, cos_v, u0, u1, u2, dist[mat])
-                if w <= 0.0:
-                    continue
-                if refl:
-                    cr, cg, cb = S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2]
-                    med = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-                else:
-                    cr, cg, cb = S.spec_trans[mat, 0], S.spec_trans[mat, 1], S.spec_trans[mat, 2]
-                    nxt = RAY_TRANSMISSION
-                    med = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
-                cr, cg, cb = w * cr, w * cg, w * cb
-            elif mkind == MAT_DIFFTRANS:
-                lx, ly, lz, cr, cg, cb, pdf = diffuse_transmission_sample(
-                    S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2], S.spec_trans[mat, 0],
-                    S.spec_trans[mat, 1], S.spec_trans[mat, 2], wix, wiy, cos_v, u0, u1, u2)
-                if pdf <= 0.0:
-                    continue
-                if lz * cos_v <= 0.0:
-                    nxt = RAY_TRANSMISSION
-            elif mkind == MAT_COOKTORRANCE:
-                lx, ly, lz, cr, cg, cb, pdf = cook_torrance_sample(
-                    S.spec_trans[mat, 0], S.spec_trans[mat, 1], S.cond_eta[mat], S.cond_k[mat], gmodel,
-                    S.diel_eta[mat], S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2],
-                    wix, wiy, cos_v, u0, u1, u2)
-                if pdf <= 0.0:
-                    continue
-            else:
-                lx, ly, lz, w, pdf, cos_ih = conductor_sample(
-                    _alpha(A, S, wraps, mat, prim, b1, b2), gmodel, S.visible[mat] == 1, wix, wiy, cos_v,
-                    u1, u2, dist[mat])
-                if w <= 0.0:
-                    continue
-                kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
-                cr = w * fresnel_conductor(cos_ih, S.cond_eta[mat, 0], S.cond_k[mat, 0]) * S.spec_refl[mat, 0]
-                cg = w * fresnel_conductor(cos_ih, S.cond_eta[mat, 1], S.cond_k[mat, 1]) * S.spec_refl[mat, 1]
-                cb = w * fresnel_conductor(cos_ih, S.cond_eta[mat, 2], S.cond_k[mat, 2]) * S.spec_refl[mat, 2]
-                cr, cg, cb = cr * kr, cg * kg, cb * kb
-            counts[_C_GLOSSY] += 1
-            ox_ = tx_ * lx + bx * ly + nx * lz
-            oy_ = ty_ * lx + by * ly + ny * lz
-            oz_ = tz_ * lx + bz * ly + nz * lz
-            f = map_weight(nx, ny, nz, sx, sy, sz, code, ox_, oy_, oz_)
-            nwr, nwg, nwb = wr * cr * f, wg * cg * f, wb * cb * f
-            if admit(nwr, nwg, nwb, nd, max_depth, hall_threshold, counts, cut):
-                queue_child(Q, nd, R, px, py, pz, gx, gy, gz, ox_, oy_, oz_, nwr, nwg, nwb, med, col, nxt)
+            if ok and admit(nwr, nwg, nwb, depth + 1, max_depth, hall_threshold, counts, cut):
+                queue_child(K.Q, depth + 1, R, px, py, pz, gx, gy, gz, dx, dy, dz, nwr, nwg, nwb, med, col,
+                            nxt)
             continue
-
-        if cos_v <= 0.0:                 # an opaque BSDF sees the viewer below n: black
-            continue
-
-        if mkind == MAT_CONDUCTOR:
-            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
-            f = map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
-            fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
-            fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
-            fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
-            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
-            rwr = wr * fr * S.spec_refl[mat, 0] * f * kr
-            rwg = wg * fg * S.spec_refl[mat, 1] * f * kg
-            rwb = wb * fb * S.spec_refl[mat, 2] * f * kb
-            if admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
-                queue_child(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, medium, col,
-                            RAY_REFLECTION)
-            continue
-
         # Diffuse: a leaf, lit with the rest of the chunk's below; the ambient term now.
-        rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
-        T.L[0, col] += wr * (amb * rho_r)
-        T.L[1, col] += wg * (amb * rho_g)
-        T.L[2, col] += wb * (amb * rho_b)
-        store_point(C.pts, i, px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r, rho_g, rho_b, sx, sy,
-                    sz, code)
+        if not diffuse_leaf(A, T, C, i, col, mat, prim, b1, b2, hit, (wr, wg, wb), amb):
+            continue
         leaf = K.nleaf[col]
         if dmode == DIM_INDEPENDENT:
             K.lsample[i] = sample + leaf * spp
@@ -1365,25 +1195,8 @@ def _shade_batch(A: SceneArrays, S: MaterialArrays, wraps, dist, R: RayConfig, M
             C.pts[SP_DSPP, i] = spp
             C.pts[SP_DDIM, i] = _X_LIGHT * (leaf + 1)
         K.nleaf[col] = leaf + 1
-        C.active[i] = True
         counts[_C_DIFFUSE] += 1
-    if eye:
-        direct_batch(A, R, M, T, K.lsample, seed, T.cnt[:, _C_SHADOW])
-        return
-    nsh = K.nshadow[:, 0]
-    for i in range(m):
-        C.L[0, i] = C.L[1, i] = C.L[2, i] = 0.0
-        nsh[i] = 0
-        C.pixel[i] = T.pixel[K.col[i]]
-    direct_batch(A, R, M, first(C, m), K.lsample, seed, nsh)
-    for i in range(m):
-        if C.active[i]:
-            col = K.col[i]
-            T.L[0, col] += K.w[0, i] * C.L[0, i]
-            T.L[1, col] += K.w[1, i] * C.L[1, i]
-            T.L[2, col] += K.w[2, i] * C.L[2, i]
-            T.cnt[col, _C_SHADOW] += nsh[i]
-            C.active[i] = False
+    light_leaves(A, R, M, T, K, C, m, seed, eye)
 
 
 @batch_kernel

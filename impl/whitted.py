@@ -211,7 +211,7 @@ from core.errors import ParamError
 from .camera import camera_params
 from .kernel import batch_kernel, run_tasks, take_task
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
-from .lighting import (SHADOW_MODES, LocalModel, diffuse_albedo, direct_batch, environment_radiance,
+from .lighting import (MAP_NONE, SHADOW_MODES, LocalModel, diffuse_albedo, direct_batch, environment_radiance,
                        local_model, map_weight, mapped_normal, specular_tint, store_point, surface_at)
 from .materials import SpecularArrays, material_arrays, with_specular_textures_cached
 from .rays import PARAMS as RAY_PARAMS
@@ -229,6 +229,8 @@ __all__ = ["render", "trace", "material_arrays", "SpecularArrays", "COUNTERS", "
 MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
 MAT_CONDUCTOR = MATERIAL_CODES["conductor"]
 MAT_DIELECTRIC = MATERIAL_CODES["dielectric"]
+MAT_ROUGHDIELECTRIC = MATERIAL_CODES["roughdielectric"]    # (distributed's, which shares arrive)
+MAT_DIFFTRANS = MATERIAL_CODES["gibench_difftrans"]
 
 RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION = 0, 1, 2
 
@@ -287,6 +289,195 @@ def tree_work(n, max_depth, R: RayConfig):
                     np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros((n, 2)))
 
 
+@njit(inline="always", cache=True)
+def arrive(A: SceneArrays, R: RayConfig, T: Batch, K: TreeWork, C: Batch, i, eye):
+    """Ray i of batch ``C`` (its closest hit traced) where it arrives: its eye-ray column,
+    branch weight, medium and kind (``eye``: ``T``'s own eye ray i, unit weight, unknown
+    medium; else ``K``'s chunk, :data:`COUNTERS`' ray kind counted in its column's
+    counters), the light of a miss (the environment) or of a hit's area emitter (front
+    side) added to ``T.L``, and at a hit its point, geometric and shading normals, the
+    direction to the viewer, the normal n its BSDF is taken about and n's map code
+    (:func:`impl.lighting.mapped_normal`; normals turned to the viewer's side for a
+    two-sided opaque BSDF seen from behind) and its material.  Returns ``(col, wr, wg,
+    wb, medium, kind, prim, b1, b2, mat, hit)``, ``hit = (p, g, s, v, n, code)`` (vectors
+    as three numbers); ``prim < 0`` on a miss, the hit's values then zero."""
+    C.active[i] = False
+    col = i if eye else K.col[i]
+    if eye:
+        wr = wg = wb = 1.0
+        medium = 0.0
+        kind = RAY_EYE
+    else:
+        wr, wg, wb, medium = K.w[0, i], K.w[1, i], K.w[2, i], K.w[3, i]
+        kind = K.kind[i]
+    T.cnt[col, _C_EYE if kind == RAY_EYE else _C_REFL if kind == RAY_REFLECTION else _C_TRANS] += 1
+    rox, roy, roz = C.ray[OX, i], C.ray[OY, i], C.ray[OZ, i]
+    rdx, rdy, rdz = C.ray[DX, i], C.ray[DY, i], C.ray[DZ, i]
+    prim = C.prim[i]
+    if prim < 0:                         # escaped: a constant environment, if any, else black
+        er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
+        T.L[0, col] += wr * er
+        T.L[1, col] += wg * eg
+        T.L[2, col] += wb * eb
+        return (col, wr, wg, wb, medium, kind, prim, 0.0, 0.0, np.int64(0),
+                (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, MAP_NONE))
+    t, b1, b2 = C.t[i], C.b[0, i], C.b[1, i]
+    shape = A.prim_shape[prim]
+    px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
+    gx, gy, gz, sx, sy, sz = surface_at(A, prim, b1, b2, px, py, pz, A.shape_flip[shape])
+    vx, vy, vz = -rdx, -rdy, -rdz
+    if sx * vx + sy * vy + sz * vz > 0.0:   # emitted radiance L_e of an area emitter (front side)
+        T.L[0, col] += wr * A.shape_emit[shape, 0]
+        T.L[1, col] += wg * A.shape_emit[shape, 1]
+        T.L[2, col] += wb * A.shape_emit[shape, 2]
+    mat = A.shape_material[shape]
+    mkind = A.mat_kind[mat]
+    # A two-sided opaque BSDF is seen from the front on both sides; under a normal or
+    # bump map the BSDF's normal n is the perturbed one (else s, or -s on the back).
+    back = (A.mat_twosided[mat] and mkind != MAT_DIELECTRIC and mkind != MAT_ROUGHDIELECTRIC
+            and mkind != MAT_DIFFTRANS and gx * vx + gy * vy + gz * vz < 0.0)
+    nx, ny, nz, code = mapped_normal(A, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, back)
+    if back:
+        gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+    return (col, wr, wg, wb, medium, kind, prim, b1, b2, mat,
+            (px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, nx, ny, nz, code))
+
+
+@njit(inline="always", cache=True)
+def dielectric_split(A: SceneArrays, S, mat, prim, b1, b2, dx, dy, dz, nx, ny, nz, sx, sy, sz, code, cos_v,
+                     medium, wr, wg, wb, counts):
+    """A ray of direction d and branch weight w meeting smooth dielectric ``mat`` (``S``:
+    its material arrays; n the normal its BSDF is taken about, cos_v = n·(−d)): the exact
+    Fresnel factor F splits it (thesis 2.4.4) into a transmitted branch of weight
+    (1 − F) η_ti² × ``specular_transmittance`` (the radiance scaling of Mitsuba's
+    Radiance transport) and a reflected one of weight F × ``specular_reflectance``
+    (× its texture at the hit), each direction weighted by the map's
+    :func:`impl.lighting.map_weight`.  Counts a total internal reflection and an
+    arriving medium whose IOR is not the interface's (``counts``: :data:`COUNTERS`).
+    Returns ``(transmitted weight, direction, medium beyond; reflected weight, direction,
+    medium here)``, the transmitted weight 0 under total internal reflection."""
+    eta = S.diel_eta[mat]
+    if medium > 0.0:
+        expected = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+        if abs(medium - expected) > IOR_TOLERANCE:
+            counts[_C_IOR] += 1
+    F, cos_t, eta_it, eta_ti = fresnel_dielectric(cos_v, eta)
+    if F == 1.0 and cos_t == 0.0:
+        counts[_C_TIR] += 1
+    here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
+    there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
+    twr = twg = twb = tx = ty = tz = 0.0
+    if F < 1.0:
+        tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, cos_v, cos_t, eta_ti)
+        scale = (1.0 - F) * eta_ti * eta_ti * map_weight(nx, ny, nz, sx, sy, sz, code, tx, ty, tz)
+        twr = wr * scale * S.spec_trans[mat, 0]
+        twg = wg * scale * S.spec_trans[mat, 1]
+        twb = wb * scale * S.spec_trans[mat, 2]
+    qx, qy, qz = reflect(dx, dy, dz, nx, ny, nz)
+    F *= map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
+    kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+    rwr = wr * F * S.spec_refl[mat, 0] * kr
+    rwg = wg * F * S.spec_refl[mat, 1] * kg
+    rwb = wb * F * S.spec_refl[mat, 2] * kb
+    return twr, twg, twb, tx, ty, tz, there, rwr, rwg, rwb, qx, qy, qz, here
+
+
+@njit(inline="always", cache=True)
+def conductor_mirror(A: SceneArrays, S, mat, prim, b1, b2, dx, dy, dz, nx, ny, nz, sx, sy, sz, code, cos_v,
+                     wr, wg, wb):
+    """A ray of direction d and branch weight w meeting smooth conductor ``mat``: the mirror
+    direction R = I − 2(N·I)N about n and its weight w × the conductor Fresnel reflectance
+    of η + ik (RGB) at cos_v = n·(−d) × ``specular_reflectance`` (× its texture at the
+    hit) × the map's :func:`impl.lighting.map_weight`.  Returns ``(weight, direction)``."""
+    qx, qy, qz = reflect(dx, dy, dz, nx, ny, nz)
+    f = map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
+    fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
+    fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
+    fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
+    kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+    return (wr * fr * S.spec_refl[mat, 0] * f * kr, wg * fg * S.spec_refl[mat, 1] * f * kg,
+            wb * fb * S.spec_refl[mat, 2] * f * kb, qx, qy, qz)
+
+
+@njit(inline="always", cache=True)
+def light_leaves(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, K: TreeWork, C: Batch, m, seed, eye):
+    """Light the diffuse leaves among the ``m`` rays of batch ``C`` (``C.active``, their
+    points in ``C.pts``, leaf i's light-sample index in ``K.lsample[i]``) together
+    (:func:`impl.lighting.direct_batch`) and add each one's light × its branch weight to
+    its eye ray's ``T.L`` and its shadow rays to its counters.  With ``eye`` the leaves
+    are ``T``'s own eye rays (unit weight): straight into ``T.L``, as ``raycast``
+    lights them."""
+    if eye:
+        direct_batch(A, R, M, T, K.lsample, seed, T.cnt[:, _C_SHADOW])
+        return
+    nsh = K.nshadow[:, 0]
+    for i in range(m):
+        C.L[0, i] = C.L[1, i] = C.L[2, i] = 0.0
+        nsh[i] = 0
+        C.pixel[i] = T.pixel[K.col[i]]
+    direct_batch(A, R, M, first(C, m), K.lsample, seed, nsh)
+    for i in range(m):
+        if C.active[i]:
+            col = K.col[i]
+            T.L[0, col] += K.w[0, i] * C.L[0, i]
+            T.L[1, col] += K.w[1, i] * C.L[1, i]
+            T.L[2, col] += K.w[2, i] * C.L[2, i]
+            T.cnt[col, _C_SHADOW] += nsh[i]
+            C.active[i] = False
+
+
+@njit(inline="always", cache=True)
+def queue_delta(Q: Pending, R: RayConfig, A: SceneArrays, S, mkind, mat, prim, b1, b2, hit, medium, w, col,
+                depth, max_depth, hall_threshold, counts, cut):
+    """At a smooth dielectric (:func:`dielectric_split`) or a smooth conductor seen from
+    above n (:func:`conductor_mirror`), queue the branches of a ray of weight ``w`` that
+    :func:`admit` lets through as rays of depth ``depth`` (the transmitted one first);
+    ``hit`` as :func:`arrive` returns it.  Whether the hit was on one of these (its
+    branch goes on only in the children; a conductor seen from below is black)."""
+    px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, nx, ny, nz, code = hit
+    wr, wg, wb = w
+    cos_v = nx * vx + ny * vy + nz * vz
+    if mkind == MAT_DIELECTRIC:
+        twr, twg, twb, tx, ty, tz, there, rwr, rwg, rwb, qx, qy, qz, here = dielectric_split(
+            A, S, mat, prim, b1, b2, -vx, -vy, -vz, nx, ny, nz, sx, sy, sz, code, cos_v, medium, wr, wg, wb,
+            counts)
+        if admit(twr, twg, twb, depth, max_depth, hall_threshold, counts, cut):
+            queue_child(Q, depth, R, px, py, pz, gx, gy, gz, tx, ty, tz, twr, twg, twb, there, col,
+                        RAY_TRANSMISSION)
+        if admit(rwr, rwg, rwb, depth, max_depth, hall_threshold, counts, cut):
+            queue_child(Q, depth, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, here, col,
+                        RAY_REFLECTION)
+        return True
+    if mkind != MAT_CONDUCTOR:
+        return False
+    if cos_v > 0.0:
+        rwr, rwg, rwb, qx, qy, qz = conductor_mirror(A, S, mat, prim, b1, b2, -vx, -vy, -vz, nx, ny, nz, sx,
+                                                     sy, sz, code, cos_v, wr, wg, wb)
+        if admit(rwr, rwg, rwb, depth, max_depth, hall_threshold, counts, cut):
+            queue_child(Q, depth, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, medium, col,
+                        RAY_REFLECTION)
+    return True
+
+
+@njit(inline="always", cache=True)
+def diffuse_leaf(A: SceneArrays, T: Batch, C: Batch, i, col, mat, prim, b1, b2, hit, w, amb):
+    """Ray i of batch ``C``, of weight ``w``, ends its branch at a diffuse hit (thesis
+    2.2): the ambient term ``amb`` ρ × w into its eye ray's ``T.L`` now, the shading point
+    stored in ``C.pts`` and marked active for :func:`light_leaves`.  False (nothing done)
+    where the viewer is below n: an opaque BSDF is black there."""
+    px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, nx, ny, nz, code = hit
+    if nx * vx + ny * vy + nz * vz <= 0.0:
+        return False
+    rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+    T.L[0, col] += w[0] * (amb * rho_r)
+    T.L[1, col] += w[1] * (amb * rho_g)
+    T.L[2, col] += w[2] * (amb * rho_b)
+    store_point(C.pts, i, px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r, rho_g, rho_b, sx, sy, sz,
+                code)
+    C.active[i] = True
+    return True
+
+
 @batch_kernel
 def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_depth,
            hall_threshold, seed, sample, spp, T: Batch, K: TreeWork, C: Batch, m, depth, eye):
@@ -305,129 +496,22 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
     ``specular_reflectance``; a diffuse hit is a leaf, lit by every emitter, where the
     branch ends.  Leaf k of a sample s (in the order the levels meet them) takes the light
     samples of "sample" s + k·spp, so leaf 0 those of ``raycast``."""
-    Q = K.Q
     amb = M.ambient * M.ka
     for i in range(m):
-        C.active[i] = False
-        col = i if eye else K.col[i]
-        if eye:
-            wr = wg = wb = 1.0
-            medium = 0.0
-            kind = RAY_EYE
-        else:
-            wr, wg, wb, medium = K.w[0, i], K.w[1, i], K.w[2, i], K.w[3, i]
-            kind = K.kind[i]
-        counts, cut = T.cnt[col], K.cut[col]
-        counts[_C_EYE if kind == RAY_EYE else _C_REFL if kind == RAY_REFLECTION else _C_TRANS] += 1
+        col, wr, wg, wb, medium, kind, prim, b1, b2, mat, hit = arrive(A, R, T, K, C, i, eye)
         K.deepest[col] = max(K.deepest[col], depth)
-        rox, roy, roz = C.ray[OX, i], C.ray[OY, i], C.ray[OZ, i]
-        rdx, rdy, rdz = C.ray[DX, i], C.ray[DY, i], C.ray[DZ, i]
-        prim = C.prim[i]
-        if prim < 0:                     # escaped: a constant environment, if any, else black
-            er, eg, eb = environment_radiance(A, rdx, rdy, rdz)
-            T.L[0, col] += wr * er
-            T.L[1, col] += wg * eg
-            T.L[2, col] += wb * eb
+        if prim < 0:
             continue
-        t, b1, b2 = C.t[i], C.b[0, i], C.b[1, i]
-        shape = A.prim_shape[prim]
-        px, py, pz = refine(R, prim, b1, b2, rox + t * rdx, roy + t * rdy, roz + t * rdz)
-        gx, gy, gz, sx, sy, sz = surface_at(A, prim, b1, b2, px, py, pz, A.shape_flip[shape])
-        vx, vy, vz = -rdx, -rdy, -rdz
-        if sx * vx + sy * vy + sz * vz > 0.0:   # emitted radiance L_e of an area emitter (front side)
-            T.L[0, col] += wr * A.shape_emit[shape, 0]
-            T.L[1, col] += wg * A.shape_emit[shape, 1]
-            T.L[2, col] += wb * A.shape_emit[shape, 2]
-        mat = A.shape_material[shape]
-        mkind = A.mat_kind[mat]
-        nd = depth + 1
-        # A two-sided opaque BSDF is seen from the front on both sides; under a normal or
-        # bump map the BSDF's normal n is the perturbed one (else s, or -s on the back).
-        back = mkind != MAT_DIELECTRIC and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
-        nx, ny, nz, code = mapped_normal(A, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, back)
-        if back:
-            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-        cos_v = nx * vx + ny * vy + nz * vz
-
-        if mkind == MAT_DIELECTRIC:
-            # Fresnel split at a smooth interface (thesis 2.4.4), Mitsuba's sign conventions.
-            eta = S.diel_eta[mat]
-            if medium > 0.0:
-                expected = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-                if abs(medium - expected) > IOR_TOLERANCE:
-                    counts[_C_IOR] += 1
-            F, cos_t, eta_it, eta_ti = fresnel_dielectric(cos_v, eta)
-            if F == 1.0 and cos_t == 0.0:
-                counts[_C_TIR] += 1
-            here = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
-            there = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
-            if F < 1.0:                  # transmitted: (1 − F) T_s η_ti² (radiance scaling)
-                tx, ty, tz = refract(rdx, rdy, rdz, nx, ny, nz, cos_v, cos_t, eta_ti)
-                scale = (1.0 - F) * eta_ti * eta_ti * map_weight(nx, ny, nz, sx, sy, sz, code, tx, ty, tz)
-                twr = wr * scale * S.spec_trans[mat, 0]
-                twg = wg * scale * S.spec_trans[mat, 1]
-                twb = wb * scale * S.spec_trans[mat, 2]
-                if admit(twr, twg, twb, nd, max_depth, hall_threshold, counts, cut):
-                    queue_child(Q, nd, R, px, py, pz, gx, gy, gz, tx, ty, tz, twr, twg, twb, there, col,
-                                RAY_TRANSMISSION)
-            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
-            F *= map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
-            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
-            rwr = wr * F * S.spec_refl[mat, 0] * kr
-            rwg = wg * F * S.spec_refl[mat, 1] * kg
-            rwb = wb * F * S.spec_refl[mat, 2] * kb
-            if admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
-                queue_child(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, here, col,
-                            RAY_REFLECTION)
+        counts = T.cnt[col]
+        if queue_delta(K.Q, R, A, S, A.mat_kind[mat], mat, prim, b1, b2, hit, medium, (wr, wg, wb), col,
+                       depth + 1, max_depth, hall_threshold, counts, K.cut[col]):
             continue
-
-        if cos_v <= 0.0:                 # an opaque BSDF sees the viewer below n: black
-            continue
-
-        if mkind == MAT_CONDUCTOR:
-            # Mirror reflection R = I − 2(N·I)N weighted by specular_reflectance × F_conductor.
-            qx, qy, qz = reflect(rdx, rdy, rdz, nx, ny, nz)
-            f = map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
-            fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
-            fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
-            fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
-            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
-            rwr = wr * fr * S.spec_refl[mat, 0] * f * kr
-            rwg = wg * fg * S.spec_refl[mat, 1] * f * kg
-            rwb = wb * fb * S.spec_refl[mat, 2] * f * kb
-            if admit(rwr, rwg, rwb, nd, max_depth, hall_threshold, counts, cut):
-                queue_child(Q, nd, R, px, py, pz, gx, gy, gz, qx, qy, qz, rwr, rwg, rwb, medium, col,
-                            RAY_REFLECTION)
-            continue
-
         # Diffuse: a leaf, lit by every emitter below (thesis 2.2); ambient term now.
-        rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
-        T.L[0, col] += wr * (amb * rho_r)
-        T.L[1, col] += wg * (amb * rho_g)
-        T.L[2, col] += wb * (amb * rho_b)
-        store_point(C.pts, i, px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r, rho_g, rho_b, sx, sy,
-                    sz, code)
-        C.active[i] = True
-        K.lsample[i] = sample + K.nleaf[col] * spp
-        K.nleaf[col] += 1
-        counts[_C_DIFFUSE] += 1
-    if eye:                              # unit weights: the light goes straight into T.L
-        direct_batch(A, R, M, T, K.lsample, seed, T.cnt[:, _C_SHADOW])
-        return
-    nsh = K.nshadow[:, 0]
-    for i in range(m):
-        C.L[0, i] = C.L[1, i] = C.L[2, i] = 0.0
-        nsh[i] = 0
-        C.pixel[i] = T.pixel[K.col[i]]
-    direct_batch(A, R, M, first(C, m), K.lsample, seed, nsh)
-    for i in range(m):
-        if C.active[i]:
-            col = K.col[i]
-            T.L[0, col] += K.w[0, i] * C.L[0, i]
-            T.L[1, col] += K.w[1, i] * C.L[1, i]
-            T.L[2, col] += K.w[2, i] * C.L[2, i]
-            T.cnt[col, _C_SHADOW] += nsh[i]
-            C.active[i] = False
+        if diffuse_leaf(A, T, C, i, col, mat, prim, b1, b2, hit, (wr, wg, wb), amb):
+            K.lsample[i] = sample + K.nleaf[col] * spp
+            K.nleaf[col] += 1
+            counts[_C_DIFFUSE] += 1
+    light_leaves(A, R, M, T, K, C, m, seed, eye)
 
 
 @njit(inline="always", cache=True)
