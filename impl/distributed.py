@@ -25,7 +25,9 @@ plus:
   f·cos/pdf × conductor Fresnel × ``specular_reflectance``; visible-normal or
   D·cos sampling per the material's ``sample_visible``; a textured ``alpha`` (a
   ``bitmap`` or ``checkerboard``, read as Mitsuba's ``eval_1``) at the hit;
-  isotropic roughness only.  A textured ``specular_reflectance`` of a
+  anisotropic roughness (``alpha_u`` / ``alpha_v``, constants or textures) in
+  Mitsuba's shading frame, its tangent along ∂p/∂u (static shapes, no normal
+  or bump map).  A textured ``specular_reflectance`` of a
   conductor, rough conductor or smooth dielectric multiplies the reflected
   branch by its value at the hit, as Mitsuba's ``eval`` of the texture does
   (:func:`impl.lighting.specular_tint`; not with ``shading=hall``);
@@ -224,7 +226,7 @@ previous ones, so a tile has no common sample index to batch, and
 (traced by brute force, there is no tree to send packets through).
 
 Leaves out: indirect diffuse light and caustics (as ``whitted``), anisotropic
-roughness, delta lights on glossy surfaces, moving emitters,
+roughness on moving shapes and under normal or bump maps, delta lights on glossy surfaces, moving emitters,
 deforming (non-rigid) meshes, motion other than linear in τ.
 """
 
@@ -262,6 +264,7 @@ from .samplers import (DIM_INDEPENDENT, DIM_SOBOL, DIM_STRATIFIED, adaptive_chil
                        dim_1d, dim_2d, gaussian_jitter_pattern, jitter_pattern, poisson_disk_pattern,
                        random_pattern, sobol_pattern, statistical_done, uniform_pattern)
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten_cached, scene_memo
+from .shading_frame import tangent
 from .textures import scalar_param
 from .tracer import (DX, DY, DZ, OX, OY, OZ, TMAX, TMIN, Batch, Film, accumulate, closest_batch, first,
                      new_batch, new_film, ray_config_cached, store, take_pending)
@@ -681,10 +684,16 @@ def _tree(ray, scene, materials, rays, work, seed, pixel, sample, spp, dmode, pr
 
 @njit(inline="always", cache=True)
 def _alpha(A, S, wraps, mat, prim, b1, b2):
-    """The roughness α of a rough conductor or dielectric at a hit: a textured
-    ``alpha`` (slot 2 of the :class:`impl.materials.WrapperArrays` ``wraps``) read as
-    path reads it (:func:`impl.textures.scalar_param`), else the constant."""
-    return scalar_param(wraps, mat, 2, S.alpha[mat], A.sph_radius.shape[0], prim, A.tri_uv, b1, b2)
+    """The roughness (α_u, α_v) of a rough conductor or dielectric at a hit: textured
+    ``alpha`` / ``alpha_u`` and ``alpha_v`` (slots 2 and 3 of the
+    :class:`impl.materials.WrapperArrays` ``wraps``) read as path reads them
+    (:func:`impl.textures.scalar_param`), else the constants; α_v = −1 (isotropic, the
+    microfacet functions' convention) unless the material is anisotropic."""
+    ns = A.sph_radius.shape[0]
+    alpha = scalar_param(wraps, mat, 2, S.alpha[mat], ns, prim, A.tri_uv, b1, b2)
+    if wraps.aniso[mat] == 0:
+        return alpha, -1.0
+    return alpha, scalar_param(wraps, mat, 3, wraps.alpha_v[mat], ns, prim, A.tri_uv, b1, b2)
 
 
 @njit(inline="always", cache=True)
@@ -739,8 +748,9 @@ def _sample_lobe(A, S, wraps, dist, gmodel, mat, mkind, prim, b1, b2, hit, mediu
 
     * ``roughconductor`` (gloss, 2.5.6): the Cook–Torrance/Walter microfacet BSDF
       (:func:`impl.microfacet.conductor_sample`: the material's D, G = ``gmodel``,
-      visible-normal or D·cos sampling, a textured α read at the hit) × conductor
-      Fresnel at the microfacet × ``specular_reflectance`` (× its texture);
+      visible-normal or D·cos sampling, (α_u, α_v) of :func:`_alpha`, in Mitsuba's
+      shading frame where anisotropic) × conductor Fresnel at the microfacet ×
+      ``specular_reflectance`` (× its texture);
     * ``roughdielectric`` (translucency, 2.5.6): reflected with probability F(wi·m), else
       refracted (η² on transmission; :func:`impl.microfacet.dielectric_sample`) ×
       ``specular_reflectance`` / ``specular_transmittance``, the ray then in the medium
@@ -753,14 +763,23 @@ def _sample_lobe(A, S, wraps, dist, gmodel, mat, mkind, prim, b1, b2, hit, mediu
     cos_v = nx * vx + ny * vy + nz * vz
     dmode, seed, pixel, sample, spp = dims
     u0, u1, u2 = _bsdf_u(dmode, seed, pixel, sample, spp, bounce)
-    tx, ty, tz, bx, by, bz = _frame(nx, ny, nz)
+    au, av = (1.0, -1.0)
+    if mkind == MAT_ROUGHDIELECTRIC or mkind == MAT_ROUGHCONDUCTOR:
+        au, av = _alpha(A, S, wraps, mat, prim, b1, b2)
+    if av >= 0.0:
+        # Anisotropic roughness: Mitsuba's shading frame, its tangent along ∂p/∂u
+        # (:func:`impl.shading_frame.tangent`; not under a normal or bump map, refused).
+        tx, ty, tz = tangent(prim, A.sph_radius.shape[0], b1, b2, px, py, pz, A.sph_center, A.tri_v, A.tri_uv,
+                             A.tri_has_uv, gx, gy, gz, nx, ny, nz)
+        bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
+    else:
+        tx, ty, tz, bx, by, bz = _frame(nx, ny, nz)
     wix = tx * vx + ty * vy + tz * vz
     wiy = bx * vx + by * vy + bz * vz
     nxt, med = RAY_REFLECTION, medium
     if mkind == MAT_ROUGHDIELECTRIC:
-        lx, ly, lz, w, pdf, refl, _eti = dielectric_sample(
-            _alpha(A, S, wraps, mat, prim, b1, b2), gmodel, S.visible[mat] == 1, S.diel_eta[mat], wix, wiy,
-            cos_v, u0, u1, u2, dist[mat])
+        lx, ly, lz, w, pdf, refl, _eti = dielectric_sample(au, gmodel, S.visible[mat] == 1, S.diel_eta[mat],
+                                                          wix, wiy, cos_v, u0, u1, u2, dist[mat], av)
         ok = w > 0.0
         if refl:
             cr, cg, cb = S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2]
@@ -784,9 +803,8 @@ def _sample_lobe(A, S, wraps, dist, gmodel, mat, mkind, prim, b1, b2, hit, mediu
             u0, u1, u2)
         ok = pdf > 0.0
     else:
-        lx, ly, lz, w, pdf, cos_ih = conductor_sample(
-            _alpha(A, S, wraps, mat, prim, b1, b2), gmodel, S.visible[mat] == 1, wix, wiy, cos_v, u1, u2,
-            dist[mat])
+        lx, ly, lz, w, pdf, cos_ih = conductor_sample(au, gmodel, S.visible[mat] == 1, wix, wiy, cos_v, u1,
+                                                      u2, dist[mat], av)
         ok = w > 0.0
         fr = fresnel_conductor(cos_ih, S.cond_eta[mat, 0], S.cond_k[mat, 0])
         fg = fresnel_conductor(cos_ih, S.cond_eta[mat, 1], S.cond_k[mat, 1])
@@ -1366,7 +1384,8 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     S = scene_memo(scene, "distributed.materials", lambda: material_arrays(
         scene, algorithm="distributed", model="the distributed ray tracer",
         kinds=("diffuse", "conductor", "dielectric", "roughconductor", "roughdielectric",
-               "gibench_cooktorrance", "gibench_difftrans"), distributions=("beckmann", "ggx")))
+               "gibench_cooktorrance", "gibench_difftrans"), distributions=("beckmann", "ggx"),
+        anisotropic=True))
     # A textured roughness: the wrappers' texture slots (the scene's other wrappers are refused).
     wraps = scene_memo(scene, "distributed.wrappers", lambda: wrapper_arrays(scene, algorithm="distributed"))
     dist = scene_memo(scene, "distributed.distributions", lambda: distribution_codes(scene))
@@ -1390,6 +1409,10 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
                          "static tree, but this scene moves (moving spheres or meshes are traced by "
                          "brute force, a moving camera's eye rays differ per sample time); "
                          "render it with packets=false")
+    if moving_shapes and np.any(wraps.aniso):
+        where = f" of {scene.path}" if getattr(scene, "path", None) else ""
+        raise UnsupportedError(f"distributed: anisotropic roughness on a moving scene{where}: the shading "
+                               "frame's tangent is taken from the shapes at rest, not at each sample's time")
     if moving_shapes:
         # A structure built over the primitives at one time would miss them at
         # another: scenes with moving spheres or meshes are traced by brute force.
@@ -1496,5 +1519,5 @@ ALGORITHM = Algorithm(
     render=render,
     models=frozenset({"camera motion", "mesh motion", "envmap", "gibench_cooktorrance",
                       "gibench_difftrans", "projector", "spot texture", "normalmap", "bumpmap",
-                      "textured specular reflectance", "textured roughness"}),
+                      "textured specular reflectance", "textured roughness", "anisotropic roughness"}),
 )

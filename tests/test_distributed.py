@@ -171,9 +171,9 @@ def test_bad_parameters_and_materials_are_refused(tmp_path):
                                                                  aniso, 1)
     p = tmp_path / "aniso.xml"
     p.write_text(text)
-    with pytest.raises(UnsupportedError, match="uses 'anisotropic roughness', which distributed does not "
-                                               "model"):
-        render(p)
+    # Anisotropic roughness is modelled too (Z-tested in tests/test_vocabulary_anisotropic.py).
+    aniso = render(p, spp=4)
+    assert np.isfinite(aniso.image).all() and not np.array_equal(aniso.image, beckmann.image)
     with pytest.raises(NotImplementedError, match="shape 'gold' has a 'roughconductor' BSDF, which the "
                                                    "Whitted ray tracer does not model"):
         render(SUITES / "distributed/gloss.xml", algo=WHITTED)
