@@ -656,9 +656,10 @@ class LocalModel(NamedTuple):
                                 # 0 for an opaque material; empty (0,): shadow rays stop at anything
     shadow_trans: np.ndarray    # (M, 3) its specular_transmittance
     sobol: bool                 # light samples from Owen-scrambled Sobol points (light_uv_sobol)
-    dims: int                   # else with a mode of impl.samplers other than DIM_INDEPENDENT:
-                                # a point's light sample j is 2-D dimension SP_DDIM + j of its
-                                # pixel sample of SP_DSPP (light_uv_dims, distributed's numbers)
+    dims: int                   # otherwise: DIM_INDEPENDENT, hashed numbers (light_uv); another
+                                # mode of impl.samplers: a point's light sample j is 2-D
+                                # dimension SP_DDIM + j of its pixel sample of SP_DSPP
+                                # (light_uv_dims; distributed's numbers)
 
 
 def local_model(params: dict, materials=None) -> LocalModel:
@@ -1035,9 +1036,9 @@ def _area_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, e, k, q, s
                       er, eg, eb, sample, seed, nshadow):
     """Light sample k of area emitter ``e`` (no specular term, opaque shadows, no normal or
     bump map) at every active point of batch ``T``, a point per lane: each point's two
-    numbers (:func:`_point_uv`), the emitter triangle they pick and the point on it (:func:`sample_emitter`'s
-    search and arithmetic) point by point, then the contribution and the shadow ray by the
-    branch-free :func:`_area_lanes`, and :func:`_trace_lit_lanes`.  The
+    numbers (:func:`_point_uv`), the emitter triangle they pick and the point on it
+    (:func:`sample_emitter`'s search and arithmetic) point by point, then the contribution
+    and the shadow ray by the branch-free :func:`_area_lanes`, and :func:`_trace_lit_lanes`.  The
     same samples, contributions and shadow rays as the scalar loop of :func:`direct_batch`,
     so the same image bit for bit."""
     n = T.n

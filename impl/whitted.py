@@ -516,7 +516,7 @@ def _shade(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
 
 @njit(inline="always", cache=True)
 def queue_child(Q: Pending, depth, R: RayConfig, px, py, pz, gx, gy, gz, dx, dy, dz, wr, wg, wb,
-           medium, col, kind):
+                medium, col, kind):
     """Queue a child ray of depth ``depth``, leaving the surface to the side it goes to (R's
     offset), rounded to R's precision as it will be intersected and shaded."""
     side = 1.0 if gx * dx + gy * dy + gz * dz >= 0.0 else -1.0
