@@ -267,7 +267,7 @@ from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten_ca
 from .shading_frame import tangent
 from .textures import scalar_param
 from .tracer import (DX, DY, DZ, OX, OY, OZ, TMAX, TMIN, Batch, Film, accumulate, closest_batch, first,
-                     new_batch, new_film, ray_config_cached, store, take_pending)
+                     new_batch, new_film, packet_batch, ray_config_cached, store, take_pending)
 from .whitted import (RAY_EYE, RAY_REFLECTION, RAY_TRANSMISSION, TreeWork, admit, arrive, conductor_mirror,
                       dielectric_split, diffuse_leaf, light_leaves, queue_child, queue_delta, tree_work)
 
@@ -903,14 +903,16 @@ def _triangle_copies(A, R, M: Motion):
     return R.tri_v, A.tri_v, A.tri_n
 
 
-@njit(cache=True)
-def _store(rec, i, fx, fy, w, r, g, b):
-    rec[i, S_X] = fx
-    rec[i, S_Y] = fy
-    rec[i, S_W] = w
-    rec[i, S_R] = r
-    rec[i, S_G] = g
-    rec[i, S_B] = b
+@njit(inline="always", cache=True)
+def _store(recs, pixel, i, fx, fy, w, r, g, b):
+    """Sample record i of ``pixel`` (film position, weight, radiance), written by index:
+    a view of the shared record array per pixel would count references to it."""
+    recs[pixel, i, S_X] = fx
+    recs[pixel, i, S_Y] = fy
+    recs[pixel, i, S_W] = w
+    recs[pixel, i, S_R] = r
+    recs[pixel, i, S_G] = g
+    recs[pixel, i, S_B] = b
 
 
 @njit(cache=True)
@@ -935,7 +937,7 @@ def _row(cam, A, S, wraps, dist, R, M, HL, y, sampler, dmode, spp, jitter_gauss,
     pre_t, pre_prim, pre_b = np.zeros(k), np.full(k, NOT_TRACED, dtype=np.int64), np.zeros((k, 2))
     for x in range(W):
         pixel = y * W + x
-        rec, counts = recs[pixel], counts_all[pixel]
+        counts = counts_all[pixel]
         if sampler == SMP_ADAPTIVE:
             # Whitted's adaptive supersampling: squares of (corner, size, depth, 5 value indices).
             cap = max(spp, 5)
@@ -1004,7 +1006,8 @@ def _row(cam, A, S, wraps, dist, R, M, HL, y, sampler, dmode, spp, jitter_gauss,
                     for q in range(5):
                         wts[idx[q]] += a
             for i in range(n):
-                _store(rec, i, x + pos[i, 0], y + pos[i, 1], wts[i], vals[i, 0], vals[i, 1], vals[i, 2])
+                _store(recs, pixel, i, x + pos[i, 0], y + pos[i, 1], wts[i], vals[i, 0], vals[i, 1],
+                       vals[i, 2])
             nrec[pixel] = n
             continue
 
@@ -1027,7 +1030,7 @@ def _row(cam, A, S, wraps, dist, R, M, HL, y, sampler, dmode, spp, jitter_gauss,
                        cap, dmode, shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:1], pre_prim[:1],
                        pre_b[:1], rgb[:1])
                 rr, gg, bb = rgb[0, 0], rgb[0, 1], rgb[0, 2]
-                _store(rec, n, x + fx, y + fy, 1.0, rr, gg, bb)
+                _store(recs, pixel, n, x + fx, y + fy, 1.0, rr, gg, bb)
                 c = n + 1.0
                 d0, d1, d2 = rr - m0, gg - m1, bb - m2
                 m0 += d0 / c
@@ -1050,7 +1053,7 @@ def _row(cam, A, S, wraps, dist, R, M, HL, y, sampler, dmode, spp, jitter_gauss,
                n, dmode, shade, seed, pixel, stack_f, stack_i, counts, cut_w, pre_t[:n], pre_prim[:n],
                pre_b[:n], rgb[:n])
         for s in range(n):
-            _store(rec, s, film[s, 0], film[s, 1], 1.0, rgb[s, 0], rgb[s, 1], rgb[s, 2])
+            _store(recs, pixel, s, film[s, 0], film[s, 1], 1.0, rgb[s, 0], rgb[s, 1], rgb[s, 2])
         nrec[pixel] = n
 
 
@@ -1125,7 +1128,7 @@ def _tile(cam, A, S, wraps, dist, R, M, HL, tile, sampler, dmode, spp, jitter_ga
             _trees(cam, scene, materials, config, motion, HL, cen, cen64, tri, tri64, trin64, film[:1], s,
                    npt[i], dmode, shade, seed, pixel, stack_f, stack_i, counts[pixel], cut_w, hit_t[j:j + 1],
                    hit_p[j:j + 1], hit_b[j:j + 1], rgb[:1])
-            _store(recs[pixel], s, fx, fy, 1.0, rgb[0, 0], rgb[0, 1], rgb[0, 2])
+            _store(recs, pixel, s, fx, fy, 1.0, rgb[0, 0], rgb[0, 1], rgb[0, 2])
     for i in range(P):
         nrec[(y0 + i // nx) * W + x0 + i % nx] = npt[i]
 
@@ -1235,12 +1238,7 @@ def _trees_batch(A: SceneArrays, S: MaterialArrays, wraps, dist, R: RayConfig, M
          T.ray[DZ, i]) = round_ray(R, T.ray[OX, i], T.ray[OY, i], T.ray[OZ, i], T.ray[DX, i],
                                    T.ray[DY, i], T.ray[DZ, i])
     if T.aos.shape[0] > 0:               # packets: the eye rays through the tree together
-        for i in range(n):
-            for c in range(8):
-                T.aos[i, c] = T.ray[c, i]
-        packet_hits(R, T.aos, n, T.t, T.prim, T.aos_b, T.packet)
-        for i in range(n):
-            T.b[0, i], T.b[1, i] = T.aos_b[i, 0], T.aos_b[i, 1]
+        packet_batch(R, T)
     else:
         closest_batch(R, T.ray, n, T.t, T.prim, T.b, T.q, T.qt, T.qp)
     # Typed values, not literals: a literal argument would compile _shade_batch again.
@@ -1287,9 +1285,7 @@ def _batch_tile(cam, A: SceneArrays, S: MaterialArrays, wraps, dist, R: RayConfi
         _trees_batch(A, S, wraps, dist, R, M, gmodel, dmode, max_depth, hall_threshold, seed, s, spp, T, K)
         if records:
             for i in range(n):
-                p = T.pixel[i]
-                recs[p, s, S_X], recs[p, s, S_Y], recs[p, s, S_W] = T.film[0, i], T.film[1, i], 1.0
-                recs[p, s, S_R], recs[p, s, S_G], recs[p, s, S_B] = T.L[0, i], T.L[1, i], T.L[2, i]
+                _store(recs, T.pixel[i], s, T.film[0, i], T.film[1, i], 1.0, T.L[0, i], T.L[1, i], T.L[2, i])
         else:
             accumulate(T, s)
     store(T, film, spp)

@@ -89,7 +89,7 @@ from .scene_arrays import scene_memo
 DIM_LENS = 1 << 29
 
 __all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "film_result", "new_batch",
-           "new_points", "first", "Pending", "new_pending", "push_pending", "take_pending",
+           "new_points", "first", "Pending", "packet_batch", "new_pending", "push_pending", "take_pending",
            "ray_config_cached", "eye_batch", "closest_batch", "occluded_batch",
            "brute_force", "culled", "accumulate",
            "store", "OX", "OY", "OZ", "DX", "DY", "DZ", "TMIN", "TMAX"]
@@ -342,6 +342,20 @@ def take_pending(Q: Pending, d, ray, w, col, kind, cap):
     return m
 
 
+@njit(inline="always", cache=True)
+def packet_batch(R: RayConfig, T: Batch):
+    """The closest hits of the batch's rays (``T.ray``, rounded to R's precision) traced
+    as one packet (:func:`impl.accel.packets.packet_hits`, rays in ``T.aos``'s layout)
+    into ``T.t``, ``T.prim``, ``T.b``; the packet's node and test counts into
+    ``T.packet``."""
+    for i in range(T.n):
+        for c in range(8):
+            T.aos[i, c] = T.ray[c, i]
+    packet_hits(R, T.aos, T.n, T.t, T.prim, T.aos_b, T.packet)
+    for i in range(T.n):
+        T.b[0, i], T.b[1, i] = T.aos_b[i, 0], T.aos_b[i, 1]
+
+
 @batch_kernel
 def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     """Sample ``s`` of the tile's pixels: the eye rays (pixel centre for spp = 1, else
@@ -394,12 +408,7 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
             _closest_span(R, ray, q, T.qt, T.qp, r * rows, min(n, (r + 1) * rows), T.cand[r],
                           T.t, T.prim, T.b)
     elif packets:
-        for i in range(T.n):
-            for c in range(8):
-                T.aos[i, c] = ray[c, i]
-        packet_hits(R, T.aos, T.n, T.t, T.prim, T.aos_b, T.packet)
-        for i in range(T.n):
-            T.b[0, i], T.b[1, i] = T.aos_b[i, 0], T.aos_b[i, 1]
+        packet_batch(R, T)
     else:
         closest_batch(R, ray, T.n, T.t, T.prim, T.b, T.q, T.qt, T.qp)
 
