@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["Film", "Camera", "Material", "Shape", "Light", "Scene", "Spectrum", "EnvMap", "cie_tables",
-           "scene_features", "FEATURES", "SPECULAR_TEXTURED", "anisotropic_roughness"]
+           "scene_features", "FEATURES", "SPECULAR_TEXTURED", "TRANSMITTANCE_TEXTURED", "IOR_TEXTURED",
+           "anisotropic_roughness"]
 
 
 @dataclass(frozen=True)
@@ -325,14 +326,22 @@ class Scene:
 #: algorithm must model explicitly (``Algorithm.models``) to render a scene that has them.
 FEATURES = ("envmap", "projector", "spot texture", "plastic", "roughplastic", "normalmap", "bumpmap",
             "textured parameter", "textured roughness", "anisotropic roughness",
-            "textured specular reflectance", "plastic texture",
+            "textured specular reflectance", "textured specular transmittance",
+            "textured conductor eta/k", "plastic texture",
             "camera motion", "mesh motion",
             "mask", "blendbsdf", "thindielectric", "gibench_cooktorrance", "gibench_difftrans")
 
 
 #: The BSDFs whose textured ``specular_reflectance`` is the feature "textured specular
-#: reflectance" (on the others it is a "textured parameter").
-SPECULAR_TEXTURED = ("conductor", "roughconductor", "dielectric")
+#: reflectance" (on the plastics it is a "textured parameter").
+SPECULAR_TEXTURED = ("conductor", "roughconductor", "dielectric", "roughdielectric", "thindielectric")
+
+#: The BSDFs whose textured ``specular_transmittance`` is the feature "textured specular
+#: transmittance".
+TRANSMITTANCE_TEXTURED = ("dielectric", "roughdielectric", "thindielectric")
+
+#: The BSDFs whose textured ``eta`` or ``k`` is the feature "textured conductor eta/k".
+IOR_TEXTURED = ("conductor", "roughconductor")
 
 
 def scene_features(scene: Scene) -> dict[str, str]:
@@ -378,6 +387,10 @@ def _material_features(m: Material, where: str, found: dict) -> None:
             found.setdefault("textured roughness", f"{where} ('{name}' of its {m.kind} BSDF)")
         elif m.kind in SPECULAR_TEXTURED and name == "specular_reflectance":
             found.setdefault("textured specular reflectance", f"{where} ('{name}' of its {m.kind} BSDF)")
+        elif m.kind in TRANSMITTANCE_TEXTURED and name == "specular_transmittance":
+            found.setdefault("textured specular transmittance", f"{where} ('{name}' of its {m.kind} BSDF)")
+        elif m.kind in IOR_TEXTURED and name in ("eta", "k"):
+            found.setdefault("textured conductor eta/k", f"{where} ('{name}' of its {m.kind} BSDF)")
         elif not (m.kind == "blendbsdf" and name == "weight"):
             found.setdefault("textured parameter", f"{where} ('{name}' of its {m.kind} BSDF)")
     for c in m.components:

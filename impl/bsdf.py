@@ -40,9 +40,9 @@ interface's Fresnel reflectance at |cos θ_i|, T = 1 − R: the multiple interna
 reflections summed), else straight through (−wi, η 1); weights
 ``specular_reflectance`` / ``specular_transmittance``.  Delta.
 
-``blendbsdf``: a row whose two components are rows of their own
-(:func:`impl.materials.expand_components`); :func:`is_delta` when both are, the
-mixture itself is resolved by the caller (:mod:`impl.path`).
+``blendbsdf``: a row whose two components are rows of their own, a nested
+blendbsdf's too (:func:`impl.materials.expand_components`); :func:`is_delta` when
+all its leaves are, the mixture itself is resolved by the caller (:mod:`impl.path`).
 
 ``plastic`` and ``roughplastic``: Mitsuba's diffuse base under a dielectric
 coat, the functions of :mod:`impl.plastic` (``nonlinear`` included); the
@@ -149,7 +149,10 @@ class BsdfArrays(NamedTuple):
     ptex_c: np.ndarray          # (M, 4, 2) checkerboard values,
     ptex_data: np.ndarray       # (K, 3) texels,
     alpha_v: np.ndarray         # (M,) roughness along the tangent t (= alpha when isotropic),
-    aniso: np.ndarray           # (M,) int 1: anisotropic roughness (a blendbsdf: either component)
+    aniso: np.ndarray           # (M,) int 1: anisotropic roughness (a blendbsdf: any leaf),
+    leaf: np.ndarray            # (M, NL) int a blendbsdf's leaves, their blendbsdf ancestors
+    leaf_node: np.ndarray       # (M, NL, D) int and the component taken at each
+    leaf_branch: np.ndarray     # (M, NL, D) int (impl.materials.WrapperArrays)
 
 
 def with_plastic(M: MaterialArrays, P: PlasticArrays | None = None,
@@ -237,13 +240,16 @@ def cosine_hemisphere_pdf(z):
 @njit(inline="always", cache=True)
 def is_delta(B: MaterialArrays, mat):
     """Whether every lobe of ``mat`` is a delta (no light samples); a blendbsdf is when
-    both its components are."""
+    all its leaves are."""
+    if B.kind[mat] == MAT_BLEND:
+        for c in B.leaf[mat]:
+            if c < 0:
+                break
+            k = B.kind[c]
+            if not (k == MAT_CONDUCTOR or k == MAT_DIELECTRIC or k == MAT_THINDIELECTRIC):
+                return False
+        return True
     k = B.kind[mat]
-    if k == MAT_BLEND:
-        k0 = B.kind[B.comp[mat, 0]]
-        k1 = B.kind[B.comp[mat, 1]]
-        return ((k0 == MAT_CONDUCTOR or k0 == MAT_DIELECTRIC or k0 == MAT_THINDIELECTRIC)
-                and (k1 == MAT_CONDUCTOR or k1 == MAT_DIELECTRIC or k1 == MAT_THINDIELECTRIC))
     return k == MAT_CONDUCTOR or k == MAT_DIELECTRIC or k == MAT_THINDIELECTRIC
 
 

@@ -28,9 +28,12 @@ plus:
   anisotropic roughness (``alpha_u`` / ``alpha_v``, constants or textures) in
   Mitsuba's shading frame, its tangent along ∂p/∂u (static shapes, no normal
   or bump map).  A textured ``specular_reflectance`` of a
-  conductor, rough conductor or smooth dielectric multiplies the reflected
+  conductor or dielectric (smooth or rough) multiplies the reflected
   branch by its value at the hit, as Mitsuba's ``eval`` of the texture does
-  (:func:`impl.lighting.specular_tint`; not with ``shading=hall``);
+  (:func:`impl.lighting.specular_tint`), a textured ``specular_transmittance``
+  the transmitted one (:func:`impl.lighting.transmittance_tint`), and a
+  conductor's textured ``eta`` or ``k`` gives the Fresnel term of its value at
+  the hit (:func:`impl.lighting.textured_fresnel`); none with ``shading=hall``;
 * **translucency** — at a ``roughdielectric`` one sampled direction,
   reflected with probability F(wi·m) else refracted (Mitsuba's lobe choice),
   weight f·|cos|/pdf (radiance scaling η² on transmission) ×
@@ -249,7 +252,8 @@ from .kernel import batch_kernel, by_reference, dereference, interleaved, run_ta
 from .filters import FILTER_BOX, S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric
 from .lighting import (SP_DDIM, SP_DSPP, LocalModel, diffuse_albedo, direct_light_dims, environment_radiance,
-                       local_model, map_weight, mapped_normal_at, specular_tint, spot_falloff, surface)
+                       local_model, map_weight, mapped_normal_at, specular_tint, spot_falloff, surface,
+                       textured_fresnel, transmittance_tint)
 from .bsdf import cook_torrance_sample, diffuse_transmission_sample
 from .materials import (MAT_CONDUCTOR, MAT_COOKTORRANCE, MAT_DIELECTRIC, MAT_DIFFTRANS,
                         MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC, MaterialArrays, distribution_codes,
@@ -749,12 +753,12 @@ def _sample_lobe(A, S, wraps, dist, gmodel, mat, mkind, prim, b1, b2, hit, mediu
     * ``roughconductor`` (gloss, 2.5.6): the Cook–Torrance/Walter microfacet BSDF
       (:func:`impl.microfacet.conductor_sample`: the material's D, G = ``gmodel``,
       visible-normal or D·cos sampling, (α_u, α_v) of :func:`_alpha`, in Mitsuba's
-      shading frame where anisotropic) × conductor Fresnel at the microfacet ×
-      ``specular_reflectance`` (× its texture);
+      shading frame where anisotropic) × conductor Fresnel at the microfacet (of a
+      textured η or k's value at the hit) × ``specular_reflectance`` (× its texture);
     * ``roughdielectric`` (translucency, 2.5.6): reflected with probability F(wi·m), else
       refracted (η² on transmission; :func:`impl.microfacet.dielectric_sample`) ×
-      ``specular_reflectance`` / ``specular_transmittance``, the ray then in the medium
-      on its side;
+      ``specular_reflectance`` / ``specular_transmittance`` (× their textures), the ray
+      then in the medium on its side;
     * ``gibench_cooktorrance`` (2.4.5.2): k_d ρ/π + k_s F D G / (4 cos cos), D a roughness
       mixture (:func:`impl.bsdf.cook_torrance_sample`);
     * ``gibench_difftrans`` (2.4.5.3): ρ/π on the viewer's side, τ/π through it
@@ -782,10 +786,12 @@ def _sample_lobe(A, S, wraps, dist, gmodel, mat, mkind, prim, b1, b2, hit, mediu
                                                           wix, wiy, cos_v, u0, u1, u2, dist[mat], av)
         ok = w > 0.0
         if refl:
-            cr, cg, cb = S.spec_refl[mat, 0], S.spec_refl[mat, 1], S.spec_refl[mat, 2]
+            kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
+            cr, cg, cb = S.spec_refl[mat, 0] * kr, S.spec_refl[mat, 1] * kg, S.spec_refl[mat, 2] * kb
             med = S.diel_ext[mat] if cos_v >= 0.0 else S.diel_int[mat]
         else:
-            cr, cg, cb = S.spec_trans[mat, 0], S.spec_trans[mat, 1], S.spec_trans[mat, 2]
+            kr, kg, kb = transmittance_tint(A, mat, prim, b1, b2)
+            cr, cg, cb = S.spec_trans[mat, 0] * kr, S.spec_trans[mat, 1] * kg, S.spec_trans[mat, 2] * kb
             nxt = RAY_TRANSMISSION
             med = S.diel_int[mat] if cos_v >= 0.0 else S.diel_ext[mat]
         cr, cg, cb = w * cr, w * cg, w * cb
@@ -810,9 +816,10 @@ def _sample_lobe(A, S, wraps, dist, gmodel, mat, mkind, prim, b1, b2, hit, mediu
         fg = fresnel_conductor(cos_ih, S.cond_eta[mat, 1], S.cond_k[mat, 1])
         fb = fresnel_conductor(cos_ih, S.cond_eta[mat, 2], S.cond_k[mat, 2])
         kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
-        cr = w * fr * S.spec_refl[mat, 0] * kr
-        cg = w * fg * S.spec_refl[mat, 1] * kg
-        cb = w * fb * S.spec_refl[mat, 2] * kb
+        ur, ug, ub = textured_fresnel(A, mat, prim, b1, b2, cos_ih)
+        cr = w * fr * S.spec_refl[mat, 0] * kr * ur
+        cg = w * fg * S.spec_refl[mat, 1] * kg * ug
+        cb = w * fb * S.spec_refl[mat, 2] * kb * ub
     dx = tx * lx + bx * ly + nx * lz
     dy = ty * lx + by * ly + ny * lz
     dz = tz * lx + bz * ly + nz * lz
@@ -1370,6 +1377,12 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
         for feature, why in (("projector", image), ("spot texture", image),
                              ("textured specular reflectance",
                               "Hall's highlights take a surface's specular_reflectance as one colour; "
+                              "{} is a texture"),
+                             ("textured specular transmittance",
+                              "Hall's highlights take a surface's specular_transmittance as one colour; "
+                              "{} is a texture"),
+                             ("textured conductor eta/k",
+                              "Hall's highlights take a conductor's Fresnel term from one eta + ik; "
                               "{} is a texture")):
             if feature in found:
                 where = found[feature] + (f" of {scene.path}" if getattr(scene, "path", None) else "")
@@ -1515,5 +1528,6 @@ ALGORITHM = Algorithm(
     render=render,
     models=frozenset({"camera motion", "mesh motion", "envmap", "gibench_cooktorrance",
                       "gibench_difftrans", "projector", "spot texture", "normalmap", "bumpmap",
-                      "textured specular reflectance", "textured roughness", "anisotropic roughness"}),
+                      "textured specular reflectance", "textured specular transmittance",
+                      "textured conductor eta/k", "textured roughness", "anisotropic roughness"}),
 )

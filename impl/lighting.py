@@ -64,7 +64,7 @@ import numpy as np
 from numba import njit
 
 from .envmap import envmap_draw, envmap_radiance
-from .fresnel import fresnel_dielectric
+from .fresnel import fresnel_conductor, fresnel_dielectric
 from .kernel import batch_kernel, by_reference, dereference
 from .rays import RayConfig, hit, legacy_config, leave, occluded, refine, round_ray
 from .intersect import like
@@ -74,8 +74,8 @@ from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .projector import projector_weight
 from .samplers import DIM_INDEPENDENT, dim_2d
-from .scene_arrays import (LIGHT_DIRECTIONAL, LIGHT_PROJECTOR, LIGHT_SPOT, TEX_BITMAP, TEX_CHECKERBOARD,
-                           SceneArrays, triangle_normal)
+from .scene_arrays import (LIGHT_DIRECTIONAL, LIGHT_PROJECTOR, LIGHT_SPOT, PTEX_ETA, PTEX_K,
+                           PTEX_TRANSMITTANCE, TEX_BITMAP, TEX_CHECKERBOARD, SceneArrays, triangle_normal)
 from .textures import bitmap, checkerboard
 from .shading_frame import perturbed_normal, same_side, shadow_terminator
 from .tracer import POINT_ROWS, brute_force, occluded_batch
@@ -86,7 +86,8 @@ __all__ = ["SHADOW_EPSILON", "surface", "surface_at", "sphere_surface",
            "area_sample", "environment_sample",
            "shadow_towards", "shadow_along", "direct_batch", "LocalModel", "local_model",
            "environment_radiance", "sample_cosine_hemisphere", "shadow_filter", "SHADOW_MODES",
-           "mapped_normal", "mapped_normal_at", "map_weight", "point_map_weight", "store_point"]
+           "mapped_normal", "mapped_normal_at", "map_weight", "point_map_weight", "store_point",
+           "specular_tint", "param_rgb", "transmittance_tint", "textured_fresnel", "textured_params"]
 
 #: Shadow-ray origins move off the surface by this much times (1 + |p|_max).
 SHADOW_EPSILON = 1e-7
@@ -1336,3 +1337,64 @@ def specular_tint(A: SceneArrays, mat, prim, b1, b2):
     if A.mat_tex[mat] == 0:
         return 1.0, 1.0, 1.0
     return diffuse_albedo(A, mat, prim, b1, b2)
+
+
+@njit(inline="always", cache=True)
+def param_rgb(A: SceneArrays, mat, slot, prim, b1, b2):
+    """RGB parameter texture ``slot`` (``PTEX_*`` of :mod:`impl.scene_arrays`) of
+    material ``mat`` at a hit: a checkerboard's or bitmap's value at (u', v') = to_uv ·
+    (u, v, 1), as :func:`diffuse_albedo` looks it up, or the slot's constant.  A
+    primitive without uvs (the loader refuses textures on those) gets the texture's
+    mean."""
+    code = A.mat_ptex[mat, slot, 0]
+    c = A.mat_ptex_c[mat, slot]
+    ns = A.sph_radius.shape[0]
+    if code == 0:
+        return c[0, 0], c[0, 1], c[0, 2]
+    if prim < ns or not A.tri_has_uv[prim - ns]:
+        if code == TEX_CHECKERBOARD:
+            return 0.5 * (c[0, 0] + c[1, 0]), 0.5 * (c[0, 1] + c[1, 1]), 0.5 * (c[0, 2] + c[1, 2])
+        return c[0, 0], c[0, 1], c[0, 2]
+    t = A.tri_uv[prim - ns]
+    b0 = 1.0 - b1 - b2
+    u = b0 * t[0, 0] + b1 * t[1, 0] + b2 * t[2, 0]
+    v = b0 * t[0, 1] + b1 * t[1, 1] + b2 * t[2, 1]
+    m = A.mat_ptex_uv[mat, slot]
+    uu = m[0, 0] * u + m[0, 1] * v + m[0, 2]
+    vv = m[1, 0] * u + m[1, 1] * v + m[1, 2]
+    if code == TEX_CHECKERBOARD:
+        k = 0 if checkerboard(uu, vv) else 1
+        return c[k, 0], c[k, 1], c[k, 2]
+    r = A.mat_ptex[mat, slot]
+    return bitmap(A.tex_data, r[1], r[2], r[3], r[4], r[5], uu, vv)
+
+
+@njit(inline="always", cache=True)
+def transmittance_tint(A: SceneArrays, mat, prim, b1, b2):
+    """The factor (r, g, b) a dielectric's transmitted light takes at a hit: its textured
+    ``specular_transmittance`` there (Mitsuba multiplies the transmitted light by the
+    texture's ``eval``), else 1 — a constant one is the caller's per-material factor."""
+    if A.mat_ptex[mat, PTEX_TRANSMITTANCE, 0] == 0:
+        return 1.0, 1.0, 1.0
+    return param_rgb(A, mat, PTEX_TRANSMITTANCE, prim, b1, b2)
+
+
+@njit(inline="always", cache=True)
+def textured_fresnel(A: SceneArrays, mat, prim, b1, b2, cos_i):
+    """The conductor Fresnel reflectance (r, g, b) at cos_i of a conductor's or rough
+    conductor's textured ``eta`` + i ``k`` at a hit (Mitsuba reads both textures there),
+    else 1: such a material's own row holds 0 + 1i, whose Fresnel term is 1
+    (:func:`impl.materials.material_arrays`), so the caller multiplies by this factor;
+    for a rough conductor cos_i is taken to the microfacet normal, as Mitsuba's."""
+    if A.mat_ptex[mat, PTEX_ETA, 0] == 0 and A.mat_ptex[mat, PTEX_K, 0] == 0:
+        return 1.0, 1.0, 1.0
+    er, eg, eb = param_rgb(A, mat, PTEX_ETA, prim, b1, b2)
+    kr, kg, kb = param_rgb(A, mat, PTEX_K, prim, b1, b2)
+    return fresnel_conductor(cos_i, er, kr), fresnel_conductor(cos_i, eg, kg), fresnel_conductor(cos_i, eb, kb)
+
+
+@njit(inline="always", cache=True)
+def textured_params(A: SceneArrays, mat):
+    """Whether material ``mat`` reads a parameter texture other than its diffuse one at a
+    hit (:func:`transmittance_tint`, :func:`textured_fresnel`)."""
+    return (A.mat_ptex[mat, 0, 0] != 0) | (A.mat_ptex[mat, 1, 0] != 0) | (A.mat_ptex[mat, 2, 0] != 0)

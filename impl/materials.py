@@ -11,10 +11,13 @@ defaults) into a :class:`MaterialArrays` named tuple, one row per material of
   (``material="Au"``) takes the RGB ``eta``/``k`` Mitsuba's RGB variants
   derive from its measured spectra, stored in ``impl/data/conductors_rgb.json``
   (:func:`named_conductor`; written from Mitsuba by
-  ``references/conductor_table.py``, which records the version).
+  ``references/conductor_table.py``, which records the version).  A textured ``eta``
+  or ``k`` is read at the hit (:func:`impl.lighting.textured_fresnel`): the row then
+  holds 0 + 1i, whose Fresnel term is 1.
 * ``dielectric`` / ``roughdielectric`` / ``thindielectric``: ``int_ior`` (default BK7),
   ``ext_ior`` (default air), ``specular_reflectance``,
-  ``specular_transmittance``.
+  ``specular_transmittance`` (a texture is read at the hit,
+  :func:`impl.lighting.transmittance_tint`; the row then holds Mitsuba's default 1).
 * ``roughconductor`` / ``roughdielectric``: ``alpha`` (default 0.1, Mitsuba's),
   ``distribution`` (``beckmann``, the default; ``ggx`` only where the caller
   lists it in ``distributions``: :func:`distribution_codes` gives the rows),
@@ -27,8 +30,8 @@ defaults) into a :class:`MaterialArrays` named tuple, one row per material of
 :func:`expand_components` gives a ``blendbsdf``'s components rows of their own;
 :func:`wrapper_arrays` decodes ``mask`` opacities, blend weights and textured or
 anisotropic roughness into :class:`WrapperArrays`; :func:`with_specular_textures`
-moves a conductor's, roughconductor's or dielectric's textured
-``specular_reflectance`` to the material's texture, for the path tracer.
+moves the textured ``specular_reflectance`` of a conductor or dielectric (smooth,
+rough or thin) to the material's texture, for the tracers.
 
 The microfacet functions these rows feed are in :mod:`impl.microfacet`.
 
@@ -61,7 +64,7 @@ __all__ = ["named_conductor", "distribution_codes", "CONDUCTOR_TABLE", "Material
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "MAT_PLASTIC",
            "MAT_ROUGHPLASTIC", "MAT_COOKTORRANCE", "MAT_DIFFTRANS", "MAT_THINDIELECTRIC", "MAT_BLEND",
            "MAX_LOBES", "KIND_CODES", "DEFAULT_ALPHA", "expand_components", "with_specular_textures",
-           "WrapperArrays", "N_SLOTS", "no_wrappers", "wrapper_arrays"]
+           "WrapperArrays", "N_SLOTS", "no_wrappers", "wrapper_arrays", "rgb_param"]
 
 MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
 MAT_CONDUCTOR = MATERIAL_CODES["conductor"]
@@ -134,7 +137,7 @@ class MaterialArrays(NamedTuple):
 SpecularArrays = MaterialArrays
 
 
-def _rgb_param(params: dict, name: str, default: float, where: str) -> np.ndarray:
+def rgb_param(params: dict, name: str, default: float, where: str) -> np.ndarray:
     """Parameter ``name`` as RGB.  A ``<spectrum>`` of (wavelength, value) pairs becomes
     linear sRGB as Mitsuba's RGB variants pre-integrate it (D65-weighted CIE 1931,
     :meth:`core.scene.Spectrum.to_rgb`), clipped to [0, 1] except for the unbounded
@@ -293,6 +296,10 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
         p = m.params
         if m.kind in ("conductor", "roughconductor"):
             material = p.get("material", "none")
+            textured = [n for n in ("eta", "k") if n in m.textures]
+            if textured and material != "none":
+                raise SceneError(f"{where}: conductor gives both 'material' ('{material}') and a "
+                                 f"textured '{textured[0]}'; give one of them (as Mitsuba requires)")
             if "eta" in p and material != "none":
                 raise SceneError(f"{where}: conductor gives both 'material' ('{material}') and "
                                  "'eta'; give one of them (as Mitsuba requires)")
@@ -301,10 +308,12 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
                     raise SceneError(f"{where}: conductor gives both 'material' ('{material}') and "
                                      "'k'; give one of them (as Mitsuba requires)")
                 cond_eta[i], cond_k[i] = named_conductor(str(material), where=where)
+            elif textured:               # 0 + 1i: Fresnel 1; the caller multiplies by the
+                cond_eta[i], cond_k[i] = 0.0, 1.0   # textured one at the hit (impl.lighting)
             else:
-                cond_eta[i] = _rgb_param(p, "eta", 0.0, where)
-                cond_k[i] = _rgb_param(p, "k", 1.0, where)
-            spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
+                cond_eta[i] = rgb_param(p, "eta", 0.0, where)
+                cond_k[i] = rgb_param(p, "k", 1.0, where)
+            spec_refl[i] = rgb_param(p, "specular_reflectance", 1.0, where)
         elif m.kind in ("dielectric", "roughdielectric", "thindielectric"):
             if m.twosided:
                 raise UnsupportedError(f"{where}: a two-sided dielectric is not modelled")
@@ -318,15 +327,15 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
                 raise SceneError(f"{where}: roughdielectric needs int_ior != ext_ior "
                                  f"(both {n_int}), as Mitsuba requires")
             diel_int[i], diel_ext[i], diel_eta[i] = n_int, n_ext, n_int / n_ext
-            spec_refl[i] = _rgb_param(p, "specular_reflectance", 1.0, where)
-            spec_trans[i] = _rgb_param(p, "specular_transmittance", 1.0, where)
+            spec_refl[i] = rgb_param(p, "specular_reflectance", 1.0, where)
+            spec_trans[i] = rgb_param(p, "specular_transmittance", 1.0, where)
         if m.kind in ("roughconductor", "roughdielectric"):
             alpha[i], _, visible[i] = _roughness(p, where, distributions, tuple(m.textures), anisotropic)
             for name in ("alpha", "alpha_u"):
                 if name in m.textures:              # the value where no uv: the texture's mean
                     alpha[i] = _scalar_texture_mean(m.textures[name])
         elif m.kind == "gibench_cooktorrance":
-            spec_refl[i] = _rgb_param(p, "reflectance", 0.5, where)
+            spec_refl[i] = rgb_param(p, "reflectance", 0.5, where)
             kd, ks = float(p.get("kd", 0.5)), float(p.get("ks", 0.5))
             if kd + ks > 1.0 + 1e-12:
                 raise SceneError(f"{where}: gibench_cooktorrance needs kd + ks <= 1 (the thesis's "
@@ -339,8 +348,8 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
             n_ext = lookup_ior(p.get("ext_ior", 1.0), what=f"{where}: ext_ior")
             diel_int[i], diel_ext[i], diel_eta[i] = n_int, n_ext, n_int / n_ext
         elif m.kind == "gibench_difftrans":
-            rho = _rgb_param(p, "reflectance", 0.5, where)
-            tau = _rgb_param(p, "transmittance", 0.5, where)
+            rho = rgb_param(p, "reflectance", 0.5, where)
+            tau = rgb_param(p, "transmittance", 0.5, where)
             if np.any(rho + tau > 1.0 + 1e-12):
                 raise SceneError(f"{where}: gibench_difftrans needs reflectance + transmittance <= 1 "
                                  f"per channel, got {rho.tolist()} + {tau.tolist()}")
@@ -357,13 +366,13 @@ def _scalar_texture_mean(tex: dict) -> float:
 
 
 def with_specular_textures(scene: Scene) -> Scene:
-    """``scene`` with the textured ``specular_reflectance`` of every conductor,
-    roughconductor and dielectric (a blendbsdf's components included) moved to the
+    """``scene`` with the textured ``specular_reflectance`` of every conductor and
+    dielectric, smooth, rough or thin (a blendbsdf's components included), moved to the
     material's ``texture`` (so that :func:`impl.lighting.diffuse_albedo` reads it at a
     hit; its mean as ``reflectance``), the constant ``specular_reflectance`` then
     Mitsuba's default 1; or ``scene`` itself without one.  The caller multiplies the
-    reflected weights by that value (:mod:`impl.path`), as Mitsuba's ``conductor``,
-    ``roughconductor`` and ``dielectric`` multiply by their texture's ``eval``."""
+    reflected weights by that value (:mod:`impl.path`), as Mitsuba's conductors and
+    dielectrics multiply by their texture's ``eval``."""
     import dataclasses
 
     from core.scene import SPECULAR_TEXTURED, texture_mean
@@ -400,35 +409,46 @@ def with_specular_textures_cached(scene: Scene) -> Scene:
 
 
 def expand_components(scene: Scene, *, algorithm: str = "path") -> Scene:
-    """``scene`` with the two components of every ``blendbsdf`` appended to its materials
-    (so that each component has its own row in every per-material array; shapes keep
-    their indices), or ``scene`` itself without a blendbsdf.  The blendbsdf's own row
-    takes its components' ``twosided`` (which must agree).
+    """``scene`` with the components of every ``blendbsdf`` appended to its materials,
+    those of a blendbsdf nested in a component too (so that each has its own row in
+    every per-material array; shapes keep their indices), or ``scene`` itself without a
+    blendbsdf.  A blendbsdf's row takes its leaves' ``twosided`` (which must agree).
 
     Raises
     ------
     UnsupportedError
-        A component that is itself a blendbsdf, has a mask or a normal / bump map, or
-        components that differ in ``twosided``.
+        A component with a mask or a normal / bump map, or leaves that differ in
+        ``twosided``.
     """
     import dataclasses
 
     if not any(m.components for m in scene.materials):
         return scene
     mats = list(scene.materials)
+
+    def leaves(m, where):
+        for c in m.components:
+            if c.opacity is not None or c.shading is not None:
+                raise UnsupportedError(f"{where}: a mask, normalmap or bumpmap inside a blendbsdf is "
+                                       "not modelled")
+            yield from leaves(c, where) if c.components else (c,)
+
+    def append(m):
+        """Rows for the components of blendbsdf ``m`` and of those nested in them."""
+        for c in m.components:
+            mats.append(c)
+            if c.components:
+                append(c)
+
     for i, m in enumerate(scene.materials):
         if not m.components:
             continue
         where = f"{algorithm}: blendbsdf '{m.name or i}'"
-        for c in m.components:
-            if c.components or c.opacity is not None or c.shading is not None:
-                raise UnsupportedError(f"{where}: a nested blendbsdf, mask, normalmap or bumpmap inside "
-                                       "a blendbsdf is not modelled")
-        sides = {c.twosided for c in m.components}
+        sides = {c.twosided for c in leaves(m, where)}
         if len(sides) != 1:
             raise UnsupportedError(f"{where}: one two-sided and one one-sided component is not modelled")
         mats[i] = dataclasses.replace(m, twosided=sides.pop())
-        mats.extend(m.components)
+        append(m)
     return dataclasses.replace(scene, materials=mats)
 
 
@@ -451,7 +471,12 @@ class WrapperArrays(NamedTuple):
     alpha_v: np.ndarray         # (M,) roughness α_v along the tangent t (= alpha when isotropic; a
                                 # texture's mean when textured)
     aniso: np.ndarray           # (M,) int 1: anisotropic (α_u ≠ α_v or either textured); a
-                                # blendbsdf's row when either component is
+                                # blendbsdf's row when any of its leaves is
+    leaf: np.ndarray            # (M, NL) int: a blendbsdf's leaves (the non-blend BSDFs of its tree,
+                                # first component first; −1 after the last); a row's own index else
+    leaf_node: np.ndarray       # (M, NL, D) int: each leaf's blendbsdf ancestors from the row down
+                                # (−1 after the last) ...
+    leaf_branch: np.ndarray     # (M, NL, D) int: ... and the component (0, 1) taken at each
 
 
 #: Scalar texture slots of :class:`WrapperArrays`.
@@ -465,9 +490,39 @@ def no_wrappers(n: int, alpha: np.ndarray | None = None) -> WrapperArrays:
     uv = np.zeros((n, N_SLOTS, 2, 3))
     uv[:, :, 0, 0] = uv[:, :, 1, 1] = 1.0
     alpha_v = np.zeros(n) if alpha is None else np.array(alpha, dtype=np.float64)
-    return WrapperArrays(np.ones(n), np.repeat(np.arange(n, dtype=np.int64)[:, None], 2, axis=1),
+    rows = np.arange(n, dtype=np.int64)
+    return WrapperArrays(np.ones(n), np.repeat(rows[:, None], 2, axis=1),
                          np.zeros(n), np.zeros((n, N_SLOTS, 6), dtype=np.int64), uv,
-                         np.zeros((n, N_SLOTS, 2)), np.zeros((0, 3)), alpha_v, np.zeros(n, dtype=np.int64))
+                         np.zeros((n, N_SLOTS, 2)), np.zeros((0, 3)), alpha_v, np.zeros(n, dtype=np.int64),
+                         rows[:, None].copy(), np.full((n, 1, 1), -1, dtype=np.int64),
+                         np.zeros((n, 1, 1), dtype=np.int64))
+
+
+def _leaf_tables(kind, comp):
+    """``leaf``, ``leaf_node`` and ``leaf_branch`` of :class:`WrapperArrays` from the rows'
+    kinds and blendbsdf components ``comp`` (M, 2)."""
+    n = len(kind)
+    paths = []
+    for i in range(n):
+        out, stack = [], [(i, ())]
+        while stack:                                  # depth first, first component first
+            row, path = stack.pop()
+            if kind[row] == MAT_BLEND:
+                stack += [(comp[row, 1], path + ((row, 1),)), (comp[row, 0], path + ((row, 0),))]
+            else:
+                out.append((row, path))
+        paths.append(out)
+    nl = max(len(p) for p in paths) if n else 1
+    d = max([len(path) for p in paths for _, path in p] + [1])
+    leaf = np.full((n, nl), -1, dtype=np.int64)
+    node = np.full((n, nl, d), -1, dtype=np.int64)
+    branch = np.zeros((n, nl, d), dtype=np.int64)
+    for i, p in enumerate(paths):
+        for k, (row, path) in enumerate(p):
+            leaf[i, k] = row
+            for j, (a, b) in enumerate(path):
+                node[i, k, j], branch[i, k, j] = a, b
+    return leaf, node, branch
 
 
 def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
@@ -486,7 +541,7 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
     from .scene_arrays import FILTER_CODES, TEX_BITMAP, TEX_CHECKERBOARD, WRAP_CODES
 
     index = {id(m): i for i, m in enumerate(scene.materials)}
-    opacity, comp, blend_w, ptex, ptex_uv, ptex_c, _, alpha_v, aniso = no_wrappers(len(scene.materials))
+    opacity, comp, blend_w, ptex, ptex_uv, ptex_c, _, alpha_v, aniso, *_ = no_wrappers(len(scene.materials))
     texels, n = [], 0
 
     def scalar(i, slot, value, role):
@@ -536,16 +591,19 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
             if aniso[i] and m.shading is not None:
                 raise UnsupportedError(f"{where}: anisotropic roughness under a {m.shading['type']} is "
                                        "not modelled (the perturbed frame's tangent)")
+    kind = np.array([KIND_CODES.get(m.kind, -1) for m in scene.materials])
+    leaf, leaf_node, leaf_branch = _leaf_tables(kind, comp)
     for i, m in enumerate(scene.materials):
         if m.kind == "blendbsdf":
-            aniso[i] = max(aniso[comp[i, 0]], aniso[comp[i, 1]])
+            aniso[i] = max(aniso[r] for r in leaf[i] if r >= 0)
             if aniso[i] and m.shading is not None:
                 raise UnsupportedError(f"{algorithm}: material '{m.name or i}': anisotropic roughness "
                                        f"under a {m.shading['type']} is not modelled (the perturbed "
                                        "frame's tangent)")
     opacity, blend_w = np.clip(opacity, 0.0, 1.0), np.clip(blend_w, 0.0, 1.0)
     data = np.ascontiguousarray(np.concatenate(texels) if texels else np.zeros((0, 3)), dtype=np.float64)
-    return WrapperArrays(opacity, comp, blend_w, ptex, ptex_uv, ptex_c, data, alpha_v, aniso)
+    return WrapperArrays(opacity, comp, blend_w, ptex, ptex_uv, ptex_c, data, alpha_v, aniso, leaf, leaf_node,
+                         leaf_branch)
 
 
 def distribution_codes(scene: Scene) -> np.ndarray:

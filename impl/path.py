@@ -49,10 +49,12 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   :func:`impl.materials.named_conductor`), ``plastic`` and ``roughplastic``
   (a textured ``diffuse_reflectance`` included: ρ(u, v) as for ``diffuse``);
   two-sided opaque materials; ``thindielectric`` (:mod:`impl.bsdf`); a
-  ``blendbsdf`` of two of these (the component sampled by u0 against the weight,
-  the weight and pdf of the mixture as Mitsuba 3.9.1's ``blendbsdf.sample``:
-  the other component's f·cos and pdf at the sampled direction are added, also
-  when the sampled one is a delta; light samples see the weighted sum); a
+  ``blendbsdf`` of two of these or of other blendbsdfs (the component sampled by
+  u0 against the weight, level by level, :func:`_pick_leaf`; the weight and pdf of
+  the mixture as Mitsuba 3.9.1's ``blendbsdf.sample``: the other leaves' f·cos and
+  pdf at the sampled direction are added, each times the product of the weights
+  down to it, also when the sampled one is a delta; light samples see the weighted
+  sum); a
   ``mask`` around any of them (with probability 1 − opacity a null event: the
   ray goes straight on, weight 1, counted as a delta bounce and a depth step,
   as Mitsuba's ``path`` counts it; the nested BSDF's f and pdf times the
@@ -62,9 +64,11 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   constant or such a texture; Beckmann and GGX, :mod:`impl.microfacet`) in
   Mitsuba's shading frame, s along the surface's ∂p/∂u
   (:func:`impl.shading_frame.tangent`), not under a normal or bump map; a
-  textured ``specular_reflectance`` of a conductor, roughconductor or dielectric
-  (RGB; its value multiplies the reflected weights and, for the roughconductor,
-  f, as Mitsuba's, :func:`impl.materials.with_specular_textures`).  Shadow
+  textured ``specular_reflectance`` of a conductor or dielectric (smooth, rough or
+  thin; RGB; its value multiplies the reflected f and weights, as Mitsuba's,
+  :func:`impl.materials.with_specular_textures`), a textured
+  ``specular_transmittance`` the transmitted ones, and a conductor's textured
+  ``eta`` or ``k`` gives the Fresnel term of its value at the hit (:func:`_tint`).  Shadow
   rays stop at any surface, masks and thin dielectrics included (Mitsuba's
   ``path`` tests visibility with ``ray_test``); ``normalmap`` and ``bumpmap``
   around any of them
@@ -162,13 +166,14 @@ from core.errors import ParamError, UnsupportedError
 
 from .bsdf import bsdf_arrays, bsdf_eval_at, bsdf_pdf_at, bsdf_sample_at, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
-from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MaterialArrays,
-                        expand_components, with_specular_textures)
+from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC,
+                        MAT_THINDIELECTRIC, MaterialArrays, expand_components, with_specular_textures)
 from .camera import camera_params
 from .kernel import batch_kernel, run_tasks, take_task
 from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_with_lights,
                              sample_light)
-from .lighting import diffuse_albedo, environment_radiance, surface_at
+from .lighting import (diffuse_albedo, environment_radiance, surface_at, textured_fresnel, textured_params,
+                       transmittance_tint)
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, leave, refine, round_ray
 from .lowdiscrepancy import pixel_seed, sample_2d
@@ -225,32 +230,108 @@ def _roughness(B, mat, ns, prim, tri_uv, b1, b2):
 
 @njit(inline="always", cache=True)
 def _specular_texture(A: SceneArrays, B: MaterialArrays, mat):
-    """Whether ``mat`` is a conductor, roughconductor or dielectric whose
+    """Whether ``mat`` is a conductor or dielectric (smooth, rough or thin) whose
     ``specular_reflectance`` is a texture (:func:`impl.materials.with_specular_textures`
     moved it to the diffuse texture slot: ρ at the hit is its value)."""
     k = B.kind[mat]
-    return A.mat_tex[mat] != 0 and (k == MAT_CONDUCTOR or k == MAT_ROUGHCONDUCTOR or k == MAT_DIELECTRIC)
+    return A.mat_tex[mat] != 0 and (k == MAT_CONDUCTOR or k == MAT_ROUGHCONDUCTOR or k == MAT_DIELECTRIC
+                                    or k == MAT_ROUGHDIELECTRIC or k == MAT_THINDIELECTRIC)
+
+
+@njit(inline="always", cache=True)
+def _tinted(A: SceneArrays, B: MaterialArrays, mat):
+    """Whether ``mat``'s f or sample weight takes a factor read from a texture at the hit
+    (:func:`_tint`)."""
+    return _specular_texture(A, B, mat) or textured_params(A, mat)
+
+
+@njit(inline="always", cache=True)
+def _tint(A: SceneArrays, B: MaterialArrays, mat, prim, b1, b2, rho_r, rho_g, rho_b, wix, wiy, wiz, wox, woy,
+          woz):
+    """The factor (r, g, b) that textured parameters put on material ``mat``'s f·|cos| and
+    sample weight between local directions wi and wo, as Mitsuba multiplies by their
+    ``eval``: reflected (wi, wo on one side), a textured ``specular_reflectance`` (its
+    value ρ at the hit) and a conductor's Fresnel term of its textured η + ik at the
+    microfacet normal h = (wi + wo)/|wi + wo| (:func:`impl.lighting.textured_fresnel`;
+    the row's own term is 1); transmitted, a textured ``specular_transmittance``
+    (:func:`impl.lighting.transmittance_tint`)."""
+    if wiz * woz <= 0.0:
+        return transmittance_tint(A, mat, prim, b1, b2)
+    kr = kg = kb = 1.0
+    if _specular_texture(A, B, mat):
+        kr, kg, kb = rho_r, rho_g, rho_b
+    if textured_params(A, mat):
+        hx, hy, hz = wix + wox, wiy + woy, wiz + woz
+        lh = math.sqrt(hx * hx + hy * hy + hz * hz)
+        c = (wix * hx + wiy * hy + wiz * hz) / lh if lh > 0.0 else 1.0
+        fr, fg, fb = textured_fresnel(A, mat, prim, b1, b2, c)
+        kr, kg, kb = kr * fr, kg * fg, kb * fb
+    return kr, kg, kb
+
+
+@njit(inline="always", cache=True)
+def _leaf_weight(A: SceneArrays, B: MaterialArrays, mat, k, prim, b1, b2):
+    """The weight of leaf ``k`` of blendbsdf ``mat`` at a hit: over its blendbsdf
+    ancestors, the product of w (the second component taken) or 1 − w (the first), w
+    each one's weight there."""
+    ns = A.sph_radius.shape[0]
+    wk = 1.0
+    for d in range(B.leaf_node.shape[2]):
+        node = B.leaf_node[mat, k, d]
+        if node < 0:
+            break
+        w = scalar_param(B, node, 1, B.blend_w[node], ns, prim, A.tri_uv, b1, b2)
+        wk *= w if B.leaf_branch[mat, k, d] == 1 else 1.0 - w
+    return wk
+
+
+@njit(inline="always", cache=True)
+def _pick_leaf(A: SceneArrays, B: MaterialArrays, mat, u, prim, b1, b2):
+    """The leaf of blendbsdf ``mat`` a BSDF sample comes from, chosen by ``u`` as Mitsuba's
+    nested ``blendbsdf.sample`` calls choose (at each blendbsdf of weight w the first
+    component when u > w, u then rescaled to (u − w)/(1 − w), else the second, u/w):
+    ``(row, leaf index, its weight, the rescaled u)``."""
+    ns = A.sph_radius.shape[0]
+    row = mat
+    for d in range(B.leaf_node.shape[2] + 1):
+        if B.kind[row] != MAT_BLEND:
+            break
+        w = scalar_param(B, row, 1, B.blend_w[row], ns, prim, A.tri_uv, b1, b2)
+        if u > w:
+            row = B.comp[row, 0]
+            u = (u - w) / (1.0 - w)
+        else:
+            row = B.comp[row, 1]
+            u = u / w if w > 0.0 else 0.0
+    k = 0
+    while B.leaf[mat, k] != row:    # the path taken leads to one leaf; find its index
+        k += 1
+    return row, k, _leaf_weight(A, B, mat, k, prim, b1, b2), u
 
 
 @njit(cache=True)
-def _blend_eval_pdf(A: SceneArrays, B: MaterialArrays, mat, w, skip, prim, b1, b2, eta_scale,
+def _blend_eval_pdf(A: SceneArrays, B: MaterialArrays, mat, skip, prim, b1, b2, eta_scale,
                     wix, wiy, wiz, wox, woy, woz):
-    """A blendbsdf's f·|cos θ_o| (RGB) and pdf at (wi, wo): (1 − w) × those of its first
-    component + w × those of its second (Mitsuba's ``blendbsdf.eval_pdf``), leaving out
-    component ``skip`` (0 or 1; −1 none, passed as ``np.int64(-1)``: a literal would
-    compile it a second time).  A plain call, not inlined: it holds a second copy of
-    the BSDF dispatch, run only at blendbsdf vertices."""
+    """A blendbsdf's f·|cos θ_o| (RGB) and pdf at (wi, wo): the sum over its leaves of
+    the leaf's weight (:func:`_leaf_weight`) × its f and pdf, as Mitsuba's
+    ``blendbsdf.eval_pdf`` sums (1 − w) × its first component's + w × its second's,
+    nested ones in turn; leaving out leaf ``skip`` (−1 none, passed as ``np.int64(-1)``:
+    a literal would compile it a second time).  A plain call, not inlined: it holds a
+    second copy of the BSDF dispatch, run only at blendbsdf vertices."""
     fr = fg = fb = pdf = 0.0
-    for k in range(2):
+    for k in range(B.leaf.shape[1]):
+        c = B.leaf[mat, k]
+        if c < 0:
+            break
         if k == skip:
             continue
-        c = B.comp[mat, k]
-        wk = w if k == 1 else 1.0 - w
+        wk = _leaf_weight(A, B, mat, k, prim, b1, b2)
         rr, rg, rb = diffuse_albedo(A, c, prim, b1, b2)
         al, av = _roughness(B, c, A.sph_radius.shape[0], prim, A.tri_uv, b1, b2)
         er, eg, eb = bsdf_eval_at(B, c, al, av, rr, rg, rb, eta_scale, wix, wiy, wiz, wox, woy, woz)
-        if _specular_texture(A, B, c):
-            er, eg, eb = er * rr, eg * rg, eb * rb
+        if _tinted(A, B, c):
+            kr, kg, kb = _tint(A, B, c, prim, b1, b2, rr, rg, rb, wix, wiy, wiz, wox, woy, woz)
+            er, eg, eb = er * kr, eg * kg, eb * kb
         fr += wk * er
         fg += wk * eg
         fb += wk * eb
@@ -456,24 +537,20 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         mat = A.shape_material[shape]
         delta = is_delta(B, mat)
         dim = 2 + _DIMS_PER_VERTEX * depth
-        # A mask: its opacity here; a blendbsdf: its weight, and the component the BSDF
-        # sample will come from (Mitsuba: the second when u0 <= w), u0 rescaled for it.
+        # A mask: its opacity here; a blendbsdf: the leaf the BSDF sample will come
+        # from (Mitsuba: the second component when u0 <= w, at every level), its weight
+        # and u0 rescaled for it.
         u0s = uniform_from(h, dim + 3)
         opac = B.opacity[mat]
         if opac < 1.0:
             opac = scalar_param(B, mat, 0, opac, ns, prim, A.tri_uv, b1, b2)
         smat = mat
         blend = B.kind[mat] == MAT_BLEND
-        bw = 0.0
         ck = 0
+        wk = ub = 0.0
         if blend:
-            bw = scalar_param(B, mat, 1, B.blend_w[mat], ns, prim, A.tri_uv, b1, b2)
             us = u0s / opac if opac < 1.0 else u0s     # the nested BSDF's share of u0
-            if us > bw:
-                smat = B.comp[mat, 0]
-            else:
-                smat = B.comp[mat, 1]
-                ck = 1
+            smat, ck, wk, ub = _pick_leaf(A, B, mat, us, prim, b1, b2)
         alpha, alpha_v = _roughness(B, smat, ns, prim, A.tri_uv, b1, b2)   # textured: its value here
         # A two-sided opaque BSDF is seen from the front on both sides.
         back = not is_dielectric(B, mat) and A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
@@ -509,7 +586,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         else:
             rho_r, rho_g, rho_b = diffuse_albedo(A, smat, prim, b1, b2)
         eta_scale = eta_scale_at(S, mat, w0) if spectral else 1.0
-        spec_tex = _specular_texture(A, B, smat)
+        tinted = _tinted(A, B, smat)
 
         # Next-event estimation: one light sample, its MIS weight, and its shadow ray
         # queued with the contribution it adds if nothing blocks it.
@@ -528,13 +605,15 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
                 wox, woy, woz = to_local(fx, fy, fz, qx, qy, qz, nx, ny, nz, lx, ly, lz)
                 bpdf = 0.0
                 if blend:
-                    fr, fg, fb, bpdf = _blend_eval_pdf(A, B, mat, bw, np.int64(-1), prim, b1, b2,
+                    fr, fg, fb, bpdf = _blend_eval_pdf(A, B, mat, np.int64(-1), prim, b1, b2,
                                                        eta_scale, wix, wiy, wiz, wox, woy, woz)
                 else:
                     fr, fg, fb = bsdf_eval_at(B, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale,
                                               wix, wiy, wiz, wox, woy, woz)
-                    if spec_tex:             # a textured specular_reflectance
-                        fr, fg, fb = fr * rho_r, fg * rho_g, fb * rho_b
+                    if tinted:               # textured specular colours or conductor IOR
+                        kr, kg, kb = _tint(A, B, smat, prim, b1, b2, rho_r, rho_g, rho_b, wix, wiy, wiz,
+                                           wox, woy, woz)
+                        fr, fg, fb = fr * kr, fg * kg, fb * kb
                 if opac < 1.0:               # a mask scatters by its BSDF with probability opac
                     fr, fg, fb = fr * opac, fg * opac, fb * opac
                 if terminator:
@@ -589,18 +668,18 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         else:
             if opac < 1.0:
                 u0 = u0 / opac
-            if blend:                    # rescaled for the chosen component
-                u0 = (u0 - bw) / (1.0 - bw) if ck == 0 else (u0 / bw if bw > 0.0 else 0.0)
+            if blend:                    # rescaled for the chosen leaf
+                u0 = ub
             wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample_at(
                 B, smat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
-            if spec_tex and woz * wiz > 0.0:   # reflected: a textured specular_reflectance
-                wr, wg, wb = wr * rho_r, wg * rho_g, wb * rho_b
+            if tinted and pdf > 0.0:     # textured specular colours or conductor IOR
+                kr, kg, kb = _tint(A, B, smat, prim, b1, b2, rho_r, rho_g, rho_b, wix, wiy, wiz, wox, woy, woz)
+                wr, wg, wb = wr * kr, wg * kg, wb * kb
             if blend and pdf > 0.0:
                 # Mitsuba's blendbsdf.sample: the mixture's pdf, and the weight
-                # (w_k f_k cos / 1 + the other's weighted f cos) / that pdf.
-                orr, org, orb, opdf = _blend_eval_pdf(A, B, mat, bw, ck, prim, b1, b2, eta_scale,
+                # (w_k f_k cos + the other leaves' weighted f cos) / that pdf.
+                orr, org, orb, opdf = _blend_eval_pdf(A, B, mat, ck, prim, b1, b2, eta_scale,
                                                       wix, wiy, wiz, wox, woy, woz)
-                wk = bw if ck == 1 else 1.0 - bw
                 mix = wk * pdf + opdf
                 if mix > 0.0:
                     wr = (orr + wk * wr * pdf) / mix
@@ -771,6 +850,10 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
                  "a spot's texture (an RGB image)"),
                 ("textured specular reflectance" in scene_features(scene),
                  "a textured specular_reflectance (an RGB texture)"),
+                ("textured specular transmittance" in scene_features(scene),
+                 "a textured specular_transmittance (an RGB texture)"),
+                ("textured conductor eta/k" in scene_features(scene),
+                 "a conductor's textured eta or k (an RGB texture)"),
                 (any(m.kind == "blendbsdf" for m in full.materials),
                  "the blendbsdf BSDF (its components' reflectances are RGB here)")):
             if present:
@@ -815,5 +898,6 @@ ALGORITHM = Algorithm(
     render=render,
     models=frozenset({"envmap", "plastic", "roughplastic", "plastic texture", "normalmap", "bumpmap",
                       "projector", "thindielectric", "blendbsdf", "mask", "textured roughness",
-                      "anisotropic roughness", "spot texture", "textured specular reflectance"}),
+                      "anisotropic roughness", "spot texture", "textured specular reflectance",
+                      "textured specular transmittance", "textured conductor eta/k"}),
 )

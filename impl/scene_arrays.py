@@ -14,7 +14,10 @@ refuses the kinds it cannot model.  Textured diffuse reflectance: ``mat_tex``
 code 0 none, 1 checkerboard (colours and the 2x3 ``to_uv`` map per material),
 2 bitmap (texels of every image concatenated in ``tex_data``, row-major, with
 each material's offset, size, wrap and filter codes of :mod:`impl.textures`),
-looked up at the triangle's interpolated ``tri_uv``.  A ``constant``
+looked up at the triangle's interpolated ``tri_uv``.  RGB parameter textures, the
+same codes in three slots (``mat_ptex``, :data:`PTEX_TRANSMITTANCE`, :data:`PTEX_ETA`,
+:data:`PTEX_K`): a dielectric's ``specular_transmittance`` and a conductor's ``eta`` /
+``k`` (:func:`impl.lighting.param_rgb`).  A ``constant``
 environment emitter is ``env_radiance`` (one row, or none); an ``envmap``
 emitter is ``env_image`` (the map times its scale; 0 rows without one) with its
 rotation ``env_frame`` and luminance sampling tables ``env_pdf`` / ``env_cdf``
@@ -46,11 +49,16 @@ FILTER_CODES = {"bilinear": FILTER_BILINEAR, "nearest": FILTER_NEAREST}
 
 __all__ = ["SceneArrays", "diffuse_texture", "flatten", "triangle_normal", "triangle_normals", "flatten_cached", "scene_memo", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
            "LIGHT_PROJECTOR", "SHADE_NONE", "SHADE_NORMALMAP", "SHADE_BUMPMAP",
-           "TEX_NONE", "TEX_CHECKERBOARD", "TEX_BITMAP", "MATERIAL_CODES"]
+           "TEX_NONE", "TEX_CHECKERBOARD", "TEX_BITMAP", "MATERIAL_CODES",
+           "PTEX_TRANSMITTANCE", "PTEX_ETA", "PTEX_K"]
 
 LIGHT_POINT, LIGHT_DIRECTIONAL, LIGHT_SPOT, LIGHT_PROJECTOR = 0, 1, 2, 3
 SHADE_NONE, SHADE_NORMALMAP, SHADE_BUMPMAP = 0, 1, 2
 TEX_NONE, TEX_CHECKERBOARD, TEX_BITMAP = 0, 1, 2
+
+#: Slots of the RGB parameter textures (``mat_ptex``): a dielectric's
+#: ``specular_transmittance``, a conductor's ``eta`` and ``k``.
+PTEX_TRANSMITTANCE, PTEX_ETA, PTEX_K = 0, 1, 2
 
 
 class SceneArrays(NamedTuple):
@@ -108,6 +116,12 @@ class SceneArrays(NamedTuple):
     light_tex: np.ndarray       # (L, 5) projector irradiance / spot texture bitmap (width 0: none)
     light_tex_uv: np.ndarray    # (L, 2, 3) its to_uv map
     tri_ng: np.ndarray          # (T, 3) unit geometric normal (v1 − v0) × (v2 − v0) / |…|
+    mat_ptex: np.ndarray        # (M, 3, 6) int RGB parameter textures (PTEX_*): code (TEX_*; 0 the
+                                # constant in mat_ptex_c[:, :, 0]), first texel in tex_data, width,
+                                # height, wrap, filter
+    mat_ptex_c: np.ndarray      # (M, 3, 2, 3) a checkerboard's color0, color1; a bitmap's mean texel
+                                # in row 0; the constant of an untextured slot in row 0
+    mat_ptex_uv: np.ndarray     # (M, 3, 2, 3) their 2D affine to_uv maps
 
     @property
     def n_spheres(self) -> int:
@@ -274,6 +288,8 @@ def flatten(scene: Scene) -> SceneArrays:
                     for m in scene.materials]
     mat_shade_scale = [float(m.shading.get("scale", 1.0)) if m.shading else 0.0 for m in scene.materials]
 
+    mat_ptex, mat_ptex_c, mat_ptex_uv = _param_textures(scene.materials, bitmap_record)
+
     envmap = getattr(scene, "envmap", None)
     if envmap is not None:
         env = envmap_tables(envmap)
@@ -346,7 +362,47 @@ def flatten(scene: Scene) -> SceneArrays:
         light_proj=f64(light_proj, (-1, 3)),
         light_tex=np.asarray(light_tex, dtype=np.int64).reshape(-1, 5),
         light_tex_uv=f64(light_tex_uv, (-1, 2, 3)),
+        mat_ptex=mat_ptex,
+        mat_ptex_c=mat_ptex_c,
+        mat_ptex_uv=mat_ptex_uv,
     )
+
+
+def _param_textures(materials, bitmap_record):
+    """The RGB parameter textures of ``materials`` (``mat_ptex``, ``mat_ptex_c``,
+    ``mat_ptex_uv`` of :class:`SceneArrays`): a dielectric's textured
+    ``specular_transmittance``; a conductor's textured ``eta`` or ``k``, the other of the
+    two then its constant (Mitsuba's defaults 0 and 1) in an untextured slot, so that
+    both are read at the hit.  ``bitmap_record`` appends a bitmap's texels to the
+    scene's and returns its record."""
+    from core.scene import IOR_TEXTURED, TRANSMITTANCE_TEXTURED, texture_mean
+
+    from .materials import rgb_param
+
+    n = len(materials)
+    code = np.zeros((n, 3, 6), dtype=np.int64)
+    c = np.zeros((n, 3, 2, 3))
+    uv = np.zeros((n, 3, 2, 3))
+    uv[:, :, 0, 0] = uv[:, :, 1, 1] = 1.0
+    for i, m in enumerate(materials):
+        slots = []
+        if m.kind in TRANSMITTANCE_TEXTURED and "specular_transmittance" in m.textures:
+            slots.append((PTEX_TRANSMITTANCE, "specular_transmittance", 1.0))
+        if m.kind in IOR_TEXTURED and ("eta" in m.textures or "k" in m.textures):
+            slots += [(PTEX_ETA, "eta", 0.0), (PTEX_K, "k", 1.0)]
+        for slot, name, default in slots:
+            t = m.textures.get(name)
+            if t is None:
+                c[i, slot, 0] = rgb_param(m.params, name, default, f"material '{m.name or i}'")
+                continue
+            uv[i, slot] = np.asarray(t["to_uv"])[:2]
+            if t["type"] == "checkerboard":
+                code[i, slot, 0] = TEX_CHECKERBOARD
+                c[i, slot] = (t["color0"], t["color1"])
+            else:
+                code[i, slot] = (TEX_BITMAP,) + bitmap_record(t, f"the {name} of a {m.kind}")
+                c[i, slot, 0] = texture_mean(t)
+    return code, c, uv
 
 
 #: Per-scene memo of :func:`scene_memo`: id(scene) -> (weak reference, content key, {key: value}).

@@ -30,7 +30,11 @@ For every eye ray, the ray tree over *delta* (perfectly specular) surfaces:
   Total internal reflection leaves the reflected branch only (F = 1).
 * A textured ``specular_reflectance`` (``checkerboard`` or ``bitmap``, on shapes with
   uvs) of either: its value at the hit multiplies the reflected branch, as Mitsuba
-  multiplies by the texture's ``eval`` (:func:`impl.lighting.specular_tint`).
+  multiplies by the texture's ``eval`` (:func:`impl.lighting.specular_tint`); a textured
+  ``specular_transmittance`` of a dielectric the transmitted branch
+  (:func:`impl.lighting.transmittance_tint`); a textured ``eta`` or ``k`` of a
+  conductor gives the Fresnel reflectance of its value at the hit
+  (:func:`impl.lighting.textured_fresnel`).
 * At the first non-delta (``diffuse``) hit of a branch: the direct light of
   every emitter — delta lights and area emitters (``light_samples`` shadow
   rays each) — with the Phong/Lambert model of ``raycast``
@@ -205,14 +209,15 @@ import numpy as np
 from numba import njit
 
 from core.algorithm import Algorithm, Param, RenderResult
-from core.scene import Scene
-from core.errors import ParamError
+from core.scene import Scene, scene_features
+from core.errors import ParamError, UnsupportedError
 
 from .camera import camera_params
 from .kernel import batch_kernel, run_tasks, take_task
 from .fresnel import fresnel_conductor, fresnel_dielectric, reflect, refract
 from .lighting import (MAP_NONE, SHADOW_MODES, LocalModel, diffuse_albedo, direct_batch, environment_radiance,
-                       local_model, map_weight, mapped_normal, specular_tint, store_point, surface_at)
+                       local_model, map_weight, mapped_normal, specular_tint, store_point, surface_at,
+                       textured_fresnel, transmittance_tint)
 from .materials import SpecularArrays, material_arrays, with_specular_textures_cached
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, leave, ray_config, refine, round_ray
@@ -349,8 +354,8 @@ def dielectric_split(A: SceneArrays, S, mat, prim, b1, b2, dx, dy, dz, nx, ny, n
     """A ray of direction d and branch weight w meeting smooth dielectric ``mat`` (``S``:
     its material arrays; n the normal its BSDF is taken about, cos_v = n·(−d)): the exact
     Fresnel factor F splits it (thesis 2.4.4) into a transmitted branch of weight
-    (1 − F) η_ti² × ``specular_transmittance`` (the radiance scaling of Mitsuba's
-    Radiance transport) and a reflected one of weight F × ``specular_reflectance``
+    (1 − F) η_ti² × ``specular_transmittance`` (× its texture at the hit; the radiance
+    scaling of Mitsuba's Radiance transport) and a reflected one of weight F × ``specular_reflectance``
     (× its texture at the hit), each direction weighted by the map's
     :func:`impl.lighting.map_weight`.  Counts a total internal reflection and an
     arriving medium whose IOR is not the interface's (``counts``: :data:`COUNTERS`).
@@ -370,9 +375,10 @@ def dielectric_split(A: SceneArrays, S, mat, prim, b1, b2, dx, dy, dz, nx, ny, n
     if F < 1.0:
         tx, ty, tz = refract(dx, dy, dz, nx, ny, nz, cos_v, cos_t, eta_ti)
         scale = (1.0 - F) * eta_ti * eta_ti * map_weight(nx, ny, nz, sx, sy, sz, code, tx, ty, tz)
-        twr = wr * scale * S.spec_trans[mat, 0]
-        twg = wg * scale * S.spec_trans[mat, 1]
-        twb = wb * scale * S.spec_trans[mat, 2]
+        ur, ug, ub = transmittance_tint(A, mat, prim, b1, b2)
+        twr = wr * scale * S.spec_trans[mat, 0] * ur
+        twg = wg * scale * S.spec_trans[mat, 1] * ug
+        twb = wb * scale * S.spec_trans[mat, 2] * ub
     qx, qy, qz = reflect(dx, dy, dz, nx, ny, nz)
     F *= map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
     kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
@@ -387,16 +393,17 @@ def conductor_mirror(A: SceneArrays, S, mat, prim, b1, b2, dx, dy, dz, nx, ny, n
                      wr, wg, wb):
     """A ray of direction d and branch weight w meeting smooth conductor ``mat``: the mirror
     direction R = I − 2(N·I)N about n and its weight w × the conductor Fresnel reflectance
-    of η + ik (RGB) at cos_v = n·(−d) × ``specular_reflectance`` (× its texture at the
-    hit) × the map's :func:`impl.lighting.map_weight`.  Returns ``(weight, direction)``."""
+    of η + ik (RGB; textured η or k read at the hit) at cos_v = n·(−d) ×
+    ``specular_reflectance`` (× its texture at the hit) × the map's :func:`impl.lighting.map_weight`.  Returns ``(weight, direction)``."""
     qx, qy, qz = reflect(dx, dy, dz, nx, ny, nz)
     f = map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
     fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])
     fg = fresnel_conductor(cos_v, S.cond_eta[mat, 1], S.cond_k[mat, 1])
     fb = fresnel_conductor(cos_v, S.cond_eta[mat, 2], S.cond_k[mat, 2])
     kr, kg, kb = specular_tint(A, mat, prim, b1, b2)
-    return (wr * fr * S.spec_refl[mat, 0] * f * kr, wg * fg * S.spec_refl[mat, 1] * f * kg,
-            wb * fb * S.spec_refl[mat, 2] * f * kb, qx, qy, qz)
+    ur, ug, ub = textured_fresnel(A, mat, prim, b1, b2, cos_v)
+    return (wr * fr * S.spec_refl[mat, 0] * f * kr * ur, wg * fg * S.spec_refl[mat, 1] * f * kg * ug,
+            wb * fb * S.spec_refl[mat, 2] * f * kb * ub, qx, qy, qz)
 
 
 @njit(inline="always", cache=True)
@@ -612,10 +619,22 @@ def _check(params: dict) -> None:
         raise ParamError("whitted: light_samples must be >= 0")
 
 
+def _check_scene(scene: Scene, params: dict) -> None:
+    """Refuse what transmissive shadow rays leave out: a textured
+    ``specular_transmittance`` (they filter by the material's constant one)."""
+    if params["shadow_mode"] != "transmissive":
+        return
+    where = scene_features(scene).get("textured specular transmittance")
+    if where is not None:
+        raise UnsupportedError(f"whitted shadow_mode=transmissive: {where}: shadow rays filter by a "
+                               "constant specular_transmittance; a textured one is not modelled on them")
+
+
 def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     """Render ``scene`` with the Whitted ray tracer; ``params`` as from ``ALGORITHM.parse_params``."""
     t0 = time.perf_counter()
     _check(params)
+    _check_scene(scene, params)
     scene = with_specular_textures_cached(scene)
     S = scene_memo(scene, "whitted.materials", lambda: material_arrays(scene))
     A = flatten_cached(scene)
@@ -646,6 +665,7 @@ def trace(scene: Scene, origin, direction, params: dict | None = None, *, seed: 
     """
     p = ALGORITHM.parse_params(params or {})
     _check(p)
+    _check_scene(scene, p)
     scene = with_specular_textures_cached(scene)
     S = material_arrays(scene)
     A = flatten(scene)
@@ -691,5 +711,6 @@ ALGORITHM = Algorithm(
     ),
     render=render,
     models=frozenset({"envmap", "projector", "spot texture", "normalmap", "bumpmap",
-                      "textured specular reflectance"}),
+                      "textured specular reflectance", "textured specular transmittance",
+                      "textured conductor eta/k"}),
 )

@@ -2,6 +2,7 @@
 the path tracer (the textured roughness in distributed ray tracing too).
 
 * Each of ``suites/vocabulary/thindielectric.xml``, ``blendbsdf.xml``,
+  ``blendbsdf_nested.xml`` (blendbsdfs inside blendbsdfs, a delta leaf among them),
   ``mask.xml``, ``textured_roughness.xml`` and ``checker_wrappers.xml`` (a
   checkerboard as a mask's opacity and as a blend weight) passes the per-pixel
   Z-test against Mitsuba's ``path`` (own 256 spp against 1024 spp × 8 passes),
@@ -9,7 +10,8 @@ the path tracer (the textured roughness in distributed ray tracing too).
   Mitsuba's.
 * Negative controls: the same renders with the feature ignored or mis-modelled
   fail the Z-test — the thin dielectrics drawn as solid ``dielectric``\\ s, the
-  blend weights swapped (w ↔ 1 − w), the masks ignored (opacity 1), the
+  blend weights swapped (w ↔ 1 − w; of the nested blends only in the nested scene), the
+  masks ignored (opacity 1), the
   roughness textures and the wrappers' checkerboards replaced by their means.
 * The other algorithms still refuse the four by name (anisotropic roughness:
   ``tests/test_vocabulary_anisotropic.py``), except the textured roughness, which
@@ -35,7 +37,7 @@ from core.loader import load_scene
 from gibench import registry
 
 VOCAB = Path(__file__).resolve().parent.parent / "suites" / "vocabulary"
-SCENES = {name: VOCAB / f"{name}.xml" for name in ("thindielectric", "blendbsdf", "mask",
+SCENES = {name: VOCAB / f"{name}.xml" for name in ("thindielectric", "blendbsdf", "blendbsdf_nested", "mask",
                                                     "textured_roughness", "checker_wrappers")}
 
 
@@ -45,6 +47,15 @@ def _thin_as_dielectric(m):
 
 def _weights_swapped(m):
     return dataclasses.replace(m, components=m.components[::-1]) if m.kind == "blendbsdf" else m
+
+
+def _inner_weights_swapped(m):
+    """The blend weights of the blendbsdfs nested in a blendbsdf swapped (w ↔ 1 − w)."""
+    if m.kind != "blendbsdf":
+        return m
+    return dataclasses.replace(m, components=tuple(
+        dataclasses.replace(c, components=c.components[::-1]) if c.kind == "blendbsdf" else c
+        for c in m.components))
 
 
 def _mask_ignored(m):
@@ -73,7 +84,8 @@ def _checkers_as_means(m):
 
 
 #: Per scene, the mis-modelling the Z-test must reject.
-WRONG = {"thindielectric": _thin_as_dielectric, "blendbsdf": _weights_swapped, "mask": _mask_ignored,
+WRONG = {"thindielectric": _thin_as_dielectric, "blendbsdf": _weights_swapped,
+         "blendbsdf_nested": _inner_weights_swapped, "mask": _mask_ignored,
          "textured_roughness": _roughness_as_mean, "checker_wrappers": _checkers_as_means}
 
 
@@ -98,7 +110,8 @@ def test_the_ztest_rejects_the_feature_mis_modelled(name):
 
 
 @pytest.mark.parametrize("name, feature", [("thindielectric", "thindielectric"),
-                                           ("blendbsdf", "blendbsdf"), ("mask", "mask"),
+                                           ("blendbsdf", "blendbsdf"), ("blendbsdf_nested", "blendbsdf"),
+                                           ("mask", "mask"),
                                            ("textured_roughness", "textured roughness"),
                                            ("checker_wrappers", "mask")])
 def test_other_algorithms_refuse_them_by_name(name, feature):
