@@ -26,8 +26,8 @@ plus:
   D·cos sampling per the material's ``sample_visible``; a textured ``alpha`` (a
   ``bitmap`` or ``checkerboard``, read as Mitsuba's ``eval_1``) at the hit;
   anisotropic roughness (``alpha_u`` / ``alpha_v``, constants or textures) in
-  Mitsuba's shading frame, its tangent along ∂p/∂u (static shapes, no normal
-  or bump map).  A textured ``specular_reflectance`` of a
+  Mitsuba's shading frame, its tangent along ∂p/∂u (static shapes; under a
+  normal map made orthogonal to the perturbed normal; no bump map).  A textured ``specular_reflectance`` of a
   conductor or dielectric (smooth or rough) multiplies the reflected
   branch by its value at the hit, as Mitsuba's ``eval`` of the texture does
   (:func:`impl.lighting.specular_tint`), a textured ``specular_transmittance``
@@ -251,7 +251,8 @@ from .camera import SENSOR_THINLENS, camera_params, eye_ray, eye_ray_lens
 from .kernel import batch_kernel, by_reference, dereference, interleaved, run_tasks, take_task, task_stride
 from .filters import FILTER_BOX, S_B, S_G, S_R, S_W, S_X, S_Y, film_filter, reconstruct
 from .fresnel import fresnel_conductor, fresnel_dielectric
-from .lighting import (SP_DDIM, SP_DSPP, LocalModel, diffuse_albedo, direct_light_dims, environment_radiance,
+from .lighting import (MAP_NONE, SP_DDIM, SP_DSPP, LocalModel, diffuse_albedo, direct_light_dims,
+                       environment_radiance,
                        local_model, map_weight, mapped_normal_at, specular_tint, spot_falloff, surface,
                        textured_fresnel, transmittance_tint)
 from .bsdf import cook_torrance_sample, diffuse_transmission_sample
@@ -268,7 +269,7 @@ from .samplers import (DIM_INDEPENDENT, DIM_SOBOL, DIM_STRATIFIED, adaptive_chil
                        dim_1d, dim_2d, gaussian_jitter_pattern, jitter_pattern, poisson_disk_pattern,
                        random_pattern, sobol_pattern, statistical_done, uniform_pattern)
 from .scene_arrays import LIGHT_DIRECTIONAL, LIGHT_SPOT, SceneArrays, flatten_cached, scene_memo
-from .shading_frame import tangent
+from .shading_frame import perturbed_tangent, tangent
 from .textures import scalar_param
 from .tracer import (DX, DY, DZ, OX, OY, OZ, TMAX, TMIN, Batch, Film, accumulate, closest_batch, first,
                      new_batch, new_film, packet_batch, ray_config_cached, store, take_pending)
@@ -772,9 +773,15 @@ def _sample_lobe(A, S, wraps, dist, gmodel, mat, mkind, prim, b1, b2, hit, mediu
         au, av = _alpha(A, S, wraps, mat, prim, b1, b2)
     if av >= 0.0:
         # Anisotropic roughness: Mitsuba's shading frame, its tangent along ∂p/∂u
-        # (:func:`impl.shading_frame.tangent`; not under a normal or bump map, refused).
-        tx, ty, tz = tangent(prim, A.sph_radius.shape[0], b1, b2, px, py, pz, A.sph_center, A.tri_v, A.tri_uv,
-                             A.tri_has_uv, gx, gy, gz, nx, ny, nz)
+        # (:func:`impl.shading_frame.tangent`); under a normal map that tangent made
+        # orthogonal to the perturbed normal (a bump map is refused).
+        if code != MAP_NONE:
+            tx, ty, tz = tangent(prim, A.sph_radius.shape[0], b1, b2, px, py, pz, A.sph_center, A.tri_v,
+                                 A.tri_uv, A.tri_has_uv, gx, gy, gz, sx, sy, sz)
+            tx, ty, tz = perturbed_tangent(tx, ty, tz, nx, ny, nz)
+        else:
+            tx, ty, tz = tangent(prim, A.sph_radius.shape[0], b1, b2, px, py, pz, A.sph_center, A.tri_v,
+                                 A.tri_uv, A.tri_has_uv, gx, gy, gz, nx, ny, nz)
         bx, by, bz = ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx
     else:
         tx, ty, tz, bx, by, bz = _frame(nx, ny, nz)

@@ -535,8 +535,8 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
     ------
     UnsupportedError
         A texture other than a bitmap or checkerboard as opacity, blend weight or
-        roughness; anisotropic roughness under a normal or bump map (the perturbed
-        frame's tangent is not modelled).
+        roughness; anisotropic roughness under a bump map (the bump frame's tangent is
+        not modelled).
     """
     from .scene_arrays import FILTER_CODES, TEX_BITMAP, TEX_CHECKERBOARD, WRAP_CODES
 
@@ -588,18 +588,17 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
             if "alpha" in m.textures:
                 alpha_v[i] = au
             aniso[i] = int(au != alpha_v[i] or "alpha_u" in m.textures or "alpha_v" in m.textures)
-            if aniso[i] and m.shading is not None:
-                raise UnsupportedError(f"{where}: anisotropic roughness under a {m.shading['type']} is "
-                                       "not modelled (the perturbed frame's tangent)")
+            if aniso[i] and m.shading is not None and m.shading["type"] == "bumpmap":
+                raise UnsupportedError(f"{where}: anisotropic roughness under a bumpmap is not modelled "
+                                       "(the bump frame's tangent)")
     kind = np.array([KIND_CODES.get(m.kind, -1) for m in scene.materials])
     leaf, leaf_node, leaf_branch = _leaf_tables(kind, comp)
     for i, m in enumerate(scene.materials):
         if m.kind == "blendbsdf":
             aniso[i] = max(aniso[r] for r in leaf[i] if r >= 0)
-            if aniso[i] and m.shading is not None:
+            if aniso[i] and m.shading is not None and m.shading["type"] == "bumpmap":
                 raise UnsupportedError(f"{algorithm}: material '{m.name or i}': anisotropic roughness "
-                                       f"under a {m.shading['type']} is not modelled (the perturbed "
-                                       "frame's tangent)")
+                                       "under a bumpmap is not modelled (the bump frame's tangent)")
     opacity, blend_w = np.clip(opacity, 0.0, 1.0), np.clip(blend_w, 0.0, 1.0)
     data = np.ascontiguousarray(np.concatenate(texels) if texels else np.zeros((0, 3)), dtype=np.float64)
     return WrapperArrays(opacity, comp, blend_w, ptex, ptex_uv, ptex_c, data, alpha_v, aniso, leaf, leaf_node,

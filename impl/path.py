@@ -63,7 +63,9 @@ Exactly the quantity of Mitsuba 3's ``path`` integrator at the same
   Mitsuba's ``eval_1``; anisotropic roughness (``alpha_u``/``alpha_v``, each a
   constant or such a texture; Beckmann and GGX, :mod:`impl.microfacet`) in
   Mitsuba's shading frame, s along the surface's ∂p/∂u
-  (:func:`impl.shading_frame.tangent`), not under a normal or bump map; a
+  (:func:`impl.shading_frame.tangent`; under a normal map made orthogonal to the
+  perturbed normal, :func:`impl.shading_frame.perturbed_tangent`; not under a bump
+  map); a
   textured ``specular_reflectance`` of a conductor or dielectric (smooth, rough or
   thin; RGB; its value multiplies the reflected f and weights, as Mitsuba's,
   :func:`impl.materials.with_specular_textures`), a textured
@@ -180,7 +182,7 @@ from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, scene_memo
-from .shading_frame import perturbed_normal, same_side, shadow_terminator, tangent
+from .shading_frame import perturbed_normal, perturbed_tangent, same_side, shadow_terminator, tangent
 from .textures import bitmap, checkerboard, luminance, scalar_param
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
@@ -568,7 +570,11 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         if aniso:
             fx, fy, fz = tangent(prim, ns, b1, b2, px, py, pz, A.sph_center, A.tri_v, A.tri_uv,
                                  A.tri_has_uv, gx, gy, gz, sx, sy, sz)
-            qx, qy, qz = sy * fz - sz * fy, sz * fx - sx * fz, sx * fy - sy * fx
+            if shade != 0:           # a normal map's frame: that tangent about n_p
+                fx, fy, fz = perturbed_tangent(fx, fy, fz, nx, ny, nz)
+                qx, qy, qz = ny * fz - nz * fy, nz * fx - nx * fz, nx * fy - ny * fx
+            else:
+                qx, qy, qz = sy * fz - sz * fy, sz * fx - sx * fz, sx * fy - sy * fx
         else:
             fx = fy = fz = qx = qy = qz = 0.0
         if back:

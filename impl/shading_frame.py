@@ -46,9 +46,14 @@ vanishing bumped cross product) n_p is the unperturbed s, and a tangent ∂p/∂
 along n_s is replaced by any tangent.
 
 Only the normal matters to the isotropic BSDFs, so the tracers build their own
-tangents around n_p; Mitsuba's tangent of the perturbed frame, and hence an
-anisotropic BSDF under a normal map, is not reproduced (refused).  Triangles
-only: the loader gives spheres no uv.
+tangents around n_p.  An anisotropic BSDF under a ``normalmap`` takes Mitsuba
+3.9.1's tangent of the perturbed frame: the unperturbed shading frame's tangent s
+made orthogonal to n_p and normalised (:func:`perturbed_tangent`; in Mitsuba, e_x
+of the local frame Gram–Schmidt-ed against the local n_p); mirrored or negated
+with n_p on the back of a two-sided material, which leaves its axis (all an
+anisotropic D sees) unchanged.  Under a ``bumpmap`` it is refused: 3.9.1's bump
+frame builds its tangent from ∂p/∂u and a normal in local coordinates, which is
+not reproduced.  Triangles only: the loader gives spheres no uv.
 
 The tangent frame of an anisotropic BSDF (:func:`tangent`): Mitsuba's
 ``SurfaceInteraction::initialize_sh_frame`` (3.9) takes s = ∂p/∂u made orthogonal to
@@ -70,7 +75,8 @@ from numba import njit
 
 from .textures import bitmap, bitmap_grad
 
-__all__ = ["tri_dpdu_dpdv", "tangent", "perturbed_normal", "same_side", "shadow_terminator"]
+__all__ = ["tri_dpdu_dpdv", "tangent", "perturbed_tangent", "perturbed_normal", "same_side",
+           "shadow_terminator"]
 
 
 @njit(inline="always", cache=True)
@@ -115,8 +121,17 @@ def tangent(prim, ns, b1, b2, px, py, pz, sph_center, tri_v, tri_uv, tri_has_uv,
             dx, dy, dz, _a, _b, _c = tri_dpdu_dpdv(v, tri_uv[j], gx, gy, gz)
         else:
             dx, dy, dz = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1], v[1, 2] - v[0, 2]
-    d = nx * dx + ny * dy + nz * dz
-    ex, ey, ez = dx - d * nx, dy - d * ny, dz - d * nz
+    return perturbed_tangent(dx, dy, dz, nx, ny, nz)
+
+
+@njit(inline="always", cache=True)
+def perturbed_tangent(tx, ty, tz, nx, ny, nz):
+    """Vector t made orthogonal to the unit normal n and normalised (Gram–Schmidt; any
+    tangent of n where t lies along n): :func:`tangent` of ∂p/∂u, and the tangent of a
+    normal map's perturbed frame from the unperturbed frame's tangent and the perturbed
+    normal."""
+    d = nx * tx + ny * ty + nz * tz
+    ex, ey, ez = tx - d * nx, ty - d * ny, tz - d * nz
     le = math.sqrt(ex * ex + ey * ey + ez * ez)
     if le > 0.0:
         return ex / le, ey / le, ez / le
