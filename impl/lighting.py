@@ -1333,19 +1333,28 @@ def specular_tint(A: SceneArrays, mat, prim, b1, b2):
     (Mitsuba multiplies the reflected light by the texture's ``eval``), else 1 — the
     constant ``specular_reflectance`` is the caller's per-material factor.  Such BSDFs
     have no diffuse texture of their own, so a texture code on them is always the moved
-    one."""
+    one.  The lookup is a plain call (:func:`_albedo_at`): it runs only at textured
+    materials, and one compiled copy serves every call site."""
     if A.mat_tex[mat] == 0:
         return 1.0, 1.0, 1.0
+    return _albedo_at(A, mat, prim, b1, b2)
+
+
+@njit(cache=True)
+def _albedo_at(A: SceneArrays, mat, prim, b1, b2):
+    """:func:`diffuse_albedo`, compiled once and called."""
     return diffuse_albedo(A, mat, prim, b1, b2)
 
 
-@njit(inline="always", cache=True)
+@njit(cache=True)
 def param_rgb(A: SceneArrays, mat, slot, prim, b1, b2):
     """RGB parameter texture ``slot`` (``PTEX_*`` of :mod:`impl.scene_arrays`) of
     material ``mat`` at a hit: a checkerboard's or bitmap's value at (u', v') = to_uv ·
     (u, v, 1), as :func:`diffuse_albedo` looks it up, or the slot's constant.  A
     primitive without uvs (the loader refuses textures on those) gets the texture's
-    mean."""
+    mean.  A plain call, not inlined: it runs only at textured materials, and one copy
+    of the bitmap lookup serves every caller (inlined, each call site of the tracers
+    would compile its own)."""
     code = A.mat_ptex[mat, slot, 0]
     c = A.mat_ptex_c[mat, slot]
     ns = A.sph_radius.shape[0]
@@ -1388,6 +1397,13 @@ def textured_fresnel(A: SceneArrays, mat, prim, b1, b2, cos_i):
     for a rough conductor cos_i is taken to the microfacet normal, as Mitsuba's."""
     if A.mat_ptex[mat, PTEX_ETA, 0] == 0 and A.mat_ptex[mat, PTEX_K, 0] == 0:
         return 1.0, 1.0, 1.0
+    return _fresnel_at(A, mat, prim, b1, b2, cos_i)
+
+
+@njit(cache=True)
+def _fresnel_at(A: SceneArrays, mat, prim, b1, b2, cos_i):
+    """:func:`textured_fresnel` of a textured conductor, a plain call (as
+    :func:`param_rgb`)."""
     er, eg, eb = param_rgb(A, mat, PTEX_ETA, prim, b1, b2)
     kr, kg, kb = param_rgb(A, mat, PTEX_K, prim, b1, b2)
     return fresnel_conductor(cos_i, er, kr), fresnel_conductor(cos_i, eg, kg), fresnel_conductor(cos_i, eb, kb)
