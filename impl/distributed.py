@@ -27,9 +27,10 @@ plus:
   ``bitmap`` or ``checkerboard``, read as Mitsuba's ``eval_1``) at the hit;
   anisotropic roughness (``alpha_u`` / ``alpha_v``, constants or textures) in
   Mitsuba's shading frame, its tangent along ∂p/∂u (static shapes; under a
-  normal map made orthogonal to the perturbed normal; no bump map).  A textured ``specular_reflectance`` of a
-  conductor or dielectric (smooth or rough) multiplies the reflected
-  branch by its value at the hit, as Mitsuba's ``eval`` of the texture does
+  normal map made orthogonal to the perturbed normal; no bump map).  A textured
+  ``specular_reflectance`` of a conductor or dielectric (smooth or rough)
+  multiplies the reflected branch by its value at the hit, as Mitsuba's
+  ``eval`` of the texture does
   (:func:`impl.lighting.specular_tint`), a textured ``specular_transmittance``
   the transmitted one (:func:`impl.lighting.transmittance_tint`), and a
   conductor's textured ``eta`` or ``k`` gives the Fresnel term of its value at

@@ -394,7 +394,8 @@ def conductor_mirror(A: SceneArrays, S, mat, prim, b1, b2, dx, dy, dz, nx, ny, n
     """A ray of direction d and branch weight w meeting smooth conductor ``mat``: the mirror
     direction R = I − 2(N·I)N about n and its weight w × the conductor Fresnel reflectance
     of η + ik (RGB; textured η or k read at the hit) at cos_v = n·(−d) ×
-    ``specular_reflectance`` (× its texture at the hit) × the map's :func:`impl.lighting.map_weight`.  Returns ``(weight, direction)``."""
+    ``specular_reflectance`` (× its texture at the hit) × the map's
+    :func:`impl.lighting.map_weight`.  Returns ``(weight, direction)``."""
     qx, qy, qz = reflect(dx, dy, dz, nx, ny, nz)
     f = map_weight(nx, ny, nz, sx, sy, sz, code, qx, qy, qz)
     fr = fresnel_conductor(cos_v, S.cond_eta[mat, 0], S.cond_k[mat, 0])

@@ -35,8 +35,8 @@ from core.loader import load_scene
 from gibench import registry
 
 VOCAB = Path(__file__).resolve().parent.parent / "suites" / "vocabulary"
-SCENES = {name: VOCAB / f"{name}.xml" for name in ("anisotropic", "anisotropic_textured", "anisotropic_normalmap",
-                                                    "spot_texture")}
+SCENES = {name: VOCAB / f"{name}.xml"
+          for name in ("anisotropic", "anisotropic_textured", "anisotropic_normalmap", "spot_texture")}
 
 
 def _swap_uv(m):
@@ -169,7 +169,8 @@ def test_anisotropic_roughness_under_a_bump_map_is_refused_by_name(tmp_path):
     local coordinates, which path and distributed do not reproduce: refused with the
     material named."""
     text = (VOCAB / "bumpmap.xml").read_text()
-    old = text[text.index('<bsdf type="roughplastic">'):text.index('</bsdf>', text.index('<bsdf type="roughplastic">'))]
+    start = text.index('<bsdf type="roughplastic">')
+    old = text[start:text.index('</bsdf>', start)]
     p = tmp_path / "s.xml"
     p.write_text(text.replace(old, '<bsdf type="roughconductor"><float name="alpha_u" value="0.05"/>'
                                    '<float name="alpha_v" value="0.3"/>')
