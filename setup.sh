@@ -9,8 +9,9 @@
 #    (the report and its image viewer in a real browser) runs instead of skipping;
 #    GIBENCH_NO_CHROMIUM=1 skips it;
 #  - creates .venv with Python 3.11 and installs gibench with its test extras;
-#  - compiles the numba kernels the default, ci and hard suites need (`gibench warmup`), so a
-#    fresh clone's first render loads them from .numba_cache/ instead of compiling;
+#  - compiles the numba kernels the default, ci and hard suites need and the tracers'
+#    kernel variants (`gibench warmup`), so a fresh clone's first render loads them from
+#    .numba_cache/ instead of compiling;
 #    GIBENCH_SKIP_WARMUP=1 skips it.
 set -euo pipefail
 cd "$(dirname "$0")"

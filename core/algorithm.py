@@ -96,6 +96,11 @@ class Algorithm:
     #: Scene features (:data:`core.scene.FEATURES`) the algorithm models; a scene
     #: with any other one is refused by ``render`` before the algorithm runs.
     models: frozenset = frozenset()
+    #: Parameter overrides that run kernels of their own (numba compiles per argument
+    #: type and per call graph, so e.g. eye-ray packets or a per-pixel sample count
+    #: compile apart from the default path): ``gibench warmup`` renders each once per
+    #: precision it warms, beside the suites' cases.
+    kernel_variants: tuple = ()
 
     def __post_init__(self):
         unknown = set(self.models) - set(FEATURES)

@@ -52,17 +52,17 @@ def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6), jobs: int
     Each distinct (scene, algorithm, parameters) of the suites renders once
     with its film shrunk to ``size`` pixels: numba compiles per argument type,
     not per image size, so this fills ``.numba_cache/`` for the full-size
-    runs at a fraction of their cost.  External algorithms (entry points,
+    runs at a fraction of their cost.  Each algorithm's ``kernel_variants`` (parameter
+    overrides that run kernels of their own, e.g. eye-ray packets) render once more per
+    precision warmed, on the first case's scene that accepts them (a scene that refuses
+    one is skipped silently; the next case is tried).  External algorithms (entry points,
     command renderers) are skipped: they compile nothing of gibench's.
     ``algorithms`` (names) restricts it to those, ``precisions`` to the cases whose
     ``precision`` parameter (None where the algorithm has none) is among them.  With
-    ``jobs`` > 1 the (algorithm, precision) pairs go to ``jobs`` worker processes as
-    they free up, the tile tracers of one precision together and the longest compiles
-    first (:func:`_warm_tasks`): numba compiles on one core and per argument type, so a
-    float32 ray configuration compiles a tracer's kernels again, apart from its
-    float64 ones (kernels shared across tasks compile in each process that needs them
-    before they are cached; numba's cache writes are atomic).
-    Returns one row per render: scene, algorithm, seconds, error.
+    ``jobs`` > 1 the (algorithm, precision) pairs go to ``jobs`` worker processes
+    (:func:`_warm_tasks`, :func:`_warm_up_parallel`).
+    Returns one row per render: scene, algorithm, seconds, error (and ``variant``, the
+    overrides, for a variant's render).
     """
     if jobs > 1:
         return _warm_up_parallel(suite_paths, size, jobs, log)
@@ -74,7 +74,24 @@ def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6), jobs: int
     from . import registry
     from .suite import load_suite
 
-    rows, seen = [], set()
+    rows, seen, pending = [], set(), {}
+
+    def render(case, algo, params, variant=None) -> dict:
+        t0 = time.perf_counter()
+        error = None
+        try:
+            scene = load_scene(case.scene)
+            film = dataclasses.replace(scene.camera.film, width=size[0], height=size[1])
+            scene.camera = dataclasses.replace(scene.camera, film=film)
+            algo.render(scene, params, seed=0)
+        except (GibenchError, OSError) as exc:
+            error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        row = {"scene": case.scene_id, "algorithm": algo.name, "seconds": time.perf_counter() - t0,
+               "error": error}
+        if variant is not None:
+            row["variant"] = variant
+        return row
+
     for path in suite_paths:
         suite = load_suite(path)
         for case in suite.cases:
@@ -90,31 +107,45 @@ def warm_up(suite_paths, *, log=print, size: tuple[int, int] = (8, 6), jobs: int
             if key in seen:
                 continue
             seen.add(key)
-            t0 = time.perf_counter()
-            error = None
-            try:
-                scene = load_scene(case.scene)
-                film = dataclasses.replace(scene.camera.film, width=size[0], height=size[1])
-                scene.camera = dataclasses.replace(scene.camera, film=film)
-                algo.render(scene, params, seed=0)
-            except (GibenchError, OSError) as exc:
-                error = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
-            dt = time.perf_counter() - t0
-            rows.append({"scene": case.scene_id, "algorithm": algo.name, "seconds": dt, "error": error})
+            row = render(case, algo, params)
+            rows.append(row)
             if log:
-                log(f"  {case.scene_id}: {case.label}: {dt:.2f} s" + (f" ({error})" if error else ""))
+                log(f"  {case.scene_id}: {case.label}: {row['seconds']:.2f} s"
+                    + (f" ({row['error']})" if row["error"] else ""))
+            if row["error"]:
+                continue
+            todo = pending.setdefault((algo.name, params.get("precision")), list(algo.kernel_variants))
+            for variant in list(todo):
+                try:
+                    vparams = algo.parse_params({**case.params, **variant})
+                except GibenchError:
+                    continue
+                vrow = render(case, algo, vparams, variant)
+                if vrow["error"]:
+                    continue                    # not on this scene: tried again on the next case
+                todo.remove(variant)
+                rows.append(vrow)
+                if log:
+                    log(f"  {case.scene_id}: {case.label} + {_variant_label(variant)}: "
+                        f"{vrow['seconds']:.2f} s")
     return rows
 
 
-#: The built-in algorithms with the largest kernels (longest cold compiles) first: the
-#: order in which :func:`warm_up` hands its tasks to its worker processes.
-_COMPILE_ORDER = ("path", "distributed", "whitted", "raycast", "radiosity")
+def _variant_label(variant: dict) -> str:
+    return ", ".join(f"{k}={v}" for k, v in variant.items())
 
-#: Algorithms that share most of their kernels (the tile tracers' eye rays, batch queries
-#: and light lanes): at one precision they warm up in one task, one after the other in one
-#: process, so that the second loads the shared kernels from the cache the first filled
-#: instead of compiling them at the same time in another process.
-_SHARED_KERNELS = (("whitted", "raycast"),)
+
+#: The built-in algorithms with the longest cold compiles (beyond the shared kernels of
+#: :data:`_CORE`) first: the order in which :func:`_warm_up_parallel` hands out tasks.
+_COMPILE_ORDER = ("path", "distributed", "zbuffer", "whitted", "radiosity")
+
+#: The tile tracers' shared kernels (eye rays, batch closest-hit and shadow queries, the
+#: batch light estimator) are most of the ray caster's kernels: at each precision raycast
+#: warms first, and the tracers of :data:`_ON_CORE` at that precision wait for it, so that
+#: they load those kernels from the cache instead of compiling them again at the same time
+#: in another process.
+_CORE = "raycast"
+_ON_CORE = ("whitted", "distributed", "path")
 
 
 def _warm_algorithm(suite_paths, size, names, precision) -> list[dict]:
@@ -126,28 +157,25 @@ def _warm_algorithm(suite_paths, size, names, precision) -> list[dict]:
     return rows
 
 
-def _warm_tasks(pairs) -> list[tuple[tuple[str, ...], object]]:
-    """The worker tasks of the (algorithm, precision) pairs ``pairs``: the algorithms of a
-    :data:`_SHARED_KERNELS` group at one precision in one task, the others one each.
-    Tasks at a precision other than float64 come first: the suites render the other
-    algorithms in float64 too, so such a task's kernels share nothing with the other
-    tasks' and compile longest; then :data:`_COMPILE_ORDER`."""
+def _warm_tasks(pairs) -> list[tuple[str, object, tuple | None]]:
+    """The worker tasks of the (algorithm, precision) pairs ``pairs`` in the order they are
+    handed out, each ``(algorithm, precision, after)``: ``after`` is the task that must
+    finish first (the :data:`_CORE` task of the precision, for the :data:`_ON_CORE`
+    tracers) or None.  Core tasks come first (a precision other than float64 before
+    float64: the suites render fewer cases at it), then :data:`_COMPILE_ORDER`."""
     rank = {a: i for i, a in enumerate(_COMPILE_ORDER)}
-    group = {a: g for g in _SHARED_KERNELS for a in g}
-    tasks = {}
+    out = []
     for name, prec in pairs:
-        members = group.get(name, (name,))
-        key = (members, prec)
-        tasks.setdefault(key, set()).add(name)
-    out = [(tuple(a for a in members if a in names), prec) for (members, prec), names in tasks.items()]
-    return sorted(out, key=lambda t: (t[1] in (None, "float64"), min(rank.get(a, len(rank)) for a in t[0]),
-                                      t[0], str(t[1])))
+        after = (_CORE, prec) if name in _ON_CORE and (_CORE, prec) in pairs else None
+        out.append((name, prec, after))
+    return sorted(out, key=lambda t: (t[0] != _CORE, t[1] in (None, "float64"),
+                                      rank.get(t[0], len(rank)), t[0], str(t[1])))
 
 
 def _warm_up_parallel(suite_paths, size, jobs, log) -> list[dict]:
-    """:func:`warm_up` over ``jobs`` worker processes, one task (:func:`_warm_tasks`) at a
-    time each."""
-    from concurrent.futures import ProcessPoolExecutor
+    """:func:`warm_up` over ``jobs`` worker processes: each free process takes the first
+    task of :func:`_warm_tasks` whose ``after`` task has finished."""
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
     import multiprocessing
 
     from . import registry
@@ -159,15 +187,24 @@ def _warm_up_parallel(suite_paths, size, jobs, log) -> list[dict]:
             if registry.origin(c.algorithm)["source"] == "builtin":
                 algo = registry.get(c.algorithm)
                 pairs.add((algo.name, algo.parse_params(c.params).get("precision")))
-    tasks = _warm_tasks(pairs)
-    rows = []
+    queue, done, running, rows = _warm_tasks(pairs), set(), {}, []
     with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(_warm_algorithm, suite_paths, size, names, prec) for names, prec in tasks]
-        for f in futures:
-            part = f.result()
-            rows += part
-            if log:
-                for r in part:
-                    log(f"  {r['scene']}: {r['algorithm']}: {r['seconds']:.2f} s"
-                        + (f" ({r['error']})" if r["error"] else ""))
+        while queue or running:
+            while len(running) < jobs:
+                ready = next((t for t in queue if t[2] is None or t[2] in done), None)
+                if ready is None:
+                    break
+                queue.remove(ready)
+                running[pool.submit(_warm_algorithm, suite_paths, size, (ready[0],), ready[1])] = ready
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for f in finished:
+                name, prec, _ = running.pop(f)
+                done.add((name, prec))
+                part = f.result()
+                rows += part
+                if log:
+                    for r in part:
+                        log(f"  {r['scene']}: {r['algorithm']}"
+                            + (f" + {_variant_label(r['variant'])}" if "variant" in r else "")
+                            + f": {r['seconds']:.2f} s" + (f" ({r['error']})" if r["error"] else ""))
     return rows

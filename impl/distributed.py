@@ -1538,4 +1538,6 @@ ALGORITHM = Algorithm(
                       "gibench_difftrans", "projector", "spot texture", "normalmap", "bumpmap",
                       "textured specular reflectance", "textured specular transmittance",
                       "textured conductor eta/k", "textured roughness", "anisotropic roughness"}),
+    # Poisson-disk patterns (a per-pixel sample count) run the per-sample ray trees.
+    kernel_variants=({"sampler": "poisson"}, {"packets": True}),
 )

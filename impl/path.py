@@ -906,4 +906,5 @@ ALGORITHM = Algorithm(
                       "projector", "thindielectric", "blendbsdf", "mask", "textured roughness",
                       "anisotropic roughness", "spot texture", "textured specular reflectance",
                       "textured specular transmittance", "textured conductor eta/k"}),
+    kernel_variants=({"packets": True},),
 )

@@ -244,4 +244,5 @@ ALGORITHM = Algorithm(
     ),
     render=render,
     models=frozenset({"envmap", "projector", "spot texture", "normalmap", "bumpmap"}),
+    kernel_variants=({"packets": True},),
 )

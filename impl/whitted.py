@@ -714,4 +714,5 @@ ALGORITHM = Algorithm(
     models=frozenset({"envmap", "projector", "spot texture", "normalmap", "bumpmap",
                       "textured specular reflectance", "textured specular transmittance",
                       "textured conductor eta/k"}),
+    kernel_variants=({"packets": True},),
 )

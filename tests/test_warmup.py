@@ -49,13 +49,39 @@ def test_warm_up_renders_each_builtin_case_once(scenes, capsys):
         """))
     lines = []
     rows = warm_up([manifest], log=lines.append)
-    # one raycast render (the four raycast cases have one scene and equal parsed params),
-    # none for the external renderer, one failed scene
-    assert [(r["scene"], r["algorithm"]) for r in rows] == [("small", "raycast"), ("broken", "raycast")]
-    assert rows[0]["error"] is None and rows[0]["seconds"] > 0
-    assert "unsupported" in rows[1]["error"] and len(lines) == 2
+    # one raycast render (the four raycast cases have one scene and equal parsed params)
+    # and one of its kernel variant (eye-ray packets), none for the external renderer,
+    # one failed scene
+    assert registry.get("raycast").kernel_variants == ({"packets": True},)
+    assert [(r["scene"], r["algorithm"], r.get("variant")) for r in rows] == [
+        ("small", "raycast", None), ("small", "raycast", {"packets": True}), ("broken", "raycast", None)]
+    assert rows[0]["error"] is None and rows[0]["seconds"] > 0 and rows[1]["error"] is None
+    assert "unsupported" in rows[2]["error"] and len(lines) == 3
+    assert lines[1].endswith(" s") and "+ packets=True" in lines[1]
     code, out, _ = run_cli(capsys, "warmup", manifest)
-    assert code == 1 and "warmup: 2 renders" in out and "1 failed" in out
+    assert code == 1 and "warmup: 3 renders" in out and "1 failed" in out
+
+
+def test_a_kernel_variant_a_case_refuses_is_tried_on_the_next_case(scenes):
+    """Packets need a tree to traverse: with the first case's accel=none the variant is
+    refused (not reported), and the next case renders it, once."""
+    manifest = scenes / "w.toml"
+    manifest.write_text(textwrap.dedent("""
+        [suite]
+        name = "w"
+        [[group]]
+        scenes = ["small.xml"]
+        algorithm = "raycast"
+        [[group.config]]
+        params = { spp = 1, accel = "none" }
+        [[group.config]]
+        params = { spp = 1 }
+        [[group.config]]
+        params = { spp = 4 }
+        """))
+    rows = warm_up([manifest], log=None)
+    assert [(r.get("variant"), r["error"]) for r in rows] == [
+        (None, None), (None, None), ({"packets": True}, None), (None, None)]
 
 
 def test_warm_up_in_worker_processes_renders_the_same_cases(scenes, capsys):
@@ -75,23 +101,27 @@ def test_warm_up_in_worker_processes_renders_the_same_cases(scenes, capsys):
     parallel = warm_up([manifest], log=lines.append, jobs=2)
     key = lambda rows: sorted((r["scene"], r["algorithm"], r["error"] is None) for r in rows)
     assert key(parallel) == key(serial) == [("broken", "raycast", False), ("small", "raycast", True),
-                                            ("small", "zbuffer", True)]
-    assert len(lines) == 3
+                                            ("small", "raycast", True), ("small", "zbuffer", True)]
+    assert len(lines) == 4
     code, out, _ = run_cli(capsys, "warmup", manifest, "--jobs", "2")
-    assert code == 1 and "warmup: 3 renders" in out and "(2 processes)" in out and "1 failed" in out
+    assert code == 1 and "warmup: 4 renders" in out and "(2 processes)" in out and "1 failed" in out
 
 
-def test_tile_tracers_of_one_precision_warm_up_in_one_task_other_precisions_first():
-    """raycast and whitted share most kernels: at one precision they are one task (one
-    process, whitted first, so raycast loads the shared kernels from the cache); the
-    float32 task, whose kernels no float64 task shares, is handed out first."""
+def test_tracers_on_the_shared_kernels_wait_for_the_ray_caster_of_their_precision():
+    """The ray caster's kernels are most of what whitted, distributed and path compile: at
+    each precision raycast is handed out first and those three wait for it (so that they
+    load the shared kernels from the cache); the others do not wait; then the longest
+    compiles first, a precision other than float64 before float64."""
     from gibench.runner import _warm_tasks
 
     pairs = {("path", "float64"), ("distributed", "float64"), ("whitted", "float64"),
              ("raycast", "float64"), ("radiosity", None), ("zbuffer", None), ("whitted", "float32"),
              ("raycast", "float32")}
-    assert _warm_tasks(pairs) == [(("whitted", "raycast"), "float32"), (("path",), "float64"),
-                                  (("distributed",), "float64"), (("whitted", "raycast"), "float64"),
-                                  (("radiosity",), None), (("zbuffer",), None)]
-    assert _warm_tasks({("raycast", "float32"), ("zbuffer", None)}) == [(("raycast",), "float32"),
-                                                                         (("zbuffer",), None)]
+    r32, r64 = ("raycast", "float32"), ("raycast", "float64")
+    assert _warm_tasks(pairs) == [("raycast", "float32", None), ("raycast", "float64", None),
+                                  ("whitted", "float32", r32), ("path", "float64", r64),
+                                  ("distributed", "float64", r64), ("zbuffer", None, None),
+                                  ("whitted", "float64", r64), ("radiosity", None, None)]
+    # without a ray caster at that precision nothing waits
+    assert _warm_tasks({("whitted", "float32"), ("zbuffer", None)}) == [("whitted", "float32", None),
+                                                                         ("zbuffer", None, None)]
