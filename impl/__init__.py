@@ -11,8 +11,10 @@ cached kernel on its own source file only, so a change in a kernel it calls
 (say ``intersect.py`` under ``raycast.py``) would leave a stale machine-code
 cache behind.  The cache therefore lives in ``.numba_cache/<hash of impl/**/*.py>``
 (sub-packages such as ``impl/accel`` included)
-at the repository root: any change to this package starts a fresh cache.  Set
-``NUMBA_CACHE_DIR`` to override.
+at the repository root: any change to this package starts a fresh cache, and the caches
+of other sources are removed, except those a running process still uses (each process
+holds a shared lock on its cache while it runs: a long run started before an edit keeps
+its cache).  Set ``NUMBA_CACHE_DIR`` to override.
 
 A cache file damaged on disk (truncated, bytes flipped) must not crash the
 process: numba unpickles machine code from it, and garbage there can end in a
@@ -29,6 +31,55 @@ import shutil as _shutil
 from pathlib import Path as _Path
 
 
+#: A file in each kernel cache that every process using the cache holds a shared
+#: ``flock`` on for as long as it runs (the kernel released it when it exits, however).
+_IN_USE = ".in-use"
+_held = []                                  # the open lock file: kept for the process's life
+
+
+def _hold(cache: _Path) -> None:
+    """Take a shared lock on ``cache``'s :data:`_IN_USE` file for this process's life
+    (nothing where ``fcntl`` is missing or the folder cannot be written)."""
+    try:
+        import fcntl
+
+        cache.mkdir(parents=True, exist_ok=True)
+        f = open(cache / _IN_USE, "a+b")    # noqa: SIM115 - held open on purpose
+        fcntl.flock(f, fcntl.LOCK_SH)
+    except (ImportError, OSError):
+        return
+    _held.append(f)
+
+
+def _in_use(cache: _Path) -> bool:
+    """Whether some running process holds ``cache``'s lock (:func:`_hold`)."""
+    try:
+        import fcntl
+
+        with open(cache / _IN_USE, "rb") as f:
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                return True
+            fcntl.flock(f, fcntl.LOCK_UN)
+    except (ImportError, OSError):          # no lock file: a cache no process holds
+        return False
+    return False
+
+
+def remove_stale_caches(root: _Path, keep: _Path) -> list[_Path]:
+    """Remove the kernel caches under ``root`` other than ``keep`` (compiled from other
+    sources, so stale) that no running process holds (:func:`_in_use`): a run started
+    before ``impl/`` was edited keeps compiling into its own cache.  Returns those removed."""
+    removed = []
+    if root.is_dir():
+        for old in root.iterdir():
+            if old != keep and old.is_dir() and not _in_use(old):
+                _shutil.rmtree(old, ignore_errors=True)
+                removed.append(old)
+    return removed
+
+
 def _source_keyed_cache_dir() -> None:
     if _os.environ.get("NUMBA_CACHE_DIR"):
         return
@@ -38,10 +89,8 @@ def _source_keyed_cache_dir() -> None:
         digest.update(src.relative_to(here).as_posix().encode() + b"\0" + src.read_bytes())
     root = here.parent / ".numba_cache"
     cache = root / digest.hexdigest()[:16]
-    if root.is_dir():                       # caches of older sources are stale by construction
-        for old in root.iterdir():
-            if old != cache:
-                _shutil.rmtree(old, ignore_errors=True)
+    _hold(cache)
+    remove_stale_caches(root, cache)
     _os.environ["NUMBA_CACHE_DIR"] = str(cache)
     import numba
 

@@ -559,3 +559,30 @@ def test_corrupt_numba_cache_is_detected_and_rebuilt(tmp_path):
     index.write_bytes(index.read_bytes()[:30])
     out, err = run()
     assert out == first and "corrupt" in err
+
+
+def test_a_kernel_cache_in_use_by_a_running_process_is_not_removed(tmp_path):
+    """The caches of other sources are removed when impl is imported, except one that a
+    running process still holds (a long run started before impl/ was edited would lose
+    its cache in the middle of compiling into it); once that process exits, its cache is
+    removed like any stale one."""
+    from impl import remove_stale_caches
+
+    root = tmp_path / ".numba_cache"
+    mine, held, stale = root / "aaaa", root / "bbbb", root / "cccc"
+    for d in (mine, held, stale):
+        d.mkdir(parents=True)
+        (d / "kernel.nbi").write_bytes(b"x")
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from pathlib import Path; import impl; "
+         "impl._hold(Path(sys.argv[1])); print('held', flush=True); sys.stdin.read()", str(held)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT,
+        env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        assert remove_stale_caches(root, mine) == [stale]
+        assert mine.is_dir() and (held / "kernel.nbi").is_file() and not stale.exists()
+    finally:
+        holder.communicate("", timeout=60)
+    assert remove_stale_caches(root, mine) == [held]
+    assert sorted(p.name for p in root.iterdir()) == ["aaaa"]
