@@ -104,6 +104,20 @@ def test_erfinv_matches_scipy():
     assert mf.erfinv(1.0) == math.inf and mf.erfinv(-1.0) == -math.inf
 
 
+def test_giles_erfinv_is_within_its_single_precision_error():
+    """The Beckmann visible-normal sampler inverts with Giles' approximation alone (as
+    Dr.Jit does): about 1e-7 relative from the exact inverse, up to 10⁻⁶ from ±1 (the
+    sampler's clamp), measured 1.25e-7 at most."""
+    y = np.concatenate([np.linspace(-1 + 1e-6, 1 - 1e-6, 20001), 1 - np.logspace(-6, -1, 200),
+                        -1 + np.logspace(-6, -1, 200)])
+    got = np.array([mf.erfinv_giles(v) for v in y])
+    want = sp_erfinv(y)
+    nz = want != 0.0
+    assert np.max(np.abs(got[nz] - want[nz]) / np.abs(want[nz])) < 2e-7
+    assert np.max(np.abs(got - want)) < 5e-7
+    assert mf.erfinv_giles(1.0) == math.inf and mf.erfinv_giles(-1.0) == -math.inf
+
+
 # ----------------------------------------------------- masking and shadowing ---
 
 #: Mitsuba's rational G1 fit overshoots 1 slightly just below its cut-off a = 1.6:
