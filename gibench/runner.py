@@ -161,8 +161,9 @@ def _warm_tasks(pairs) -> list[tuple[str, object, tuple | None]]:
     """The worker tasks of the (algorithm, precision) pairs ``pairs`` in the order they are
     handed out, each ``(algorithm, precision, after)``: ``after`` is the task that must
     finish first (the :data:`_CORE` task of the precision, for the :data:`_ON_CORE`
-    tracers) or None.  Core tasks come first (a precision other than float64 before
-    float64: the suites render fewer cases at it), then :data:`_COMPILE_ORDER`."""
+    tracers) or None.  Core tasks come first; of the others, those at a precision other
+    than float64 (few cases, none sharing the float64 tasks' kernels), then
+    :data:`_COMPILE_ORDER`."""
     rank = {a: i for i, a in enumerate(_COMPILE_ORDER)}
     out = []
     for name, prec in pairs:
@@ -193,6 +194,8 @@ def _warm_up_parallel(suite_paths, size, jobs, log) -> list[dict]:
             while len(running) < jobs:
                 ready = next((t for t in queue if t[2] is None or t[2] in done), None)
                 if ready is None:
+                    if not running:         # cannot happen: every "after" is a task
+                        raise RuntimeError(f"warm-up tasks wait for tasks never run: {queue}")
                     break
                 queue.remove(ready)
                 running[pool.submit(_warm_algorithm, suite_paths, size, (ready[0],), ready[1])] = ready
