@@ -32,7 +32,8 @@ from pathlib import Path as _Path
 
 
 #: A file in each kernel cache that every process using the cache holds a shared
-#: ``flock`` on for as long as it runs (the kernel released it when it exits, however).
+#: ``flock`` on for as long as it runs (the operating system releases the lock when the
+#: process ends, however it ends).
 _IN_USE = ".in-use"
 _held = []                                  # the open lock file: kept for the process's life
 

@@ -566,6 +566,8 @@ def test_a_kernel_cache_in_use_by_a_running_process_is_not_removed(tmp_path):
     running process still holds (a long run started before impl/ was edited would lose
     its cache in the middle of compiling into it); once that process exits, its cache is
     removed like any stale one."""
+    import os
+
     from impl import remove_stale_caches
 
     root = tmp_path / ".numba_cache"
@@ -577,7 +579,7 @@ def test_a_kernel_cache_in_use_by_a_running_process_is_not_removed(tmp_path):
         [sys.executable, "-c", "import sys; from pathlib import Path; import impl; "
          "impl._hold(Path(sys.argv[1])); print('held', flush=True); sys.stdin.read()", str(held)],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT,
-        env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+        env={**os.environ, "PYTHONPATH": str(ROOT)})
     try:
         assert holder.stdout.readline().strip() == "held"
         assert remove_stale_caches(root, mine) == [stale]
