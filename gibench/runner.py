@@ -148,13 +148,9 @@ _CORE = "raycast"
 _ON_CORE = ("whitted", "distributed", "path")
 
 
-def _warm_algorithm(suite_paths, size, names, precision) -> list[dict]:
-    """:func:`warm_up` of some algorithms at one precision, silent (a worker process's
-    task), in the order of ``names``."""
-    rows = []
-    for name in names:
-        rows += warm_up(suite_paths, log=None, size=size, algorithms={name}, precisions={precision})
-    return rows
+def _warm_algorithm(suite_paths, size, name, precision) -> list[dict]:
+    """:func:`warm_up` of one algorithm at one precision, silent (a worker process's task)."""
+    return warm_up(suite_paths, log=None, size=size, algorithms={name}, precisions={precision})
 
 
 def _warm_tasks(pairs) -> list[tuple[str, object, tuple | None]]:
@@ -198,7 +194,7 @@ def _warm_up_parallel(suite_paths, size, jobs, log) -> list[dict]:
                         raise RuntimeError(f"warm-up tasks wait for tasks never run: {queue}")
                     break
                 queue.remove(ready)
-                running[pool.submit(_warm_algorithm, suite_paths, size, (ready[0],), ready[1])] = ready
+                running[pool.submit(_warm_algorithm, suite_paths, size, ready[0], ready[1])] = ready
             finished, _ = wait(running, return_when=FIRST_COMPLETED)
             for f in finished:
                 name, prec, _ = running.pop(f)
