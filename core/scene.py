@@ -332,8 +332,9 @@ FEATURES = ("envmap", "projector", "spot texture", "plastic", "roughplastic", "n
             "mask", "blendbsdf", "thindielectric", "gibench_cooktorrance", "gibench_difftrans")
 
 
-#: The BSDFs whose textured ``specular_reflectance`` is the feature "textured specular
-#: reflectance" (on the plastics it is a "textured parameter").
+#: The BSDFs whose textured ``specular_reflectance`` weights all they reflect (the
+#: feature "textured specular reflectance", which a plastic's textured specular
+#: coat is too; its diffuse base does not take it).
 SPECULAR_TEXTURED = ("conductor", "roughconductor", "dielectric", "roughdielectric", "thindielectric")
 
 #: The BSDFs whose textured ``specular_transmittance`` is the feature "textured specular
@@ -383,6 +384,8 @@ def _material_features(m: Material, where: str, found: dict) -> None:
     for name in m.textures:
         if m.kind in ("plastic", "roughplastic") and name == "diffuse_reflectance":
             found.setdefault("plastic texture", where)
+        elif m.kind in ("plastic", "roughplastic") and name == "specular_reflectance":
+            found.setdefault("textured specular reflectance", f"{where} ('{name}' of its {m.kind} BSDF)")
         elif m.kind in ("roughconductor", "roughdielectric") and name in ("alpha", "alpha_u", "alpha_v"):
             found.setdefault("textured roughness", f"{where} ('{name}' of its {m.kind} BSDF)")
         elif m.kind in SPECULAR_TEXTURED and name == "specular_reflectance":

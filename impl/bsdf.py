@@ -275,17 +275,19 @@ def _conductor_fresnel(B: MaterialArrays, mat, cos_i):
 # because a call of a separate function passes every array of ``B`` by value.
 
 @njit(cache=True, _nrt=True)
-def _plastic_sample(B: MaterialArrays, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, u0, u1, u2):
+def _plastic_sample(B: MaterialArrays, mat, k, rho_r, rho_g, rho_b, sp_r, sp_g, sp_b, wix, wiy, wiz, u0, u1,
+                    u2):
     """:func:`bsdf_sample` of a plastic or roughplastic material."""
     wi = np.array((wix, wiy, wiz))
     rho = np.array((rho_r, rho_g, rho_b))
+    spec = np.array((sp_r, sp_g, sp_b))
     if k == MAT_PLASTIC:
-        wo, pdf, w, delta = pl.plastic_sample(wi, u0, u1, u2, B.pl_eta[mat], rho, B.pl_specular[mat],
+        wo, pdf, w, delta = pl.plastic_sample(wi, u0, u1, u2, B.pl_eta[mat], rho, spec,
                                               B.pl_spec_weight[mat], B.pl_fdr_int[mat],
                                               B.pl_nonlinear[mat] != 0)
     else:
         wo, pdf, w = pl.roughplastic_sample(wi, u0, u1, u2, B.pl_eta[mat], B.pl_alpha[mat],
-                                            B.pl_visible[mat] != 0, rho, B.pl_specular[mat],
+                                            B.pl_visible[mat] != 0, rho, spec,
                                             B.pl_spec_weight[mat], B.pl_ext_t[mat],
                                             B.pl_int_r[mat], B.pl_nonlinear[mat] != 0, B.dist[mat])
         delta = False
@@ -295,7 +297,8 @@ def _plastic_sample(B: MaterialArrays, mat, k, rho_r, rho_g, rho_b, wix, wiy, wi
 
 
 @njit(cache=True, _nrt=True)
-def _plastic_eval(B: MaterialArrays, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, wox, woy, woz):
+def _plastic_eval(B: MaterialArrays, mat, k, rho_r, rho_g, rho_b, sp_r, sp_g, sp_b, wix, wiy, wiz, wox, woy,
+                  woz):
     """:func:`bsdf_eval` of a plastic or roughplastic material."""
     wi = np.array((wix, wiy, wiz))
     wo = np.array((wox, woy, woz))
@@ -303,7 +306,7 @@ def _plastic_eval(B: MaterialArrays, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz,
     if k == MAT_PLASTIC:
         f = pl.plastic_eval(wi, wo, B.pl_eta[mat], rho, B.pl_fdr_int[mat], B.pl_nonlinear[mat] != 0)
     else:
-        f = pl.roughplastic_eval(wi, wo, B.pl_eta[mat], B.pl_alpha[mat], rho, B.pl_specular[mat],
+        f = pl.roughplastic_eval(wi, wo, B.pl_eta[mat], B.pl_alpha[mat], rho, np.array((sp_r, sp_g, sp_b)),
                                  B.pl_ext_t[mat], B.pl_int_r[mat], B.pl_nonlinear[mat] != 0,
                                  B.dist[mat])
     return f[0], f[1], f[2]
@@ -322,16 +325,20 @@ def _plastic_pdf(B: MaterialArrays, mat, k, wix, wiy, wiz, wox, woy, woz):
 
 @njit(inline="always", cache=True)
 def bsdf_sample(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2):
-    """:func:`bsdf_sample_at` with the material's own roughness ``B.alpha[mat]``, ``B.alpha_v[mat]``."""
-    return bsdf_sample_at(B, mat, B.alpha[mat], B.alpha_v[mat], rho_r, rho_g, rho_b, eta_scale, wix, wiy,
-                          wiz, u0, u1, u2)
+    """:func:`bsdf_sample_at` with the material's own roughness ``B.alpha[mat]``, ``B.alpha_v[mat]``
+    and a plastic's own ``specular_reflectance`` ``B.pl_specular[mat]``."""
+    s = B.pl_specular[mat]
+    return bsdf_sample_at(B, mat, B.alpha[mat], B.alpha_v[mat], rho_r, rho_g, rho_b, s[0], s[1], s[2],
+                          eta_scale, wix, wiy, wiz, u0, u1, u2)
 
 
 @njit(inline="always", cache=True)
 def bsdf_eval(B: MaterialArrays, mat, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, wox, woy, woz):
-    """:func:`bsdf_eval_at` with the material's own roughness ``B.alpha[mat]``, ``B.alpha_v[mat]``."""
-    return bsdf_eval_at(B, mat, B.alpha[mat], B.alpha_v[mat], rho_r, rho_g, rho_b, eta_scale, wix, wiy,
-                        wiz, wox, woy, woz)
+    """:func:`bsdf_eval_at` with the material's own roughness ``B.alpha[mat]``, ``B.alpha_v[mat]``
+    and a plastic's own ``specular_reflectance`` ``B.pl_specular[mat]``."""
+    s = B.pl_specular[mat]
+    return bsdf_eval_at(B, mat, B.alpha[mat], B.alpha_v[mat], rho_r, rho_g, rho_b, s[0], s[1], s[2],
+                        eta_scale, wix, wiy, wiz, wox, woy, woz)
 
 
 @njit(inline="always", cache=True)
@@ -341,8 +348,8 @@ def bsdf_pdf(B: MaterialArrays, mat, eta_scale, wix, wiy, wiz, wox, woy, woz):
 
 
 @njit(inline="always", cache=True)
-def bsdf_sample_at(B: MaterialArrays, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz,
-                   u0, u1, u2):
+def bsdf_sample_at(B: MaterialArrays, mat, alpha, alpha_v, rho_r, rho_g, rho_b, sp_r, sp_g, sp_b, eta_scale,
+                   wix, wiy, wiz, u0, u1, u2):
     """Sample wo for material ``mat`` (diffuse albedo ρ given, textures resolved by the caller).
 
     ``eta_scale`` multiplies a dielectric's relative index (dispersion: the
@@ -352,7 +359,10 @@ def bsdf_sample_at(B: MaterialArrays, mat, alpha, alpha_v, rho_r, rho_g, rho_b, 
     ``bs.eta``); a zero weight ends the path.  ``alpha`` and ``alpha_v`` are the
     roughness α_u, α_v of a roughconductor / roughdielectric at this point
     (``B.alpha[mat]`` and ``B.alpha_v[mat]``, or their textures' values; equal when
-    isotropic).
+    isotropic).  ``sp_r``, ``sp_g``, ``sp_b`` are a plastic's ``specular_reflectance``
+    at this point (``B.pl_specular[mat]`` or its texture's value), which weights its
+    specular coat (Mitsuba's plastics multiply that lobe by the texture's ``eval``);
+    other kinds ignore them.
     """
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
@@ -361,7 +371,7 @@ def bsdf_sample_at(B: MaterialArrays, mat, alpha, alpha_v, rho_r, rho_g, rho_b, 
         x, y, z = sample_cosine_hemisphere(u1, u2)
         return x, y, z, rho_r, rho_g, rho_b, cosine_hemisphere_pdf(z), False, 1.0
     if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
-        return _plastic_sample(B, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, u0, u1, u2)
+        return _plastic_sample(B, mat, k, rho_r, rho_g, rho_b, sp_r, sp_g, sp_b, wix, wiy, wiz, u0, u1, u2)
     if k == MAT_CONDUCTOR:
         if wiz <= 0.0:
             return 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, True, 1.0
@@ -410,10 +420,10 @@ def bsdf_sample_at(B: MaterialArrays, mat, alpha, alpha_v, rho_r, rho_g, rho_b, 
 
 
 @njit(inline="always", cache=True)
-def bsdf_eval_at(B: MaterialArrays, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz,
-                 wox, woy, woz):
+def bsdf_eval_at(B: MaterialArrays, mat, alpha, alpha_v, rho_r, rho_g, rho_b, sp_r, sp_g, sp_b, eta_scale,
+                 wix, wiy, wiz, wox, woy, woz):
     """f(wi, wo)·|cos θ_o| (RGB) of the non-delta lobes; 0 for delta BSDFs (``alpha``,
-    ``alpha_v`` as for :func:`bsdf_sample_at`)."""
+    ``alpha_v``, ``sp_r``, ``sp_g``, ``sp_b`` as for :func:`bsdf_sample_at`)."""
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
         if wiz > 0.0 and woz > 0.0:
@@ -421,7 +431,7 @@ def bsdf_eval_at(B: MaterialArrays, mat, alpha, alpha_v, rho_r, rho_g, rho_b, et
             return rho_r * c, rho_g * c, rho_b * c
         return 0.0, 0.0, 0.0
     if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
-        return _plastic_eval(B, mat, k, rho_r, rho_g, rho_b, wix, wiy, wiz, wox, woy, woz)
+        return _plastic_eval(B, mat, k, rho_r, rho_g, rho_b, sp_r, sp_g, sp_b, wix, wiy, wiz, wox, woy, woz)
     if k == MAT_ROUGHCONDUCTOR:
         v, cos_ih = mf.conductor_eval(mf.clamp_alpha(alpha), mf.G_SMITH, wix, wiy, wiz,
                                       wox, woy, woz, B.dist[mat], alpha_v)

@@ -174,14 +174,14 @@ from .camera import camera_params
 from .kernel import batch_kernel, run_tasks, take_task
 from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_with_lights,
                              sample_light)
-from .lighting import (diffuse_albedo, environment_radiance, surface_at, textured_fresnel, textured_params,
-                       transmittance_tint)
+from .lighting import (diffuse_albedo, environment_radiance, param_rgb, surface_at, textured_fresnel,
+                       textured_params, transmittance_tint)
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, leave, refine, round_ray
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
-from .scene_arrays import SceneArrays, scene_memo
+from .scene_arrays import PTEX_PLASTIC_SPECULAR, SceneArrays, scene_memo
 from .shading_frame import perturbed_normal, perturbed_tangent, same_side, shadow_terminator, tangent
 from .textures import bitmap, checkerboard, luminance, scalar_param
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
@@ -228,6 +228,18 @@ def _roughness(B, mat, ns, prim, tri_uv, b1, b2):
         if B.ptex[mat, 3, 0] != 0:
             alpha_v = scalar_param(B, mat, 3, alpha_v, ns, prim, tri_uv, b1, b2)
     return alpha, alpha_v
+
+
+@njit(inline="always", cache=True)
+def _coat(A: SceneArrays, B: MaterialArrays, mat, prim, b1, b2):
+    """A plastic's ``specular_reflectance`` (r, g, b) at a hit, which weights its specular
+    coat and not its diffuse base (Mitsuba's ``plastic`` and ``roughplastic`` multiply
+    that lobe by the texture's ``eval``): its texture's value there
+    (:func:`impl.lighting.param_rgb`, slot ``PTEX_PLASTIC_SPECULAR``) or the constant
+    ``B.pl_specular[mat]`` (zeros for the other kinds, which ignore it)."""
+    if A.mat_ptex[mat, PTEX_PLASTIC_SPECULAR, 0] != 0:
+        return param_rgb(A, mat, PTEX_PLASTIC_SPECULAR, prim, b1, b2)
+    return B.pl_specular[mat, 0], B.pl_specular[mat, 1], B.pl_specular[mat, 2]
 
 
 @njit(inline="always", cache=True)
@@ -330,7 +342,9 @@ def _blend_eval_pdf(A: SceneArrays, B: MaterialArrays, mat, skip, prim, b1, b2, 
         wk = _leaf_weight(A, B, mat, k, prim, b1, b2)
         rr, rg, rb = diffuse_albedo(A, c, prim, b1, b2)
         al, av = _roughness(B, c, A.sph_radius.shape[0], prim, A.tri_uv, b1, b2)
-        er, eg, eb = bsdf_eval_at(B, c, al, av, rr, rg, rb, eta_scale, wix, wiy, wiz, wox, woy, woz)
+        cr, cg, cb = _coat(A, B, c, prim, b1, b2)
+        er, eg, eb = bsdf_eval_at(B, c, al, av, rr, rg, rb, cr, cg, cb, eta_scale, wix, wiy, wiz, wox, woy,
+                                  woz)
         if _tinted(A, B, c):
             kr, kg, kb = _tint(A, B, c, prim, b1, b2, rr, rg, rb, wix, wiy, wiz, wox, woy, woz)
             er, eg, eb = er * kr, eg * kg, eb * kb
@@ -591,6 +605,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
             rho_b = spectrum_at(S.mat_spec[mat], w2)
         else:
             rho_r, rho_g, rho_b = diffuse_albedo(A, smat, prim, b1, b2)
+        sp_r, sp_g, sp_b = _coat(A, B, smat, prim, b1, b2)
         eta_scale = eta_scale_at(S, mat, w0) if spectral else 1.0
         tinted = _tinted(A, B, smat)
 
@@ -614,8 +629,8 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
                     fr, fg, fb, bpdf = _blend_eval_pdf(A, B, mat, np.int64(-1), prim, b1, b2,
                                                        eta_scale, wix, wiy, wiz, wox, woy, woz)
                 else:
-                    fr, fg, fb = bsdf_eval_at(B, mat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale,
-                                              wix, wiy, wiz, wox, woy, woz)
+                    fr, fg, fb = bsdf_eval_at(B, mat, alpha, alpha_v, rho_r, rho_g, rho_b, sp_r, sp_g,
+                                              sp_b, eta_scale, wix, wiy, wiz, wox, woy, woz)
                     if tinted:               # textured specular colours or conductor IOR
                         kr, kg, kb = _tint(A, B, smat, prim, b1, b2, rho_r, rho_g, rho_b, wix, wiy, wiz,
                                            wox, woy, woz)
@@ -677,7 +692,8 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
             if blend:                    # rescaled for the chosen leaf
                 u0 = ub
             wox, woy, woz, wr, wg, wb, pdf, sdelta, seta = bsdf_sample_at(
-                B, smat, alpha, alpha_v, rho_r, rho_g, rho_b, eta_scale, wix, wiy, wiz, u0, u1, u2)
+                B, smat, alpha, alpha_v, rho_r, rho_g, rho_b, sp_r, sp_g, sp_b, eta_scale, wix, wiy, wiz,
+                u0, u1, u2)
             if tinted and pdf > 0.0:     # textured specular colours or conductor IOR
                 kr, kg, kb = _tint(A, B, smat, prim, b1, b2, rho_r, rho_g, rho_b, wix, wiy, wiz, wox, woy, woz)
                 wr, wg, wb = wr * kr, wg * kg, wb * kb

@@ -42,7 +42,9 @@ import numpy as np
 from numba import njit
 
 from core.errors import SceneError, UnsupportedError
+from core.scene import texture_mean as scene_texture_mean
 
+from .envmap import LUMINANCE
 from .fresnel import fresnel_dielectric, lookup_ior
 from .microfacet import (BECKMANN, DISTRIBUTIONS, microfacet_d, normal_pdf, sample_normal,
                          sample_visible_normal, smith_g1)
@@ -148,9 +150,10 @@ def plastic_params(material, *, where: str = "plastic",
     """Decode a :class:`core.scene.Material` of kind ``plastic``/``roughplastic``
     with Mitsuba's defaults (int_ior polypropylene, ext_ior air, diffuse 0.5,
     alpha 0.1, beckmann, sample_visible true, nonlinear false); ``distributions``:
-    those the caller models (a roughplastic with another is refused).  Textured
-    reflectances enter as their means (the lobe weight, as Mitsuba); the
-    per-point values are the caller's lookups (:mod:`impl.textures`)."""
+    those the caller models (a roughplastic with another is refused).  A textured
+    reflectance enters as its mean colour (``diffuse``, ``specular``) and the lobe
+    weight takes its scalar mean as Mitsuba's ``Texture::mean`` (:func:`texture_mean_value`);
+    the per-point values are the caller's lookups (:mod:`impl.textures`)."""
     p = material.params
     if material.kind not in ("plastic", "roughplastic"):
         raise ValueError(f"plastic_params: not a plastic material ({material.kind})")
@@ -166,6 +169,13 @@ def plastic_params(material, *, where: str = "plastic",
     specular = _rgb(p, "specular_reflectance", 1.0, where)
     d_mean = float(diffuse.mean())
     s_mean = float(specular.mean()) if "specular_reflectance" in p else 1.0
+    textures = getattr(material, "textures", None) or {}
+    if "diffuse_reflectance" in textures:
+        d_mean = texture_mean_value(textures["diffuse_reflectance"])
+    if "specular_reflectance" in textures:
+        tex = textures["specular_reflectance"]
+        specular = np.asarray(scene_texture_mean(tex), dtype=np.float64)
+        s_mean = texture_mean_value(tex)
     alpha, visible = 0.0, True
     ext_t, int_r = np.zeros(TABLE_RES), 0.0
     if material.kind == "roughplastic":
@@ -184,6 +194,16 @@ def plastic_params(material, *, where: str = "plastic",
     return PlasticParams(material.kind, eta, diffuse, specular, s_mean / (d_mean + s_mean),
                          bool(p.get("nonlinear", False)), alpha, visible,
                          float(fresnel_diffuse_reflectance(1.0 / eta)), ext_t, int_r, code)
+
+
+def texture_mean_value(tex: dict) -> float:
+    """The scalar mean Mitsuba's RGB variants give a texture record (``Texture::mean``):
+    a ``bitmap``'s mean texel luminance, a ``checkerboard``'s mean of its two colours'
+    channel means (``src/textures/bitmap.cpp``, ``checkerboard.cpp``; an ``rgb``
+    constant's mean is that of its channels)."""
+    if tex["type"] == "bitmap":
+        return float((np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3) @ LUMINANCE).mean())
+    return float(0.5 * (np.mean(tex["color0"]) + np.mean(tex["color1"])))
 
 
 # ------------------------------------------------------------- plastic ---

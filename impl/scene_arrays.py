@@ -15,9 +15,10 @@ code 0 none, 1 checkerboard (colours and the 2x3 ``to_uv`` map per material),
 2 bitmap (texels of every image concatenated in ``tex_data``, row-major, with
 each material's offset, size, wrap and filter codes of :mod:`impl.textures`),
 looked up at the triangle's interpolated ``tri_uv``.  RGB parameter textures, the
-same codes in three slots (``mat_ptex``, :data:`PTEX_TRANSMITTANCE`, :data:`PTEX_ETA`,
-:data:`PTEX_K`): a dielectric's ``specular_transmittance`` and a conductor's ``eta`` /
-``k`` (:func:`impl.lighting.param_rgb`).  A ``constant``
+same codes in four slots (``mat_ptex``, :data:`PTEX_TRANSMITTANCE`, :data:`PTEX_ETA`,
+:data:`PTEX_K`, :data:`PTEX_PLASTIC_SPECULAR`): a dielectric's ``specular_transmittance``,
+a conductor's ``eta`` / ``k`` and a plastic's ``specular_reflectance``
+(:func:`impl.lighting.param_rgb`).  A ``constant``
 environment emitter is ``env_radiance`` (one row, or none); an ``envmap``
 emitter is ``env_image`` (the map times its scale; 0 rows without one) with its
 rotation ``env_frame`` and luminance sampling tables ``env_pdf`` / ``env_cdf``
@@ -50,7 +51,7 @@ FILTER_CODES = {"bilinear": FILTER_BILINEAR, "nearest": FILTER_NEAREST}
 __all__ = ["SceneArrays", "diffuse_texture", "flatten", "triangle_normal", "triangle_normals", "flatten_cached", "scene_memo", "LIGHT_POINT", "LIGHT_DIRECTIONAL", "LIGHT_SPOT",
            "LIGHT_PROJECTOR", "SHADE_NONE", "SHADE_NORMALMAP", "SHADE_BUMPMAP",
            "TEX_NONE", "TEX_CHECKERBOARD", "TEX_BITMAP", "MATERIAL_CODES",
-           "PTEX_TRANSMITTANCE", "PTEX_ETA", "PTEX_K"]
+           "PTEX_TRANSMITTANCE", "PTEX_ETA", "PTEX_K", "PTEX_PLASTIC_SPECULAR"]
 
 LIGHT_POINT, LIGHT_DIRECTIONAL, LIGHT_SPOT, LIGHT_PROJECTOR = 0, 1, 2, 3
 SHADE_NONE, SHADE_NORMALMAP, SHADE_BUMPMAP = 0, 1, 2
@@ -59,6 +60,9 @@ TEX_NONE, TEX_CHECKERBOARD, TEX_BITMAP = 0, 1, 2
 #: Slots of the RGB parameter textures (``mat_ptex``): a dielectric's
 #: ``specular_transmittance``, a conductor's ``eta`` and ``k``.
 PTEX_TRANSMITTANCE, PTEX_ETA, PTEX_K = 0, 1, 2
+#: The slot of a plastic's or roughplastic's textured ``specular_reflectance``, which
+#: weights its specular coat only (``impl.path``).
+PTEX_PLASTIC_SPECULAR = 3
 
 
 class SceneArrays(NamedTuple):
@@ -116,12 +120,12 @@ class SceneArrays(NamedTuple):
     light_tex: np.ndarray       # (L, 5) projector irradiance / spot texture bitmap (width 0: none)
     light_tex_uv: np.ndarray    # (L, 2, 3) its to_uv map
     tri_ng: np.ndarray          # (T, 3) unit geometric normal (v1 − v0) × (v2 − v0) / |…|
-    mat_ptex: np.ndarray        # (M, 3, 6) int RGB parameter textures (PTEX_*): code (TEX_*; 0 the
+    mat_ptex: np.ndarray        # (M, 4, 6) int RGB parameter textures (PTEX_*): code (TEX_*; 0 the
                                 # constant in mat_ptex_c[:, :, 0]), first texel in tex_data, width,
                                 # height, wrap, filter
-    mat_ptex_c: np.ndarray      # (M, 3, 2, 3) a checkerboard's color0, color1; a bitmap's mean texel
+    mat_ptex_c: np.ndarray      # (M, 4, 2, 3) a checkerboard's color0, color1; a bitmap's mean texel
                                 # in row 0; the constant of an untextured slot in row 0
-    mat_ptex_uv: np.ndarray     # (M, 3, 2, 3) their 2D affine to_uv maps
+    mat_ptex_uv: np.ndarray     # (M, 4, 2, 3) their 2D affine to_uv maps
 
     @property
     def n_spheres(self) -> int:
@@ -373,16 +377,16 @@ def _param_textures(materials, bitmap_record):
     ``mat_ptex_uv`` of :class:`SceneArrays`): a dielectric's textured
     ``specular_transmittance``; a conductor's textured ``eta`` or ``k``, the other of the
     two then its constant (Mitsuba's defaults 0 and 1) in an untextured slot, so that
-    both are read at the hit.  ``bitmap_record`` appends a bitmap's texels to the
+    both are read at the hit; a plastic's textured ``specular_reflectance``.  ``bitmap_record`` appends a bitmap's texels to the
     scene's and returns its record."""
     from core.scene import IOR_TEXTURED, TRANSMITTANCE_TEXTURED, texture_mean
 
     from .materials import rgb_param
 
     n = len(materials)
-    code = np.zeros((n, 3, 6), dtype=np.int64)
-    c = np.zeros((n, 3, 2, 3))
-    uv = np.zeros((n, 3, 2, 3))
+    code = np.zeros((n, 4, 6), dtype=np.int64)
+    c = np.zeros((n, 4, 2, 3))
+    uv = np.zeros((n, 4, 2, 3))
     uv[:, :, 0, 0] = uv[:, :, 1, 1] = 1.0
     for i, m in enumerate(materials):
         slots = []
@@ -390,6 +394,8 @@ def _param_textures(materials, bitmap_record):
             slots.append((PTEX_TRANSMITTANCE, "specular_transmittance", 1.0))
         if m.kind in IOR_TEXTURED and ("eta" in m.textures or "k" in m.textures):
             slots += [(PTEX_ETA, "eta", 0.0), (PTEX_K, "k", 1.0)]
+        if m.kind in ("plastic", "roughplastic") and "specular_reflectance" in m.textures:
+            slots.append((PTEX_PLASTIC_SPECULAR, "specular_reflectance", 1.0))
         for slot, name, default in slots:
             t = m.textures.get(name)
             if t is None:

@@ -16,6 +16,10 @@
 * A plastic's textured ``diffuse_reflectance``: ``suites/vocabulary/textured_plastic.xml``
   passes the Z-test against Mitsuba's ``path``, and the same scene with the
   textures replaced by their means is rejected.
+* A plastic's textured ``specular_reflectance`` (the coat only):
+  ``suites/vocabulary/textured_plastic_specular.xml`` passes the Z-test against
+  Mitsuba's ``path``; the textures replaced by their means are rejected; the
+  lobe weight is Mitsuba's.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from gibench import registry
 VOCAB = Path(__file__).resolve().parent.parent / "suites" / "vocabulary"
 CONDUCTORS = VOCAB / "named_conductors.xml"
 TEXTURED_PLASTIC = VOCAB / "textured_plastic.xml"
+TEXTURED_COAT = VOCAB / "textured_plastic_specular.xml"
 #: A thinlens sensor (aperture 0.12, focused at 5.5) over spheres at three depths.
 DOF = VOCAB / "thinlens.xml"
 GGX_SCENE = VOCAB / "ggx.xml"
@@ -224,7 +229,8 @@ def _ztest(scene_path: Path, *, spp: int = 256, image=None, seed: int = 0):
 
 
 @pytest.mark.mitsuba
-@pytest.mark.parametrize("scene_path", [CONDUCTORS, TEXTURED_PLASTIC, GGX_SCENE, DOF], ids=lambda p: p.stem)
+@pytest.mark.parametrize("scene_path", [CONDUCTORS, TEXTURED_PLASTIC, TEXTURED_COAT, GGX_SCENE, DOF],
+                         ids=lambda p: p.stem)
 def test_scene_passes_the_ztest_against_mitsuba_path(scene_path):
     """Per pixel (Z-test) and per third of the image (the mean of each third, |z| < 4):
     own ``path`` agrees with Mitsuba's ``path`` on the same XML; a 3 % exposure error
@@ -241,22 +247,71 @@ def test_scene_passes_the_ztest_against_mitsuba_path(scene_path):
 
 
 @pytest.mark.mitsuba
-def test_the_ztest_sees_the_plastic_textures_replaced_by_their_means(tmp_path):
+@pytest.mark.parametrize("scene_path", [TEXTURED_PLASTIC, TEXTURED_COAT], ids=lambda p: p.stem)
+def test_the_ztest_sees_the_plastic_textures_replaced_by_their_means(scene_path):
     """The textured plastics rendered with each texture replaced by its mean colour
     (what an algorithm ignoring the texture would draw) fail the Z-test."""
     from references.reference import get_reference
     from reports.metrics import z_test
     import dataclasses
 
+    from core.scene import texture_mean
+
     algo = registry.get("path")
-    ref = get_reference(TEXTURED_PLASTIC, transport="full", spp=1024, passes=8)
-    scene = load_scene(TEXTURED_PLASTIC)
-    flat = dataclasses.replace(scene, materials=[dataclasses.replace(m, textures={})
-                                                 for m in scene.materials])
+    ref = get_reference(scene_path, transport="full", spp=1024, passes=8)
+    scene = load_scene(scene_path)
+    def as_means(m):     # a diffuse texture's mean is the material's reflectance already
+        params = dict(m.params)
+        params.update({name: [float(v) for v in texture_mean(tex)] for name, tex in m.textures.items()
+                       if name != "diffuse_reflectance"})
+        return dataclasses.replace(m, textures={}, params=params)
+
+    flat = dataclasses.replace(scene, materials=[as_means(m) for m in scene.materials])
     own = algo.render(flat, algo.parse_params({"spp": 256}), seed=0)
     z = z_test(ref.image, own.image, reference_variance=ref.variance, test_variance=own.variance)
-    print(f"\ntextures as means: {z}")
+    print(f"\n{scene_path.name}, textures as means: {z}")
     assert not z.passed
+
+
+def test_a_plastic_specular_texture_is_named_and_refused_by_the_tracers_without_plastics():
+    """A plastic's textured ``specular_reflectance`` is the feature "textured specular
+    reflectance" (not an unmodelled "textured parameter"); the tracers that do not
+    model plastics refuse the scene by the plastic's name."""
+    scene = load_scene(TEXTURED_COAT)
+    features = scene_features(scene)
+    assert "textured parameter" not in features
+    assert features["textured specular reflectance"].startswith("shape 'ground'")
+    for name in ("raycast", "whitted", "distributed"):
+        algo = registry.get(name)
+        with pytest.raises(UnsupportedError, match=f"{name}: shape '(ground|wall)' uses 'plastic|{name}: "
+                                                   f"shape '(ground|wall)' uses 'roughplastic"):
+            algo.render(scene, algo.parse_params({}))
+
+
+@pytest.mark.mitsuba
+def test_the_plastic_lobe_weights_of_textured_reflectances_are_mitsubas(mitsuba):
+    """The specular lobe's sampling weight s̄ / (d̄ + s̄) of plastics whose reflectances
+    are textures equals the ``specular_sampling_weight`` Mitsuba prints for the same
+    BSDFs (``Texture::mean``: a bitmap's mean luminance, a checkerboard's mean of its
+    colours' channel means)."""
+    from impl.materials import plastic_arrays
+    from references.reference import load_scene as mitsuba_load, prepare_scene_xml
+
+    for path in (TEXTURED_PLASTIC, TEXTURED_COAT):
+        scene = load_scene(path)
+        ours = plastic_arrays(scene, distributions=("beckmann", "ggx"))
+        xml, _, _ = prepare_scene_xml(path, transport="full", spp_per_pass=1)
+        theirs = {}
+        for shape in mitsuba_load(mitsuba, path, xml).shapes():
+            text = str(shape.bsdf())
+            m = re.search(r"specular_sampling_weight = \[?([0-9.eE+-]+)", text)
+            if m:
+                theirs[shape.id()] = float(m.group(1))
+        assert set(theirs) == {"ground", "wall"}
+        for shape in scene.shapes:
+            if shape.name in theirs:
+                assert ours.spec_weight[shape.material] == pytest.approx(theirs[shape.name], rel=1e-5), \
+                    (path.name, shape.name)
 
 
 @pytest.mark.mitsuba
