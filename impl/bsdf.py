@@ -186,7 +186,7 @@ def bsdf_arrays(scene: Scene, *, algorithm: str = "path") -> BsdfArrays:
     M = material_arrays(scene, algorithm=algorithm, model="the path tracer", kinds=MODELLED,
                         distributions=tuple(mf.DISTRIBUTIONS), anisotropic=True)
     return with_plastic(M, plastic_arrays(scene, algorithm=algorithm, distributions=tuple(mf.DISTRIBUTIONS)),
-                        distribution_codes(scene), wrapper_arrays(scene, algorithm=algorithm))
+                        distribution_codes(scene), wrapper_arrays(scene, algorithm=algorithm, bump_tangent=True))
 
 
 # ------------------------------------------------------------------ frames ---

@@ -55,7 +55,7 @@ from core.scene import Scene
 
 from .pipeline import ScreenTriangles, clip_polygon, project
 from .raster import DEPTH_NONE, TRAVERSALS, rasterize
-from .zbuffer import PARAMS, render_polygons
+from .zbuffer import MODELS, PARAMS, render_polygons
 
 __all__ = ["EPS_REL", "MAX_SPLIT_FACTOR", "depth_sort_order", "depthsort_visibility", "render", "ALGORITHM"]
 
@@ -395,4 +395,5 @@ ALGORITHM = Algorithm(
     transport="direct",
     params=PARAMS,
     render=render,
+    models=MODELS,
 )

@@ -205,24 +205,28 @@ def local_shading(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, shape, prim, b
     """Local illumination leaving a surface point towards the unit direction v (thesis 1.4.2):
     emitted L_e (front side only) + ambient I_a k_a ρ + the Phong direct light of every
     light; (r, g, b, shadow rays).  A one-sided point seen from behind gets nothing;
-    a two-sided one is shaded on the side it is seen from."""
+    a two-sided one is shaded on the side it is seen from.  Under a normal or bump map
+    (a triangle ``prim`` with uvs, barycentrics b1, b2) the bracket is taken about the
+    perturbed normal and each light weighted as Mitsuba's adapters weight it
+    (:func:`mapped_normal`, :func:`map_weight`), as ray casting shades its hits."""
     r = g = b = 0.0
-    cos_v = sx * vx + sy * vy + sz * vz
-    if cos_v > 0.0:                     # emitted radiance L_e, front side only
+    if sx * vx + sy * vy + sz * vz > 0.0:       # emitted radiance L_e, front side only
         r += A.shape_emit[shape, 0]
         g += A.shape_emit[shape, 1]
         b += A.shape_emit[shape, 2]
     mat = A.shape_material[shape]
-    if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+    back = A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
+    nx, ny, nz, code = mapped_normal(A, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, back)
+    if back:
         gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-        cos_v = -cos_v
-    if cos_v <= 0.0:
+    if nx * vx + ny * vy + nz * vz <= 0.0:      # the BSDF sees the viewer below n
         return r, g, b, 0
     rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
     amb = ambient * ka
-    dr_, dg_, db_, nsh = direct_light_rays(px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+    dr_, dg_, db_, nsh = direct_light_dims(px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz,
                                            rho_r, rho_g, rho_b, A, ks, shininess, c1, c2, c3,
-                                           fclamp, shadows, light_samples, seed, pixel, sample, R)
+                                           fclamp, shadows, light_samples, seed, pixel, sample, R,
+                                           (DIM_INDEPENDENT, 0, 0), (sx, sy, sz, code))
     return r + amb * rho_r + dr_, g + amb * rho_g + dg_, b + amb * rho_b + db_, nsh
 
 

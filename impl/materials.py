@@ -525,8 +525,10 @@ def _leaf_tables(kind, comp):
     return leaf, node, branch
 
 
-def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
-    """:class:`WrapperArrays` of ``scene`` (expanded by :func:`expand_components`).  A
+def wrapper_arrays(scene: Scene, *, algorithm: str = "path", bump_tangent: bool = False) -> WrapperArrays:
+    """:class:`WrapperArrays` of ``scene`` (expanded by :func:`expand_components`);
+    ``bump_tangent``: the caller takes an anisotropic BSDF's tangent under a bump map
+    as Mitsuba's bump frame does (:func:`impl.shading_frame.bump_tangent`).  A
     scalar texture is read as Mitsuba's ``eval_1``: the luminance of the bitmap's linear
     RGB (a grey image's value), clipped to [0, 1] where used (opacity, weight; not a
     roughness).
@@ -535,8 +537,7 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
     ------
     UnsupportedError
         A texture other than a bitmap or checkerboard as opacity, blend weight or
-        roughness; anisotropic roughness under a bump map (the bump frame's tangent is
-        not modelled).
+        roughness; anisotropic roughness under a bump map unless ``bump_tangent``.
     """
     from .scene_arrays import FILTER_CODES, TEX_BITMAP, TEX_CHECKERBOARD, WRAP_CODES
 
@@ -588,7 +589,7 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
             if "alpha" in m.textures:
                 alpha_v[i] = au
             aniso[i] = int(au != alpha_v[i] or "alpha_u" in m.textures or "alpha_v" in m.textures)
-            if aniso[i] and m.shading is not None and m.shading["type"] == "bumpmap":
+            if aniso[i] and not bump_tangent and m.shading is not None and m.shading["type"] == "bumpmap":
                 raise UnsupportedError(f"{where}: anisotropic roughness under a bumpmap is not modelled "
                                        "(the bump frame's tangent)")
     kind = np.array([KIND_CODES.get(m.kind, -1) for m in scene.materials])
@@ -596,7 +597,7 @@ def wrapper_arrays(scene: Scene, *, algorithm: str = "path") -> WrapperArrays:
     for i, m in enumerate(scene.materials):
         if m.kind == "blendbsdf":
             aniso[i] = max(aniso[r] for r in leaf[i] if r >= 0)
-            if aniso[i] and m.shading is not None and m.shading["type"] == "bumpmap":
+            if aniso[i] and not bump_tangent and m.shading is not None and m.shading["type"] == "bumpmap":
                 raise UnsupportedError(f"{algorithm}: material '{m.name or i}': anisotropic roughness "
                                        "under a bumpmap is not modelled (the bump frame's tangent)")
     opacity, blend_w = np.clip(opacity, 0.0, 1.0), np.clip(blend_w, 0.0, 1.0)

@@ -181,8 +181,8 @@ from .rays import RayConfig, leave, refine, round_ray
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
-from .scene_arrays import PTEX_PLASTIC_SPECULAR, SceneArrays, scene_memo
-from .shading_frame import perturbed_normal, perturbed_tangent, same_side, shadow_terminator, tangent
+from .scene_arrays import PTEX_PLASTIC_SPECULAR, SHADE_BUMPMAP, SceneArrays, scene_memo
+from .shading_frame import bump_tangent, perturbed_normal, perturbed_tangent, same_side, shadow_terminator, tangent
 from .textures import bitmap, checkerboard, luminance, scalar_param
 from .spectral import (SpectralArrays, eta_scale_at, rgb_arrays_placeholder, sample_wavelengths,
                        spectral_arrays, spectrum_at, to_linear_srgb)
@@ -582,10 +582,15 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         # the back of a two-sided BSDF (Mitsuba's twosided negates the local z only).
         aniso = B.aniso[mat] != 0
         if aniso:
-            fx, fy, fz = tangent(prim, ns, b1, b2, px, py, pz, A.sph_center, A.tri_v, A.tri_uv,
-                                 A.tri_has_uv, gx, gy, gz, sx, sy, sz)
+            if shade == SHADE_BUMPMAP and prim >= ns:    # Mitsuba's bump frame's tangent
+                fx, fy, fz = bump_tangent(A.tri_v[prim - ns], A.tri_uv[prim - ns], A.mat_shade_tex[mat],
+                                          back, gx, gy, gz, sx, sy, sz, nx, ny, nz)
+            else:
+                fx, fy, fz = tangent(prim, ns, b1, b2, px, py, pz, A.sph_center, A.tri_v, A.tri_uv,
+                                     A.tri_has_uv, gx, gy, gz, sx, sy, sz)
             if shade != 0:           # a normal map's frame: that tangent about n_p
-                fx, fy, fz = perturbed_tangent(fx, fy, fz, nx, ny, nz)
+                if shade != SHADE_BUMPMAP:
+                    fx, fy, fz = perturbed_tangent(fx, fy, fz, nx, ny, nz)
                 qx, qy, qz = ny * fz - nz * fy, nz * fx - nx * fz, nx * fy - ny * fx
             else:
                 qx, qy, qz = sy * fz - sz * fy, sz * fx - sx * fz, sx * fy - sy * fx

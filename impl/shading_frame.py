@@ -51,9 +51,10 @@ tangents around n_p.  An anisotropic BSDF under a ``normalmap`` takes Mitsuba
 made orthogonal to n_p and normalised (:func:`perturbed_tangent`; in Mitsuba, e_x
 of the local frame Gram–Schmidt-ed against the local n_p); mirrored or negated
 with n_p on the back of a two-sided material, which leaves its axis (all an
-anisotropic D sees) unchanged.  Under a ``bumpmap`` it is refused: 3.9.1's bump
-frame builds its tangent from ∂p/∂u and a normal in local coordinates, which is
-not reproduced.  Triangles only: the loader gives spheres no uv.
+anisotropic D sees) unchanged.  Under a ``bumpmap`` it takes 3.9.1's bump frame's
+tangent (:func:`bump_tangent`), which Gram–Schmidts the world ∂p/∂u against the
+perturbed normal in frame coordinates, mixing the two spaces.  Triangles only: the
+loader gives spheres no uv.
 
 The tangent frame of an anisotropic BSDF (:func:`tangent`): Mitsuba's
 ``SurfaceInteraction::initialize_sh_frame`` (3.9) takes s = ∂p/∂u made orthogonal to
@@ -75,7 +76,7 @@ from numba import njit
 
 from .textures import bitmap, bitmap_grad
 
-__all__ = ["tri_dpdu_dpdv", "tangent", "perturbed_tangent", "perturbed_normal", "same_side",
+__all__ = ["tri_dpdu_dpdv", "tangent", "perturbed_tangent", "bump_tangent", "perturbed_normal", "same_side",
            "shadow_terminator"]
 
 
@@ -137,6 +138,43 @@ def perturbed_tangent(tx, ty, tz, nx, ny, nz):
         return ex / le, ey / le, ez / le
     ex, ey, ez, _a, _b, _c = _coordinate_system(nx, ny, nz)
     return ex, ey, ez
+
+
+@njit(inline="always", cache=True)
+def bump_tangent(v, uv, tex, back, gx, gy, gz, sx, sy, sz, nx, ny, nz):
+    """The unit tangent of Mitsuba 3.9.1's ``bumpmap`` frame at a hit of a triangle
+    (vertices ``v``, uvs ``uv``; ``tex`` the map's record of :func:`perturbed_normal`,
+    whose entry 7 says whether the map wraps a ``twosided``), in world space: g the unit
+    geometric normal, s the unit unperturbed shading normal on the front side, n the
+    perturbed normal as the BSDF sees it (:func:`perturbed_normal`, mirrored or negated on
+    the ``back`` of a two-sided material).
+
+    ``BumpMap::frame`` computes the perturbed normal n_l in the coordinates of the
+    unperturbed frame (e, e_t = s × e, s), e the tangent of :func:`tangent`, and then its
+    tangent as ``normalize(dp_du − n_l (n_l · dp_du))`` with the *world* ∂p/∂u: that
+    vector's three world components read as frame coordinates, made orthogonal to n_l
+    and normalised, then taken to the world through the frame.  Where ∂p/∂u lies along a
+    world axis other than the frame's e this turns the tangent (by 90° on a rectangle
+    whose u runs along world y), which an anisotropic BSDF shows; reproduced as it is.
+    On the back the tangent follows the normal (mirrored through the tangent plane where
+    the map is inside the ``twosided``; as it is where the map wraps it, the normal then
+    negated)."""
+    dux, duy, duz, _a, _b, _c = tri_dpdu_dpdv(v, uv, gx, gy, gz)
+    ex, ey, ez = perturbed_tangent(dux, duy, duz, sx, sy, sz)
+    fx, fy, fz = sy * ez - sz * ey, sz * ex - sx * ez, sx * ey - sy * ex
+    mirror = back and tex[7] == 0
+    if mirror:                          # n_p on the front: mirrored back through the tangent plane
+        d = 2.0 * (nx * sx + ny * sy + nz * sz)
+        nx, ny, nz = nx - d * sx, ny - d * sy, nz - d * sz
+    elif back:                          # negated by the twosided inside the map
+        nx, ny, nz = -nx, -ny, -nz
+    lx, ly, lz = nx * ex + ny * ey + nz * ez, nx * fx + ny * fy + nz * fz, nx * sx + ny * sy + nz * sz
+    ax, ay, az = perturbed_tangent(dux, duy, duz, lx, ly, lz)
+    tx, ty, tz = ax * ex + ay * fx + az * sx, ax * ey + ay * fy + az * sy, ax * ez + ay * fz + az * sz
+    if mirror:
+        d = 2.0 * (tx * sx + ty * sy + tz * sz)
+        tx, ty, tz = tx - d * sx, ty - d * sy, tz - d * sz
+    return tx, ty, tz
 
 
 @njit(inline="always", cache=True)

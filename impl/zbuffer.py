@@ -30,6 +30,11 @@ frustum), ``culled``, ``rejected`` (outcodes), ``clipped``,
 ``triangles_out``, ``fragments`` (covered samples), ``depth_passed``,
 ``shading_evaluations``.
 
+Normal and bump maps (Mitsuba's ``normalmap`` and ``bumpmap`` around a diffuse
+BSDF, on triangles with uvs) with ``shading=phong``: the model is taken about
+the perturbed normal at each pixel, as ray casting takes it at its hits
+(:func:`impl.lighting.local_shading`); flat and Gouraud shading refuse them.
+
 Leaves out: shadows, transparency, texture filtering, the far-plane and
 side clipping of hardware (a guard band instead), hierarchical z.  Materials
 other than ``diffuse`` raise ``NotImplementedError``.
@@ -58,7 +63,7 @@ from __future__ import annotations
 import numpy as np
 
 from core.algorithm import Algorithm, Param, RenderResult
-from core.scene import Scene
+from core.scene import Scene, scene_features
 from core.errors import ParamError, UnsupportedError
 
 from .pipeline import ScreenTriangles, camera_frame, geometry_stage
@@ -82,7 +87,19 @@ def _check(scene: Scene, params: dict, algorithm: str) -> int:
             raise UnsupportedError(
                 f"{algorithm}: shape '{shape.name or shape.source}' has a '{m.kind}' BSDF; local Phong "
                 "illumination models diffuse surfaces only")
+    if params["shading"] != "phong":
+        features = scene_features(scene)
+        for name in ("normalmap", "bumpmap"):
+            if name in features:
+                raise UnsupportedError(
+                    f"{algorithm}: {features[name]} uses '{name}', which shading={params['shading']} "
+                    f"cannot show (it evaluates the model {_WHERE[params['shading']]}, not per pixel); "
+                    "use shading=phong")
     return k
+
+
+#: Where flat and Gouraud shading evaluate the illumination model.
+_WHERE = {"flat": "once per polygon", "gouraud": "at the vertices"}
 
 
 def zbuffer_visibility(scr: ScreenTriangles, scene: Scene, width: int, height: int, params: dict):
@@ -150,6 +167,10 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     return render_polygons(scene, params, seed=seed, algorithm="zbuffer", visibility=zbuffer_visibility)
 
 
+#: The scene features ``zbuffer`` and ``depthsort`` model (:func:`core.scene.scene_features`):
+#: normal and bump maps over diffuse triangles with uvs, per pixel (``shading=phong``).
+MODELS = frozenset({"normalmap", "bumpmap"})
+
 #: Parameters shared by ``zbuffer`` and ``depthsort``.
 PARAMS = (
     Param("spp", int, 1, "pixel samples: 1 = pixel centre, k² = k×k regular grid (box filter)"),
@@ -170,4 +191,5 @@ ALGORITHM = Algorithm(
     params=PARAMS[:5] + (Param("depth", str, "float32", "depth buffer format", choices=tuple(DEPTH_MODES)),)
     + PARAMS[5:],
     render=render,
+    models=MODELS,
 )

@@ -2,6 +2,7 @@
 render-and-test steps of the vocabulary scenes' tests."""
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 
@@ -31,13 +32,17 @@ def path_against_mitsuba(scene_file, materials=None, **fields):
 def against_mitsuba(scene_file, algorithm, params, transport, materials=None, **fields):
     """Own ``algorithm`` with ``params`` (seed 0) of ``scene_file`` and the Z-test against
     the stored Mitsuba reference of ``transport`` (1024 spp × 8 passes): (reference,
-    render, z); ``materials`` and ``fields`` as :func:`path_against_mitsuba` takes them."""
+    render, z); ``materials`` and ``fields`` as :func:`path_against_mitsuba` takes them.
+    A file's ``path`` integrator's ``max_depth``, which the full-transport reference
+    renders, goes to the own render too (:func:`gibench.suite.file_max_depth`)."""
     from core.loader import load_scene
     from gibench import registry
+    from gibench.suite import file_max_depth
     from references.reference import get_reference
     from reports.metrics import z_test
 
     algo = registry.get(algorithm)
+    params = {**params, **file_max_depth(Path(scene_file), algo, params, transport)}
     ref = get_reference(scene_file, transport=transport, spp=1024, passes=8)
     scene = load_scene(scene_file)
     if materials is not None:

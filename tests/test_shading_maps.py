@@ -205,12 +205,23 @@ def test_the_ztest_rejects_a_wrong_rendering(algorithm, scene_path, wrong):
 # ------------------------------------------------------------ refusals ---
 
 @pytest.mark.parametrize("algorithm, scene_path, feature", [
-    ("zbuffer", MAPS_DIRECT, "normalmap"), ("depthsort", BUMPMAP, "bumpmap"),
     ("radiosity", MAPS_DIRECT, "normalmap"), ("radiosity", PROJECTOR, "projector")])
 def test_algorithms_refuse_what_they_do_not_model_by_name(algorithm, scene_path, feature):
     algo = registry.get(algorithm)
     with pytest.raises(UnsupportedError, match=f"uses '{feature}', which {algorithm} does not model"):
         algo.render(load_scene(scene_path), algo.parse_params({}), seed=0)
+
+
+@pytest.mark.parametrize("algorithm", ["zbuffer", "depthsort"])
+@pytest.mark.parametrize("shading, where", [("flat", "once per polygon"), ("gouraud", "at the vertices")])
+def test_rasterisers_refuse_maps_without_per_pixel_shading(algorithm, shading, where):
+    """The rasterisers take normal and bump maps per pixel (shading=phong); flat and
+    Gouraud shading, which evaluate the model elsewhere, refuse them by name."""
+    algo = registry.get(algorithm)
+    with pytest.raises(UnsupportedError, match=f"{algorithm}: shape '.*' uses 'normalmap', which "
+                                               f"shading={shading} cannot show \\(it evaluates the model "
+                                               f"{where}, not per pixel\\); use shading=phong"):
+        algo.render(load_scene(MAPS_DIRECT), algo.parse_params({"shading": shading}), seed=0)
 
 
 @pytest.mark.parametrize("scene_path, kind", [(PROJECTOR, "projector"), (SPOT, "spot")])

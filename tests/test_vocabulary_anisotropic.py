@@ -14,10 +14,15 @@
   from the front and, inside and outside ``twosided``, from behind) passes in path and
   distributed: the tangent of Mitsuba's perturbed frame (the unperturbed tangent made
   orthogonal to the perturbed normal); α_u and α_v swapped fail.
+* ``anisotropic_bumpmap.xml`` (the same under a bump map, on rectangles whose u runs
+  along world y) passes in path: the tangent of Mitsuba 3.9.1's bump frame (the world
+  ∂p/∂u's components read as frame coordinates, made orthogonal to the perturbed
+  normal: here along the frame's bitangent); α_u and α_v swapped, which is what the
+  normal map's tangent would give there, fail.
 * The algorithms that do not model them refuse them by name (raycast and whitted
   model a spot's texture: tests/test_shading_maps.py); a lone ``alpha_u`` is refused with its
-  file and line, as Mitsuba refuses it; anisotropic roughness under a bump map is
-  refused by name.
+  file and line, as Mitsuba refuses it; distributed refuses anisotropic roughness
+  under a bump map by name.
 """
 
 from __future__ import annotations
@@ -36,7 +41,8 @@ from gibench import registry
 
 VOCAB = Path(__file__).resolve().parent.parent / "suites" / "vocabulary"
 SCENES = {name: VOCAB / f"{name}.xml"
-          for name in ("anisotropic", "anisotropic_textured", "anisotropic_normalmap", "spot_texture")}
+          for name in ("anisotropic", "anisotropic_textured", "anisotropic_normalmap", "anisotropic_bumpmap",
+                       "spot_texture")}
 
 
 def _swap_uv(m):
@@ -73,6 +79,7 @@ def _spot_mirrored(light):
 WRONG = {"anisotropic": [("materials", _swap_uv), ("materials", _isotropic)],
          "anisotropic_textured": [("materials", _swap_uv)],
          "anisotropic_normalmap": [("materials", _swap_uv)],
+         "anisotropic_bumpmap": [("materials", _swap_uv)],
          "spot_texture": [("lights", _spot_plain), ("lights", _spot_mirrored)]}
 
 
@@ -164,10 +171,10 @@ def test_spectral_path_refuses_the_spot_texture():
         algo.render(scene, algo.parse_params({"spp": 1, "spectral": True}))
 
 
-def test_anisotropic_roughness_under_a_bump_map_is_refused_by_name(tmp_path):
+def test_distributed_refuses_anisotropic_roughness_under_a_bump_map_by_name(tmp_path):
     """Mitsuba 3.9.1's bumpmap builds its frame's tangent from ∂p/∂u and a normal in
-    local coordinates, which path and distributed do not reproduce: refused with the
-    material named."""
+    local coordinates, which path reproduces (``anisotropic_bumpmap.xml`` above) and
+    distributed does not: distributed refuses it with the material named, path renders."""
     text = (VOCAB / "bumpmap.xml").read_text()
     start = text.index('<bsdf type="roughplastic">')
     old = text[start:text.index('</bsdf>', start)]
@@ -175,10 +182,12 @@ def test_anisotropic_roughness_under_a_bump_map_is_refused_by_name(tmp_path):
     p.write_text(text.replace(old, '<bsdf type="roughconductor"><float name="alpha_u" value="0.05"/>'
                                    '<float name="alpha_v" value="0.3"/>')
                  .replace('value="textures/', f'value="{VOCAB}/textures/'))
-    for name in ("path", "distributed"):
-        algo = registry.get(name)
-        with pytest.raises(UnsupportedError, match="anisotropic roughness under a bumpmap is not modelled"):
-            algo.render(load_scene(p), algo.parse_params({"spp": 1}))
+    algo = registry.get("distributed")
+    with pytest.raises(UnsupportedError, match="distributed: material .* anisotropic roughness under a "
+                                               "bumpmap is not modelled"):
+        algo.render(load_scene(p), algo.parse_params({"spp": 1}))
+    algo = registry.get("path")
+    assert np.isfinite(algo.render(load_scene(p), algo.parse_params({"spp": 1})).image).all()
 
 
 @pytest.mark.parametrize("axis, refused", [("x", True), ("z", False)])
