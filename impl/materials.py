@@ -64,7 +64,7 @@ __all__ = ["named_conductor", "distribution_codes", "CONDUCTOR_TABLE", "Material
            "MAT_DIELECTRIC", "MAT_ROUGHCONDUCTOR", "MAT_ROUGHDIELECTRIC", "MAT_PLASTIC",
            "MAT_ROUGHPLASTIC", "MAT_COOKTORRANCE", "MAT_DIFFTRANS", "MAT_THINDIELECTRIC", "MAT_BLEND",
            "MAX_LOBES", "KIND_CODES", "DEFAULT_ALPHA", "expand_components", "with_specular_textures",
-           "WrapperArrays", "N_SLOTS", "no_wrappers", "wrapper_arrays", "rgb_param"]
+           "WrapperArrays", "N_SLOTS", "no_wrappers", "wrapper_arrays", "rgb_param", "texture_mean_value"]
 
 MAT_DIFFUSE = MATERIAL_CODES["diffuse"]
 MAT_CONDUCTOR = MATERIAL_CODES["conductor"]
@@ -358,10 +358,22 @@ def material_arrays(scene: Scene, *, algorithm: str = "whitted",
                           kind, alpha, visible)
 
 
-def _scalar_texture_mean(tex: dict) -> float:
-    """The mean of a texture read as Mitsuba's ``eval_1`` (the luminance of its RGB)."""
+def texture_mean_value(tex: dict) -> float:
+    """The scalar mean Mitsuba's RGB variants give a texture record (``Texture::mean``):
+    a ``bitmap``'s mean texel luminance, a ``checkerboard``'s mean of its two colours'
+    channel means (``src/textures/bitmap.cpp``, ``checkerboard.cpp``; an ``rgb``
+    constant's mean is that of its channels)."""
     if tex["type"] == "bitmap":
         return float((np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3) @ LUMINANCE).mean())
+    return float(0.5 * (np.mean(tex["color0"]) + np.mean(tex["color1"])))
+
+
+def _scalar_texture_mean(tex: dict) -> float:
+    """The mean of a texture read as Mitsuba's ``eval_1`` (the luminance of its RGB): a
+    bitmap's is its :func:`texture_mean_value`; a checkerboard's the luminance of its
+    colours' mean."""
+    if tex["type"] == "bitmap":
+        return texture_mean_value(tex)
     return float(0.5 * (np.asarray(tex["color0"]) + np.asarray(tex["color1"])) @ LUMINANCE)
 
 

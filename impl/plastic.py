@@ -44,8 +44,8 @@ from numba import njit
 from core.errors import SceneError, UnsupportedError
 from core.scene import texture_mean as scene_texture_mean
 
-from .envmap import LUMINANCE
 from .fresnel import fresnel_dielectric, lookup_ior
+from .materials import texture_mean_value
 from .microfacet import (BECKMANN, DISTRIBUTIONS, microfacet_d, normal_pdf, sample_normal,
                          sample_visible_normal, smith_g1)
 
@@ -152,7 +152,8 @@ def plastic_params(material, *, where: str = "plastic",
     alpha 0.1, beckmann, sample_visible true, nonlinear false); ``distributions``:
     those the caller models (a roughplastic with another is refused).  A textured
     reflectance enters as its mean colour (``diffuse``, ``specular``) and the lobe
-    weight takes its scalar mean as Mitsuba's ``Texture::mean`` (:func:`texture_mean_value`);
+    weight takes its scalar mean as Mitsuba's ``Texture::mean``
+    (:func:`impl.materials.texture_mean_value`);
     the per-point values are the caller's lookups (:mod:`impl.textures`)."""
     p = material.params
     if material.kind not in ("plastic", "roughplastic"):
@@ -194,16 +195,6 @@ def plastic_params(material, *, where: str = "plastic",
     return PlasticParams(material.kind, eta, diffuse, specular, s_mean / (d_mean + s_mean),
                          bool(p.get("nonlinear", False)), alpha, visible,
                          float(fresnel_diffuse_reflectance(1.0 / eta)), ext_t, int_r, code)
-
-
-def texture_mean_value(tex: dict) -> float:
-    """The scalar mean Mitsuba's RGB variants give a texture record (``Texture::mean``):
-    a ``bitmap``'s mean texel luminance, a ``checkerboard``'s mean of its two colours'
-    channel means (``src/textures/bitmap.cpp``, ``checkerboard.cpp``; an ``rgb``
-    constant's mean is that of its channels)."""
-    if tex["type"] == "bitmap":
-        return float((np.asarray(tex["data"], dtype=np.float64).reshape(-1, 3) @ LUMINANCE).mean())
-    return float(0.5 * (np.mean(tex["color0"]) + np.mean(tex["color1"])))
 
 
 # ------------------------------------------------------------- plastic ---
