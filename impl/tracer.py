@@ -509,10 +509,12 @@ def _chunk(R: RayConfig, n):
     return n if brute_force(R) else CHUNK
 
 
-@njit(inline="always", cache=True)
+@batch_kernel(error_model="numpy")
 def _chunk_cull(R: RayConfig, q, c0, c1, cand, uv, bound, raw):
     """The candidates of rays ``c0:c1`` into ``cand``: :func:`_cull` by brute force,
-    :func:`_wide_cull` through the wide BVH."""
+    :func:`_wide_cull` through the wide BVH.  Called once per chunk, not inlined: the
+    closest-hit and the shadow queries share one compile of it (numba's inlining copies
+    a callee's IR into each caller, at a cost that grows with the callee's size)."""
     if brute_force(R):
         _cull(R, q, c0, c1, cand, uv, bound)
     else:

@@ -24,7 +24,7 @@ BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, lighti
                  path._to_srgb, wide.wide_closest, wide.wide_any,
                  wide.wide_closest_bound, wide.wide_any_bound, wide.wide_frustum_prims,
                  wide.wide_closest_rays, wide.wide_occluded_rays, tracer._closest_chunks,
-                 tracer._occluded_chunks,
+                 tracer._occluded_chunks, tracer._chunk_cull,
                  spectral.to_linear_srgb]
 #: Called per ray from batch kernels: inlined (a call would pass every array of the scene,
 #: material or ray-configuration tuple it takes, member by member).
@@ -271,6 +271,66 @@ def test_the_collector_is_relaxed_during_a_compile_and_restored_after():
         gc.set_threshold(*before)
     assert ("callee", COMPILE_GC_THRESHOLDS) in seen and ("caller", COMPILE_GC_THRESHOLDS) in seen
     assert ("broken", COMPILE_GC_THRESHOLDS) in seen
+
+
+def test_an_inlined_callees_block_copies_share_one_scope():
+    """Inside one inlining (``InlineWorker.inline_ir``) the copies of a function's blocks
+    share one copy of its scope, as the original blocks share the original: each block's
+    copy no longer copies the whole variable table.  Outside an inlining a block's copy
+    is numba's own (a scope of its own)."""
+    from numba.core import inline_closurecall
+    from numba.core.compiler import run_frontend
+
+    from impl.kernel import INLINED_COPIES_SHARED
+
+    assert INLINED_COPIES_SHARED, "numba's inliner changed shape: its block copies are quadratic again"
+
+    def branches(x):
+        s = 0.0
+        for i in range(4):
+            if x > i:
+                s += x * i
+            else:
+                s -= i
+        return s
+
+    ir = run_frontend(branches)
+    assert len(ir.blocks) > 3
+    shim = inline_closurecall.copy
+    shared = shim.sharing(lambda worker: [shim.deepcopy(b) for b in ir.blocks.values()])(None)
+    scopes = {id(b.scope) for b in shared}
+    assert len(scopes) == 1 and id(next(iter(ir.blocks.values())).scope) not in scopes
+    assert [str(b) for b in shared] == [str(b) for b in ir.blocks.values()]
+    alone = [shim.deepcopy(b) for b in ir.blocks.values()]
+    assert len({id(b.scope) for b in alone}) == len(alone)
+
+
+@njit(inline="always")
+def _inlined_leaf(x):
+    s = 0.0
+    for i in range(3):
+        if x > i:
+            s += x * i
+        else:
+            s -= i
+    return s
+
+
+@njit(inline="always")
+def _inlined_middle(x):
+    return _inlined_leaf(x) + _inlined_leaf(x + 1.0)
+
+
+@njit
+def _inlined_top(x):
+    return _inlined_middle(x) * 2.0 + _inlined_leaf(-x)
+
+
+@pytest.mark.parametrize("x", [-2.0, 0.5, 1.5, 7.0])
+def test_nested_inlined_callees_compute_what_python_does(x):
+    """Callees inlined at several sites and inside each other (the shared block copies
+    of every inlining) compute what the Python functions compute."""
+    assert _inlined_top(x) == _inlined_top.py_func(x)
 
 
 def _compiled_signatures(dispatcher):
