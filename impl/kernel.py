@@ -180,12 +180,11 @@ numba.core.event.register("numba:compile", _CompileCollection())
 # to the function's one scope, which lists every variable of the function, and each
 # block's copy has a memo of its own: so each block copies the whole variable table
 # again, blocks × variables per copy (numba issue 8989, open).  A callee that inlines
-# others has thousands of both: in a profile of a cold compile of ``raycast`` a fifth of
-# the time went to these copies, one helper of 203 blocks and 5 002 variables taking
-# 5 s per call site.  For the length of each ``inline_ir`` call, the blocks' copies share
-# one memo (:class:`_InlinerCopy`): the scope and each variable are copied once, and the
-# copied blocks share them as the original blocks do.  The IR that results is the one
-# numba builds, less the duplicates; the machine code is the same.  Installed only where
+# others has thousands of both, and these copies are then a large part of a tracer's
+# cold compile (the README has the figures).  For the length of each ``inline_ir`` call,
+# the blocks' copies share one memo (:class:`_InlinerCopy`): the scope and each variable
+# are copied once, and the copied blocks share them as the original blocks do.  The IR
+# that results is numba's own, without the duplicated scopes.  Installed only where
 # numba's inliner has the shape this relies on (a module-level ``copy`` and
 # ``InlineWorker.inline_ir``); elsewhere numba's own copying stays.
 
