@@ -273,38 +273,6 @@ def test_the_collector_is_relaxed_during_a_compile_and_restored_after():
     assert ("broken", COMPILE_GC_THRESHOLDS) in seen
 
 
-def test_an_inlined_callees_block_copies_share_one_scope():
-    """Inside one inlining (``InlineWorker.inline_ir``) the copies of a function's blocks
-    share one copy of its scope, as the original blocks share the original: each block's
-    copy no longer copies the whole variable table.  Outside an inlining a block's copy
-    is numba's own (a scope of its own)."""
-    from numba.core import inline_closurecall
-    from numba.core.compiler import run_frontend
-
-    from impl.kernel import INLINED_COPIES_SHARED
-
-    assert INLINED_COPIES_SHARED, "numba's inliner changed shape: its block copies are quadratic again"
-
-    def branches(x):
-        s = 0.0
-        for i in range(4):
-            if x > i:
-                s += x * i
-            else:
-                s -= i
-        return s
-
-    ir = run_frontend(branches)
-    assert len(ir.blocks) > 3
-    shim = inline_closurecall.copy
-    shared = shim.sharing(lambda worker: [shim.deepcopy(b) for b in ir.blocks.values()])(None)
-    scopes = {id(b.scope) for b in shared}
-    assert len(scopes) == 1 and id(next(iter(ir.blocks.values())).scope) not in scopes
-    assert [str(b) for b in shared] == [str(b) for b in ir.blocks.values()]
-    alone = [shim.deepcopy(b) for b in ir.blocks.values()]
-    assert len({id(b.scope) for b in alone}) == len(alone)
-
-
 @njit(inline="always")
 def _inlined_leaf(x):
     s = 0.0
@@ -324,6 +292,29 @@ def _inlined_middle(x):
 @njit
 def _inlined_top(x):
     return _inlined_middle(x) * 2.0 + _inlined_leaf(-x)
+
+
+def test_an_inlined_callees_block_copies_share_one_scope():
+    """Inside one inlining (``InlineWorker.inline_ir``) the copies of a function's blocks
+    share one copy of its scope, as the original blocks share the original: each block's
+    copy no longer copies the whole variable table.  Outside an inlining a block's copy
+    is numba's own (a scope of its own)."""
+    from numba.core import inline_closurecall
+    from numba.core.compiler import run_frontend
+
+    from impl.kernel import INLINED_COPIES_SHARED
+
+    assert INLINED_COPIES_SHARED, "numba's inliner changed shape: its block copies are quadratic again"
+
+    ir = run_frontend(_inlined_leaf.py_func)
+    assert len(ir.blocks) > 3
+    shim = inline_closurecall.copy
+    shared = shim.sharing(lambda worker: [shim.deepcopy(b) for b in ir.blocks.values()])(None)
+    scopes = {id(b.scope) for b in shared}
+    assert len(scopes) == 1 and id(next(iter(ir.blocks.values())).scope) not in scopes
+    assert [str(b) for b in shared] == [str(b) for b in ir.blocks.values()]
+    alone = [shim.deepcopy(b) for b in ir.blocks.values()]
+    assert len({id(b.scope) for b in alone}) == len(alone)
 
 
 @pytest.mark.parametrize("x", [-2.0, 0.5, 1.5, 7.0])
