@@ -40,7 +40,10 @@ They compute exactly what :func:`impl.intersect.closest_hit_form` / ``any_hit_fo
 ray (same arithmetic, same tie rule: the first primitive of smallest ``t``),
 so the image does not depend on the path taken.  Before the loops, a batch's rays are
 bounded (:func:`_cull`: the frustum of rays from one origin or to one point, else the
-box of the segments) and only the primitives inside the bound are tested; a pinhole
+box of the segments) and only the primitives inside the bound are tested, and of finite
+segments (shadow rays) only the triangles whose plane crosses the box of the segments
+(:func:`_plane_misses_box`: in a closed room, the walls a point's shadow ray does not
+start on); a pinhole
 camera's eye rays are bounded once per tile, for all its samples, by the frustum through
 the corners of each strip of its pixel rows (:func:`_tile_candidates`).  ``accel=auto`` answers
 batch queries this way on small scenes even where its per-ray queries use the wide BVH
@@ -705,8 +708,12 @@ CHUNK_CAP = 24
 #: Room for the leaves' primitives a frustum reaches in the wide BVH, before the frustum's
 #: own primitive test thins them.
 _RAW_CAP = 2 * CHUNK_CAP
-#: Words of a frustum bound: apex, slack, four inward unit plane normals, reach.
-_BOUND_WORDS = 17
+#: Words of a bound: apex, slack, four inward unit plane normals, reach (the frustum), then
+#: the low and high corners of a box holding the segments (:func:`_pyramid_box`,
+#: :func:`_shaft_box`).
+_BOUND_WORDS = 23
+#: Where the box of the segments starts in a bound.
+_SEG = 17
 #: Candidate-list states in its first word (else the number of spheres).
 _UNKNOWN, _PER_RAY = -1, -3
 #: What bounds a set of rays (:func:`_bound`).
@@ -747,7 +754,7 @@ def _cull(R: RayConfig, q, c0, c1, cand, uv, bound):
     if kind == _FRUSTUM:
         _frustum_prims(R, bound, cand)
     elif kind == _BOX:
-        _shaft_box(R, q, c0, c1, cand)
+        _shaft_box(R, q, c0, c1, bound, cand)
     else:
         _keep_all(R, cand)
 
@@ -773,33 +780,35 @@ def _wide_prims(R: RayConfig, bound, raw, cand):
     if k < 0:
         cand[0] = _PER_RAY
         return
-    for i in range(1, k):                # insertion sort: scene order, the loops' tie rule
+    ns = R.sph_radius.shape[0]
+    kept = 0
+    for i in range(k):                   # the frustum's own test, in place
+        p = raw[i]
+        if not (_sphere_outside(R, p, bound) if p < ns else _triangle_outside(R, p - ns, bound)):
+            raw[kept] = p
+            kept += 1
+    if kept > cand.shape[0] - 2:
+        cand[0] = _PER_RAY
+        return
+    for i in range(1, kept):             # insertion sort: scene order, the loops' tie rule
         x = raw[i]
         j = i
         while j > 0 and raw[j - 1] > x:
             raw[j] = raw[j - 1]
             j -= 1
         raw[j] = x
-    ns = R.sph_radius.shape[0]
-    m = kt = 0
-    for i in range(k):                   # spheres first: their ids are below ns
+    m = 0
+    for i in range(kept):                # spheres first: their ids are below ns
         p = raw[i]
-        sphere = p < ns
-        if _sphere_outside(R, p, bound) if sphere else _triangle_outside(R, p - ns, bound):
-            continue
-        if m + kt >= cand.shape[0] - 2:
-            cand[0] = _PER_RAY
-            return
-        cand[2 + m + kt] = p if sphere else p - ns
-        m += sphere
-        kt += not sphere
-    cand[0], cand[1] = m, kt
+        cand[2 + i] = p if p < ns else p - ns
+        m += p < ns
+    cand[0], cand[1] = m, kept - m
 
 
 @njit(inline="always", cache=True)
 def _bound(q, c0, c1, uv, bound):
-    """What bounds rays ``c0:c1`` of ``q``: ``_FRUSTUM`` (its apex, slack, planes and
-    reach written to ``bound``: rays from one origin, or segments ending within a small
+    """What bounds rays ``c0:c1`` of ``q``: ``_FRUSTUM`` (its apex, slack, planes, reach
+    and box written to ``bound``: rays from one origin, or segments ending within a small
     slack of one point, their directions within acos(_FRUSTUM_MIN_COS) of the axis; the
     reach is how far from the apex a segment's point can lie — the largest tmax, or for
     segments ending near the apex, the largest distance of an origin plus the slack, as a
@@ -854,6 +863,33 @@ _FRUSTUM_MIN_COS = 0.1
 
 
 @njit(inline="always", cache=True)
+def _plane_misses_box(V, j, bound):
+    """Whether a box holding the segments (``bound[_SEG:]``) lies wholly on one side of
+    triangle ``j``'s plane, more than the padding from it: then no segment crosses the
+    plane, and none meets the triangle.  The shaft culling of Haines and Wallace 1994
+    with the triangle's own plane: shadow rays from points of a closed room's walls to a
+    light inside it never cross another wall's plane, nor those of the faces of a
+    convex object that the point and the light both see.  The padding,
+    ``_CULL_PAD``·(1 + the largest coordinate) along the unit normal, is absolute like
+    the hit test's rounding.  A box unbounded along an axis (its centre or extent then
+    NaN), or a degenerate triangle, culls nothing: a comparison with NaN is false."""
+    v0x, v0y, v0z = float(V[j, 0, 0]), float(V[j, 0, 1]), float(V[j, 0, 2])
+    e1x, e1y, e1z = float(V[j, 1, 0]) - v0x, float(V[j, 1, 1]) - v0y, float(V[j, 1, 2]) - v0z
+    e2x, e2y, e2z = float(V[j, 2, 0]) - v0x, float(V[j, 2, 1]) - v0y, float(V[j, 2, 2]) - v0z
+    nx, ny, nz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    lx, ly, lz = bound[_SEG], bound[_SEG + 1], bound[_SEG + 2]
+    hx, hy, hz = bound[_SEG + 3], bound[_SEG + 4], bound[_SEG + 5]
+    cx, cy, cz = 0.5 * (lx + hx), 0.5 * (ly + hy), 0.5 * (lz + hz)
+    dist = nx * (cx - v0x) + ny * (cy - v0y) + nz * (cz - v0z)
+    spread = abs(nx) * (hx - cx) + abs(ny) * (hy - cy) + abs(nz) * (hz - cz)
+    big = max(abs(lx), abs(ly), abs(lz), abs(hx), abs(hy), abs(hz),
+              abs(v0x) + abs(e1x) + abs(e2x), abs(v0y) + abs(e1y) + abs(e2y),
+              abs(v0z) + abs(e1z) + abs(e2z))
+    pad = _CULL_PAD * (1.0 + big) * math.sqrt(nx * nx + ny * ny + nz * nz)
+    return abs(dist) > spread + pad
+
+
+@njit(inline="always", cache=True)
 def _end(q, i):
     """The end o + tmax·d of ray i of ``q``, in float64."""
     t = float(q[TMAX, i])
@@ -904,7 +940,30 @@ def _frustum_planes(q, c0, c1, towards_origins, uv, bound):
     bound[7], bound[8], bound[9] = _unit(u1 * ax - e1x, u1 * ay - e1y, u1 * az - e1z)
     bound[10], bound[11], bound[12] = _unit(e2x - v0 * ax, e2y - v0 * ay, e2z - v0 * az)
     bound[13], bound[14], bound[15] = _unit(v1 * ax - e2x, v1 * ay - e2y, v1 * az - e2z)
+    _pyramid_box(px, py, pz, ax, ay, az, e1x, e1y, e1z, e2x, e2y, e2z, u0, u1, v0, v1, bound)
     return True
+
+
+@njit(inline="always", cache=True)
+def _pyramid_box(px, py, pz, ax, ay, az, e1x, e1y, e1z, e2x, e2y, e2z, u0, u1, v0, v1, bound):
+    """A box holding every point the frustum ``bound`` bounds, into ``bound[_SEG:]``: the
+    box of the apex p and the four points p + r (a + u e1 + v e2), (u, v) the corners of
+    [u0, u1] × [v0, v1], r the reach, grown by the slack.  A point w = λ (a + u e1 + v e2)
+    from p within the reach has λ ≤ r / |a + u e1 + v e2| ≤ r, so it lies in the pyramid
+    of those five points.  O(1) per chunk where the box of the segments themselves costs a
+    pass over the rays; unbounded (NaN or infinite) for rays of unbounded reach."""
+    r, slack = bound[16], bound[3]
+    lx = hx = px
+    ly = hy = py
+    lz = hz = pz
+    for u in (u0, u1):
+        for v in (v0, v1):
+            x = px + r * (ax + u * e1x + v * e2x)
+            y = py + r * (ay + u * e1y + v * e2y)
+            z = pz + r * (az + u * e1z + v * e2z)
+            lx, ly, lz, hx, hy, hz = min(lx, x), min(ly, y), min(lz, z), max(hx, x), max(hy, y), max(hz, z)
+    bound[_SEG], bound[_SEG + 1], bound[_SEG + 2] = lx - slack, ly - slack, lz - slack
+    bound[_SEG + 3], bound[_SEG + 4], bound[_SEG + 5] = hx + slack, hy + slack, hz + slack
 
 
 @njit(inline="always", cache=True)
@@ -942,8 +1001,9 @@ def _sphere_outside(R: RayConfig, s, bound):
 def _triangle_outside(R: RayConfig, j, bound):
     """Whether triangle ``j`` lies wholly outside a plane of the frustum ``bound`` — its
     three vertices each more than their padding (relative to the distance from the apex,
-    bounded above by |x| + |y| + |z|, plus the slack) outside — or its bounding box
-    beyond the frustum's reach."""
+    bounded above by |x| + |y| + |z|, plus the slack) outside —, its bounding box
+    beyond the frustum's reach, or its plane missing the box holding the segments
+    (:func:`_plane_misses_box`; tested only for triangles the frustum keeps)."""
     V = R.tri_v
     px, py, pz, slack = bound[0], bound[1], bound[2], bound[3]
     x0, y0, z0 = float(V[j, 0, 0]) - px, float(V[j, 0, 1]) - py, float(V[j, 0, 2]) - pz
@@ -963,7 +1023,7 @@ def _triangle_outside(R: RayConfig, j, bound):
         b = nx * x1 + ny * y1 + nz * z1 + p1
         c = nx * x2 + ny * y2 + nz * z2 + p2
         out |= max(a, b, c) < 0.0
-    return out
+    return out or _plane_misses_box(V, j, bound)
 
 
 @njit(cache=True, error_model="numpy", fastmath={"reassoc", "nsz"})
@@ -1004,9 +1064,10 @@ def _unit(x, y, z):
 
 
 @njit(inline="always", cache=True)
-def _shaft_box(R: RayConfig, q, c0, c1, cand):
+def _shaft_box(R: RayConfig, q, c0, c1, bound, cand):
     """Cull by the bounding box of segments ``c0:c1`` (every primitive kept when one is
-    unbounded)."""
+    unbounded): a primitive whose box misses it, or a triangle whose plane it lies
+    wholly on one side of (:func:`_plane_misses_box`; the box goes to ``bound[_SEG:]``)."""
     C, g, V = R.sph_center, R.sph_radius, R.tri_v
     lo_x = lo_y = lo_z = math.inf
     hi_x = hi_y = hi_z = -math.inf
@@ -1023,6 +1084,8 @@ def _shaft_box(R: RayConfig, q, c0, c1, cand):
     if not bounded:
         _keep_all(R, cand)
         return
+    bound[_SEG], bound[_SEG + 1], bound[_SEG + 2] = lo_x, lo_y, lo_z
+    bound[_SEG + 3], bound[_SEG + 4], bound[_SEG + 5] = hi_x, hi_y, hi_z
     pad = _CULL_PAD * (1.0 + max(abs(lo_x), abs(lo_y), abs(lo_z), abs(hi_x), abs(hi_y), abs(hi_z)))
     lo_x, lo_y, lo_z = lo_x - pad, lo_y - pad, lo_z - pad
     hi_x, hi_y, hi_z = hi_x + pad, hi_y + pad, hi_z + pad
@@ -1040,7 +1103,8 @@ def _shaft_box(R: RayConfig, q, c0, c1, cand):
                 and max(V[j, 0, 1], V[j, 1, 1], V[j, 2, 1]) >= lo_y
                 and min(V[j, 0, 1], V[j, 1, 1], V[j, 2, 1]) <= hi_y
                 and max(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]) >= lo_z
-                and min(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]) <= hi_z):
+                and min(V[j, 0, 2], V[j, 1, 2], V[j, 2, 2]) <= hi_z
+                and not _plane_misses_box(V, j, bound)):
             cand[2 + m + k] = j
             k += 1
     cand[0], cand[1] = m, k

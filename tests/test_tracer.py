@@ -307,9 +307,99 @@ def test_culled_batches_equal_the_per_ray_queries(structure, batch, dtype):
         assert culled >= len(spans) // 2, (culled, len(spans))
 
 
+def _box_triangles(lo, hi):
+    """The 12 triangles of the faces of the axis-aligned box [lo, hi] (T, 3, 3), two per
+    face, faces in the order −x, +x, −y, +y, −z, +z."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    tris = []
+    for axis in range(3):
+        u, w = (axis + 1) % 3, (axis + 2) % 3
+        for side in (lo[axis], hi[axis]):
+            corners = []
+            for a, b in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                p = np.empty(3)
+                p[axis], p[u], p[w] = side, (lo[u], hi[u])[a], (lo[w], hi[w])[b]
+                corners.append(p)
+            tris += [[corners[0], corners[1], corners[2]], [corners[0], corners[2], corners[3]]]
+    return np.array(tris)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+@pytest.mark.parametrize("structure", ["none", "bvh-wide"])
+def test_shadow_rays_skip_the_walls_whose_plane_they_never_cross(structure, dtype):
+    """Shadow rays from a patch of a closed room's floor (a tile's shading points) to a
+    point light inside it (the Cornell box with a point light): the candidates keep the
+    floor they start on and the block between floor and light when it shadows them, and
+    never the ceiling, whose plane no segment crosses (:func:`impl.tracer._plane_misses_box`:
+    the frustum's planes alone keep it), nor the walls on the patch's far side; the
+    answers are still those of the per-ray queries, ray for ray."""
+    room = _box_triangles([-1, -1, -1], [1, 1, 1])            # faces −x, +x, −y (floor), +y, −z, +z
+    block = _box_triangles([-0.3, -1, -0.3], [0.3, 0.2, 0.3])
+    v = np.concatenate([room, block])
+    R = config(np.empty((0, 3)), np.empty(0), v, np.zeros(len(v), np.int64), structure, dtype)
+    rng = np.random.default_rng(SEED + 5)
+    light = np.array([0.1, 0.8, -0.05])
+    n = tracer.CHUNK                                          # one chunk, one bound
+    q = np.empty((8, n), dtype)
+    uv, bound = np.empty((2, n)), np.empty(tracer._BOUND_WORDS)
+    ceiling, shadowed = {6, 7}, 0
+    for cx in (-0.7, 0.0, 0.7):
+        for cz in (-0.7, 0.0, 0.7):
+            p = np.stack([cx + rng.uniform(-0.15, 0.15, n), np.full(n, -1.0),
+                          cz + rng.uniform(-0.15, 0.15, n)], 1)
+            d = light - p
+            tmax = np.linalg.norm(d, axis=1) * (1 - 1e-7)
+            d = d / np.linalg.norm(d, axis=1, keepdims=True)
+            o, d = p.astype(dtype).astype(np.float64), d.astype(dtype).astype(np.float64)
+            ray = _batch(o, d, 1e-6, tmax)
+            got = _batch_answers(R, ray, dtype)
+            _assert_same(got, _per_ray_answers(R, ray), err_msg=f"patch at {cx}, {cz}")
+            tracer._in_precision(ray, n, q)
+            cand = np.full(2 + len(v), -9, np.int64)
+            if structure == "none":
+                cull(R, q, 0, n, cand, uv, bound)
+            else:
+                wide_cull(R, q, 0, n, cand, uv, bound, np.empty(2 * tracer.CHUNK_CAP, np.int64))
+            assert cand[0] == 0, cand[:2]                     # culled, no spheres
+            kept = set(cand[2:2 + cand[1]].tolist())
+            far = ({2, 3} if cx < 0 else {0, 1} if cx > 0 else set()) | (
+                {10, 11} if cz < 0 else {8, 9} if cz > 0 else set())
+            assert not kept & (ceiling | far), (cx, cz, sorted(kept & (ceiling | far)))
+            assert kept & {4, 5}, (cx, cz)                    # the floor under the points
+            if got[3].any():
+                shadowed += 1
+                assert kept & set(range(12, 24)), "the block that shadows them"
+    assert shadowed >= 3, "some patches lie in the block's shadow"
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+def test_a_plane_culls_only_boxes_beyond_its_padding(dtype):
+    """A triangle in the plane y = 0 culls a box of segments above it only when the box
+    lies further than the padding (``_CULL_PAD``·(1 + the largest coordinate)) from the
+    plane; a box touching, crossing or unbounded, and a degenerate triangle, cull
+    nothing."""
+    v = np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+                  [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]]], dtype)
+    pad = tracer._CULL_PAD * (1.0 + 2.0)                        # the largest coordinate: 2
+    bound = np.zeros(tracer._BOUND_WORDS)
+
+    def misses(j, lo, hi):
+        bound[tracer._SEG:tracer._SEG + 3], bound[tracer._SEG + 3:] = lo, hi
+        return plane_misses_box(v, j, bound)
+
+    assert misses(0, [0.5, 1.01 * pad, 0.5], [2.0, 1.0, 2.0])
+    assert misses(0, [0.5, -1.0, 0.5], [2.0, -1.01 * pad, 2.0])       # below it too
+    assert not misses(0, [0.5, 0.99 * pad, 0.5], [2.0, 1.0, 2.0])
+    assert not misses(0, [0.5, 0.0, 0.5], [2.0, 1.0, 2.0])
+    assert not misses(0, [0.5, -0.5, 0.5], [2.0, 1.0, 2.0])
+    assert not misses(0, [-np.inf] * 3, [np.inf] * 3)
+    assert not misses(1, [0.5, 0.5, 0.5], [2.0, 1.0, 2.0])            # no plane at all
+
+
 #: The inlined culling helpers, compiled to be called from the tests.
 cull = njit(tracer._cull.py_func)
 wide_cull = njit(_nrt=True)(tracer._wide_cull.py_func)
+plane_misses_box = njit(tracer._plane_misses_box.py_func)
 
 
 def test_scene_memo_reuses_and_rebuilds():
