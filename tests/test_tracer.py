@@ -396,10 +396,53 @@ def test_a_plane_culls_only_boxes_beyond_its_padding(dtype):
     assert not misses(1, [0.5, 0.5, 0.5], [2.0, 1.0, 2.0])            # no plane at all
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+def test_the_hit_test_meets_no_triangle_whose_plane_a_culled_segment_stays_beyond(dtype):
+    """The plane culling's premise, on its hardest cases: segments that end just beyond
+    the padding from a triangle's plane (1.001–1.5 paddings, above the triangle, from
+    either side, slivers and scales from 0.01 to 100 included) are culled by
+    :func:`impl.tracer._plane_misses_box`, and the batch loops' hit test (its rounding
+    in the intersection precision) reports none of them as a hit."""
+    rng = np.random.default_rng(SEED + 7)
+    tested = 0
+    bound = np.empty(tracer._BOUND_WORDS)
+    for _ in range(3000):
+        s = 10.0 ** rng.uniform(-2, 2)
+        v = np.stack([rng.uniform(-1, 1, 3) * s, rng.normal(size=3) * s * 10 ** rng.uniform(-1, 0),
+                      rng.normal(size=3) * s])
+        v[1:] += v[0]
+        V = v.astype(dtype)[None]
+        v0, e1, e2 = (V[0].astype(float)[k] for k in range(3))
+        e1, e2 = e1 - v0, e2 - v0
+        n = np.cross(e1, e2)
+        n /= np.linalg.norm(n)
+        pad = tracer._CULL_PAD * (1.0 + 3.0 * np.abs(V).max())
+        side = rng.choice([-1.0, 1.0])
+        end = (v0 + rng.uniform(0, 0.5) * e1 + rng.uniform(0, 0.5) * e2
+               + side * pad * rng.uniform(1.001, 1.5) * n)
+        start = end + side * n * s * rng.uniform(0.01, 2.0) + rng.normal(size=3) * s
+        o = start.astype(dtype)
+        w = end - o.astype(float)
+        tmax = np.linalg.norm(w) * (1 - 1e-7)
+        d = (w / np.linalg.norm(w)).astype(dtype)
+        ends = np.stack([o.astype(float), o.astype(float) + tmax * d.astype(float)])
+        bound[tracer._SEG:tracer._SEG + 3], bound[tracer._SEG + 3:] = ends.min(0), ends.max(0)
+        if not plane_misses_box(V, 0, bound):
+            continue                                        # the box reaches into the padding
+        tested += 1
+        F = dtype
+        *_, hit = triangle_t(o[0], o[1], o[2], d[0], d[1], d[2], F(v0[0]), F(v0[1]), F(v0[2]),
+                             F(e1[0]), F(e1[1]), F(e1[2]), F(e2[0]), F(e2[1]), F(e2[2]), F(1e-6),
+                             F(tmax))
+        assert not hit, (v.tolist(), o.tolist(), d.tolist(), tmax)
+    assert tested > 500, tested
+
+
 #: The inlined culling helpers, compiled to be called from the tests.
 cull = njit(tracer._cull.py_func)
 wide_cull = njit(_nrt=True)(tracer._wide_cull.py_func)
 plane_misses_box = njit(tracer._plane_misses_box.py_func)
+triangle_t = njit(error_model="numpy")(tracer._triangle_t.py_func)
 
 
 def test_scene_memo_reuses_and_rebuilds():
