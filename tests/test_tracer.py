@@ -15,6 +15,7 @@ from numba import njit
 
 from gibench import registry
 from core.loader import load_scene
+from core.meshes import cube
 from impl import tracer
 from impl.intersect import any_hit_form, closest_hit_form
 from impl.rays import hit, occluded
@@ -308,20 +309,11 @@ def test_culled_batches_equal_the_per_ray_queries(structure, batch, dtype):
 
 
 def _box_triangles(lo, hi):
-    """The 12 triangles of the faces of the axis-aligned box [lo, hi] (T, 3, 3), two per
-    face, faces in the order −x, +x, −y, +y, −z, +z."""
+    """The 12 triangles (T, 3, 3) of Mitsuba's cube (:func:`core.meshes.cube`) mapped onto
+    the axis-aligned box [lo, hi]: two per face, faces in the order −x, +x, −y, +y, −z, +z."""
+    v, f, _ = cube()
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    tris = []
-    for axis in range(3):
-        u, w = (axis + 1) % 3, (axis + 2) % 3
-        for side in (lo[axis], hi[axis]):
-            corners = []
-            for a, b in ((0, 0), (1, 0), (1, 1), (0, 1)):
-                p = np.empty(3)
-                p[axis], p[u], p[w] = side, (lo[u], hi[u])[a], (lo[w], hi[w])[b]
-                corners.append(p)
-            tris += [[corners[0], corners[1], corners[2]], [corners[0], corners[2], corners[3]]]
-    return np.array(tris)
+    return (lo + 0.5 * (v + 1.0) * (hi - lo))[f]
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
