@@ -834,17 +834,13 @@ def _bound(q, c0, c1, uv, bound):
     # Segments ending within a small distance δ of one point A: each lies within δ
     # of the ray from A towards its origin, so the frustum from A padded by δ holds it.
     ex, ey, ez = _end(q, c0)
-    slack2 = span2 = 0.0                 # squared: no root per ray
-    finite = True
-    for i in range(c0, c1):
-        x, y, z = _end(q, i)
-        finite &= math.isfinite(x + y + z)
-        x, y, z = x - ex, y - ey, z - ez
-        slack2 = max(slack2, x * x + y * y + z * z)
-        x, y, z = float(q[OX, i]) - ex, float(q[OY, i]) - ey, float(q[OZ, i]) - ez
-        span2 = max(span2, x * x + y * y + z * z)
-    if not finite:                       # an unbounded segment: no box either
-        return _NO_BOUND
+    s2, o2 = uv[0, :c1 - c0], uv[1, :c1 - c0]      # squared: no root per ray
+    _spreads(q[OX, c0:c1], q[OY, c0:c1], q[OZ, c0:c1], q[DX, c0:c1], q[DY, c0:c1], q[DZ, c0:c1],
+             q[TMAX, c0:c1], ex, ey, ez, s2, o2)
+    lo_s, slack2 = _float_range(s2)
+    lo_o, span2 = _float_range(o2)
+    if not (lo_s >= 0.0 and slack2 < math.inf and lo_o >= 0.0 and span2 < math.inf):
+        return _NO_BOUND                 # an unbounded segment (or overflow): no box either
     if slack2 <= _CONVERGE * _CONVERGE * span2:
         bound[0], bound[1], bound[2], bound[3] = ex, ey, ez, math.sqrt(slack2)
         bound[16] = math.sqrt(span2) + math.sqrt(slack2)
@@ -930,11 +926,10 @@ def _frustum_planes(q, c0, c1, towards_origins, uv, bound):
                        _FRUSTUM_MIN_COS * _FRUSTUM_MIN_COS, u, v)
     if wide > 0:
         return False
-    u0 = v0 = math.inf
-    u1 = v1 = -math.inf
-    for i in range(n):
-        u0, u1 = min(u0, u[i]), max(u1, u[i])
-        v0, v1 = min(v0, v[i]), max(v1, v[i])
+    u0, u1 = _float_range(u)
+    v0, v1 = _float_range(v)
+    if not (u0 <= u1 and v0 <= v1):      # a NaN coordinate (from a non-finite ray)
+        return False
     # Inward unit normals of the planes: e1 − u0 a, u1 a − e1, e2 − v0 a, v1 a − e2.
     bound[4], bound[5], bound[6] = _unit(e1x - u0 * ax, e1y - u0 * ay, e1z - u0 * az)
     bound[7], bound[8], bound[9] = _unit(u1 * ax - e1x, u1 * ay - e1y, u1 * az - e1z)
@@ -1036,6 +1031,44 @@ def _direction_sum(x, y, z, px, py, pz):
         sy += float(y[i]) - py
         sz += float(z[i]) - pz
     return sx, sy, sz
+
+
+@njit(cache=True, error_model="numpy")
+def _spreads(ox, oy, oz, dx, dy, dz, tmax, ex, ey, ez, s2, o2):
+    """Squared distances from the point e of the segments' ends o + tmax·d (into ``s2``) and
+    of their origins (into ``o2``), in float64: :func:`_end`'s operations, no branch, so
+    LLVM vectorises the loop."""
+    for i in range(ox.shape[0]):
+        t = float(tmax[i])
+        x = float(ox[i]) + t * float(dx[i]) - ex
+        y = float(oy[i]) + t * float(dy[i]) - ey
+        z = float(oz[i]) + t * float(dz[i]) - ez
+        s2[i] = x * x + y * y + z * z
+        x, y, z = float(ox[i]) - ex, float(oy[i]) - ey, float(oz[i]) - ez
+        o2[i] = x * x + y * y + z * z
+
+
+#: The magnitude bits of a float64.
+_MAGNITUDE = np.int64(0x7FFFFFFFFFFFFFFF)
+
+
+@njit(cache=True, error_model="numpy")
+def _float_range(x):
+    """(min, max) of the float64 array ``x`` (non-empty), as integer reductions: the bits b
+    of a float64 map to the integer b ^ ((b >> 63) & 0x7fff...) in the floats' order (−0
+    below +0), and LLVM vectorises integer min/max reductions but no floating-point one.
+    A NaN lands beyond ±inf by its sign bit and comes back as the min or the max, so a
+    caller detects it by comparing them."""
+    lo = _MAGNITUDE
+    hi = -_MAGNITUDE - 1
+    for i in range(x.shape[0]):
+        b = np.float64(x[i]).view(np.int64)
+        k = b ^ ((b >> 63) & _MAGNITUDE)
+        lo = min(lo, k)
+        hi = max(hi, k)
+    lo = lo ^ ((lo >> 63) & _MAGNITUDE)
+    hi = hi ^ ((hi >> 63) & _MAGNITUDE)
+    return np.int64(lo).view(np.float64), np.int64(hi).view(np.float64)
 
 
 @njit(cache=True, error_model="numpy")

@@ -239,6 +239,57 @@ def test_light_sample_lanes_and_frustum_loops_vectorise():
     assert re.search(r"vsqrtpd\s+%[yz]mm", "\n".join(lanes.inspect_asm().values()))
 
 
+def test_the_integer_float_range_is_numpys_min_and_max_and_flags_a_nan():
+    """The bound's min/max reductions run on the floats' bits as integers
+    (impl.tracer._float_range): over values of both signs, zeros of both signs,
+    subnormals and infinities they return numpy's min and max, the same floats; a NaN of
+    either sign comes back as the min or the max, so ``lo <= hi`` fails."""
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 7, 64, 577):
+        x = rng.standard_normal(n) * 10.0 ** rng.integers(-310, 300, n)
+        x[rng.integers(0, n)] = rng.choice([0.0, -0.0, np.inf, -np.inf, 5e-324, -5e-324])
+        lo, hi = tracer._float_range(x)
+        assert (lo, hi) == (x.min(), x.max()), n
+    assert tracer._float_range(np.array([-0.0, 0.0])) == (-0.0, 0.0)
+    assert np.signbit(tracer._float_range(np.array([0.0, -0.0]))[0])
+    bits = np.array([0x7FF8000000000000, 0xFFF8000000000000, 0x7FF0000000000001], np.uint64)
+    for nan in bits.view(np.float64):                    # quiet NaNs of both signs, a signalling one
+        x = np.array([1.0, -2.0, nan, 3.0])
+        lo, hi = tracer._float_range(x)
+        assert not lo <= hi
+
+
+def test_the_segment_spreads_are_the_ends_and_origins_distances():
+    """impl.tracer._spreads computes, lane by lane, the squared distances of a chunk's
+    segment ends (impl.tracer._end's o + tmax·d) and origins from a point, bit for bit
+    those of the scalar arithmetic, in both precisions of the rays; and its loop
+    vectorises."""
+    rng = np.random.default_rng(6)
+    n = 100
+    for dtype in (np.float64, np.float32):
+        q = np.empty((8, n), dtype)
+        q[:3] = rng.uniform(-3, 3, (3, n))
+        d = rng.standard_normal((3, n))
+        q[3:6] = d / np.linalg.norm(d, axis=0)
+        q[6], q[7] = 0.0, rng.uniform(0.1, 9.0, n)
+        ex, ey, ez = tracer._end(q, 0)
+        s2, o2 = np.empty(n), np.empty(n)
+        tracer._spreads(*q[[0, 1, 2, 3, 4, 5, 7]], ex, ey, ez, s2, o2)
+        for i in range(n):
+            x, y, z = tracer._end(q, i)
+            x, y, z = x - ex, y - ey, z - ez
+            assert s2[i] == x * x + y * y + z * z
+            x, y, z = float(q[0, i]) - ex, float(q[1, i]) - ey, float(q[2, i]) - ez
+            assert o2[i] == x * x + y * y + z * z
+    spreads = njit(error_model="numpy")(tracer._spreads.py_func)   # compiled here: asm kept
+    a = [np.ones(n) for _ in range(9)]
+    spreads(*a[:7], 0.5, 0.5, 0.5, a[7], a[8])
+    assert re.search(r"vmulpd\s+%[yz]mm", "\n".join(spreads.inspect_asm().values()))
+    float_range = njit(error_model="numpy")(tracer._float_range.py_func)
+    float_range(a[0])
+    assert re.search(r"(vpmaxsq|vpminsq|vpcmpgtq)\s.*%[yz]mm", "\n".join(float_range.inspect_asm().values()))
+
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
 @pytest.mark.parametrize("batch", ["shared_origin", "to_a_point", "parallel"])
 @pytest.mark.parametrize("structure", ["none", "bvh-wide"])
