@@ -754,7 +754,7 @@ def _cull(R: RayConfig, q, c0, c1, cand, uv, bound):
     if kind == _FRUSTUM:
         _frustum_prims(R, bound, cand)
     elif kind == _BOX:
-        _shaft_box(R, q, c0, c1, bound, cand)
+        _shaft_box(R, q, c0, c1, uv, bound, cand)
     else:
         _keep_all(R, cand)
 
@@ -1048,6 +1048,29 @@ def _spreads(ox, oy, oz, dx, dy, dz, tmax, ex, ey, ez, s2, o2):
         o2[i] = x * x + y * y + z * z
 
 
+@njit(cache=True, error_model="numpy")
+def _segment_ends(o, d, tmin, tmax, a, b):
+    """One coordinate of the segments' two ends, o + tmin·d into ``a`` and o + tmax·d into
+    ``b``, in float64 (no branch: LLVM vectorises the loop)."""
+    for i in range(o.shape[0]):
+        a[i] = float(o[i]) + float(tmin[i]) * float(d[i])
+        b[i] = float(o[i]) + float(tmax[i]) * float(d[i])
+
+
+@njit(inline="always", cache=True)
+def _axis_extent(o, d, tmin, tmax, a, b):
+    """(min, max) along one axis of the segments' ends (:func:`_segment_ends` into the
+    scratch ``a``, ``b``, then :func:`_float_range`); NaN if an end is not finite (then
+    an extreme of its row is: ±inf, or a NaN of either sign)."""
+    _segment_ends(o, d, tmin, tmax, a, b)
+    lo_a, hi_a = _float_range(a)
+    lo_b, hi_b = _float_range(b)
+    if not (math.isfinite(lo_a) and math.isfinite(hi_a) and math.isfinite(lo_b)
+            and math.isfinite(hi_b)):
+        return math.nan, math.nan
+    return min(lo_a, lo_b), max(hi_a, hi_b)
+
+
 #: The magnitude bits of a float64.
 _MAGNITUDE = np.int64(0x7FFFFFFFFFFFFFFF)
 
@@ -1097,25 +1120,21 @@ def _unit(x, y, z):
 
 
 @njit(inline="always", cache=True)
-def _shaft_box(R: RayConfig, q, c0, c1, bound, cand):
+def _shaft_box(R: RayConfig, q, c0, c1, uv, bound, cand):
     """Cull by the bounding box of segments ``c0:c1`` (every primitive kept when one is
     unbounded): a primitive whose box misses it, or a triangle whose plane it lies
-    wholly on one side of (:func:`_plane_misses_box`; the box goes to ``bound[_SEG:]``)."""
+    wholly on one side of (:func:`_plane_misses_box`; the box goes to ``bound[_SEG:]``).
+    The box's extremes are taken axis by axis over the segments' two ends (written to
+    the scratch ``uv`` by :func:`_segment_ends`) with :func:`_float_range`: a non-finite
+    end makes an extreme non-finite."""
     C, g, V = R.sph_center, R.sph_radius, R.tri_v
-    lo_x = lo_y = lo_z = math.inf
-    hi_x = hi_y = hi_z = -math.inf
-    bounded = True
-    for i in range(c0, c1):
-        for tt in (q[TMIN, i], q[TMAX, i]):
-            t = float(tt)
-            x = float(q[OX, i]) + t * float(q[DX, i])
-            y = float(q[OY, i]) + t * float(q[DY, i])
-            z = float(q[OZ, i]) + t * float(q[DZ, i])
-            bounded &= math.isfinite(x) & math.isfinite(y) & math.isfinite(z)
-            lo_x, lo_y, lo_z = min(lo_x, x), min(lo_y, y), min(lo_z, z)
-            hi_x, hi_y, hi_z = max(hi_x, x), max(hi_y, y), max(hi_z, z)
-    if not bounded:
-        _keep_all(R, cand)
+    a, b = uv[0, :c1 - c0], uv[1, :c1 - c0]
+    lo_x, hi_x = _axis_extent(q[OX, c0:c1], q[DX, c0:c1], q[TMIN, c0:c1], q[TMAX, c0:c1], a, b)
+    lo_y, hi_y = _axis_extent(q[OY, c0:c1], q[DY, c0:c1], q[TMIN, c0:c1], q[TMAX, c0:c1], a, b)
+    lo_z, hi_z = _axis_extent(q[OZ, c0:c1], q[DZ, c0:c1], q[TMIN, c0:c1], q[TMAX, c0:c1], a, b)
+    if not (math.isfinite(lo_x) and math.isfinite(lo_y) and math.isfinite(lo_z)
+            and math.isfinite(hi_x) and math.isfinite(hi_y) and math.isfinite(hi_z)):
+        _keep_all(R, cand)               # an unbounded segment
         return
     bound[_SEG], bound[_SEG + 1], bound[_SEG + 2] = lo_x, lo_y, lo_z
     bound[_SEG + 3], bound[_SEG + 4], bound[_SEG + 5] = hi_x, hi_y, hi_z

@@ -291,6 +291,33 @@ def test_the_segment_spreads_are_the_ends_and_origins_distances():
     assert re.search(r"(vpmaxsq|vpminsq|vpcmpgtq)\s.*%[yz]mm", asm)   # AVX-512 or AVX2
 
 
+def test_the_shaft_box_extent_is_that_of_the_segment_ends_or_nan():
+    """The box of a chunk's finite segments (impl.tracer._shaft_box) takes each axis's
+    extent over both ends of every segment (impl.tracer._axis_extent): numpy's min and
+    max of o + t·d at tmin and tmax (in the rays' precision), the same floats;
+    NaN when an end is not finite (an infinite tmax, either sign of direction, or a NaN
+    ray), so the chunk keeps every primitive."""
+    rng = np.random.default_rng(7)
+    n = 90
+    a, b = np.empty(n), np.empty(n)
+    for dtype in (np.float64, np.float32):
+        o = rng.uniform(-3, 3, n).astype(dtype)
+        d = rng.uniform(-1, 1, n).astype(dtype)
+        t0 = rng.uniform(0, 1e-3, n).astype(dtype)
+        t1 = rng.uniform(0.1, 9.0, n).astype(dtype)
+        ends = np.concatenate([o + t0 * d, o + t1 * d]).astype(float)   # numba's float() of a
+        # float32 stays float32, as in impl.tracer._end
+        assert tracer._axis_extent(o, d, t0, t1, a, b) == (ends.min(), ends.max())
+        for bad in ((t1, np.inf, 1.0), (t1, np.inf, -1.0), (d, np.nan, 0.0)):
+            arr, value, dv = bad
+            o2, d2, t2 = o.copy(), d.copy(), t1.copy()
+            (t2 if arr is t1 else d2)[17] = value
+            if dv:
+                d2[17] = dv
+            lo, hi = tracer._axis_extent(o2, d2, t0, t2, a, b)
+            assert np.isnan(lo) and np.isnan(hi), bad
+
+
 @pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
 @pytest.mark.parametrize("batch", ["shared_origin", "to_a_point", "parallel"])
 @pytest.mark.parametrize("structure", ["none", "bvh-wide"])
