@@ -887,7 +887,8 @@ def _plane_misses_box(V, j, bound):
 
 @njit(inline="always", cache=True)
 def _end(q, i):
-    """The end o + tmax·d of ray i of ``q``, in float64."""
+    """The end o + tmax·d of ray i of ``q``, in the rays' precision (numba's ``float()`` of a
+    float32 stays a float32)."""
     t = float(q[TMAX, i])
     return (float(q[OX, i]) + t * float(q[DX, i]), float(q[OY, i]) + t * float(q[DY, i]),
             float(q[OZ, i]) + t * float(q[DZ, i]))
@@ -1036,8 +1037,9 @@ def _direction_sum(x, y, z, px, py, pz):
 @njit(cache=True, error_model="numpy")
 def _spreads(ox, oy, oz, dx, dy, dz, tmax, ex, ey, ez, s2, o2):
     """Squared distances from the point e of the segments' ends o + tmax·d (into ``s2``) and
-    of their origins (into ``o2``), in float64: :func:`_end`'s operations, no branch, so
-    LLVM vectorises the loop."""
+    of their origins (into ``o2``): :func:`_end`'s operations (the ends in the rays'
+    precision), the differences from e and their squares in float64; no branch, so LLVM
+    vectorises the loop."""
     for i in range(ox.shape[0]):
         t = float(tmax[i])
         x = float(ox[i]) + t * float(dx[i]) - ex
@@ -1051,7 +1053,8 @@ def _spreads(ox, oy, oz, dx, dy, dz, tmax, ex, ey, ez, s2, o2):
 @njit(cache=True, error_model="numpy")
 def _segment_ends(o, d, tmin, tmax, a, b):
     """One coordinate of the segments' two ends, o + tmin·d into ``a`` and o + tmax·d into
-    ``b``, in float64 (no branch: LLVM vectorises the loop)."""
+    ``b`` (float64 arrays; computed in the rays' precision, as :func:`_end`); no branch:
+    LLVM vectorises the loop."""
     for i in range(o.shape[0]):
         a[i] = float(o[i]) + float(tmin[i]) * float(d[i])
         b[i] = float(o[i]) + float(tmax[i]) * float(d[i])
