@@ -148,6 +148,47 @@ def sample_sphere_cone(cx, cy, cz, r, px, py, pz, u1, u2):
 # ------------------------------------------------------------- emitters ---
 
 @njit(inline="always", cache=True)
+def light_index(L: LightArrays, u0):
+    """The light :func:`sample_light` picks with ``u0``: delta lights, then mesh emitters,
+    then sphere emitters and the envmap (uniformly, one entry each)."""
+    n = L.n_lights
+    return min(int(u0 * n), n - 1)
+
+
+@njit(inline="always", cache=True)
+def emitter_point(A: SceneArrays, e, u1, u2):
+    """The point y that (u1, u2) pick on mesh emitter ``e`` (uniform by area,
+    :func:`impl.lighting.sample_emitter`) and the unit normal of its front there."""
+    yx, yy, yz, tri = sample_emitter(e, u1, u2, A.em_offset, A.em_tri, A.em_cdf, A.tri_v)
+    nx, ny, nz = A.tri_ng[tri, 0], A.tri_ng[tri, 1], A.tri_ng[tri, 2]   # unit normal
+    if A.shape_flip[A.em_shape[e]]:
+        nx, ny, nz = -nx, -ny, -nz
+    return yx, yy, yz, nx, ny, nz
+
+
+@njit(inline="always", cache=True)
+def emitter_sample(px, py, pz, yx, yy, yz, nx, ny, nz, area, n_lights, le_r, le_g, le_b):
+    """The light sample from p of the point y on a mesh emitter of area ``area`` (front
+    normal n, radiance L_e), one of ``n_lights`` lights: ``(wx, wy, wz, dist, w_r, w_g,
+    w_b, pdf)``, the unit direction to y, its distance, L_e / pdf and the solid-angle pdf
+    d² / (A cos θ_y) / n.  No light (zero weight and pdf) from the emitter's back or at
+    y = p (there the direction is +z and the distance 0).  Written with selects, so a
+    loop over lanes that calls it vectorises; no division by zero either way."""
+    wx, wy, wz = yx - px, yy - py, yz - pz
+    d2 = wx * wx + wy * wy + wz * wz
+    d = math.sqrt(d2)
+    at = d == 0.0
+    dd = 1.0 if at else d
+    wx, wy, wz = wx / dd, wy / dd, wz / dd
+    cos_y = -(nx * wx + ny * wy + nz * wz)
+    lit = (cos_y > 0.0) & (not at)              # area emitters radiate from their front only
+    pdf = d2 / (area * (cos_y if lit else 1.0)) / n_lights
+    pd = pdf if lit else 1.0
+    return (0.0 if at else wx, 0.0 if at else wy, 1.0 if at else wz, d, le_r / pd if lit else 0.0,
+            le_g / pd if lit else 0.0, le_b / pd if lit else 0.0, pdf if lit else 0.0)
+
+
+@njit(inline="always", cache=True)
 def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
     """Next-event estimation: pick a light uniformly and sample a direction from p.
 
@@ -160,7 +201,7 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
     contribution (back of an emitter, outside a spot cone).
     """
     n = L.n_lights
-    i = min(int(u0 * n), n - 1)
+    i = light_index(L, u0)
     nd = A.light_kind.shape[0]
     ne = A.em_area.shape[0]
     if i < nd:
@@ -186,22 +227,11 @@ def sample_light(A: SceneArrays, L: LightArrays, px, py, pz, u0, u1, u2):
     if i < nd + ne:
         e = i - nd
         sh = A.em_shape[e]
-        yx, yy, yz, tri = sample_emitter(e, u1, u2, A.em_offset, A.em_tri, A.em_cdf, A.tri_v)
-        nx, ny, nz = A.tri_ng[tri, 0], A.tri_ng[tri, 1], A.tri_ng[tri, 2]   # unit normal
-        if A.shape_flip[sh]:
-            nx, ny, nz = -nx, -ny, -nz
-        wx, wy, wz = yx - px, yy - py, yz - pz
-        d2 = wx * wx + wy * wy + wz * wz
-        d = math.sqrt(d2)
-        if d == 0.0:
-            return 0.0, 0.0, 1.0, 0.0, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False, i
-        wx, wy, wz = wx / d, wy / d, wz / d
-        cos_y = -(nx * wx + ny * wy + nz * wz)
-        if cos_y <= 0.0:                        # area emitters radiate from their front only
-            return wx, wy, wz, d, yx, yy, yz, 0.0, 0.0, 0.0, 0.0, False, i
-        pdf = d2 / (A.em_area[e] * cos_y) / n
-        return (wx, wy, wz, d, yx, yy, yz, L.shape_emit[sh, 0] / pdf, L.shape_emit[sh, 1] / pdf,
-                L.shape_emit[sh, 2] / pdf, pdf, False, i)
+        yx, yy, yz, nx, ny, nz = emitter_point(A, e, u1, u2)
+        wx, wy, wz, d, er, eg, eb, pdf = emitter_sample(px, py, pz, yx, yy, yz, nx, ny, nz, A.em_area[e], n,
+                                                        L.shape_emit[sh, 0], L.shape_emit[sh, 1],
+                                                        L.shape_emit[sh, 2])
+        return wx, wy, wz, d, yx, yy, yz, er, eg, eb, pdf, False, i
     q = i - nd - ne
     if q == L.sph_em_prim.shape[0]:             # the envmap (last entry): its luminance sampling
         wx, wy, wz, pdf, er, eg, eb = envmap_draw(A.env_image, A.env_frame, A.env_pdf, A.env_cdf,

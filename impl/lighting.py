@@ -1116,7 +1116,7 @@ def _lane_shadow_ray(strategy, g, eps, p_x, p_y, p_z, gx, gy, gz, lx, ly, lz, tx
             hz * ih if away else 0.0, hd if away else 0.0)
 
 
-@batch_kernel(error_model="numpy")
+@batch_kernel(error_model="numpy", disjoint=True)
 def _area_lanes(flip, scale, er, eg, eb, c1, c2, c3, fclamp, strategy, eps, shrink, g, px, py, pz, gx, gy,
                 gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b, ox, oy, oz, dx, dy, dz, tmin, tmax, wr, wg,
                 wb, flag):
@@ -1152,7 +1152,7 @@ def _area_lanes(flip, scale, er, eg, eb, c1, c2, c3, fclamp, strategy, eps, shri
         tmax[i] = hd * (1.0 - shrink)
 
 
-@batch_kernel(error_model="numpy")
+@batch_kernel(error_model="numpy", disjoint=True)
 def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02, m10, m11, m12, m20,
                  m21, m22, cos_cutoff, cos_beam, c1, c2, c3, fclamp, ir, ig, ib, strategy, eps, shrink, g,
                  active, px, py, pz, gx, gy, gz, sx, sy, sz, vx, vy, vz, rho_r, rho_g, rho_b,
@@ -1200,7 +1200,7 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
         tmax[i] = math.inf if directional else hd * (1.0 - shrink)
 
 
-@batch_kernel(error_model="numpy")
+@batch_kernel(error_model="numpy", disjoint=True)
 def _copy_lane(flag, k, ox, oy, oz, dx, dy, dz, tmin, tmax):
     """Give every lane not ``_LIT`` the ray of lane ``k`` (a lit one)."""
     a, b, c, d, e, f, t0, t1 = ox[k], oy[k], oz[k], dx[k], dy[k], dz[k], tmin[k], tmax[k]
@@ -1216,7 +1216,7 @@ def _copy_lane(flag, k, ox, oy, oz, dx, dy, dz, tmin, tmax):
         tmax[i] = tmax[i] if keep else t1
 
 
-@batch_kernel(error_model="numpy")
+@batch_kernel(error_model="numpy", disjoint=True)
 def _add_lit(flag, blocked, shadows, wr, wg, wb, Lr, Lg, Lb):
     """L += w at the ``_LIT`` lanes, with ``shadows`` only where ``blocked`` is false."""
     for i in range(flag.shape[0]):

@@ -125,6 +125,8 @@ max_depth   int    -1       Mitsuba's meaning (1 = emitters only, 2 =
 rr_depth    int    5        Russian roulette from this depth on
 mis         bool   true     MIS (power heuristic) of light and BSDF samples
 spectral    bool   false    hero-wavelength spectral rendering (impl.spectral)
+lanes       bool   true     diffuse vertices a path per vector lane
+                            (:mod:`impl.path_lanes`); false: scalar, same image
 sampler     str    jitter   jitter | sobol (pixel, light and BSDF samples)
 (rays)                      intersect, precision, offset, epsilon, accel,
                             slab_normals (:mod:`impl.rays`)
@@ -144,6 +146,17 @@ random numbers depend on its pixel, sample and vertex only, so the order in
 which paths are walked does not change the image.  Same image and counters with and without
 packets, plus ``packet_nodes`` / ``packet_tests``; packets need a tree
 (``accel=auto`` then means ``bvh-sah``).
+
+Vertices on plain ``diffuse`` surfaces (no mask, normal or bump map, parameter
+texture; RGB, no ``debug_bias``) leave the scalar loop once their normals,
+reflectance and random numbers are known: :func:`_to_lane` writes them into a
+lane table, :mod:`impl.path_lanes` computes their light samples' contributions and
+shadow rays, BSDF samples and roulette a path per vector lane, and
+:func:`_from_lanes` queues and compacts what they give.  A light sample on a mesh
+emitter taken for such a vertex is left half done by :func:`_light_samples` (the
+point and the emitter), the lanes completing it.  The same operations in the same
+order: ``lanes=false`` gives the same image and counters bit for bit, the vertices
+all scalar.
 
 Example::
 
@@ -168,17 +181,19 @@ from core.errors import ParamError, UnsupportedError
 
 from .bsdf import bsdf_arrays, bsdf_eval_at, bsdf_pdf_at, bsdf_sample_at, frame, is_delta, is_dielectric
 from .bsdf import to_local, to_world
-from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_ROUGHCONDUCTOR, MAT_ROUGHDIELECTRIC,
-                        MAT_THINDIELECTRIC, MaterialArrays, expand_components, with_specular_textures)
+from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, MAT_ROUGHCONDUCTOR,
+                        MAT_ROUGHDIELECTRIC, MAT_THINDIELECTRIC, MaterialArrays, expand_components,
+                        with_specular_textures)
 from .camera import camera_params
 from .kernel import batch_kernel, run_tasks, take_task
-from .light_sampling import (LightArrays, emitter_pdf, environment_pdf, flatten_with_lights,
-                             sample_light)
+from .light_sampling import (LightArrays, emitter_pdf, emitter_point, environment_pdf, flatten_with_lights,
+                             light_index, sample_light)
 from .lighting import (diffuse_albedo, environment_radiance, param_rgb, surface_at, textured_fresnel,
                        textured_params, transmittance_tint)
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, leave, refine, round_ray
 from .lowdiscrepancy import pixel_seed, sample_2d
+from . import path_lanes as pl
 from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import PTEX_PLASTIC_SPECULAR, SHADE_BUMPMAP, SceneArrays, scene_memo
@@ -364,6 +379,7 @@ class PathConfig(NamedTuple):
     mis: bool                   # power-heuristic MIS of light and BSDF samples
     bias: int                   # DEBUG_BIAS code
     sobol: bool                 # light and BSDF (u1, u2) from Owen-scrambled Sobol points
+    lanes: np.ndarray           # (M,) bool: the materials whose vertices run in lanes
 
 
 @njit(inline="always", cache=True)
@@ -394,23 +410,29 @@ class Walks(NamedTuple):
     h: np.ndarray               # (n,) uint64 the hashed numbers' prefix of the column's sample
     seq: np.ndarray             # (n,) uint64 the pixel's Sobol scramble seed
     ls: np.ndarray              # (_LS_ROWS, n) by position: hit point, light sample, BSDF numbers
+    lane: np.ndarray            # (impl.path_lanes.ROWS, n) the diffuse vertices' lane table
+    lane_i: np.ndarray          # (impl.path_lanes.INT_ROWS, n) its integer rows
 
 
 #: Rows of ``Walks.f``.
 _W_ETA, _W_PDF, _W_PX, _W_PY, _W_PZ, _W_L0, _W_L1, _W_L2 = range(8)
 _W_ROWS = 8
 #: Rows of ``Walks.ls`` (:func:`_light_samples`): the vertex, the light sample of
-#: :func:`impl.light_sampling.sample_light` (ER = 0: none), the BSDF sample's (u1, u2).
+#: :func:`impl.light_sampling.sample_light` (ER = 0: none), the BSDF sample's (u1, u2);
+#: at a vertex left to the lanes whose sample is on a mesh emitter, only that sample's
+#: point Y, the emitter's front normal N, its area (AREA > 0) and radiance E, the lanes
+#: computing the rest (:func:`impl.light_sampling.emitter_sample`).
 (_LS_PX, _LS_PY, _LS_PZ, _LS_WX, _LS_WY, _LS_WZ, _LS_DIST, _LS_YX, _LS_YY, _LS_YZ, _LS_ER, _LS_EG,
- _LS_EB, _LS_PDF, _LS_DELTA, _LS_LIGHT, _LS_U1, _LS_U2) = range(18)
-_LS_ROWS = 18
+ _LS_EB, _LS_PDF, _LS_DELTA, _LS_LIGHT, _LS_U1, _LS_U2, _LS_NX, _LS_NY, _LS_NZ, _LS_AREA) = range(22)
+_LS_ROWS = 22
 
 
 @njit(cache=True)
 def _new_walks(n):
+    D, I = pl.new_lanes(n)
     return Walks(np.empty(n, np.int64), np.empty((3, n)), np.empty((_W_ROWS, n)),
                  np.empty(n, np.int64), np.empty(n, np.bool_), np.empty(n, np.bool_),
-                 np.empty(n, np.uint64), np.empty(n, np.uint64), np.empty((_LS_ROWS, n)))
+                 np.empty(n, np.uint64), np.empty(n, np.uint64), np.empty((_LS_ROWS, n)), D, I)
 
 
 @batch_kernel
@@ -449,7 +471,7 @@ def _light_samples(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConf
     ls = W.ls
     for k in range(m):
         prim = T.prim[k]
-        ls[_LS_ER, k] = ls[_LS_EG, k] = ls[_LS_EB, k] = 0.0
+        ls[_LS_ER, k] = ls[_LS_EG, k] = ls[_LS_EB, k] = ls[_LS_AREA, k] = 0.0
         if prim < 0:
             continue
         c = W.col[k]
@@ -462,7 +484,8 @@ def _light_samples(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConf
             continue
         if P.sobol:
             ls[_LS_U1, k], ls[_LS_U2, k] = _vertex_uv(W.seq[c], sample, 2 + 2 * depth)
-        if L.n_lights == 0 or is_delta(B, A.shape_material[A.prim_shape[prim]]):
+        mat = A.shape_material[A.prim_shape[prim]]
+        if L.n_lights == 0 or is_delta(B, mat):
             continue
         h = W.h[c]
         dim = 2 + _DIMS_PER_VERTEX * depth
@@ -471,9 +494,20 @@ def _light_samples(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConf
         else:
             u1 = uniform_from(h, dim + 1)
             u2 = uniform_from(h, dim + 2)
+        u0 = uniform_from(h, dim)
+        e = light_index(L, u0) - A.light_kind.shape[0]
+        if P.lanes[mat] and 0 <= e < A.em_area.shape[0] and A.em_area[e] > 0.0:   # the lanes complete it
+            ls[_LS_YX, k], ls[_LS_YY, k], ls[_LS_YZ, k], ls[_LS_NX, k], ls[_LS_NY, k], ls[_LS_NZ, k] = \
+                emitter_point(A, e, u1, u2)
+            ls[_LS_AREA, k] = A.em_area[e]
+            sh = A.em_shape[e]
+            ls[_LS_ER, k], ls[_LS_EG, k], ls[_LS_EB, k] = L.shape_emit[sh, 0], L.shape_emit[sh, 1], \
+                L.shape_emit[sh, 2]
+            ls[_LS_DELTA, k] = 0.0
+            continue
         (ls[_LS_WX, k], ls[_LS_WY, k], ls[_LS_WZ, k], ls[_LS_DIST, k], ls[_LS_YX, k], ls[_LS_YY, k],
          ls[_LS_YZ, k], ls[_LS_ER, k], ls[_LS_EG, k], ls[_LS_EB, k], ls[_LS_PDF, k], delta,
-         li) = sample_light(A, L, px, py, pz, uniform_from(h, dim), u1, u2)
+         li) = sample_light(A, L, px, py, pz, u0, u1, u2)
         ls[_LS_DELTA, k] = 1.0 if delta else 0.0
         ls[_LS_LIGHT, k] = li
 
@@ -496,6 +530,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
     sobol = P.sobol
     walking = 0
     queued = 0
+    nl = 0                           # vertices left to the lanes
     for k in range(m):
         c = W.col[k]
         h = W.h[c]                   # this path's random numbers: dimension d is
@@ -551,8 +586,13 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
             counts[_C_DEPTH] += 1
             continue
         mat = A.shape_material[shape]
-        delta = is_delta(B, mat)
         dim = 2 + _DIMS_PER_VERTEX * depth
+        if P.lanes[mat]:             # a plain diffuse BSDF: the rest of the vertex in lanes
+            _to_lane(A, W, nl, k, c, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, tr, tg,
+                     tb, eta, depth, h, dim, sobol)
+            nl += 1
+            continue
+        delta = is_delta(B, mat)
         # A mask: its opacity here; a blendbsdf: the leaf the BSDF sample will come
         # from (Mitsuba: the second component when u0 <= w, at every level), its weight
         # and u0 rescaled for it.
@@ -771,6 +811,84 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         W.delta[c] = sdelta
         W.single[c] = single
         walking += 1
+    if nl > 0:
+        pl.diffuse_vertices(W.lane, W.lane_i, nl, mis, rr_depth, L.n_lights, R.strategy, R.eps,
+                            R.shrink_point, R.shrink_area, R.sph_radius)
+        walking, queued = _from_lanes(R, T, W, nl, walking, queued)
+    return walking, queued
+
+
+@njit(inline="always", cache=True)
+def _to_lane(A: SceneArrays, W: Walks, j, k, c, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz,
+             tr, tg, tb, eta, depth, h, dim, sobol):
+    """Lane j of the table ``W.lane`` for the vertex of column c at batch position k, on a
+    plain diffuse material (:mod:`impl.path_lanes`): what the lanes cannot load or hash
+    themselves.  The normals face the viewer's side of a two-sided material; the BSDF
+    sample's and roulette's numbers are those the scalar vertex draws."""
+    D, ls = W.lane, W.ls
+    if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
+        gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+    rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+    if sobol:
+        u1, u2 = ls[_LS_U1, k], ls[_LS_U2, k]
+    else:
+        u1 = uniform_from(h, dim + 4)
+        u2 = uniform_from(h, dim + 5)
+    D[pl.PX, j], D[pl.PY, j], D[pl.PZ, j] = ls[_LS_PX, k], ls[_LS_PY, k], ls[_LS_PZ, k]
+    D[pl.GX, j], D[pl.GY, j], D[pl.GZ, j] = gx, gy, gz
+    D[pl.NX, j], D[pl.NY, j], D[pl.NZ, j] = sx, sy, sz
+    D[pl.VX, j], D[pl.VY, j], D[pl.VZ, j] = vx, vy, vz
+    D[pl.RHO_R, j], D[pl.RHO_G, j], D[pl.RHO_B, j] = rho_r, rho_g, rho_b
+    D[pl.THR_R, j], D[pl.THR_G, j], D[pl.THR_B, j] = tr, tg, tb
+    D[pl.ETA, j] = eta
+    D[pl.U1, j], D[pl.U2, j], D[pl.URR, j] = u1, u2, uniform_from(h, dim + 6)
+    for r in range(_LS_DELTA - _LS_WX + 1):       # the light sample, row for row
+        D[pl.LX + r, j] = ls[_LS_WX + r, k]
+    D[pl.ENX, j], D[pl.ENY, j], D[pl.ENZ, j] = ls[_LS_NX, k], ls[_LS_NY, k], ls[_LS_NZ, k]
+    D[pl.AREA, j] = ls[_LS_AREA, k]
+    W.lane_i[pl.COL, j] = c
+    W.lane_i[pl.DEPTH, j] = depth
+
+
+@njit(inline="always", cache=True)
+def _from_lanes(R: RayConfig, T: Batch, W: Walks, nl, walking, queued):
+    """The outcome of the ``nl`` lanes of ``W.lane``: counters, their shadow rays appended to
+    the queue and their continuing rays to the walking paths, as the scalar vertex
+    records them.  Returns (paths walking on, shadow rays queued)."""
+    D, I, sh, ray = W.lane, W.lane_i, T.sh, T.ray
+    for j in range(nl):
+        c = I[pl.COL, j]
+        counts = T.cnt[c]
+        shadow = I[pl.SHADOW, j]
+        if shadow != pl.SHADOW_NONE:
+            counts[_C_SHADOW] += 1
+        if shadow == pl.SHADOW_QUEUED:
+            sh[OX, queued], sh[OY, queued], sh[OZ, queued] = D[pl.SOX, j], D[pl.SOY, j], D[pl.SOZ, j]
+            sh[DX, queued], sh[DY, queued], sh[DZ, queued] = D[pl.SDX, j], D[pl.SDY, j], D[pl.SDZ, j]
+            sh[TMIN, queued], sh[TMAX, queued] = D[pl.ST0, j], D[pl.ST1, j]
+            T.sh_w[0, queued], T.sh_w[1, queued], T.sh_w[2, queued] = D[pl.SWR, j], D[pl.SWG, j], D[pl.SWB, j]
+            T.sh_i[queued] = c
+            queued += 1
+        state = I[pl.STATE, j]
+        if state == pl.ENDED:
+            continue
+        counts[_C_BOUNCE] += 1
+        if state == pl.ROULETTE_ENDED:
+            counts[_C_RR] += 1
+        if state != pl.WALKS_ON:
+            continue
+        W.col[walking] = c
+        ray[OX, walking], ray[OY, walking], ray[OZ, walking], ray[DX, walking], ray[DY, walking], \
+            ray[DZ, walking] = round_ray(R, D[pl.OX, j], D[pl.OY, j], D[pl.OZ, j], D[pl.DX, j], D[pl.DY, j],
+                                         D[pl.DZ, j])
+        ray[TMIN, walking], ray[TMAX, walking] = D[pl.T0, j], np.inf
+        W.thr[0, c], W.thr[1, c], W.thr[2, c] = D[pl.TOUT_R, j], D[pl.TOUT_G, j], D[pl.TOUT_B, j]
+        W.f[_W_ETA, c] = D[pl.ETA, j]
+        W.f[_W_PDF, c] = D[pl.PDF, j]
+        W.f[_W_PX, c], W.f[_W_PY, c], W.f[_W_PZ, c] = D[pl.PX, j], D[pl.PY, j], D[pl.PZ, j]
+        W.depth[c] = I[pl.DEPTH, j] + 1
+        W.delta[c] = False
+        walking += 1
     return walking, queued
 
 
@@ -835,6 +953,17 @@ def _render_kernel(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: Ra
 
 # ------------------------------------------------------------- orchestration ---
 
+@njit(cache=True)
+def _lane_materials(A: SceneArrays, B: MaterialArrays):
+    """(M,) bool: the materials whose vertices :mod:`impl.path_lanes` computes: ``diffuse``
+    (textured or not) without a mask, a normal or bump map or a parameter texture."""
+    out = np.zeros(B.kind.shape[0], np.bool_)
+    for mat in range(B.kind.shape[0]):
+        out[mat] = (B.kind[mat] == MAT_DIFFUSE and B.opacity[mat] >= 1.0 and A.mat_shade[mat] == 0
+                    and B.aniso[mat] == 0 and not _tinted(A, B, mat))
+    return out
+
+
 def _check(params: dict) -> None:
     check_spp(params["spp"], "path")
     if params["max_depth"] < -1 or params["max_depth"] == 0:
@@ -893,8 +1022,9 @@ def render(scene: Scene, params: dict, *, seed: int = 0, debug_bias: str = "none
         A = A._replace(light_rad=np.ones_like(A.light_rad))
     else:
         S = rgb_arrays_placeholder()
+    lanes = _lane_materials(A, B) & (not spectral) & (debug_bias == "none") & bool(params["lanes"])
     P = PathConfig(spectral, int(params["max_depth"]), int(params["rr_depth"]), bool(params["mis"]),
-                   DEBUG_BIAS.index(debug_bias), params.get("sampler") == "sobol")
+                   DEBUG_BIAS.index(debug_bias), params.get("sampler") == "sobol", lanes)
     film = new_film(W, H, len(COUNTERS), bool(params.get("packets", False)), sampler_code(params))
     t1 = time.perf_counter()
     run_tasks(_render_kernel, cam, A, L, B, R, S, P, film, spp, seed)
@@ -920,6 +1050,8 @@ ALGORITHM = Algorithm(
               "BSDF samples; false = plain next-event estimation"),
         Param("spectral", bool, False, "spectral rendering: three hero-rotated wavelengths per "
               "path, scene spectra, CIE 1931 to linear sRGB (impl.spectral)"),
+        Param("lanes", bool, True, "vertices on plain diffuse surfaces a path per vector lane "
+              "(impl.path_lanes); false = the scalar vertex, the same image"),
         *RAY_PARAMS,
     ),
     render=render,

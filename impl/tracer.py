@@ -1176,7 +1176,7 @@ def _keep_all(R: RayConfig, cand):
     cand[0], cand[1] = S, T
 
 
-@batch_kernel(error_model="numpy")
+@batch_kernel(error_model="numpy", disjoint=True)
 def _closest_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, best, bp, b1s, b2s):
     """Closest hits of the rays (ox..tmax, one array per component) among spheres
     ``sph`` of (C, g) and triangles ``tri`` of V (index lists in scene order),
@@ -1216,7 +1216,7 @@ def _closest_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, best, 
             b2s[i] = c2 if ok else b2s[i]
 
 
-@batch_kernel(error_model="numpy")
+@batch_kernel(error_model="numpy", disjoint=True)
 def _occluded_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, hitm):
     """Whether any sphere ``sph`` of (C, g) or triangle ``tri`` of V lies on each ray
     within (tmin, tmax), primitive-outer / ray-inner with branch-free inner loops

@@ -240,3 +240,49 @@ def test_sobol_sampler_is_unbiased_and_lowers_the_variance(scene):
         return np.stack([r.image[H // 2:] for r in results]).astype(np.float64).var(axis=0, ddof=1).mean()
 
     assert spread(sob) < 0.9 * spread(jit), (spread(sob), spread(jit))
+
+
+# ------------------------------------------------------ diffuse vertex lanes ---
+
+#: Scenes whose paths meet plain diffuse surfaces, with what else each brings to the
+#: vertices around them: area, point, spot and directional lights, an envmap (light
+#: samples at infinite distance), textures, two-sided surfaces, and specular surfaces
+#: whose vertices stay scalar in the same pass.
+LANE_SCENES = [("cornell/cornell_box.xml", {}), ("cornell/cornell_box.xml", {"sampler": "sobol"}),
+               ("cornell/cornell_box.xml", {"precision": "float32"}),
+               ("cornell/cornell_box.xml", {"mis": False, "rr_depth": 2}),
+               ("cornell/cornell_point.xml", {}), ("cornell/cornell_mirror_glass.xml", {}),
+               ("spheres/spot_directional.xml", {}), ("distributed/checkerboard.xml", {}),
+               ("vocabulary/envmap_path.xml", {}), ("vocabulary/blendbsdf.xml", {})]
+
+
+@pytest.mark.parametrize("scene,params", LANE_SCENES)
+def test_diffuse_lanes_give_the_scalar_vertex_image_bit_for_bit(scene, params):
+    """A vertex on a plain diffuse surface computed a path per vector lane
+    (:mod:`impl.path_lanes`, the default) gives the scalar vertex's image, variance and
+    counters bit for bit: the same samples, weights, shadow rays and continuing rays."""
+    s = load_scene(SUITES / scene)
+    lanes = PATH.render(s, PATH.parse_params({"spp": 4, **params}), seed=5)
+    scalar = PATH.render(s, PATH.parse_params({"spp": 4, "lanes": False, **params}), seed=5)
+    assert lanes.counters["bounce_rays"] > 0
+    np.testing.assert_array_equal(lanes.image, scalar.image)
+    np.testing.assert_array_equal(lanes.variance, scalar.variance)
+    assert lanes.counters == scalar.counters
+
+
+def test_lanes_take_the_plain_diffuse_materials_only():
+    """The materials that run in lanes: ``diffuse`` ones, textured or not; not the
+    specular or glossy ones, nor a diffuse one under a mask or a normal or bump map."""
+    def lanes(scene):
+        full = PATH_MODULE.expand_components(load_scene(SUITES / scene), algorithm="path")
+        B = PATH_MODULE.bsdf_arrays(full, algorithm="path")
+        A, _ = PATH_MODULE.flatten_with_lights(full)
+        return [(m.kind, m.opacity is not None or m.shading is not None, bool(ok))
+                for m, ok in zip(full.materials, PATH_MODULE._lane_materials(A, B))]
+
+    for scene in ("cornell/cornell_box.xml", "cornell/cornell_mirror_glass.xml", "distributed/checkerboard.xml",
+                  "vocabulary/mask.xml", "vocabulary/normalmap.xml", "vocabulary/bumpmap.xml"):
+        rows = lanes(scene)
+        assert any(ok for _, _, ok in rows), scene
+        for kind, wrapped, ok in rows:
+            assert ok == (kind == "diffuse" and not wrapped), (scene, kind, wrapped)
