@@ -102,8 +102,8 @@ from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, M
                         MaterialArrays, PlasticArrays, WrapperArrays, distribution_codes,
                         material_arrays, no_wrappers, plastic_arrays, wrapper_arrays)
 
-__all__ = ["bsdf_arrays", "BsdfArrays", "with_plastic", "MODELLED", "frame", "to_local", "to_world", "sample_cosine_hemisphere", "sincos_octant",
-           "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "bsdf_sample_at",
+__all__ = ["bsdf_arrays", "BsdfArrays", "with_plastic", "MODELLED", "frame", "to_local", "to_world",
+           "sample_cosine_hemisphere", "sincos_octant", "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "bsdf_sample_at",
            "bsdf_eval_at", "bsdf_pdf_at", "is_delta",
            "is_dielectric", "cook_torrance_eval", "cook_torrance_pdf", "cook_torrance_sample",
            "diffuse_transmission_eval", "diffuse_transmission_pdf", "diffuse_transmission_sample",
@@ -215,7 +215,7 @@ def to_world(sx, sy, sz, tx, ty, tz, nx, ny, nz, lx, ly, lz):
 
 # Minimax polynomials of sin and cos on [-pi/4, pi/4], the coefficients of Sun's fdlibm
 # (k_sin.c, k_cos.c, 1993): sin x = x + x^3 (S1 + z S2 + ... + z^5 S6), cos x = 1 - z/2 +
-# z^2 (C1 + ... + z^5 C6), z = x^2.  Error within a few ulps of the libm values there.
+# z^2 (C1 + ... + z^5 C6), z = x^2.
 _S1, _S2, _S3 = -1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04
 _S4, _S5, _S6 = 2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10
 _C1, _C2, _C3 = 4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05
@@ -226,8 +226,8 @@ _C4, _C5, _C6 = -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.1359
 def sincos_octant(x):
     """(sin x, cos x) for |x| <= pi/4 by polynomials (no library call, so a loop over
     lanes that calls it vectorises; numba's pip build has no vector ``sin``/``cos``).
-    Within a few ulps of ``math.sin``/``math.cos`` on that interval; not range-reduced,
-    so meaningless beyond it."""
+    Within 2 ulps of ``math.sin``/``math.cos`` on that interval
+    (``tests/test_sampling_chi2.py``); not range-reduced, so meaningless beyond it."""
     z = x * x
     s = x + x * z * (_S1 + z * (_S2 + z * (_S3 + z * (_S4 + z * (_S5 + z * _S6)))))
     c = 1.0 - (0.5 * z - z * z * (_C1 + z * (_C2 + z * (_C3 + z * (_C4 + z * (_C5 + z * _C6))))))

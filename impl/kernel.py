@@ -78,8 +78,8 @@ __all__ = ["batch_kernel", "by_reference", "dereference", "interleaved", "run_ta
 #: checks than a small threshold: a batch step that reads a dozen rows of ray and point
 #: data and writes a dozen others (a light sample and its shadow ray per point) stayed
 #: scalar.  The checks run once per loop, not per ray, so the limits are raised for every
-#: kernel compiled in this process (numba gives no way to declare its array arguments
-#: ``noalias``).  LLVM reads these options when it vectorises: kernels loaded from numba's
+#: kernel compiled in this process (``njit`` takes no keyword declaring its array
+#: arguments ``noalias``; see the mapping below for the kernels that can promise it).  LLVM reads these options when it vectorises: kernels loaded from numba's
 #: cache were compiled with them already.
 LLVM_OPTIONS = ("-runtime-memory-check-threshold=4096", "-vectorize-memory-check-threshold=4096",
                 "-memory-check-merge-threshold=4096")

@@ -16,23 +16,21 @@ without lanes).  What the lanes leave to the caller: the hit's normals and refle
 (indexed loads), the emission seen at the vertex, the random numbers (hashes), the
 shadow-ray queue and the compaction of the walking paths.
 
-Rows of the lane table ``D`` (inputs, then outputs; a lane's column is one path):
+Rows of the lane table ``D`` (a lane's column is one path).  In:
 
-=========================  =========================================================
-``P``, ``G``, ``N``, ``V``  hit point, geometric and shading normal (facing the
-                           viewer's side), direction to the viewer
-``RHO``, ``THR``, ``ETA``  reflectance, throughput, product of the IOR ratios
-``U1``, ``U2``, ``URR``    the BSDF sample's two numbers, the roulette number
-``L``, ``LDIST``, ``Y``,    the light sample of :func:`impl.light_sampling.sample_light`
-``E``, ``LPDF``, ``LDELTA`` (direction, distance, point, radiance, pdf, delta flag);
-``EN``, ``AREA``           where ``AREA`` > 0 only its point ``Y`` on a mesh emitter
-                           of that area, front normal ``EN`` and radiance ``E``: the
-                           lane completes it (:func:`impl.light_sampling.emitter_sample`)
-``SO``, ``SD``, ``ST0``,   out: the shadow ray, its contribution if unblocked
-``ST1``, ``SW``
-``O``, ``D``, ``T0``,      out: the continuing ray, throughput after roulette, the
-``TOUT``, ``PDF``          BSDF sample's pdf
-=========================  =========================================================
+* ``P``, ``G``, ``N``, ``V``: hit point, geometric and shading normal (facing the
+  viewer's side), direction to the viewer;
+* ``RHO``, ``THR``, ``ETA``: reflectance, throughput, product of the IOR ratios;
+* ``U1``, ``U2``, ``URR``: the BSDF sample's two numbers, the roulette number;
+* ``L``, ``LDIST``, ``Y``, ``E``, ``LPDF``, ``LDELTA``: the light sample of
+  :func:`impl.light_sampling.sample_light` (direction, distance, point, radiance,
+  pdf, delta flag); where ``AREA`` > 0, only its point ``Y`` on a mesh emitter of
+  that area, the emitter's front normal ``EN`` and radiance ``E``, the lane
+  completing it (:func:`impl.light_sampling.emitter_sample`).
+
+Out: ``SO``, ``SD``, ``ST0``, ``ST1``, ``SW``, the shadow ray and its contribution
+if unblocked; ``O``, ``D``, ``T0``, ``TOUT``, ``PDF``, the continuing ray, the
+throughput after roulette and the BSDF sample's pdf.  Integer rows ``I``: below.
 """
 
 from __future__ import annotations
