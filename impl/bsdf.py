@@ -103,8 +103,8 @@ from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, M
                         material_arrays, no_wrappers, plastic_arrays, wrapper_arrays)
 
 __all__ = ["bsdf_arrays", "BsdfArrays", "with_plastic", "MODELLED", "frame", "to_local", "to_world",
-           "sample_cosine_hemisphere", "sincos_octant", "cosine_hemisphere_pdf", "bsdf_sample", "bsdf_eval", "bsdf_pdf", "bsdf_sample_at",
-           "bsdf_eval_at", "bsdf_pdf_at", "is_delta",
+           "sample_cosine_hemisphere", "sincos_octant", "cosine_hemisphere_pdf", "diffuse_eval", "diffuse_pdf",
+           "bsdf_sample", "bsdf_eval", "bsdf_pdf", "bsdf_sample_at", "bsdf_eval_at", "bsdf_pdf_at", "is_delta",
            "is_dielectric", "cook_torrance_eval", "cook_torrance_pdf", "cook_torrance_sample",
            "diffuse_transmission_eval", "diffuse_transmission_pdf", "diffuse_transmission_sample",
            "check_cook_torrance"]
@@ -260,6 +260,22 @@ def cosine_hemisphere_pdf(z):
 
 
 # ------------------------------------------------------------------- BSDFs ---
+
+@njit(inline="always", cache=True)
+def diffuse_eval(rho_r, rho_g, rho_b, wiz, woz):
+    """The Lambertian f·cos θ_o = ρ cos θ_o / π (RGB) with both directions above the
+    surface, else 0; selects, no branch (a loop over lanes calling it vectorises)."""
+    c = woz * INV_PI
+    up = (wiz > 0.0) & (woz > 0.0)
+    return rho_r * c if up else 0.0, rho_g * c if up else 0.0, rho_b * c if up else 0.0
+
+
+@njit(inline="always", cache=True)
+def diffuse_pdf(wiz, woz):
+    """Solid-angle pdf of the Lambertian lobe's cosine-weighted sample producing wo (0
+    with wi below the surface)."""
+    return cosine_hemisphere_pdf(woz) if wiz > 0.0 else 0.0
+
 
 @njit(inline="always", cache=True)
 def is_delta(B: MaterialArrays, mat):
@@ -450,10 +466,7 @@ def bsdf_eval_at(B: MaterialArrays, mat, alpha, alpha_v, rho_r, rho_g, rho_b, sp
     ``alpha_v``, ``sp_r``, ``sp_g``, ``sp_b`` as for :func:`bsdf_sample_at`)."""
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
-        if wiz > 0.0 and woz > 0.0:
-            c = woz * INV_PI
-            return rho_r * c, rho_g * c, rho_b * c
-        return 0.0, 0.0, 0.0
+        return diffuse_eval(rho_r, rho_g, rho_b, wiz, woz)
     if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
         return _plastic_eval(B, mat, k, rho_r, rho_g, rho_b, sp_r, sp_g, sp_b, wix, wiy, wiz, wox, woy, woz)
     if k == MAT_ROUGHCONDUCTOR:
@@ -478,7 +491,7 @@ def bsdf_pdf_at(B: MaterialArrays, mat, alpha, alpha_v, eta_scale, wix, wiy, wiz
     """Solid-angle pdf of :func:`bsdf_sample_at` producing wo (0 for delta lobes)."""
     k = B.kind[mat]
     if k == MAT_DIFFUSE:
-        return cosine_hemisphere_pdf(woz) if wiz > 0.0 else 0.0
+        return diffuse_pdf(wiz, woz)
     if k == MAT_PLASTIC or k == MAT_ROUGHPLASTIC:
         return _plastic_pdf(B, mat, k, wix, wiy, wiz, wox, woy, woz)
     if k == MAT_ROUGHCONDUCTOR:

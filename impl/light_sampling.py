@@ -148,6 +148,16 @@ def sample_sphere_cone(cx, cy, cz, r, px, py, pz, u1, u2):
 # ------------------------------------------------------------- emitters ---
 
 @njit(inline="always", cache=True)
+def power_heuristic(a, b):
+    """Veach's power heuristic weight a² / (a² + b²) of a sample of pdf a against a
+    technique of pdf b (0 when both vanish, 1 for an infinite a, as Mitsuba); selects,
+    no branch, so a loop over lanes calling it vectorises."""
+    a2 = a * a
+    s = a2 + b * b
+    return a2 / s if (s > 0.0) & math.isfinite(s) else (1.0 if math.isinf(a) else 0.0)
+
+
+@njit(inline="always", cache=True)
 def light_index(L: LightArrays, u0):
     """The light :func:`sample_light` picks with ``u0``: delta lights, then mesh emitters,
     then sphere emitters and the envmap (uniformly, one entry each)."""

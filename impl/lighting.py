@@ -66,9 +66,7 @@ from numba import njit
 from .envmap import envmap_draw, envmap_radiance
 from .fresnel import fresnel_conductor, fresnel_dielectric
 from .kernel import batch_kernel, by_reference, dereference
-from .rays import RayConfig, hit, legacy_config, leave, occluded, refine, round_ray
-from .intersect import like
-from .offset import spawn_select
+from .rays import RayConfig, hit, leave, leave_towards, legacy_config, occluded, refine, round_ray
 from .phong import INV_PI, attenuation, phong_brdf_cos
 from .lowdiscrepancy import pixel_seed, sample_2d
 from .rng import uniform_from, uniform_prefix
@@ -1103,16 +1101,12 @@ def _lane_shadow_ray(strategy, g, eps, p_x, p_y, p_z, gx, gy, gz, lx, ly, lz, tx
     """:func:`shadow_towards` at a lane, branch-free: the origin left from p on the side of
     l (geometric normal g), its ``tmin``, the unit direction from the origin to the target
     t and that distance (a zero direction and distance where the origin is t)."""
-    side = 1.0 if gx * lx + gy * ly + gz * lz >= 0.0 else -1.0
-    o_x, o_y, o_z, t0 = spawn_select(strategy, like(g, p_x), like(g, p_y), like(g, p_z),
-                                     like(g, side * gx), like(g, side * gy),
-                                     like(g, side * gz), like(g, eps))
-    o_x, o_y, o_z = float(o_x), float(o_y), float(o_z)
+    o_x, o_y, o_z, t0 = leave_towards(strategy, g, eps, p_x, p_y, p_z, gx, gy, gz, lx, ly, lz)
     hx, hy, hz = tx - o_x, ty - o_y, tz - o_z
     hd = math.sqrt(hx * hx + hy * hy + hz * hz)
     away = hd != 0.0
     ih = 1.0 / hd
-    return (o_x, o_y, o_z, float(t0), hx * ih if away else 0.0, hy * ih if away else 0.0,
+    return (o_x, o_y, o_z, t0, hx * ih if away else 0.0, hy * ih if away else 0.0,
             hz * ih if away else 0.0, hd if away else 0.0)
 
 

@@ -187,7 +187,7 @@ from .materials import (MAT_BLEND, MAT_CONDUCTOR, MAT_DIELECTRIC, MAT_DIFFUSE, M
 from .camera import camera_params
 from .kernel import batch_kernel, run_tasks, take_task
 from .light_sampling import (LightArrays, emitter_pdf, emitter_point, environment_pdf, flatten_with_lights,
-                             light_index, sample_light)
+                             light_index, power_heuristic, sample_light)
 from .lighting import (diffuse_albedo, environment_radiance, param_rgb, surface_at, textured_fresnel,
                        textured_params, transmittance_tint)
 from .rays import PARAMS as RAY_PARAMS
@@ -219,14 +219,6 @@ _BIAS_NONE, _BIAS_RR, _BIAS_MIS = range(3)
 _DIMS_PER_VERTEX = 8
 #: The random dimension of the hero wavelength (beyond any path's vertices).
 _DIM_WAVELENGTH = 1 << 30
-
-
-@njit(inline="always", cache=True)
-def _power(a, b):
-    """Power heuristic weight a² / (a² + b²) (0 when both vanish, as Mitsuba)."""
-    a2 = a * a
-    s = a2 + b * b
-    return a2 / s if s > 0.0 and math.isfinite(s) else (1.0 if math.isinf(a) else 0.0)
 
 
 @njit(inline="always", cache=True)
@@ -550,7 +542,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         if prim < 0:                 # left the scene: the environment
             er, eg, eb = environment_radiance(A, dx, dy, dz)
             if not prev_delta and A.env_image.shape[0] > 0:   # an envmap is light-sampled too
-                w = _power(prev_pdf, environment_pdf(A, L, dx, dy, dz)) if mis else 0.0
+                w = power_heuristic(prev_pdf, environment_pdf(A, L, dx, dy, dz)) if mis else 0.0
                 er, eg, eb = w * er, w * eg, w * eb
             T.L[0, c] += tr * er
             T.L[1, c] += tg * eg
@@ -569,7 +561,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
             if not prev_delta:
                 if mis:
                     cos_y = abs(gx * vx + gy * vy + gz * vz)
-                    w = _power(prev_pdf, emitter_pdf(A, L, shape, ppx, ppy, ppz, t, cos_y))
+                    w = power_heuristic(prev_pdf, emitter_pdf(A, L, shape, ppx, ppy, ppz, t, cos_y))
                 else:
                     w = 0.0          # plain NEE: the light sample already counted this
             if spectral:
@@ -705,9 +697,9 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
                                                    woy, woz)
                             bpdf *= opac
                             if bias == _BIAS_MIS:   # debug: the classic swapped-argument bug
-                                w = _power(bpdf, lpdf)
+                                w = power_heuristic(bpdf, lpdf)
                             else:
-                                w = _power(lpdf, bpdf)
+                                w = power_heuristic(lpdf, bpdf)
                         sh = T.sh
                         sh[OX, queued], sh[OY, queued], sh[OZ, queued] = sox, soy, soz
                         sh[DX, queued], sh[DY, queued], sh[DZ, queued] = hx / hd, hy / hd, hz / hd

@@ -40,11 +40,11 @@ import math
 import numpy as np
 from numba import njit
 
-from .bsdf import INV_PI, sample_cosine_hemisphere
-from .intersect import like
-from .light_sampling import emitter_sample
+from .bsdf import (cosine_hemisphere_pdf, diffuse_eval, diffuse_pdf, frame, sample_cosine_hemisphere, to_local,
+                   to_world)
+from .light_sampling import emitter_sample, power_heuristic
 from .kernel import batch_kernel
-from .offset import spawn_select
+from .rays import leave_towards
 
 __all__ = ["ROWS", "INT_ROWS", "new_lanes", "diffuse_vertices", "SHADOW_NONE", "SHADOW_COUNTED",
            "SHADOW_QUEUED", "ENDED", "BOUNCED_ENDED", "ROULETTE_ENDED", "WALKS_ON"]
@@ -94,19 +94,11 @@ def diffuse_vertices(D, I, n, mis, rr_depth, n_lights, strategy, eps, shrink_poi
            D[TOUT_R, :n], D[TOUT_G, :n], D[TOUT_B, :n], D[PDF, :n], I[STATE, :n])
 
 
-@njit(inline="always", cache=True)
-def _leave(strategy, g, eps, px, py, pz, gx, gy, gz, wx, wy, wz):
-    """:func:`impl.rays.leave` from p on the side of w (geometric normal g), with selects."""
-    side = 1.0 if gx * wx + gy * wy + gz * wz >= 0.0 else -1.0
-    ox, oy, oz, t0 = spawn_select(strategy, like(g, px), like(g, py), like(g, pz), like(g, side * gx),
-                                  like(g, side * gy), like(g, side * gz), like(g, eps))
-    return float(ox), float(oy), float(oz), float(t0)
-
-
 @batch_kernel(error_model="numpy", disjoint=True)
 def _lanes(mis, rr_depth, n_lights, strategy, eps, shrink_point, shrink_area, g,
            px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r, rho_g, rho_b, thr_r, thr_g, thr_b, eta_,
-           u1_, u2_, urr_, lx_, ly_, lz_, ldist_, yx_, yy_, yz_, er_, eg_, eb_, lpdf_, ldelta_, enx, eny, enz, area_, depth,
+           u1_, u2_, urr_, lx_, ly_, lz_, ldist_, yx_, yy_, yz_, er_, eg_, eb_, lpdf_, ldelta_, enx, eny, enz,
+           area_, depth,
            sox, soy, soz, sdx, sdy, sdz, st0, st1, swr, swg, swb, shadow,
            ox, oy, oz, dx, dy, dz, t0, tout_r, tout_g, tout_b, pdf_, state):
     """One diffuse vertex per lane i, branch-free (see the module docstring): the scalar
@@ -118,13 +110,9 @@ def _lanes(mis, rr_depth, n_lights, strategy, eps, shrink_point, shrink_area, g,
         r_r, r_g, r_b = rho_r[i], rho_g[i], rho_b[i]
         t_r, t_g, t_b = thr_r[i], thr_g[i], thr_b[i]
         eta = eta_[i]
-        # The shading frame (impl.bsdf.frame: Duff et al. 2017) and wi in it.
-        sign = 1.0 if n_z >= 0.0 else -1.0
-        a = -1.0 / (sign + n_z)
-        b = n_x * n_y * a
-        fx, fy, fz = 1.0 + sign * n_x * n_x * a, sign * b, -sign * n_x
-        qx, qy, qz = b, sign + n_y * n_y * a, -n_y
-        wiz = n_x * vx[i] + n_y * vy[i] + n_z * vz[i]
+        # The shading frame (Duff et al. 2017) and wi in it.
+        fx, fy, fz, qx, qy, qz = frame(n_x, n_y, n_z)
+        _, _, wiz = to_local(fx, fy, fz, qx, qy, qz, n_x, n_y, n_z, vx[i], vy[i], vz[i])
 
         # Next-event estimation: f·cos of the light sample, its shadow ray and weight.
         y_x, y_y, y_z, area = yx_[i], yy_[i], yz_[i], area_[i]
@@ -137,25 +125,17 @@ def _lanes(mis, rr_depth, n_lights, strategy, eps, shrink_point, shrink_area, g,
         e_r, e_g, e_b = (mr if mesh else e_r), (mg if mesh else e_g), (mb if mesh else e_b)
         lpdf = mpdf if mesh else lpdf_[i]
         ldelta = ldelta_[i] != 0.0
-        woz = n_x * l_x + n_y * l_y + n_z * l_z
-        c = woz * INV_PI
-        up = (wiz > 0.0) & (woz > 0.0)
-        fr = r_r * c if up else 0.0
-        fg = r_g * c if up else 0.0
-        fb = r_b * c if up else 0.0
+        _, _, woz = to_local(fx, fy, fz, qx, qy, qz, n_x, n_y, n_z, l_x, l_y, l_z)
+        fr, fg, fb = diffuse_eval(r_r, r_g, r_b, wiz, woz)
         lit = ((e_r > 0.0) | (e_g > 0.0) | (e_b > 0.0)) & ((fr > 0.0) | (fg > 0.0) | (fb > 0.0))
-        s_x, s_y, s_z, s_t0 = _leave(strategy, g, eps, p_x, p_y, p_z, g_x, g_y, g_z, l_x, l_y, l_z)
+        s_x, s_y, s_z, s_t0 = leave_towards(strategy, g, eps, p_x, p_y, p_z, g_x, g_y, g_z, l_x, l_y, l_z)
         far = math.isinf(ldist)
         hx = l_x if far else y_x - s_x
         hy = l_y if far else y_y - s_y
         hz = l_z if far else y_z - s_z
         hd = 1.0 if far else math.sqrt(hx * hx + hy * hy + hz * hz)
         shrink = shrink_point if ldelta else shrink_area
-        bpdf = (woz * INV_PI if woz > 0.0 else 0.0) if wiz > 0.0 else 0.0
-        a2 = lpdf * lpdf                 # impl.path._power(lpdf, bpdf)
-        s2 = a2 + bpdf * bpdf
-        power = a2 / s2 if (s2 > 0.0) & math.isfinite(s2) else (1.0 if math.isinf(lpdf) else 0.0)
-        w = 1.0 if ldelta | (not mis) else power
+        w = 1.0 if ldelta | (not mis) else power_heuristic(lpdf, diffuse_pdf(wiz, woz))
         shadow[i] = (SHADOW_QUEUED if hd > 0.0 else SHADOW_COUNTED) if lit else SHADOW_NONE
         sox[i], soy[i], soz[i] = s_x, s_y, s_z
         sdx[i], sdy[i], sdz[i] = hx / hd, hy / hd, hz / hd
@@ -167,15 +147,13 @@ def _lanes(mis, rr_depth, n_lights, strategy, eps, shrink_point, shrink_area, g,
 
         # The BSDF sample: a cosine-weighted direction, weight ρ, pdf cos θ / π.
         x, y, z = sample_cosine_hemisphere(u1_[i], u2_[i])
-        pdf = z * INV_PI if z > 0.0 else 0.0
+        pdf = cosine_hemisphere_pdf(z)
         ok = (wiz > 0.0) & (pdf > 0.0) & ((r_r > 0.0) | (r_g > 0.0) | (r_b > 0.0))
         t_r, t_g, t_b = t_r * r_r, t_g * r_g, t_b * r_b
-        d_x = fx * x + qx * y + n_x * z
-        d_y = fy * x + qy * y + n_y * z
-        d_z = fz * x + qz * y + n_z * z
+        d_x, d_y, d_z = to_world(fx, fy, fz, qx, qy, qz, n_x, n_y, n_z, x, y, z)
         inv = 1.0 / math.sqrt(d_x * d_x + d_y * d_y + d_z * d_z)
         d_x, d_y, d_z = d_x * inv, d_y * inv, d_z * inv
-        ox[i], oy[i], oz[i], t0[i] = _leave(strategy, g, eps, p_x, p_y, p_z, g_x, g_y, g_z, d_x, d_y, d_z)
+        ox[i], oy[i], oz[i], t0[i] = leave_towards(strategy, g, eps, p_x, p_y, p_z, g_x, g_y, g_z, d_x, d_y, d_z)
         dx[i], dy[i], dz[i] = d_x, d_y, d_z
 
         # Russian roulette (Mitsuba: after the depth increment, q = min(max(T)·η², 0.95)).

@@ -120,7 +120,7 @@ from core.errors import ParamError
 from . import accel as _accel
 from .accel.wide import wide_any_bound, wide_bind, wide_closest_bound
 from .intersect import SPHERE_FORMS, any_hit_form, closest_hit_form, like
-from .offset import STRATEGIES, spawn
+from .offset import STRATEGIES, spawn, spawn_select
 
 __all__ = ["RayConfig", "ray_config", "legacy_config", "PARAMS", "INTERSECT", "PRECISIONS",
            "OFFSETS", "PACKET_ACCELS", "hit", "refine", "occluded", "leave", "round_ray"]
@@ -347,4 +347,15 @@ def leave(R: RayConfig, px, py, pz, nx, ny, nz):
     g = R.sph_radius
     ox, oy, oz, t0 = spawn(R.strategy, like(g, px), like(g, py), like(g, pz),
                            like(g, nx), like(g, ny), like(g, nz), like(g, R.eps))
+    return float(ox), float(oy), float(oz), float(t0)
+
+
+@njit(inline="always", cache=True)
+def leave_towards(strategy, g, eps, px, py, pz, gx, gy, gz, wx, wy, wz):
+    """:func:`leave` from p on the side of the direction w (geometric normal g), without
+    branches, for loops that LLVM vectorises over rays: R's ``strategy``, ``eps`` and an
+    array ``g`` of its precision given apart (:func:`impl.offset.spawn_select`)."""
+    side = 1.0 if gx * wx + gy * wy + gz * wz >= 0.0 else -1.0
+    ox, oy, oz, t0 = spawn_select(strategy, like(g, px), like(g, py), like(g, pz), like(g, side * gx),
+                                  like(g, side * gy), like(g, side * gz), like(g, eps))
     return float(ox), float(oy), float(oz), float(t0)
