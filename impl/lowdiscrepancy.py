@@ -32,12 +32,15 @@ takes Sobol dimensions (0, 1) with its own index shuffle and value scrambles
 seeded by ``hash(seed, pair)``, so every pair is a scrambled (0, 2)-sequence
 and different pairs are decorrelated.  :func:`sobol_point` gives the
 full-dimensional (unpadded) Sobol point, scrambled per dimension.
+:func:`sample_1d_seeded` and :func:`sample_2d_seeded` take their scramble seeds
+ready-made (:func:`dimension_seed`, one 32-bit hash per seed), for a kernel that
+draws many dimensions per sample in vector lanes (path's vertices).
 
 Limits: 2**32 points per sequence; :data:`JOE_KUO` holds
 :data:`MAX_DIMENSIONS` dimensions (padding needs only two); points are float64
 with 32 significant bits.  The tracers draw from it with ``sampler=sobol``
-(pixel positions, light samples, path's BSDF samples; every dimension of
-``distributed``, through :mod:`impl.samplers`).
+(pixel positions, light samples, every number of path's vertices; every
+dimension of ``distributed``, through :mod:`impl.samplers`).
 
 References
 ----------
@@ -61,6 +64,7 @@ from numba.extending import intrinsic
 
 __all__ = ["JOE_KUO", "MAX_DIMENSIONS", "generator_matrices", "sobol_uint", "sobol_point",
            "sample_1d", "sample_2d", "pair_hashes", "sample_2d_hashed", "samples_2d",
+           "dimension_seed", "sample_1d_seeded", "sample_2d_seeded",
            "sobol_points", "nested_uniform_scramble", "pixel_seed"]
 
 #: First rows of Joe & Kuo's ``new-joe-kuo-6.21201`` table (dimension 2 onwards, as
@@ -208,6 +212,55 @@ def _laine_karras(typingctx, x, seed):
         return builder.zext(v, ir.IntType(64))
 
     return types.uint64(x, seed), codegen
+
+
+@intrinsic
+def _lowbias32(typingctx, x):
+    """:func:`_mix32` (Wellons' ``lowbias32``) in 32-bit lanes: the same values for the
+    low 32 bits of ``x``, two 32-bit multiplies where the masked 64-bit form vectorises
+    to 64-bit ones.  The result a uint64 below 2**32."""
+    if not isinstance(x, types.Integer):
+        return None
+
+    def codegen(context, builder, sig, args):
+        i32 = ir.IntType(32)
+        v = _low32(context, builder, sig.args[0], args[0])
+        for shift, mul in ((16, 0x7FEB352D), (15, 0x846CA68B)):
+            v = builder.xor(v, builder.lshr(v, ir.Constant(i32, shift)))
+            v = builder.mul(v, ir.Constant(i32, mul))
+        v = builder.xor(v, builder.lshr(v, ir.Constant(i32, 16)))
+        return builder.zext(v, ir.IntType(64))
+
+    return types.uint64(x), codegen
+
+
+@njit(inline="always", cache=True)
+def dimension_seed(seed, dim):
+    """A 32-bit scramble seed for dimension ``dim`` of the sequence of the 64-bit ``seed``
+    (a pixel's :func:`pixel_seed`): :func:`_lowbias32` of the seed's two halves folded
+    together plus ``dim`` times the 32-bit golden ratio.  Cheaper than :func:`_hash2`
+    (one hash, 32-bit lanes), for callers drawing many dimensions per sample."""
+    s = np.uint64(seed)
+    return _lowbias32((s ^ (s >> np.uint64(32))) + np.uint64(dim) * np.uint64(0x9E3779B9))
+
+
+@njit(inline="always", cache=True)
+def sample_1d_seeded(index, s_index, s_value):
+    """A padded 1-D sample from two 32-bit seeds (:func:`dimension_seed`): point ``index``
+    of the van der Corput sequence, its index shuffled by a nested uniform scramble seeded
+    by ``s_index`` and its value by one seeded by ``s_value``.  The first 2**m indices
+    give one point in each interval [j/2**m, (j+1)/2**m): stratified, each uniform."""
+    i = _reverse32(_laine_karras(_reverse32(np.uint64(index)), s_index))
+    return float(_reverse32(_laine_karras(i, s_value))) * _INV32
+
+
+@njit(inline="always", cache=True)
+def sample_2d_seeded(index, s_index, s_u, s_v):
+    """:func:`sample_2d_hashed` from three 32-bit seeds (:func:`dimension_seed`): the
+    index shuffle's and the two coordinates' value scrambles.  The first 2**m indices are
+    a scrambled (0, m, 2)-net."""
+    return sample_2d_hashed(index, (np.uint64(s_u) << np.uint64(32)) | np.uint64(s_index),
+                            np.uint64(s_v) << np.uint64(32))
 
 
 @njit(inline="always", cache=True)

@@ -103,10 +103,14 @@ of probability p per sample and n samples).
 
 Pixel sampling as in ``raycast``/``whitted`` (:mod:`impl.sampling`):
 ``spp = k²`` jittered strata with a box filter, returning the variance of
-the pixel mean.  ``sampler=sobol`` takes the pixel position and, at every
-vertex, the light sample's and the BSDF sample's 2-D numbers from
-Owen-scrambled Sobol points, one padded dimension pair each (:func:`_vertex_uv`);
-the 1-D choices stay hashed uniform numbers.  A ``thinlens`` sensor adds a uniform aperture point per eye
+the pixel mean.  ``sampler=sobol`` takes the pixel position from
+Owen-scrambled Sobol points and every number a vertex draws from padded,
+Owen-scrambled low-discrepancy points (:func:`_sobol_numbers`): the light
+sample's and the BSDF sample's 2-D numbers a Sobol pair each, the choice of
+light, of lobe and the roulette number a van der Corput dimension each, all
+stratified over a pixel's samples (as Mitsuba's ``multijitter`` does every
+dimension).  Without it (``jitter``) they are hashed uniform numbers.  A
+``thinlens`` sensor adds a uniform aperture point per eye
 ray (:func:`impl.camera.eye_ray_lens`, Mitsuba's ``thinlens``).  Every ray goes through :mod:`impl.rays` (parameters
 ``intersect``, ``precision``, ``offset``, ``epsilon``).
 
@@ -127,7 +131,8 @@ mis         bool   true     MIS (power heuristic) of light and BSDF samples
 spectral    bool   false    hero-wavelength spectral rendering (impl.spectral)
 lanes       bool   true     diffuse vertices a path per vector lane
                             (:mod:`impl.path_lanes`); false: scalar, same image
-sampler     str    jitter   jitter | sobol (pixel, light and BSDF samples)
+sampler     str    jitter   jitter | sobol (pixel position and every number
+                            a vertex draws)
 (rays)                      intersect, precision, offset, epsilon, accel,
                             slab_normals (:mod:`impl.rays`)
 packets     bool   false    trace the eye rays of 8×8 pixel tiles as
@@ -192,7 +197,7 @@ from .lighting import (diffuse_albedo, environment_radiance, param_rgb, surface_
                        textured_params, transmittance_tint)
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, leave, refine, round_ray
-from .lowdiscrepancy import pixel_seed, sample_2d
+from .lowdiscrepancy import dimension_seed, pixel_seed, sample_1d_seeded, sample_2d_seeded
 from . import path_lanes as pl
 from .rng import uniform_from, uniform_prefix
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
@@ -370,21 +375,8 @@ class PathConfig(NamedTuple):
     rr_depth: int               # Russian roulette from this depth on
     mis: bool                   # power-heuristic MIS of light and BSDF samples
     bias: int                   # DEBUG_BIAS code
-    sobol: bool                 # light and BSDF (u1, u2) from Owen-scrambled Sobol points
+    sobol: bool                 # a vertex's numbers from padded Owen-scrambled points
     lanes: np.ndarray           # (M,) bool: the materials whose vertices run in lanes
-
-
-@njit(inline="always", cache=True)
-def _vertex_uv(pixel_seed, sample, pair):
-    """The 2-D numbers of Sobol dimension pair ``pair`` for pixel sample ``sample``: point
-    ``sample`` of the pixel's Owen-scrambled (0, 2)-sequence for that pair
-    (:func:`impl.lowdiscrepancy.sample_2d`; pair 0 is the pixel position, pairs
-    1 + 2d and 2 + 2d the light and BSDF samples at vertex d).  A pixel's first 2^m
-    samples of one pair form a (0, m, 2)-net; pairs are scrambled independently
-    (padding, as pbrt-v4's PaddedSobolSampler), and every point stays uniform, so the
-    estimate stays unbiased.  The 1-D choices (which light, which lobe, roulette) keep
-    the hashed numbers."""
-    return sample_2d(pair, sample, pixel_seed)
 
 
 class Walks(NamedTuple):
@@ -411,12 +403,15 @@ _W_ETA, _W_PDF, _W_PX, _W_PY, _W_PZ, _W_L0, _W_L1, _W_L2 = range(8)
 _W_ROWS = 8
 #: Rows of ``Walks.ls`` (:func:`_light_samples`): the vertex, the light sample of
 #: :func:`impl.light_sampling.sample_light` (ER = 0: none), the BSDF sample's (u1, u2);
-#: at a vertex left to the lanes whose sample is on a mesh emitter, only that sample's
-#: point Y, the emitter's front normal N, its area (AREA > 0) and radiance E, the lanes
-#: computing the rest (:func:`impl.light_sampling.emitter_sample`).
+#: with ``sampler=sobol`` the numbers of :func:`_sobol_numbers` (LU0..LU2 the light
+#: sample's, U1, U2, ULOBE the BSDF sample's, URR the roulette's); at a vertex left to
+#: the lanes whose sample is on a mesh emitter, only that sample's point Y, the
+#: emitter's front normal N, its area (AREA > 0) and radiance E, the lanes computing the
+#: rest (:func:`impl.light_sampling.emitter_sample`).
 (_LS_PX, _LS_PY, _LS_PZ, _LS_WX, _LS_WY, _LS_WZ, _LS_DIST, _LS_YX, _LS_YY, _LS_YZ, _LS_ER, _LS_EG,
- _LS_EB, _LS_PDF, _LS_DELTA, _LS_LIGHT, _LS_U1, _LS_U2, _LS_NX, _LS_NY, _LS_NZ, _LS_AREA) = range(22)
-_LS_ROWS = 22
+ _LS_EB, _LS_PDF, _LS_DELTA, _LS_LIGHT, _LS_U1, _LS_U2, _LS_NX, _LS_NY, _LS_NZ, _LS_AREA, _LS_LU0,
+ _LS_LU1, _LS_LU2, _LS_ULOBE, _LS_URR) = range(27)
+_LS_ROWS = 27
 
 
 @njit(cache=True)
@@ -451,15 +446,49 @@ def _start(P: PathConfig, seed, sample, T: Batch, W: Walks):
         T.cnt[c, _C_PATH] += 1
 
 
+@batch_kernel(disjoint=True)
+def _sobol_numbers(col, depth, seq, ls, sample, m):
+    """``sampler=sobol``: the numbers of sample ``sample``'s vertex of each of the ``m``
+    walking paths into ``ls``: the light sample's choice (1-D) and point (2-D), the BSDF
+    sample's lobe (1-D) and direction (2-D) and the roulette number (1-D).  Each is point
+    ``sample`` of a pixel's sequence with scrambles of its own (padding, as pbrt-v4's
+    ``PaddedSobolSampler``): the 2-D ones Sobol pairs
+    (:func:`impl.lowdiscrepancy.sample_2d_seeded`), the 1-D ones van der Corput points
+    (:func:`impl.lowdiscrepancy.sample_1d_seeded`), their 32-bit scramble seeds
+    :func:`impl.lowdiscrepancy.dimension_seed` of the pixel's seed and
+    ``_SEEDS_PER_VERTEX · depth + j``.  A pixel's first 2^m samples of a pair are a
+    (0, m, 2)-net and of a 1-D number one per stratum of width 2^-m, and each number is
+    uniform, so the estimate stays unbiased.  Stratifying the 1-D numbers matters: the
+    roulette's survivors carry weights 1/q, and stratified numbers end a pixel's paths in
+    the expected proportion instead of a binomial one.  A loop of its own, without
+    branches: integer hashing in 32-bit vector lanes."""
+    for k in range(m):
+        c = col[k]
+        s = seq[c]
+        d0 = _SEEDS_PER_VERTEX * depth[c]
+        ls[_LS_LU1, k], ls[_LS_LU2, k] = sample_2d_seeded(
+            sample, dimension_seed(s, d0), dimension_seed(s, d0 + 1), dimension_seed(s, d0 + 2))
+        ls[_LS_U1, k], ls[_LS_U2, k] = sample_2d_seeded(
+            sample, dimension_seed(s, d0 + 3), dimension_seed(s, d0 + 4), dimension_seed(s, d0 + 5))
+        ls[_LS_LU0, k] = sample_1d_seeded(sample, dimension_seed(s, d0 + 6), dimension_seed(s, d0 + 7))
+        ls[_LS_ULOBE, k] = sample_1d_seeded(sample, dimension_seed(s, d0 + 8), dimension_seed(s, d0 + 9))
+        ls[_LS_URR, k] = sample_1d_seeded(sample, dimension_seed(s, d0 + 10), dimension_seed(s, d0 + 11))
+
+
+#: Scramble seeds of a vertex's numbers in :func:`_sobol_numbers`: three per 2-D pair, two
+#: per 1-D number.
+_SEEDS_PER_VERTEX = 12
+
+
 @batch_kernel
 def _light_samples(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, P: PathConfig,
-                   sample, T: Batch, W: Walks, m):
+                   T: Batch, W: Walks, m):
     """The hit point of each of the ``m`` walking paths and, where its vertex takes one,
-    its light sample (:func:`impl.light_sampling.sample_light`) into ``W.ls``; with
-    ``sampler=sobol`` also the BSDF sample's Sobol pair.  A loop of its own, ahead of
-    :func:`_vertices`: each sample is a chain of dependent square roots and divisions,
-    and in a short loop the processor overlaps the chains of consecutive paths, which
-    it cannot within the long body of a vertex."""
+    its light sample (:func:`impl.light_sampling.sample_light`) into ``W.ls`` (with
+    ``sampler=sobol``, from the numbers :func:`_sobol_numbers` put there).  A loop of its
+    own, ahead of :func:`_vertices`: each sample is a chain of dependent square roots and
+    divisions, and in a short loop the processor overlaps the chains of consecutive
+    paths, which it cannot within the long body of a vertex."""
     ls = W.ls
     for k in range(m):
         prim = T.prim[k]
@@ -474,19 +503,15 @@ def _light_samples(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConf
         ls[_LS_PX, k], ls[_LS_PY, k], ls[_LS_PZ, k] = px, py, pz
         if P.max_depth >= 0 and depth + 1 >= P.max_depth:
             continue
-        if P.sobol:
-            ls[_LS_U1, k], ls[_LS_U2, k] = _vertex_uv(W.seq[c], sample, 2 + 2 * depth)
         mat = A.shape_material[A.prim_shape[prim]]
         if L.n_lights == 0 or is_delta(B, mat):
             continue
         h = W.h[c]
         dim = 2 + _DIMS_PER_VERTEX * depth
         if P.sobol:
-            u1, u2 = _vertex_uv(W.seq[c], sample, 1 + 2 * depth)
+            u0, u1, u2 = ls[_LS_LU0, k], ls[_LS_LU1, k], ls[_LS_LU2, k]
         else:
-            u1 = uniform_from(h, dim + 1)
-            u2 = uniform_from(h, dim + 2)
-        u0 = uniform_from(h, dim)
+            u0, u1, u2 = uniform_from(h, dim), uniform_from(h, dim + 1), uniform_from(h, dim + 2)
         e = light_index(L, u0) - A.light_kind.shape[0]
         if P.lanes[mat] and 0 <= e < A.em_area.shape[0] and A.em_area[e] > 0.0:   # the lanes complete it
             ls[_LS_YX, k], ls[_LS_YY, k], ls[_LS_YZ, k], ls[_LS_NX, k], ls[_LS_NY, k], ls[_LS_NZ, k] = \
@@ -526,7 +551,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
     for k in range(m):
         c = W.col[k]
         h = W.h[c]                   # this path's random numbers: dimension d is
-        ls = W.ls                    # uniform_from(h, d); with sobol, the 2-D ones _vertex_uv
+        ls = W.ls                    # uniform_from(h, d); with sobol, _sobol_numbers' in ls
         w0, w1, w2 = W.f[_W_L0, c], W.f[_W_L1, c], W.f[_W_L2, c]
         counts = T.cnt[c]
         dx, dy, dz = T.ray[DX, k], T.ray[DY, k], T.ray[DZ, k]
@@ -588,7 +613,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         # A mask: its opacity here; a blendbsdf: the leaf the BSDF sample will come
         # from (Mitsuba: the second component when u0 <= w, at every level), its weight
         # and u0 rescaled for it.
-        u0s = uniform_from(h, dim + 3)
+        u0s = ls[_LS_ULOBE, k] if sobol else uniform_from(h, dim + 3)
         opac = B.opacity[mat]
         if opac < 1.0:
             opac = scalar_param(B, mat, 0, opac, ns, prim, A.tri_uv, b1, b2)
@@ -779,7 +804,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
             continue
         if depth >= rr_depth:
             q = min(tmax_ * eta * eta, 0.95)
-            if uniform_from(h, dim + 6) >= q:
+            if (ls[_LS_URR, k] if sobol else uniform_from(h, dim + 6)) >= q:
                 counts[_C_RR] += 1
                 continue
             if bias != _BIAS_RR:
@@ -833,7 +858,8 @@ def _to_lane(A: SceneArrays, W: Walks, j, k, c, mat, prim, b1, b2, gx, gy, gz, s
     D[pl.RHO_R, j], D[pl.RHO_G, j], D[pl.RHO_B, j] = rho_r, rho_g, rho_b
     D[pl.THR_R, j], D[pl.THR_G, j], D[pl.THR_B, j] = tr, tg, tb
     D[pl.ETA, j] = eta
-    D[pl.U1, j], D[pl.U2, j], D[pl.URR, j] = u1, u2, uniform_from(h, dim + 6)
+    D[pl.U1, j], D[pl.U2, j] = u1, u2
+    D[pl.URR, j] = ls[_LS_URR, k] if sobol else uniform_from(h, dim + 6)
     for r in range(_LS_DELTA - _LS_WX + 1):       # the light sample, row for row
         D[pl.LX + r, j] = ls[_LS_WX + r, k]
     D[pl.ENX, j], D[pl.ENY, j], D[pl.ENZ, j] = ls[_LS_NX, k], ls[_LS_NY, k], ls[_LS_NZ, k]
@@ -919,7 +945,9 @@ def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, 
         _start(P, seed, s, T, W)
         m = T.n
         while m > 0:
-            _light_samples(A, L, B, R, P, s, T, W, m)
+            if P.sobol:
+                _sobol_numbers(W.col, W.depth, W.seq, W.ls, s, m)
+            _light_samples(A, L, B, R, P, T, W, m)
             m, queued = _vertices(A, L, B, R, S, P, T, W, m)
             if queued > 0:
                 occluded_batch(R, T.sh, queued, T.blocked, T.q)

@@ -20,8 +20,8 @@ from impl.kernel import batch_kernel, run_tasks, take_task
 
 BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, lighting._delta_lanes,
                  lighting._copy_lane, lighting._add_lit, whitted._trees,
-                 whitted._shade, path._start, path._light_samples, path._vertices, path._unblocked,
-                 path._to_srgb, path_lanes._lanes, wide.wide_closest, wide.wide_any,
+                 whitted._shade, path._start, path._sobol_numbers, path._light_samples, path._vertices,
+                 path._unblocked, path._to_srgb, path_lanes._lanes, wide.wide_closest, wide.wide_any,
                  wide.wide_closest_bound, wide.wide_any_bound, wide.wide_frustum_prims,
                  wide.wide_closest_rays, wide.wide_occluded_rays, tracer._closest_chunks,
                  tracer._occluded_chunks, tracer._chunk_cull,
@@ -29,8 +29,8 @@ BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, lighti
 #: Called per ray from batch kernels: inlined (a call would pass every array of the scene,
 #: material or ray-configuration tuple it takes, member by member).
 #: Lane kernels given rows that never overlap: declared ``noalias`` (``disjoint=True``).
-DISJOINT = [path_lanes._lanes, lighting._area_lanes, lighting._delta_lanes, lighting._copy_lane,
-            lighting._add_lit, tracer._closest_loops, tracer._occluded_loops]
+DISJOINT = [path_lanes._lanes, path._sobol_numbers, lighting._area_lanes, lighting._delta_lanes,
+            lighting._copy_lane, lighting._add_lit, tracer._closest_loops, tracer._occluded_loops]
 PER_RAY = [bsdf.bsdf_sample, bsdf.bsdf_eval, bsdf.bsdf_pdf, light_sampling.sample_light,
            light_sampling.emitter_pdf, rays.hit, rays.occluded, wide.wide_bind,
            shading_frame.perturbed_normal, shading_frame.same_side, shading_frame.shadow_terminator,

@@ -242,6 +242,25 @@ def test_sobol_sampler_is_unbiased_and_lowers_the_variance(scene):
     assert spread(sob) < 0.9 * spread(jit), (spread(sob), spread(jit))
 
 
+def test_sobol_stratifies_the_roulette_and_the_choices_too():
+    """With ``sampler=sobol`` every number a vertex draws is stratified over a pixel's
+    samples, the roulette's included.  In the closed diffuse room with roulette from
+    depth 2 the survivors' 1/q weights carry much of the variance: the relative per-pixel
+    variance (var / (mean² + 0.01), relMSE's form) over four seeds at 16 spp is below
+    0.75 of the hashed numbers' (measured 0.61; 0.90 with the 1-D numbers hashed and
+    only the 2-D ones from Sobol pairs)."""
+    scene = SUITES / "cornell" / "diffuse_room.xml"
+
+    def rel_var(sampler):
+        imgs = np.stack([render(scene, spp=16, rr_depth=2, sampler=sampler, seed=s).image
+                         for s in (1, 2, 3, 4)]).astype(np.float64)
+        m = imgs.mean(axis=0)
+        return float((imgs.var(axis=0, ddof=1) / (m * m + 1e-2)).mean())
+
+    sob, jit = rel_var("sobol"), rel_var("jitter")
+    assert sob < 0.75 * jit, (sob, jit)
+
+
 # ------------------------------------------------------ diffuse vertex lanes ---
 
 #: Scenes whose paths meet plain diffuse surfaces, with what else each brings to the
