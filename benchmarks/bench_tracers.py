@@ -9,7 +9,8 @@ whitted  the whitted ``ztest`` group                  ``whitted`` (ours,  whitte
                                                       references/whitted_integrator.py)
 distrib. gloss (the distributed ``ztest`` group)      ``whitted`` (ours,  whitted
                                                       following glossy lobes)
-path     cornell_box, diffuse_room                    ``path``            full
+path     cornell_box, diffuse_room; float64 (the      ``path``            full
+         default) and float32 intersections
 ======== ============================================ =================== ===========
 
 * ``bench_equal_spp``: own and Mitsuba render at the same spp (the suite's),
@@ -80,9 +81,16 @@ CASES = (
                  "spheres/whitted_classic.xml", "spheres/sphere_grid.xml",
                  "cornell/cornell_mirror_glass.xml")]
     + [("distributed", "distributed/gloss.xml", "whitted", {"spp": 16, "light_samples": 1})]
-    + [("path", s, "full", {"spp": 16}) for s in ("cornell/cornell_box.xml", "cornell/diffuse_room.xml")]
+    + [("path", s, "full", {"spp": 16, **prec}) for prec in ({}, {"precision": "float32"})
+       for s in ("cornell/cornell_box.xml", "cornell/diffuse_room.xml")]
 )
-IDS = [f"{t}-{s.split('/')[1][:-4]}" for t, s, _, _ in CASES]
+IDS = [f"{t}-{s.split('/')[1][:-4]}" + (f"-{p['precision']}" if "precision" in p else "")
+       for t, s, _, p in CASES]
+
+
+def _label(scene: str, params: dict) -> str:
+    """The scene, and the precision where the case sets one, for the printed lines."""
+    return scene + (f" {params['precision']}" if "precision" in params else "")
 
 
 def _mitsuba(scene: str, transport: str, spp: int, seed: int):
@@ -161,7 +169,7 @@ def bench_equal_spp(benchmark, tracer, scene, transport, params):
         own_median_s=own_s, own_spread_s=_spread(t_own), mitsuba_median_s=mi_s,
         mitsuba_spread_s=_spread(t_mi), ratio_own_over_mitsuba=own_s / mi_s, rays=int(rays),
         own_rays_per_s=rays / own_s, own_timings=res.timings, spp=params["spp"])
-    print(f"\n{tracer:8s} {scene:34s} spp {params['spp']:3d}: own {own_s * 1e3:8.1f} ms "
+    print(f"\n{tracer:8s} {_label(scene, params):34s} spp {params['spp']:3d}: own {own_s * 1e3:8.1f} ms "
           f"[{min(t_own) * 1e3:.1f}-{max(t_own) * 1e3:.1f}] (setup "
           f"{res.timings.get('setup_s', float('nan')) * 1e3:.2f} ms), Mitsuba {mi_s * 1e3:8.1f} ms "
           f"[{min(t_mi) * 1e3:.1f}-{max(t_mi) * 1e3:.1f}], own/Mitsuba {own_s / mi_s:5.2f}, "
@@ -262,6 +270,6 @@ def bench_equal_error(benchmark, tracer, scene, transport, params):
                                 ratio_own_over_mitsuba=own_s / mi_s, how=how)
     own_txt = ", ".join(f"{r['spp']} spp {r['relmse']:.3g} in {r['s'] * 1e3:.0f} ms" for r in rows["own"])
     mi_txt = ", ".join(f"{r['spp']} spp {r['relmse']:.3g} in {r['s'] * 1e3:.0f} ms" for r in rows["mitsuba"])
-    print(f"\n{tracer:8s} {scene:34s} own (sobol): {own_txt}; Mitsuba ({sampler}): {mi_txt}; "
+    print(f"\n{tracer:8s} {_label(scene, params):34s} own (sobol): {own_txt}; Mitsuba ({sampler}): {mi_txt}; "
           f"to Mitsuba's {LADDER[-1]}-spp error: own/Mitsuba "
           f"{ {'bound': '<=', 'extrapolated': '~'}.get(how, '')}{own_s / mi_s:.2f}")
