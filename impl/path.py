@@ -412,6 +412,17 @@ _W_ROWS = 8
  _LS_EB, _LS_PDF, _LS_DELTA, _LS_LIGHT, _LS_U1, _LS_U2, _LS_NX, _LS_NY, _LS_NZ, _LS_AREA, _LS_LU0,
  _LS_LU1, _LS_LU2, _LS_ULOBE, _LS_URR) = range(27)
 _LS_ROWS = 27
+#: The ``Walks.ls`` row of :func:`_sobol_numbers` standing for hashed dimension
+#: ``dim + j`` of a vertex (:func:`_number`): j = 0 the light's choice, 1 and 2 its
+#: point, 3 the lobe, 4 and 5 the BSDF direction, 6 the roulette.
+_NUMBER_ROWS = (_LS_LU0, _LS_LU1, _LS_LU2, _LS_ULOBE, _LS_U1, _LS_U2, _LS_URR)
+
+
+@njit(inline="always", cache=True)
+def _number(ls, k, h, dim, j, sobol):
+    """Number ``j`` of the vertex at batch position ``k``: with ``sampler=sobol`` the one
+    :func:`_sobol_numbers` put in ``ls``, else the path's hashed dimension ``dim + j``."""
+    return ls[_NUMBER_ROWS[j], k] if sobol else uniform_from(h, dim + j)
 
 
 @njit(cache=True)
@@ -508,10 +519,8 @@ def _light_samples(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConf
             continue
         h = W.h[c]
         dim = 2 + _DIMS_PER_VERTEX * depth
-        if P.sobol:
-            u0, u1, u2 = ls[_LS_LU0, k], ls[_LS_LU1, k], ls[_LS_LU2, k]
-        else:
-            u0, u1, u2 = uniform_from(h, dim), uniform_from(h, dim + 1), uniform_from(h, dim + 2)
+        u0, u1, u2 = _number(ls, k, h, dim, 0, P.sobol), _number(ls, k, h, dim, 1, P.sobol), \
+            _number(ls, k, h, dim, 2, P.sobol)
         e = light_index(L, u0) - A.light_kind.shape[0]
         if P.lanes[mat] and 0 <= e < A.em_area.shape[0] and A.em_area[e] > 0.0:   # the lanes complete it
             ls[_LS_YX, k], ls[_LS_YY, k], ls[_LS_YZ, k], ls[_LS_NX, k], ls[_LS_NY, k], ls[_LS_NZ, k] = \
@@ -551,7 +560,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
     for k in range(m):
         c = W.col[k]
         h = W.h[c]                   # this path's random numbers: dimension d is
-        ls = W.ls                    # uniform_from(h, d); with sobol, _sobol_numbers' in ls
+        ls = W.ls                    # uniform_from(h, d), or with sobol ls (_number)
         w0, w1, w2 = W.f[_W_L0, c], W.f[_W_L1, c], W.f[_W_L2, c]
         counts = T.cnt[c]
         dx, dy, dz = T.ray[DX, k], T.ray[DY, k], T.ray[DZ, k]
@@ -613,7 +622,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         # A mask: its opacity here; a blendbsdf: the leaf the BSDF sample will come
         # from (Mitsuba: the second component when u0 <= w, at every level), its weight
         # and u0 rescaled for it.
-        u0s = ls[_LS_ULOBE, k] if sobol else uniform_from(h, dim + 3)
+        u0s = _number(ls, k, h, dim, 3, sobol)
         opac = B.opacity[mat]
         if opac < 1.0:
             opac = scalar_param(B, mat, 0, opac, ns, prim, A.tri_uv, b1, b2)
@@ -738,11 +747,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
         # BSDF sampling: the next direction.  A mask lets the ray pass straight on with
         # probability 1 − opacity (Mitsuba's null event: weight 1, a delta "bounce").
         u0 = u0s
-        if sobol:
-            u1, u2 = ls[_LS_U1, k], ls[_LS_U2, k]
-        else:
-            u1 = uniform_from(h, dim + 4)
-            u2 = uniform_from(h, dim + 5)
+        u1, u2 = _number(ls, k, h, dim, 4, sobol), _number(ls, k, h, dim, 5, sobol)
         if opac < 1.0 and u0 >= opac:
             ndx, ndy, ndz = dx, dy, dz
             pdf = 1.0 - opac
@@ -804,7 +809,7 @@ def _vertices(A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, S
             continue
         if depth >= rr_depth:
             q = min(tmax_ * eta * eta, 0.95)
-            if (ls[_LS_URR, k] if sobol else uniform_from(h, dim + 6)) >= q:
+            if _number(ls, k, h, dim, 6, sobol) >= q:
                 counts[_C_RR] += 1
                 continue
             if bias != _BIAS_RR:
@@ -846,11 +851,6 @@ def _to_lane(A: SceneArrays, W: Walks, j, k, c, mat, prim, b1, b2, gx, gy, gz, s
     if A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0:
         gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
     rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
-    if sobol:
-        u1, u2 = ls[_LS_U1, k], ls[_LS_U2, k]
-    else:
-        u1 = uniform_from(h, dim + 4)
-        u2 = uniform_from(h, dim + 5)
     D[pl.PX, j], D[pl.PY, j], D[pl.PZ, j] = ls[_LS_PX, k], ls[_LS_PY, k], ls[_LS_PZ, k]
     D[pl.GX, j], D[pl.GY, j], D[pl.GZ, j] = gx, gy, gz
     D[pl.NX, j], D[pl.NY, j], D[pl.NZ, j] = sx, sy, sz
@@ -858,8 +858,8 @@ def _to_lane(A: SceneArrays, W: Walks, j, k, c, mat, prim, b1, b2, gx, gy, gz, s
     D[pl.RHO_R, j], D[pl.RHO_G, j], D[pl.RHO_B, j] = rho_r, rho_g, rho_b
     D[pl.THR_R, j], D[pl.THR_G, j], D[pl.THR_B, j] = tr, tg, tb
     D[pl.ETA, j] = eta
-    D[pl.U1, j], D[pl.U2, j] = u1, u2
-    D[pl.URR, j] = ls[_LS_URR, k] if sobol else uniform_from(h, dim + 6)
+    D[pl.U1, j], D[pl.U2, j] = _number(ls, k, h, dim, 4, sobol), _number(ls, k, h, dim, 5, sobol)
+    D[pl.URR, j] = _number(ls, k, h, dim, 6, sobol)
     for r in range(_LS_DELTA - _LS_WX + 1):       # the light sample, row for row
         D[pl.LX + r, j] = ls[_LS_WX + r, k]
     D[pl.ENX, j], D[pl.ENY, j], D[pl.ENZ, j] = ls[_LS_NX, k], ls[_LS_NY, k], ls[_LS_NZ, k]
