@@ -1255,7 +1255,7 @@ def _trees_batch(A: SceneArrays, S: MaterialArrays, wraps, dist, R: RayConfig, M
     if T.aos.shape[0] > 0:               # packets: the eye rays through the tree together
         packet_batch(R, T)
     else:
-        closest_batch(R, T.ray, n, T.t, T.prim, T.b, T.q, T.qt, T.qp)
+        closest_batch(R, T.ray, n, T.t, T.prim, T.b, T.q, T.qt, T.qp, T.cull)
     # Typed values, not literals: a literal argument would compile _shade_batch again.
     _shade_batch(A, S, wraps, dist, R, M, gmodel, dmode, max_depth, hall_threshold, seed, sample, spp, T,
                  K, T, n, np.int64(1), np.bool_(True))
@@ -1266,7 +1266,7 @@ def _trees_batch(A: SceneArrays, S: MaterialArrays, wraps, dist, R: RayConfig, M
             d -= 1
             continue
         m = take_pending(Q, d, C.ray, K.w, K.col, K.kind, C.n)
-        closest_batch(R, C.ray, m, C.t, C.prim, C.b, C.q, C.qt, C.qp)
+        closest_batch(R, C.ray, m, C.t, C.prim, C.b, C.q, C.qt, C.qp, C.cull)
         _shade_batch(A, S, wraps, dist, R, M, gmodel, dmode, max_depth, hall_threshold, seed, sample, spp,
                      T, K, C, m, d, np.bool_(False))
         if Q.count[d + 1] > 0:           # its children first: a block holds one chunk's

@@ -1017,7 +1017,7 @@ def _trace_lit_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, lit, first,
     if brute_force(R):
         _copy_lane(flag[:n], first, sh[0, :n], sh[1, :n], sh[2, :n], sh[3, :n], sh[4, :n], sh[5, :n],
                    sh[6, :n], sh[7, :n])
-        occluded_batch(R, sh, np.int64(n), T.blocked, T.q)
+        occluded_batch(R, sh, np.int64(n), T.blocked, T.q, T.cull)
         for i in range(n):
             nshadow[i] += flag[i] == _LIT
         _add_lit(flag[:n], T.blocked[:n], True, w[0, :n], w[1, :n], w[2, :n], L[0, :n], L[1, :n],
@@ -1238,7 +1238,7 @@ def _light_unoccluded(R: RayConfig, T, m, nshadow, A: SceneArrays, seta, strans)
     (and, with transmissive shadows, of the blocked ones × :func:`shadow_filter`)."""
     if m == 0:
         return
-    occluded_batch(R, T.sh, np.int64(m), T.blocked, T.q)     # not a literal 0: one compile
+    occluded_batch(R, T.sh, np.int64(m), T.blocked, T.q, T.cull)     # not a literal 0: one compile
     for k in range(m):
         i = T.sh_i[k]
         nshadow[i] += 1

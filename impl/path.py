@@ -950,10 +950,10 @@ def _tile(cam, A: SceneArrays, L: LightArrays, B: MaterialArrays, R: RayConfig, 
             _light_samples(A, L, B, R, P, T, W, m)
             m, queued = _vertices(A, L, B, R, S, P, T, W, m)
             if queued > 0:
-                occluded_batch(R, T.sh, queued, T.blocked, T.q)
+                occluded_batch(R, T.sh, queued, T.blocked, T.q, T.cull)
                 _unblocked(T, queued)
             if m > 0:
-                closest_batch(R, T.ray, m, T.t, T.prim, T.b, T.q, T.qt, T.qp)
+                closest_batch(R, T.ray, m, T.t, T.prim, T.b, T.q, T.qt, T.qp, T.cull)
         if P.spectral:
             _to_srgb(S, T, W)
         accumulate(T, s)

@@ -91,7 +91,7 @@ from .scene_arrays import scene_memo
 #: The random dimensions of a thin lens's aperture sample (beyond any tracer's own).
 DIM_LENS = 1 << 29
 
-__all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "new_film", "film_counters", "film_result", "new_batch",
+__all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "Cull", "new_cull", "new_film", "film_counters", "film_result", "new_batch",
            "new_points", "first", "Pending", "packet_batch", "new_pending", "push_pending", "take_pending",
            "ray_config_cached", "eye_batch", "closest_batch", "occluded_batch",
            "brute_force", "culled", "accumulate",
@@ -125,6 +125,21 @@ class Film(NamedTuple):
     tile: int                   # tile side in pixels
     sampler: int                # pixel sampler code (impl.sampling.PIXEL_*)
     order: np.ndarray           # (tiles,) int64 tiles in the order the threads take them
+
+
+class Cull(NamedTuple):
+    """The scratch of a batch query's culling (:func:`closest_batch`, :func:`occluded_batch`),
+    allocated once with its batch (:func:`new_cull`), so that the queries allocate nothing
+    and run without numba's runtime: a query of a few rays, as at the end of a wavefront,
+    otherwise spent more on allocating it and on counting references to the ray
+    configuration's arrays than on its rays."""
+
+    cand: np.ndarray            # (2 + w,) int64 candidate list: counts of spheres m and
+                                # triangles k, then their indices (room for every primitive
+                                # by brute force, CHUNK_CAP through the wide BVH)
+    uv: np.ndarray              # (2, n) the frustum's projective coordinates of up to n rays
+    bound: np.ndarray           # (_BOUND_WORDS,) the bound of a chunk (_bound)
+    raw: np.ndarray             # (_RAW_CAP,) the wide BVH's leaf primitives ((0,) by brute force)
 
 
 class Batch(NamedTuple):
@@ -169,6 +184,7 @@ class Batch(NamedTuple):
     fh: np.ndarray              # (2, n) uint64 the Sobol film hashes of each column
                                 # (impl.sampling.sobol_film_hashes; (2, 0) unless the
                                 # tile's pixels are Sobol-sampled)
+    cull: Cull                  # the batch queries' culling scratch, for up to n rays
 
 
 #: The parameters :func:`impl.rays.ray_config` reads (its parameter table).
@@ -259,7 +275,7 @@ def new_batch(film: Film, R: RayConfig, tile, seed):
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, n)), xy,
                  np.full(((ny + STRIP_ROWS - 1) // STRIP_ROWS, 2 + _cand_width(R)), _UNKNOWN,
-                         np.int64), np.empty((2, n)), fh)
+                         np.int64), np.empty((2, n)), fh, new_cull(R, n))
 
 
 @njit(cache=True)
@@ -275,7 +291,8 @@ def new_points(n, R: RayConfig, counters=0):
                  np.empty((POINT_ROWS, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, 0)), np.empty((2, 0)),
-                 np.full((1, 2), _UNKNOWN, np.int64), np.empty((2, n)), np.empty((2, 0), np.uint64))
+                 np.full((1, 2), _UNKNOWN, np.int64), np.empty((2, n)), np.empty((2, 0), np.uint64),
+                 new_cull(R, n))
 
 
 @njit(inline="always", cache=True)
@@ -284,7 +301,7 @@ def first(T: Batch, m):
     m): what the batch steps loop over when a chunk fills only part of a batch."""
     return Batch(T.x0, T.y0, T.nx, m, T.ray, T.t, T.prim, T.b, T.L, T.acc, T.cnt, T.packet, T.aos,
                  T.aos_b, T.pixel, T.pts, T.active, T.sh, T.sh_w, T.sh_i, T.blocked, T.q, T.qt, T.qp,
-                 T.film, T.xy, T.cand, T.luv, T.fh)
+                 T.film, T.xy, T.cand, T.luv, T.fh, T.cull)
 
 
 class Pending(NamedTuple):
@@ -413,7 +430,7 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
     elif packets:
         packet_batch(R, T)
     else:
-        closest_batch(R, ray, T.n, T.t, T.prim, T.b, T.q, T.qt, T.qp)
+        closest_batch(R, ray, T.n, T.t, T.prim, T.b, T.q, T.qt, T.qp, T.cull)
 
 
 @njit(cache=True, error_model="numpy", _nrt=True)
@@ -475,22 +492,23 @@ def culled(R: RayConfig):
     return brute_force(R) or (R.accel == WIDE and R.form == 2)
 
 
-@njit(cache=True, error_model="numpy", _nrt=True)
-def closest_batch(R: RayConfig, ray, n, t, prim, b, q, qt, qp):
+@batch_kernel(error_model="numpy")
+def closest_batch(R: RayConfig, ray, n, t, prim, b, q, qt, qp, cull: Cull):
     """Closest hits of the first ``n`` rays of ``ray`` (8, ≥n) in R's form, precision and
     structure: ``t`` (float64), ``prim`` (-1 on a miss), ``b`` (2, n) barycentrics.
-    ``q`` (8, ≥n), ``qt`` (3, ≥n) in R's precision and ``qp`` (≥n,) int32 are scratch.
+    ``q`` (8, ≥n), ``qt`` (3, ≥n) in R's precision, ``qp`` (≥n,) int32 and ``cull``
+    (:func:`new_cull` of R and ≥n rays) are scratch.
 
     By brute force, the batch is bounded as a whole (:func:`_cull`); through the wide BVH,
     in chunks of ``CHUNK`` rays, each bounded and either tested against the primitives its
     bound reaches in the tree or traced ray by ray (:func:`_wide_cull`); other structures
-    and forms trace ray by ray."""
+    and forms trace ray by ray (:func:`impl.accel.closest_rays`, which keeps the runtime:
+    the binary trees and the grid allocate their traversal stacks)."""
     if not culled(R) or n == 0:
         closest_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
                      ray[TMIN, :n], ray[TMAX, :n], t[:n], prim[:n], b[0, :n], b[1, :n])
         return
-    cand, uv, bound, raw = _scratch(R, n)
-    _closest_chunks(R, ray, n, t, prim, b, q, qt, qp, cand, uv, bound, raw)
+    _closest_chunks(R, ray, n, t, prim, b, q, qt, qp, cull.cand, cull.uv, cull.bound, cull.raw)
 
 
 @batch_kernel(error_model="numpy")
@@ -524,17 +542,17 @@ def _chunk_cull(R: RayConfig, q, c0, c1, cand, uv, bound, raw):
         _wide_cull(R, q, c0, c1, cand, uv, bound, raw)
 
 
-@njit(cache=True, error_model="numpy", _nrt=True)
-def occluded_batch(R: RayConfig, ray, n, blocked, q):
+@batch_kernel(error_model="numpy")
+def occluded_batch(R: RayConfig, ray, n, blocked, q, cull: Cull):
     """Whether anything lies on each of the first ``n`` rays of ``ray`` (8, ≥n) within
     (tmin, tmax), in R's form, precision and structure; ``q`` (8, ≥n) in R's precision
-    is scratch.  Bounded and culled as :func:`closest_batch`."""
+    and ``cull`` (:func:`new_cull` of R and ≥n rays) are scratch.  Bounded and culled as
+    :func:`closest_batch`."""
     if not culled(R) or n == 0:
         occluded_rays(R, ray[OX, :n], ray[OY, :n], ray[OZ, :n], ray[DX, :n], ray[DY, :n], ray[DZ, :n],
                       ray[TMIN, :n], ray[TMAX, :n], blocked[:n])
         return
-    cand, uv, bound, raw = _scratch(R, n)
-    _occluded_chunks(R, ray, n, blocked, q, cand, uv, bound, raw)
+    _occluded_chunks(R, ray, n, blocked, q, cull.cand, cull.uv, cull.bound, cull.raw)
 
 
 @batch_kernel(error_model="numpy")
@@ -556,14 +574,12 @@ def _occluded_chunks(R: RayConfig, ray, n, blocked, q, cand, uv, bound, raw):
                         q[DZ, c0:c1], q[TMIN, c0:c1], q[TMAX, c0:c1], blocked[c0:c1])
 
 
-@njit(inline="always", cache=True)
-def _scratch(R: RayConfig, n):
-    """A batch query's scratch, uninitialised (each chunk's culling fills it): the
-    candidate list (room for every primitive by brute force, for ``CHUNK_CAP`` through the
-    wide BVH), the frustum's projective coordinates of up to ``n`` rays, the bound and the
-    tree's raw list."""
-    return (np.empty(2 + _cand_width(R), np.int64), np.empty((2, n)), np.empty(_BOUND_WORDS),
-            np.empty(0 if brute_force(R) else _RAW_CAP, np.int64))
+@njit(cache=True)
+def new_cull(R: RayConfig, n):
+    """The :class:`Cull` scratch of batch queries of up to ``n`` rays in R, uninitialised
+    (each chunk's culling fills it)."""
+    return Cull(np.empty(2 + _cand_width(R), np.int64), np.empty((2, n)), np.empty(_BOUND_WORDS),
+                np.empty(0 if brute_force(R) else _RAW_CAP, np.int64))
 
 
 @njit(inline="always", cache=True)

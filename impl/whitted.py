@@ -554,7 +554,7 @@ def _trees(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
             (T.ray[OX, i], T.ray[OY, i], T.ray[OZ, i], T.ray[DX, i], T.ray[DY, i],
              T.ray[DZ, i]) = round_ray(R, T.ray[OX, i], T.ray[OY, i], T.ray[OZ, i], T.ray[DX, i],
                                        T.ray[DY, i], T.ray[DZ, i])
-        closest_batch(R, T.ray, n, T.t, T.prim, T.b, T.q, T.qt, T.qp)
+        closest_batch(R, T.ray, n, T.t, T.prim, T.b, T.q, T.qt, T.qp, T.cull)
     # Typed values, not literals: a literal argument would compile _shade a second time.
     _shade(A, S, R, M, max_depth, hall_threshold, seed, sample, spp, T, K, T, n, np.int64(1),
            np.bool_(True))
@@ -566,7 +566,7 @@ def _trees(A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, max_d
             d -= 1
             continue
         m = take_pending(Q, d, C.ray, K.w, K.col, K.kind, cap)
-        closest_batch(R, C.ray, m, C.t, C.prim, C.b, C.q, C.qt, C.qp)
+        closest_batch(R, C.ray, m, C.t, C.prim, C.b, C.q, C.qt, C.qp, C.cull)
         _shade(A, S, R, M, max_depth, hall_threshold, seed, sample, spp, T, K, C, m, d,
                np.bool_(False))
         if Q.count[d + 1] > 0:           # its children first: a block holds one chunk's

@@ -48,11 +48,12 @@ def test_batch_queries_equal_the_scalar_queries_ray_for_ray(dtype):
     n = len(o)
     t, prim, b = np.empty(n), np.empty(n, np.int64), np.empty((2, n))
     q, qt, qp = np.empty((8, n), dtype), np.empty((3, n), dtype), np.empty(n, np.int32)
-    tracer.closest_batch(R, ray, n, t, prim, b, q, qt, qp)
+    cull = tracer.new_cull(R, n)
+    tracer.closest_batch(R, ray, n, t, prim, b, q, qt, qp, cull)
     blocked = np.empty(n, np.bool_)
     ray_sh = ray.copy()
     ray_sh[7] = 1.5                                      # finite shadow segments too
-    tracer.occluded_batch(R, ray_sh, n, blocked, q)
+    tracer.occluded_batch(R, ray_sh, n, blocked, q, cull)
     F = dtype
     for i in range(n):
         args = [F(x) for x in ray[:8, i]]
@@ -579,9 +580,10 @@ def _batch_answers(R, ray, dtype):
     n = ray.shape[1]
     t, prim, b = np.empty(n), np.empty(n, np.int64), np.empty((2, n))
     q, qt, qp = np.empty((8, n), dtype), np.empty((3, n), dtype), np.empty(n, np.int32)
-    tracer.closest_batch(R, ray, n, t, prim, b, q, qt, qp)
+    cull = tracer.new_cull(R, n)
+    tracer.closest_batch(R, ray, n, t, prim, b, q, qt, qp, cull)
     blocked = np.empty(n, np.bool_)
-    tracer.occluded_batch(R, ray, n, blocked, q)
+    tracer.occluded_batch(R, ray, n, blocked, q, cull)
     return t, prim, b, blocked
 
 
