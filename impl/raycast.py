@@ -91,10 +91,11 @@ from core.scene import Scene
 from core.errors import ParamError, UnsupportedError
 
 from .camera import camera_params, eye_ray
-from .intersect import closest_hit
+from .intersect import closest_hit, like
 from .kernel import batch_kernel, run_tasks, take_task
-from .lighting import (LocalModel, diffuse_albedo, direct_batch, environment_radiance, local_model,
-                       mapped_normal, store_point, surface_at)
+from .lighting import (LocalModel, MAP_NONE, SP_G, SP_MAP, SP_P, SP_RHO, SP_S, SP_V, diffuse_albedo,
+                       direct_batch, environment_radiance, local_model, mapped_normal, store_point,
+                       surface_at)
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, refine
@@ -110,49 +111,127 @@ COUNTERS = ("shadow_rays",)
 
 
 @batch_kernel
-def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx):
+def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx, slow):
     """Radiance of the batch's eye rays from their closest hits into ``T.L``: a constant
     environment for escaped rays; L_e (front side) + ambient I_a k_a ρ + the Phong
     direct light of every light (:func:`impl.lighting.direct_batch`) at a hit.  A
     one-sided surface seen from behind gets nothing; a two-sided one is shaded on the
     side it is seen from.  Under a normal or bump map the bracket is taken about the
     perturbed normal (:func:`impl.lighting.mapped_normal`) and each light sample weighted
-    as Mitsuba's adapter weights it (:func:`impl.lighting.map_weight`).  ``sidx`` (n,) is
-    scratch for the points' sample index."""
-    pts, active = T.pts, T.active
+    as Mitsuba's adapter weights it (:func:`impl.lighting.map_weight`).
+
+    The hits on plain triangles (:func:`_plain_hits`) are shaded a ray per vector lane;
+    the others (spheres, interpolated normals, textures, maps, escaped rays) ray by ray
+    (:func:`_shade_ray`).  ``sidx`` (n,) and ``slow`` (n,) are scratch."""
+    n = T.n
+    P = T.pts
     amb = M.ambient * M.ka
-    for i in range(T.n):
-        active[i] = False
-        dx, dy, dz = T.ray[DX, i], T.ray[DY, i], T.ray[DZ, i]
-        prim = T.prim[i]
-        if prim < 0:                    # escaped: a constant environment, if any
-            T.L[0, i], T.L[1, i], T.L[2, i] = environment_radiance(A, dx, dy, dz)
-            continue
-        t, b1, b2 = T.t[i], T.b[0, i], T.b[1, i]
-        shape = A.prim_shape[prim]
-        px, py, pz = refine(R, prim, b1, b2, T.ray[OX, i] + t * dx, T.ray[OY, i] + t * dy,
-                            T.ray[OZ, i] + t * dz)
-        gx, gy, gz, sx, sy, sz = surface_at(A, prim, b1, b2, px, py, pz, A.shape_flip[shape])
-        vx, vy, vz = -dx, -dy, -dz
-        r = g = b = 0.0
-        if sx * vx + sy * vy + sz * vz > 0.0:       # emitted radiance L_e, front side only
-            r, g, b = A.shape_emit[shape, 0], A.shape_emit[shape, 1], A.shape_emit[shape, 2]
-        mat = A.shape_material[shape]
-        back = A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
-        nx, ny, nz, code = mapped_normal(A, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, back)
-        if back:
-            gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
-        if nx * vx + ny * vy + nz * vz > 0.0:       # the BSDF sees the viewer above n
-            rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
-            r += amb * rho_r
-            g += amb * rho_g
-            b += amb * rho_b
-            store_point(pts, i, px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r, rho_g, rho_b,
-                        sx, sy, sz, code)
-            active[i] = True
-        T.L[0, i], T.L[1, i], T.L[2, i] = r, g, b
+    _plain_hits(R.sph_radius, T.prim[:n], T.b[0, :n], T.b[1, :n], T.ray[DX, :n], T.ray[DY, :n],
+                T.ray[DZ, :n], R.tri_v, A.tri_ng, A.tri_has_n, A.prim_shape, A.shape_flip,
+                A.shape_emit, A.shape_material, A.mat_twosided, A.mat_shade, A.mat_tex, A.mat_rho, amb,
+                P[SP_P, :n], P[SP_P + 1, :n], P[SP_P + 2, :n], P[SP_G, :n], P[SP_G + 1, :n],
+                P[SP_G + 2, :n], P[SP_S, :n], P[SP_S + 1, :n], P[SP_S + 2, :n], P[SP_V, :n],
+                P[SP_V + 1, :n], P[SP_V + 2, :n], P[SP_RHO, :n], P[SP_RHO + 1, :n],
+                P[SP_RHO + 2, :n], P[SP_MAP, :n], T.L[0, :n], T.L[1, :n], T.L[2, :n], T.active[:n],
+                slow[:n])
+    for i in range(n):
+        if slow[i]:
+            _shade_ray(A, R, amb, T, i)
     sidx[:] = s
     direct_batch(A, R, M, T, sidx, seed, T.cnt[:, 0])
+
+
+@batch_kernel(error_model="numpy", disjoint=True)
+def _plain_hits(g, prim, b1s, b2s, dxs, dys, dzs, V, NG, has_n, prim_shape, shape_flip, emit,
+                shape_mat, twosided, shade, tex, rho, amb, Px, Py, Pz, Gx, Gy, Gz, Nx, Ny, Nz, Vx, Vy,
+                Vz, Rr, Rg, Rb, code, Lr, Lg, Lb, active, slow):
+    """:func:`_shade_ray`'s surface, emission and ambient term of every hit on a *plain*
+    triangle — one without vertex normals, under an untextured diffuse BSDF without a
+    normal or bump map — a ray per vector lane: the same operations (the hit point of
+    :func:`impl.rays.refine` in the precision of ``g``, the geometric normal as the
+    shading normal, both turned to the viewer's side on a two-sided BSDF), selects for
+    their branches, so the point rows, ``L`` and ``active`` of those rays are
+    :func:`_shade_ray`'s bit for bit.  ``slow[i]``: ray i is not such a hit (a miss, a
+    sphere, another surface) and is left to :func:`_shade_ray` (its other outputs are
+    then meaningless).  The scene's tables are read at clamped indices, so every lane
+    reads memory that exists."""
+    ns = g.shape[0]
+    for i in range(prim.shape[0]):
+        p = prim[i]
+        tri = p >= ns
+        j = p - ns if tri else 0
+        shape = prim_shape[p if p >= 0 else 0]
+        mat = shape_mat[shape]
+        slow[i] = not (tri & (not has_n[j]) & (shade[mat] == 0) & (tex[mat] == 0))
+        c1, c2 = like(g, b1s[i]), like(g, b2s[i])
+        c0 = like(g, 1.0) - c1 - c2
+        Px[i] = float(c0 * V[j, 0, 0] + c1 * V[j, 1, 0] + c2 * V[j, 2, 0])
+        Py[i] = float(c0 * V[j, 0, 1] + c1 * V[j, 1, 1] + c2 * V[j, 2, 1])
+        Pz[i] = float(c0 * V[j, 0, 2] + c1 * V[j, 1, 2] + c2 * V[j, 2, 2])
+        flip = shape_flip[shape]
+        gx, gy, gz = NG[j, 0], NG[j, 1], NG[j, 2]
+        gx = -gx if flip else gx
+        gy = -gy if flip else gy
+        gz = -gz if flip else gz
+        vx, vy, vz = -dxs[i], -dys[i], -dzs[i]
+        gv = gx * vx + gy * vy + gz * vz
+        front = gv > 0.0                # L_e on the front side only
+        er = emit[shape, 0] if front else 0.0
+        eg = emit[shape, 1] if front else 0.0
+        eb = emit[shape, 2] if front else 0.0
+        back = twosided[mat] & (gv < 0.0)
+        gx = -gx if back else gx
+        gy = -gy if back else gy
+        gz = -gz if back else gz
+        lit = gx * vx + gy * vy + gz * vz > 0.0
+        rr, rg, rb = rho[mat, 0], rho[mat, 1], rho[mat, 2]
+        Lr[i] = er + amb * rr if lit else er
+        Lg[i] = eg + amb * rg if lit else eg
+        Lb[i] = eb + amb * rb if lit else eb
+        active[i] = lit
+        Gx[i], Gy[i], Gz[i] = gx, gy, gz
+        Nx[i], Ny[i], Nz[i] = gx, gy, gz
+        Vx[i], Vy[i], Vz[i] = vx, vy, vz
+        Rr[i], Rg[i], Rb[i] = rr, rg, rb
+        code[i] = MAP_NONE
+
+
+@njit(inline="always", cache=True)
+def _shade_ray(A: SceneArrays, R: RayConfig, amb, T: Batch, i):
+    """Eye ray i's emission, ambient term and shading point (``T.L``, ``T.pts``,
+    ``T.active``): a constant environment for an escaped ray; at a hit, L_e (front side)
+    + I_a k_a ρ and, where the BSDF sees the viewer above its normal, the point to
+    light."""
+    pts, active = T.pts, T.active
+    active[i] = False
+    dx, dy, dz = T.ray[DX, i], T.ray[DY, i], T.ray[DZ, i]
+    prim = T.prim[i]
+    if prim < 0:                    # escaped: a constant environment, if any
+        T.L[0, i], T.L[1, i], T.L[2, i] = environment_radiance(A, dx, dy, dz)
+        return
+    t, b1, b2 = T.t[i], T.b[0, i], T.b[1, i]
+    shape = A.prim_shape[prim]
+    px, py, pz = refine(R, prim, b1, b2, T.ray[OX, i] + t * dx, T.ray[OY, i] + t * dy,
+                        T.ray[OZ, i] + t * dz)
+    gx, gy, gz, sx, sy, sz = surface_at(A, prim, b1, b2, px, py, pz, A.shape_flip[shape])
+    vx, vy, vz = -dx, -dy, -dz
+    r = g = b = 0.0
+    if sx * vx + sy * vy + sz * vz > 0.0:       # emitted radiance L_e, front side only
+        r, g, b = A.shape_emit[shape, 0], A.shape_emit[shape, 1], A.shape_emit[shape, 2]
+    mat = A.shape_material[shape]
+    back = A.mat_twosided[mat] and gx * vx + gy * vy + gz * vz < 0.0
+    nx, ny, nz, code = mapped_normal(A, mat, prim, b1, b2, gx, gy, gz, sx, sy, sz, vx, vy, vz, back)
+    if back:
+        gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
+    if nx * vx + ny * vy + nz * vz > 0.0:       # the BSDF sees the viewer above n
+        rho_r, rho_g, rho_b = diffuse_albedo(A, mat, prim, b1, b2)
+        r += amb * rho_r
+        g += amb * rho_g
+        b += amb * rho_b
+        store_point(pts, i, px, py, pz, gx, gy, gz, nx, ny, nz, vx, vy, vz, rho_r, rho_g, rho_b,
+                    sx, sy, sz, code)
+        active[i] = True
+    T.L[0, i], T.L[1, i], T.L[2, i] = r, g, b
 
 
 @njit(cache=True)
@@ -160,9 +239,10 @@ def _tile(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, tile, sp
     """One tile: per sample index, eye rays and hits, shading, accumulation."""
     T = new_batch(film, R, tile, seed)
     sidx = np.empty(T.n, np.int64)
+    slow = np.empty(T.n, np.bool_)
     for s in range(spp):
         eye_batch(cam, R, T, s, spp, seed, film.packets, film.sampler)
-        _shade(A, R, M, T, s, seed, sidx)
+        _shade(A, R, M, T, s, seed, sidx, slow)
         accumulate(T, s)
     store(T, film, spp)
 

@@ -424,9 +424,9 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
             _tile_candidates(cam, R, T)
         q = _query_rows(ray, n, T.q)
         rows = STRIP_ROWS * T.nx
-        for r in range(T.cand.shape[0]):
+        for r in range(T.cand.shape[0]):       # rays from one origin: the camera's
             _closest_span(R, ray, q, T.qt, T.qp, r * rows, min(n, (r + 1) * rows), T.cand[r],
-                          T.t, T.prim, T.b)
+                          T.t, T.prim, T.b, True)
     elif packets:
         packet_batch(R, T)
     else:
@@ -591,12 +591,13 @@ def _cand_width(R: RayConfig):
 
 
 @njit(inline="always", cache=True)
-def _closest_span(R: RayConfig, ray, q, qt, bp, c0, c1, cand, t, prim, b):
+def _closest_span(R: RayConfig, ray, q, qt, bp, c0, c1, cand, t, prim, b, one_origin=False):
     """Closest hits of rays ``c0:c1``: by :func:`_closest_loops` of ``q`` (R's precision)
     over the candidates ``cand`` (``[m, k, m sphere ids, k triangle ids]``), the answers
     in ``t``, ``prim``, ``b`` (float64; in float32 through the scratch ``qt`` and ``bp``,
     :func:`_hit_rows`); or ray by ray through R's structure when
-    ``cand`` says :data:`_PER_RAY`."""
+    ``cand`` says :data:`_PER_RAY`.  ``one_origin``: the rays share the origin of ray
+    ``c0`` (a pinhole camera's eye rays), so :func:`_closest_loops_from` serves."""
     if cand[0] == _PER_RAY:              # only through the wide BVH
         wide_closest_rays(R, ray[OX, c0:c1], ray[OY, c0:c1], ray[OZ, c0:c1], ray[DX, c0:c1],
                           ray[DY, c0:c1], ray[DZ, c0:c1], ray[TMIN, c0:c1], ray[TMAX, c0:c1],
@@ -604,10 +605,16 @@ def _closest_span(R: RayConfig, ray, q, qt, bp, c0, c1, cand, t, prim, b):
         return
     m, k = cand[0], cand[1]
     ht, hp, h1, h2 = _hit_rows(t, prim, b, qt, bp)
-    _closest_loops(R.sph_center, R.sph_radius, R.tri_v, cand[2:2 + m], cand[2 + m:2 + m + k],
-                   q[OX, c0:c1], q[OY, c0:c1], q[OZ, c0:c1], q[DX, c0:c1], q[DY, c0:c1],
-                   q[DZ, c0:c1], q[TMIN, c0:c1], q[TMAX, c0:c1], ht[c0:c1], hp[c0:c1],
-                   h1[c0:c1], h2[c0:c1])
+    if one_origin:
+        _closest_loops_from(R.sph_center, R.sph_radius, R.tri_v, cand[2:2 + m], cand[2 + m:2 + m + k],
+                            q[OX, c0], q[OY, c0], q[OZ, c0], q[DX, c0:c1], q[DY, c0:c1],
+                            q[DZ, c0:c1], q[TMIN, c0:c1], q[TMAX, c0:c1], ht[c0:c1], hp[c0:c1],
+                            h1[c0:c1], h2[c0:c1])
+    else:
+        _closest_loops(R.sph_center, R.sph_radius, R.tri_v, cand[2:2 + m], cand[2 + m:2 + m + k],
+                       q[OX, c0:c1], q[OY, c0:c1], q[OZ, c0:c1], q[DX, c0:c1], q[DY, c0:c1],
+                       q[DZ, c0:c1], q[TMIN, c0:c1], q[TMAX, c0:c1], ht[c0:c1], hp[c0:c1],
+                       h1[c0:c1], h2[c0:c1])
     _hits_back(ht, hp, h1, h2, c0, c1, t, prim, b)
 
 
@@ -676,12 +683,25 @@ def _query_rows_overload(ray, n, q):
 def _sphere_t(ox, oy, oz, dx, dy, dz, cx, cy, cz, r, tmin, tmax):
     """:func:`impl.intersect.ray_sphere_stable` without branches: its t in (tmin, tmax)
     and whether there is one (same operations, selects instead of returns)."""
-    zero = like(r, 0.0)
+    fx, fy, fz, c = _sphere_origin(ox, oy, oz, cx, cy, cz, r)
+    return _sphere_from(fx, fy, fz, c, dx, dy, dz, r, tmin, tmax)
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _sphere_origin(ox, oy, oz, cx, cy, cz, r):
+    """The terms of :func:`_sphere_t` that do not depend on the direction: f = o − c and
+    |f|² − r²."""
     fx, fy, fz = ox - cx, oy - cy, oz - cz
+    return fx, fy, fz, fx * fx + fy * fy + fz * fz - r * r
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _sphere_from(fx, fy, fz, c, dx, dy, dz, r, tmin, tmax):
+    """:func:`_sphere_t` from its origin terms (:func:`_sphere_origin`)."""
+    zero = like(r, 0.0)
     bq = -(fx * dx + fy * dy + fz * dz)
     px, py, pz = fx + bq * dx, fy + bq * dy, fz + bq * dz
     disc = r * r - (px * px + py * py + pz * pz)
-    c = fx * fx + fy * fy + fz * fz - r * r
     q = bq + math.copysign(math.sqrt(max(disc, zero)), bq)
     t0 = c / q
     lo = min(t0, q)
@@ -695,16 +715,33 @@ def _sphere_t(ox, oy, oz, dx, dy, dz, cx, cy, cz, r, tmin, tmax):
 @njit(inline="always", cache=True, error_model="numpy")
 def _triangle_t(ox, oy, oz, dx, dy, dz, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z, tmin, tmax):
     """:func:`impl.intersect.ray_triangle` without branches: (t, b1, b2, hit)."""
+    sx, sy, sz, qx, qy, qz, tq = _triangle_origin(ox, oy, oz, v0x, v0y, v0z, e1x, e1y, e1z, e2x,
+                                                  e2y, e2z)
+    return _triangle_from(sx, sy, sz, qx, qy, qz, tq, dx, dy, dz, e1x, e1y, e1z, e2x, e2y, e2z,
+                          tmin, tmax)
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _triangle_origin(ox, oy, oz, v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z):
+    """The terms of :func:`_triangle_t` that do not depend on the direction: s = o − v0,
+    q = s × e1 and e2 · q."""
+    sx, sy, sz = ox - v0x, oy - v0y, oz - v0z
+    qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+    return sx, sy, sz, qx, qy, qz, e2x * qx + e2y * qy + e2z * qz
+
+
+@njit(inline="always", cache=True, error_model="numpy")
+def _triangle_from(sx, sy, sz, qx, qy, qz, tq, dx, dy, dz, e1x, e1y, e1z, e2x, e2y, e2z, tmin, tmax):
+    """:func:`_triangle_t` from its origin terms (:func:`_triangle_origin`): Möller–Trumbore's
+    p = d × e2, det = e1 · p, b1 = (s · p)/det, b2 = (d · q)/det, t = (e2 · q)/det."""
     zero = like(e1x, 0.0)
     one = like(e1x, 1.0)
     px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
     det = e1x * px + e1y * py + e1z * pz
     inv = one / det
-    sx, sy, sz = ox - v0x, oy - v0y, oz - v0z
     b1 = (sx * px + sy * py + sz * pz) * inv
-    qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
     b2 = (dx * qx + dy * qy + dz * qz) * inv
-    t = (e2x * qx + e2y * qy + e2z * qz) * inv
+    t = tq * inv
     ok = ((det != zero) & (b1 >= zero) & (b1 <= one) & (b2 >= zero) & (b1 + b2 <= one)
           & (t > tmin) & (t < tmax) & (t > zero))
     return t, b1, b2, ok
@@ -1192,6 +1229,25 @@ def _keep_all(R: RayConfig, cand):
     cand[0], cand[1] = S, T
 
 
+@njit(inline="always", cache=True)
+def _no_hits(g, tmax, best, bp, b1s, b2s):
+    """The answers of rays that meet nothing yet: ``best`` = tmax, ``bp`` = −1, barycentrics 0."""
+    zero = like(g, 0.0)
+    for i in range(best.shape[0]):
+        best[i] = tmax[i]
+        bp[i] = -1
+        b1s[i] = zero
+        b2s[i] = zero
+
+
+@njit(inline="always", cache=True)
+def _edges(V, j):
+    """Triangle j's first vertex and edges e1 = v1 − v0, e2 = v2 − v0 (V's precision)."""
+    v0x, v0y, v0z = V[j, 0, 0], V[j, 0, 1], V[j, 0, 2]
+    return (v0x, v0y, v0z, V[j, 1, 0] - v0x, V[j, 1, 1] - v0y, V[j, 1, 2] - v0z,
+            V[j, 2, 0] - v0x, V[j, 2, 1] - v0y, V[j, 2, 2] - v0z)
+
+
 @batch_kernel(error_model="numpy", disjoint=True)
 def _closest_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, best, bp, b1s, b2s):
     """Closest hits of the rays (ox..tmax, one array per component) among spheres
@@ -1204,12 +1260,7 @@ def _closest_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, best, 
     where the outputs were rows of one 2-D array, LLVM kept the loops scalar (it
     could not separate the stores to the rows from the loads)."""
     n = ox.shape[0]
-    zero = like(g, 0.0)
-    for i in range(n):
-        best[i] = tmax[i]
-        bp[i] = -1
-        b1s[i] = zero
-        b2s[i] = zero
+    _no_hits(g, tmax, best, bp, b1s, b2s)
     ns = g.shape[0]
     for s in sph:
         cx, cy, cz, r = C[s, 0], C[s, 1], C[s, 2], g[s]
@@ -1219,13 +1270,42 @@ def _closest_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, best, 
             best[i] = tt if ok else best[i]
             bp[i] = s if ok else bp[i]
     for j in tri:
-        v0x, v0y, v0z = V[j, 0, 0], V[j, 0, 1], V[j, 0, 2]
-        e1x, e1y, e1z = V[j, 1, 0] - v0x, V[j, 1, 1] - v0y, V[j, 1, 2] - v0z
-        e2x, e2y, e2z = V[j, 2, 0] - v0x, V[j, 2, 1] - v0y, V[j, 2, 2] - v0z
+        v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z = _edges(V, j)
         pj = ns + j
         for i in range(n):
             tt, c1, c2, ok = _triangle_t(ox[i], oy[i], oz[i], dx[i], dy[i], dz[i], v0x, v0y, v0z,
                                          e1x, e1y, e1z, e2x, e2y, e2z, tmin[i], best[i])
+            best[i] = tt if ok else best[i]
+            bp[i] = pj if ok else bp[i]
+            b1s[i] = c1 if ok else b1s[i]
+            b2s[i] = c2 if ok else b2s[i]
+
+
+@batch_kernel(error_model="numpy", disjoint=True)
+def _closest_loops_from(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, best, bp, b1s, b2s):
+    """:func:`_closest_loops` for rays from one origin (``ox``, ``oy``, ``oz`` scalars in R's
+    precision; a pinhole camera's eye rays): the terms of a test that depend on the
+    origin and the primitive alone (:func:`_sphere_origin`, :func:`_triangle_origin`)
+    are computed once per primitive instead of once per ray and primitive.  The same
+    operations on the same values: the answers are :func:`_closest_loops`' bit for bit."""
+    n = dx.shape[0]
+    _no_hits(g, tmax, best, bp, b1s, b2s)
+    ns = g.shape[0]
+    for s in sph:
+        r = g[s]
+        fx, fy, fz, c = _sphere_origin(ox, oy, oz, C[s, 0], C[s, 1], C[s, 2], r)
+        for i in range(n):
+            tt, ok = _sphere_from(fx, fy, fz, c, dx[i], dy[i], dz[i], r, tmin[i], best[i])
+            best[i] = tt if ok else best[i]
+            bp[i] = s if ok else bp[i]
+    for j in tri:
+        v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z = _edges(V, j)
+        sx, sy, sz, qx, qy, qz, tq = _triangle_origin(ox, oy, oz, v0x, v0y, v0z, e1x, e1y, e1z,
+                                                      e2x, e2y, e2z)
+        pj = ns + j
+        for i in range(n):
+            tt, c1, c2, ok = _triangle_from(sx, sy, sz, qx, qy, qz, tq, dx[i], dy[i], dz[i], e1x,
+                                            e1y, e1z, e2x, e2y, e2z, tmin[i], best[i])
             best[i] = tt if ok else best[i]
             bp[i] = pj if ok else bp[i]
             b1s[i] = c1 if ok else b1s[i]
@@ -1247,9 +1327,7 @@ def _occluded_loops(C, g, V, sph, tri, ox, oy, oz, dx, dy, dz, tmin, tmax, hitm)
                               tmax[i])
             hitm[i] = hitm[i] | ok
     for j in tri:
-        v0x, v0y, v0z = V[j, 0, 0], V[j, 0, 1], V[j, 0, 2]
-        e1x, e1y, e1z = V[j, 1, 0] - v0x, V[j, 1, 1] - v0y, V[j, 1, 2] - v0z
-        e2x, e2y, e2z = V[j, 2, 0] - v0x, V[j, 2, 1] - v0y, V[j, 2, 2] - v0z
+        v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z = _edges(V, j)
         for i in range(n):
             _, _, _, ok = _triangle_t(ox[i], oy[i], oz[i], dx[i], dy[i], dz[i], v0x, v0y, v0z,
                                       e1x, e1y, e1z, e2x, e2y, e2z, tmin[i], tmax[i])

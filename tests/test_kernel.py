@@ -30,7 +30,8 @@ BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, lighti
 #: material or ray-configuration tuple it takes, member by member).
 #: Lane kernels given rows that never overlap: declared ``noalias`` (``disjoint=True``).
 DISJOINT = [path_lanes._lanes, path._sobol_numbers, lighting._area_lanes, lighting._delta_lanes,
-            lighting._copy_lane, lighting._add_lit, tracer._closest_loops, tracer._occluded_loops]
+            lighting._copy_lane, lighting._add_lit, tracer._closest_loops, tracer._closest_loops_from,
+            tracer._occluded_loops]
 PER_RAY = [bsdf.bsdf_sample, bsdf.bsdf_eval, bsdf.bsdf_pdf, light_sampling.sample_light,
            light_sampling.emitter_pdf, rays.hit, rays.occluded, wide.wide_bind,
            shading_frame.perturbed_normal, shading_frame.same_side, shading_frame.shadow_terminator,

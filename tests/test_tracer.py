@@ -16,7 +16,7 @@ from numba import njit
 from gibench import registry
 from core.loader import load_scene
 from core.meshes import cube
-from impl import tracer
+from impl import raycast, tracer
 from impl.intersect import any_hit_form, closest_hit_form
 from impl.rays import hit, occluded
 from impl.scene_arrays import flatten_cached
@@ -65,6 +65,40 @@ def test_batch_queries_equal_the_scalar_queries_ray_for_ray(dtype):
     assert (prim >= 0).sum() > n // 8 and blocked.sum() > n // 16  # the rays do hit
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32], ids=["float64", "float32"])
+def test_one_origin_loops_equal_the_scalar_queries_bit_for_bit(dtype):
+    """Rays from one origin (a camera's): the loops that compute a primitive's origin terms
+    once return what the scalar test returns for each ray, t and barycentrics bit for bit,
+    the same tie rule; and what the general loops return."""
+    rng = np.random.default_rng(SEED)
+    c, r, v, shape = random_scene(rng, 40, 60)
+    R = config(c, r, v, shape, "none", dtype)
+    _, d = random_rays(rng, 1500)
+    d = d.astype(dtype)
+    o = np.broadcast_to(np.array([0.1, -0.2, 0.3], dtype), d.shape)
+    n = len(d)
+    cols = [np.ascontiguousarray(x) for x in (*o.T, *d.T)]
+    lo, hi = np.full(n, 1e-6, dtype), np.full(n, np.inf, dtype)
+    sph, tri = np.arange(len(r)), np.arange(len(v))
+
+    def outputs():
+        return np.empty(n, dtype), np.empty(n, np.int32), np.empty(n, dtype), np.empty(n, dtype)
+    one, every = outputs(), outputs()
+    tracer._closest_loops_from(R.sph_center, R.sph_radius, R.tri_v, sph, tri, o[0, 0], o[0, 1], o[0, 2],
+                               *cols[3:], lo, hi, *one)
+    tracer._closest_loops(R.sph_center, R.sph_radius, R.tri_v, sph, tri, *cols, lo, hi, *every)
+    for a, b in zip(one, every):
+        assert np.array_equal(a, b)
+    bt, bp, b1, b2 = one
+    for i in range(n):
+        et, ep, eb1, eb2 = closest_hit_form(2, *o[i], *d[i], lo[i], hi[i], R.sph_center, R.sph_radius,
+                                            R.tri_v)
+        assert bp[i] == ep, f"ray {i}"
+        if ep >= 0:
+            assert bt[i] == et and b1[i] == eb1 and b2[i] == eb2, f"ray {i}"
+    assert (bp >= 0).sum() > n // 8                      # the rays do hit
+
+
 def _avx2() -> bool:
     return _cpu_flag("avx2")
 
@@ -90,10 +124,14 @@ def test_brute_force_batch_loops_vectorise():
     sph, tri = np.arange(len(r)), np.arange(len(v))
     closest = njit(error_model="numpy")(tracer._closest_loops.py_func)
     occluded = njit(error_model="numpy")(tracer._occluded_loops.py_func)
+    from_origin = njit(error_model="numpy")(tracer._closest_loops_from.py_func)
     closest(R.sph_center, R.sph_radius, R.tri_v, sph, tri, *cols, lo, hi, np.empty(n, np.float32),
             np.empty(n, np.int32), np.empty(n, np.float32), np.empty(n, np.float32))
     occluded(R.sph_center, R.sph_radius, R.tri_v, sph, tri, *cols, lo, hi, np.empty(n, np.bool_))
-    for name, kernel in (("closest", closest), ("occluded", occluded)):
+    from_origin(R.sph_center, R.sph_radius, R.tri_v, sph, tri, np.float32(0), np.float32(0),
+                np.float32(0), *cols[3:], lo, hi, np.empty(n, np.float32), np.empty(n, np.int32),
+                np.empty(n, np.float32), np.empty(n, np.float32))
+    for name, kernel in (("closest", closest), ("occluded", occluded), ("one origin", from_origin)):
         asm = "\n".join(kernel.inspect_asm().values())
         assert re.search(r"vsqrtps\s+%[yz]mm", asm) and re.search(r"vcmp\w*ps\s+%[yz]mm", asm), name
 
@@ -740,6 +778,62 @@ def test_the_scalar_light_samples_weigh_a_normal_or_bump_map_as_the_batch_does(p
     assert mapped > 500 and weighed > 50
 
 
+@njit(cache=True)
+def _shade_ray_by_ray(A, R, amb, T):
+    for i in range(T.n):
+        raycast._shade_ray(A, R, amb, T, i)
+
+
+@pytest.mark.parametrize("scene", ["spheres/meshes.xml", "cornell/cornell_box.xml",
+                                   "vocabulary/maps_direct.xml", "spheres/spot_directional.xml"])
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision):
+    """raycast shades the hits on plain triangles a ray per vector lane
+    (impl.raycast._plain_hits) and the others ray by ray: every eye ray's emission and
+    ambient term, whether it is lit, and its shading point are those of the ray-by-ray
+    step (impl.raycast._shade_ray) at every ray, bit for bit.  The scenes mix plain hits
+    (an emitter's among them) and the others (interpolated normals, spheres, misses), or
+    have none (normal and bump maps)."""
+    from impl import lighting
+    from impl.camera import camera_params
+    from impl.tracer import eye_batch, new_batch, new_film
+
+    sc = load_scene(SUITES / scene)
+    p = registry.get("raycast").parse_params({"spp": 4, "precision": precision, "ka": 0.3,
+                                              "ambient": 0.5})
+    A = flatten_cached(sc)
+    R = tracer.ray_config_cached(sc, A, p, algorithm="raycast")
+    amb = p["ambient"] * p["ka"]
+    cam = camera_params(sc.camera)
+    film = new_film(sc.camera.film.width, sc.camera.film.height, 1, False, 0)
+    rows = lighting.SP_MAP + 1
+    plain = slow = 0
+    for tile in range(film.packet.shape[0]):
+        T = new_batch(film, R, tile, 7)
+        n = T.n
+        eye_batch(cam, R, T, 1, 4, 7, False, film.sampler)
+        flags = np.empty(n, np.bool_)
+        P = T.pts
+        raycast._plain_hits(
+            R.sph_radius, T.prim[:n], T.b[0, :n], T.b[1, :n], *T.ray[3:6, :n], R.tri_v, A.tri_ng,
+            A.tri_has_n, A.prim_shape, A.shape_flip, A.shape_emit, A.shape_material, A.mat_twosided,
+            A.mat_shade, A.mat_tex, A.mat_rho, amb, *P[:lighting.SP_N0, :n], P[lighting.SP_MAP, :n],
+            *T.L[:, :n], T.active[:n], flags)
+        lanes = (T.pts[:rows, :n].copy(), T.L[:, :n].copy(), T.active[:n].copy())
+        _shade_ray_by_ray(A, R, amb, T)
+        fast = ~flags
+        lit = fast & T.active[:n]
+        assert np.array_equal(lanes[2][fast], T.active[:n][fast]), tile
+        assert np.array_equal(lanes[1][:, fast], T.L[:, :n][:, fast]), tile
+        for r in list(range(lighting.SP_N0)) + [lighting.SP_MAP]:
+            assert np.array_equal(lanes[0][r, lit], T.pts[r, :n][lit]), (tile, r)
+        plain += fast.sum()
+        slow += flags.sum()
+    both = {"spheres/meshes.xml": (True, True), "cornell/cornell_box.xml": (True, True),
+            "vocabulary/maps_direct.xml": (False, True), "spheres/spot_directional.xml": (True, True)}
+    assert ((plain > 1000, slow > 1000) == both[scene]), (plain, slow)
+
+
 def _lanes_against_scalar(sc, params):
     """Shade a third of the tiles of scene ``sc`` with raycast's batch step (sample 2 of 4,
     seed 7; its direct light by impl.lighting.direct_batch) and compare every lit point,
@@ -763,7 +857,7 @@ def _lanes_against_scalar(sc, params):
         T = new_batch(film, R, tile, 7)
         sidx = np.empty(T.n, np.int64)
         eye_batch(cam, R, T, 2, 4, 7, False, film.sampler)
-        raycast._shade(A, R, M, T, 2, 7, sidx)
+        raycast._shade(A, R, M, T, 2, 7, sidx, np.empty(T.n, np.bool_))
         P = T.pts
         for i in np.flatnonzero(T.active[:T.n]):
             if A.shape_emit[A.prim_shape[T.prim[i]]].any():
