@@ -973,6 +973,10 @@ def _delta_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, li, nshad
                  P[4, :n], P[5, :n], P[6, :n], P[7, :n], P[8, :n], P[9, :n], P[10, :n], P[11, :n],
                  P[12, :n], P[13, :n], P[14, :n], sh[0, :n], sh[1, :n], sh[2, :n], sh[3, :n], sh[4, :n],
                  sh[5, :n], sh[6, :n], sh[7, :n], w[0, :n], w[1, :n], w[2, :n], flag[:n])
+    lit, first, fix = _lit_lanes(flag[:n], P[SP_MAP, :n])
+    if fix == 0:                         # no cone edge, no map: the lanes are final
+        _trace_lit_lanes(A, R, M, T, lit, first, nshadow)
+        return
     lit, first = 0, -1
     for i in range(n):
         if flag[i] == _BAND:             # the spot's cone edge: (attenuation, kd, cos θ) in w
@@ -995,6 +999,24 @@ def _delta_light_lanes(A: SceneArrays, R: RayConfig, M: LocalModel, T, li, nshad
             lit += 1
             first = i if first < 0 else first
     _trace_lit_lanes(A, R, M, T, lit, first, nshadow)
+
+
+@batch_kernel(error_model="numpy")
+def _lit_lanes(flag, code):
+    """``(lit, first, fix)`` of a delta light's lanes (states ``flag``, the points' map codes
+    ``code``): how many are ``_LIT``, the first of them (−1: none), and how many need the
+    point-by-point step after :func:`_delta_lanes` (a ``_BAND`` lane, or a ``_LIT`` one
+    under a normal or bump map).  Reductions without a branch: LLVM vectorises them."""
+    n = flag.shape[0]
+    lit = fix = 0
+    first = n
+    for i in range(n):
+        f = flag[i]
+        on = f == _LIT
+        lit += on
+        first = min(first, i if on else n)
+        fix += (f == _BAND) | (on & (code[i] != MAP_NONE))
+    return lit, (first if first < n else -1), fix
 
 
 @njit(inline="always", cache=True)

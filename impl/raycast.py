@@ -120,17 +120,20 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx,
     perturbed normal (:func:`impl.lighting.mapped_normal`) and each light sample weighted
     as Mitsuba's adapter weights it (:func:`impl.lighting.map_weight`).
 
-    The hits on plain triangles (:func:`_plain_hits`) are shaded a ray per vector lane;
-    the others (spheres, interpolated normals, textures, maps, escaped rays) ray by ray
+    The hits on plain triangles and the rays that escape to a constant environment (or
+    none) (:func:`_plain_hits`) are shaded a ray per vector lane; the others (spheres,
+    interpolated normals, textures, maps, an environment map) ray by ray
     (:func:`_shade_ray`).  ``sidx`` (n,) and ``slow`` (n,) are scratch."""
     n = T.n
     P = T.pts
     amb = M.ambient * M.ka
+    sky = A.env_image.shape[0] == 0      # escaped rays see a constant radiance (maybe 0)
+    er, eg, eb = environment_radiance(A, 0.0, 0.0, 1.0) if sky else (0.0, 0.0, 0.0)
     _plain_hits(R.sph_radius, T.prim[:n], T.b[0, :n], T.b[1, :n], T.ray[DX, :n], T.ray[DY, :n],
                 T.ray[DZ, :n], R.tri_v, A.tri_ng, A.tri_has_n, A.prim_shape, A.shape_flip,
                 A.shape_emit, A.shape_material, A.mat_twosided, A.mat_shade, A.mat_tex, A.mat_rho, amb,
-                P[SP_P, :n], P[SP_P + 1, :n], P[SP_P + 2, :n], P[SP_G, :n], P[SP_G + 1, :n],
-                P[SP_G + 2, :n], P[SP_S, :n], P[SP_S + 1, :n], P[SP_S + 2, :n], P[SP_V, :n],
+                sky, er, eg, eb, P[SP_P, :n], P[SP_P + 1, :n], P[SP_P + 2, :n], P[SP_G, :n],
+                P[SP_G + 1, :n], P[SP_G + 2, :n], P[SP_S, :n], P[SP_S + 1, :n], P[SP_S + 2, :n], P[SP_V, :n],
                 P[SP_V + 1, :n], P[SP_V + 2, :n], P[SP_RHO, :n], P[SP_RHO + 1, :n],
                 P[SP_RHO + 2, :n], P[SP_MAP, :n], T.L[0, :n], T.L[1, :n], T.L[2, :n], T.active[:n],
                 slow[:n])
@@ -143,26 +146,29 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx,
 
 @batch_kernel(error_model="numpy", disjoint=True)
 def _plain_hits(g, prim, b1s, b2s, dxs, dys, dzs, V, NG, has_n, prim_shape, shape_flip, emit,
-                shape_mat, twosided, shade, tex, rho, amb, Px, Py, Pz, Gx, Gy, Gz, Nx, Ny, Nz, Vx, Vy,
-                Vz, Rr, Rg, Rb, code, Lr, Lg, Lb, active, slow):
+                shape_mat, twosided, shade, tex, rho, amb, sky, sky_r, sky_g, sky_b, Px, Py, Pz, Gx, Gy,
+                Gz, Nx, Ny, Nz, Vx, Vy, Vz, Rr, Rg, Rb, code, Lr, Lg, Lb, active, slow):
     """:func:`_shade_ray`'s surface, emission and ambient term of every hit on a *plain*
     triangle — one without vertex normals, under an untextured diffuse BSDF without a
     normal or bump map — a ray per vector lane: the same operations (the hit point of
     :func:`impl.rays.refine` in the precision of ``g``, the geometric normal as the
     shading normal, both turned to the viewer's side on a two-sided BSDF), selects for
     their branches, so the point rows, ``L`` and ``active`` of those rays are
-    :func:`_shade_ray`'s bit for bit.  ``slow[i]``: ray i is not such a hit (a miss, a
-    sphere, another surface) and is left to :func:`_shade_ray` (its other outputs are
-    then meaningless).  The scene's tables are read at clamped indices, so every lane
-    reads memory that exists."""
+    :func:`_shade_ray`'s bit for bit.  With ``sky`` (no environment map), an escaped ray
+    gets the constant radiance (``sky_r``, ``sky_g``, ``sky_b``) and no point, as there.
+    ``slow[i]``: ray i is neither (a sphere, another surface, an escaped ray under an
+    environment map) and is left to :func:`_shade_ray` (its other outputs are then
+    meaningless).  The scene's tables are read at clamped indices, so every lane reads
+    memory that exists."""
     ns = g.shape[0]
     for i in range(prim.shape[0]):
         p = prim[i]
         tri = p >= ns
+        miss = p < 0
         j = p - ns if tri else 0
         shape = prim_shape[p if p >= 0 else 0]
         mat = shape_mat[shape]
-        slow[i] = not (tri & (not has_n[j]) & (shade[mat] == 0) & (tex[mat] == 0))
+        slow[i] = not ((tri & (not has_n[j]) & (shade[mat] == 0) & (tex[mat] == 0)) | (miss & sky))
         c1, c2 = like(g, b1s[i]), like(g, b2s[i])
         c0 = like(g, 1.0) - c1 - c2
         Px[i] = float(c0 * V[j, 0, 0] + c1 * V[j, 1, 0] + c2 * V[j, 2, 0])
@@ -183,11 +189,11 @@ def _plain_hits(g, prim, b1s, b2s, dxs, dys, dzs, V, NG, has_n, prim_shape, shap
         gx = -gx if back else gx
         gy = -gy if back else gy
         gz = -gz if back else gz
-        lit = gx * vx + gy * vy + gz * vz > 0.0
+        lit = (gx * vx + gy * vy + gz * vz > 0.0) & (not miss)
         rr, rg, rb = rho[mat, 0], rho[mat, 1], rho[mat, 2]
-        Lr[i] = er + amb * rr if lit else er
-        Lg[i] = eg + amb * rg if lit else eg
-        Lb[i] = eb + amb * rb if lit else eb
+        Lr[i] = sky_r if miss else (er + amb * rr if lit else er)
+        Lg[i] = sky_g if miss else (eg + amb * rg if lit else eg)
+        Lb[i] = sky_b if miss else (eb + amb * rb if lit else eb)
         active[i] = lit
         Gx[i], Gy[i], Gz[i] = gx, gy, gz
         Nx[i], Ny[i], Nz[i] = gx, gy, gz

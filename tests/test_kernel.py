@@ -19,7 +19,8 @@ from impl.accel import wide
 from impl.kernel import batch_kernel, run_tasks, take_task
 
 BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, lighting._delta_lanes,
-                 lighting._copy_lane, lighting._add_lit, whitted._trees,
+                 lighting._copy_lane, lighting._add_lit, lighting._lit_lanes, raycast._plain_hits,
+                 whitted._trees,
                  whitted._shade, path._start, path._sobol_numbers, path._light_samples, path._vertices,
                  path._unblocked, path._to_srgb, path_lanes._lanes, wide.wide_closest, wide.wide_any,
                  wide.wide_closest_bound, wide.wide_any_bound, wide.wide_frustum_prims,
@@ -31,7 +32,7 @@ BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, lighti
 #: Lane kernels given rows that never overlap: declared ``noalias`` (``disjoint=True``).
 DISJOINT = [path_lanes._lanes, path._sobol_numbers, lighting._area_lanes, lighting._delta_lanes,
             lighting._copy_lane, lighting._add_lit, tracer._closest_loops, tracer._closest_loops_from,
-            tracer._occluded_loops]
+            tracer._occluded_loops, raycast._plain_hits]
 PER_RAY = [bsdf.bsdf_sample, bsdf.bsdf_eval, bsdf.bsdf_pdf, light_sampling.sample_light,
            light_sampling.emitter_pdf, rays.hit, rays.occluded, wide.wide_bind,
            shading_frame.perturbed_normal, shading_frame.same_side, shading_frame.shadow_terminator,
