@@ -433,7 +433,7 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
         closest_batch(R, ray, T.n, T.t, T.prim, T.b, T.q, T.qt, T.qp, T.cull)
 
 
-@njit(cache=True, error_model="numpy", _nrt=True)
+@batch_kernel(error_model="numpy")
 def _tile_candidates(cam, R: RayConfig, T: Batch):
     """The primitives the tile's eye rays can meet, into ``T.cand``, strip by strip
     (``STRIP_ROWS`` rows of pixels each), for every sample index at once: those inside the
@@ -447,12 +447,12 @@ def _tile_candidates(cam, R: RayConfig, T: Batch):
     ``_PER_RAY`` when they are more than ``CHUNK_CAP``.  The corner rays go through the
     first four columns of the scratch arrays ``T.sh_w`` (film positions), ``T.sh`` (rays),
     ``T.q`` (in R's precision) and ``T.film`` (the frustum's coordinates; the sample's film
-    positions are used by then): the tile has at least four pixels.  Called once per tile
-    (it allocates its bound and scratch list)."""
+    positions are used by then) and the batch queries' culling scratch ``T.cull`` (the
+    bound and the tree's raw list): the tile has at least four pixels.  Called once per
+    tile."""
     ny = T.n // T.nx
     fx, fy, c = T.sh_w[0, :4], T.sh_w[1, :4], T.sh
-    bound = np.empty(_BOUND_WORDS)
-    raw = np.empty(_RAW_CAP, np.int64)
+    bound, raw = T.cull.bound, T.cull.raw
     for r in range(T.cand.shape[0]):
         ya, yb = T.y0 + r * STRIP_ROWS, T.y0 + min(ny, (r + 1) * STRIP_ROWS)
         fx[0], fy[0] = T.x0, ya

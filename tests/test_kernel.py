@@ -25,7 +25,7 @@ BATCH_KERNELS = [tracer.eye_batch, raycast._shade, lighting.direct_batch, lighti
                  path._unblocked, path._to_srgb, path_lanes._lanes, wide.wide_closest, wide.wide_any,
                  wide.wide_closest_bound, wide.wide_any_bound, wide.wide_frustum_prims,
                  wide.wide_closest_rays, wide.wide_occluded_rays, tracer.closest_batch, tracer._closest_chunks,
-                 tracer.occluded_batch, tracer._occluded_chunks, tracer._chunk_cull,
+                 tracer.occluded_batch, tracer._occluded_chunks, tracer._chunk_cull, tracer._tile_candidates,
                  spectral.to_linear_srgb]
 #: Called per ray from batch kernels: inlined (a call would pass every array of the scene,
 #: material or ray-configuration tuple it takes, member by member).
@@ -37,7 +37,7 @@ PER_RAY = [bsdf.bsdf_sample, bsdf.bsdf_eval, bsdf.bsdf_pdf, light_sampling.sampl
            light_sampling.emitter_pdf, rays.hit, rays.occluded, wide.wide_bind,
            shading_frame.perturbed_normal, shading_frame.same_side, shading_frame.shadow_terminator,
            textures.bitmap_grad, projector.projector_weight]
-ALLOCATING = [tracer._tile_candidates, accel.closest,
+ALLOCATING = [accel.closest,
               accel.any_hit, accel.closest_rays, accel.occluded_rays, bsdf._plastic_sample, bsdf._plastic_eval,
               bsdf._plastic_pdf]
 
