@@ -91,8 +91,9 @@ from .scene_arrays import scene_memo
 #: The random dimensions of a thin lens's aperture sample (beyond any tracer's own).
 DIM_LENS = 1 << 29
 
-__all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "Cull", "new_cull", "new_film", "film_counters", "film_result", "new_batch",
-           "new_points", "first", "Pending", "packet_batch", "new_pending", "push_pending", "take_pending",
+__all__ = ["TILE", "BATCH_TILE", "Film", "Batch", "Cull", "new_cull", "new_film", "film_counters",
+           "film_result", "new_batch", "new_points", "first", "Pending", "packet_batch", "new_pending",
+           "push_pending", "take_pending",
            "ray_config_cached", "eye_batch", "closest_batch", "occluded_batch",
            "brute_force", "culled", "accumulate",
            "store", "OX", "OY", "OZ", "DX", "DY", "DZ", "TMIN", "TMAX"]
