@@ -1181,8 +1181,12 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
     vectorises the loop.  A ``_BAND`` point's profile is not applied here: ``wr``, ``wg``,
     ``wb`` hold its attenuation, kd and cos θ, for :func:`cone_edge` and the contribution
     after it.  ``m`` is the spot's world-to-local map, ``g`` an array of the
-    intersection precision (the origin's offset is computed in it, :func:`impl.rays.leave`)."""
-    for i in range(px.shape[0]):
+    intersection precision (the origin's offset is computed in it, :func:`impl.rays.leave`).
+
+    One loop per kind of light, its kind a constant in it: a select computes both of its
+    sides, so a loop for every kind would take the spot's square root and division (its
+    cos θ) at a point light's lanes, and the distance's at a directional light's."""
+    def lane(directional, spot, i):
         p_x, p_y, p_z = px[i], py[i], pz[i]
         lx, ly, lz = lpx - p_x, lpy - p_y, lpz - p_z
         dist = math.sqrt(lx * lx + ly * ly + lz * lz)
@@ -1214,6 +1218,16 @@ def _delta_lanes(directional, spot, lpx, lpy, lpz, ldx, ldy, ldz, m00, m01, m02,
         dy[i] = ly if directional else hy
         dz[i] = lz if directional else hz
         tmax[i] = math.inf if directional else hd * (1.0 - shrink)
+
+    if spot:
+        for i in range(px.shape[0]):
+            lane(False, True, i)
+    elif directional:
+        for i in range(px.shape[0]):
+            lane(True, False, i)
+    else:
+        for i in range(px.shape[0]):
+            lane(False, False, i)
 
 
 @batch_kernel(error_model="numpy", disjoint=True)

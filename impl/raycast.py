@@ -81,6 +81,7 @@ With ``packets=true`` the eye rays of 8×8 tiles go through the tree as packets
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -120,23 +121,13 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx,
     perturbed normal (:func:`impl.lighting.mapped_normal`) and each light sample weighted
     as Mitsuba's adapter weights it (:func:`impl.lighting.map_weight`).
 
-    The hits on plain triangles and the rays that escape to a constant environment (or
-    none) (:func:`_plain_hits`) are shaded a ray per vector lane; the others (spheres,
-    interpolated normals, textures, maps, an environment map) ray by ray
-    (:func:`_shade_ray`).  ``sidx`` (n,) and ``slow`` (n,) are scratch."""
+    The plain hits (spheres and triangles without vertex normals, untextured, no map) and
+    the rays that escape to a constant environment (or none) (:func:`_plain_hits`) are
+    shaded a ray per vector lane; the others (interpolated normals, textures, maps, an
+    environment map) ray by ray (:func:`_shade_ray`).  ``sidx`` (n,) and ``slow`` (n,) are scratch."""
     n = T.n
-    P = T.pts
     amb = M.ambient * M.ka
-    sky = A.env_image.shape[0] == 0      # escaped rays see a constant radiance (maybe 0)
-    er, eg, eb = environment_radiance(A, 0.0, 0.0, 1.0) if sky else (0.0, 0.0, 0.0)
-    _plain_hits(R.sph_radius, T.prim[:n], T.b[0, :n], T.b[1, :n], T.ray[DX, :n], T.ray[DY, :n],
-                T.ray[DZ, :n], R.tri_v, A.tri_ng, A.tri_has_n, A.prim_shape, A.shape_flip,
-                A.shape_emit, A.shape_material, A.mat_twosided, A.mat_shade, A.mat_tex, A.mat_rho, amb,
-                sky, er, eg, eb, P[SP_P, :n], P[SP_P + 1, :n], P[SP_P + 2, :n], P[SP_G, :n],
-                P[SP_G + 1, :n], P[SP_G + 2, :n], P[SP_S, :n], P[SP_S + 1, :n], P[SP_S + 2, :n], P[SP_V, :n],
-                P[SP_V + 1, :n], P[SP_V + 2, :n], P[SP_RHO, :n], P[SP_RHO + 1, :n],
-                P[SP_RHO + 2, :n], P[SP_MAP, :n], T.L[0, :n], T.L[1, :n], T.L[2, :n], T.active[:n],
-                slow[:n])
+    _lane_hits(A, R, amb, T, slow)
     for i in range(n):
         if slow[i]:
             _shade_ray(A, R, amb, T, i)
@@ -145,37 +136,68 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx,
 
 
 @batch_kernel(error_model="numpy", disjoint=True)
-def _plain_hits(g, prim, b1s, b2s, dxs, dys, dzs, V, NG, has_n, prim_shape, shape_flip, emit,
-                shape_mat, twosided, shade, tex, rho, amb, sky, sky_r, sky_g, sky_b, Px, Py, Pz, Gx, Gy,
-                Gz, Nx, Ny, Nz, Vx, Vy, Vz, Rr, Rg, Rb, code, Lr, Lg, Lb, active, slow):
-    """:func:`_shade_ray`'s surface, emission and ambient term of every hit on a *plain*
-    triangle — one without vertex normals, under an untextured diffuse BSDF without a
-    normal or bump map — a ray per vector lane: the same operations (the hit point of
-    :func:`impl.rays.refine` in the precision of ``g``, the geometric normal as the
-    shading normal, both turned to the viewer's side on a two-sided BSDF), selects for
-    their branches, so the point rows, ``L`` and ``active`` of those rays are
-    :func:`_shade_ray`'s bit for bit.  With ``sky`` (no environment map), an escaped ray
-    gets the constant radiance (``sky_r``, ``sky_g``, ``sky_b``) and no point, as there.
-    ``slow[i]``: ray i is neither (a sphere, another surface, an escaped ray under an
-    environment map) and is left to :func:`_shade_ray` (its other outputs are then
-    meaningless).  The scene's tables are read at clamped indices, so every lane reads
-    memory that exists."""
+def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, V, NG, has_n, prim_shape,
+                shape_flip, emit, shape_mat, twosided, shade, tex, rho, amb, sky, sky_r, sky_g, sky_b, Px,
+                Py, Pz, Gx, Gy, Gz, Nx, Ny, Nz, Vx, Vy, Vz, Rr, Rg, Rb, code, Lr, Lg, Lb, active, slow):
+    """:func:`_shade_ray`'s surface, emission and ambient term of every *plain* hit — on a
+    sphere or on a triangle without vertex normals, under an untextured diffuse BSDF
+    without a normal or bump map — a ray per vector lane: the same operations (the hit
+    point of :func:`impl.rays.refine` in the precision of ``g``: a triangle's from its
+    barycentrics, a sphere's projected onto it from o + t d; the geometric normal of
+    :func:`impl.lighting.surface_at` as the shading normal, both turned to the viewer's
+    side on a two-sided BSDF), selects for their branches, so the point rows, ``L`` and
+    ``active`` of those rays are :func:`_shade_ray`'s bit for bit.  With ``sky`` (no
+    environment map), an escaped ray gets the constant radiance (``sky_r``, ``sky_g``,
+    ``sky_b``) and no point, as there.  ``slow[i]``: ray i is neither (another surface, an
+    escaped ray under an environment map) and is left to :func:`_shade_ray` (its other
+    outputs are then meaningless).
+
+    ``g``, ``C``: the spheres' radii and centres in the intersection precision (``R``'s),
+    ``AC``, ``AR`` in float64 (``A``'s, the normal's).  The scene's tables are read at
+    clamped indices, so every lane reads memory that exists (a scene without shapes
+    leaves every ray to :func:`_shade_ray`); one loop per mix of primitives the scene has, so a scene of triangles alone does not pay the sphere's
+    square root and divisions at every lane."""
     ns = g.shape[0]
-    for i in range(prim.shape[0]):
+
+    def lane(spheres, triangles, i):
         p = prim[i]
-        tri = p >= ns
         miss = p < 0
-        j = p - ns if tri else 0
+        tri = p >= ns
         shape = prim_shape[p if p >= 0 else 0]
         mat = shape_mat[shape]
-        slow[i] = not ((tri & (not has_n[j]) & (shade[mat] == 0) & (tex[mat] == 0)) | (miss & sky))
-        c1, c2 = like(g, b1s[i]), like(g, b2s[i])
-        c0 = like(g, 1.0) - c1 - c2
-        Px[i] = float(c0 * V[j, 0, 0] + c1 * V[j, 1, 0] + c2 * V[j, 2, 0])
-        Py[i] = float(c0 * V[j, 0, 1] + c1 * V[j, 1, 1] + c2 * V[j, 2, 1])
-        Pz[i] = float(c0 * V[j, 0, 2] + c1 * V[j, 1, 2] + c2 * V[j, 2, 2])
+        plain = (shade[mat] == 0) & (tex[mat] == 0)
+        fast = miss & sky
+        px = py = pz = gx = gy = gz = 0.0
+        if triangles:
+            j = p - ns if tri else 0
+            c1, c2 = like(g, b1s[i]), like(g, b2s[i])
+            c0 = like(g, 1.0) - c1 - c2
+            px = float(c0 * V[j, 0, 0] + c1 * V[j, 1, 0] + c2 * V[j, 2, 0])
+            py = float(c0 * V[j, 0, 1] + c1 * V[j, 1, 1] + c2 * V[j, 2, 1])
+            pz = float(c0 * V[j, 0, 2] + c1 * V[j, 1, 2] + c2 * V[j, 2, 2])
+            gx, gy, gz = NG[j, 0], NG[j, 1], NG[j, 2]
+            fast = fast | (tri & (not has_n[j]) & plain)
+        if spheres:
+            on = (not miss) & (not tri)
+            k = p if on else 0
+            t = ts[i]
+            cx, cy, cz, r = C[k, 0], C[k, 1], C[k, 2], g[k]
+            qx = like(g, oxs[i] + t * dxs[i]) - cx
+            qy = like(g, oys[i] + t * dys[i]) - cy
+            qz = like(g, ozs[i] + t * dzs[i]) - cz
+            f = r / math.sqrt(qx * qx + qy * qy + qz * qz)
+            sx, sy, sz = float(cx + f * qx), float(cy + f * qy), float(cz + f * qz)
+            ar = AR[k]
+            px = sx if on else px
+            py = sy if on else py
+            pz = sz if on else pz
+            gx = (sx - AC[k, 0]) / ar if on else gx
+            gy = (sy - AC[k, 1]) / ar if on else gy
+            gz = (sz - AC[k, 2]) / ar if on else gz
+            fast = fast | (on & plain)
+        slow[i] = not fast
+        Px[i], Py[i], Pz[i] = px, py, pz
         flip = shape_flip[shape]
-        gx, gy, gz = NG[j, 0], NG[j, 1], NG[j, 2]
         gx = -gx if flip else gx
         gy = -gy if flip else gy
         gz = -gz if flip else gz
@@ -200,6 +222,37 @@ def _plain_hits(g, prim, b1s, b2s, dxs, dys, dzs, V, NG, has_n, prim_shape, shap
         Vx[i], Vy[i], Vz[i] = vx, vy, vz
         Rr[i], Rg[i], Rb[i] = rr, rg, rb
         code[i] = MAP_NONE
+
+    if prim_shape.shape[0] == 0:         # no shape: every ray escapes, left to _shade_ray
+        for i in range(prim.shape[0]):
+            slow[i] = True
+    elif ns == 0:
+        for i in range(prim.shape[0]):
+            lane(False, True, i)
+    elif V.shape[0] == 0:
+        for i in range(prim.shape[0]):
+            lane(True, False, i)
+    else:
+        for i in range(prim.shape[0]):
+            lane(True, True, i)
+
+
+@njit(inline="always", cache=True)
+def _lane_hits(A: SceneArrays, R: RayConfig, amb, T: Batch, slow):
+    """:func:`_plain_hits` over the batch's eye rays (``slow`` (≥n,) gets its flags)."""
+    n = T.n
+    P = T.pts
+    sky = A.env_image.shape[0] == 0      # escaped rays see a constant radiance (maybe 0)
+    er, eg, eb = environment_radiance(A, 0.0, 0.0, 1.0) if sky else (0.0, 0.0, 0.0)
+    _plain_hits(R.sph_radius, R.sph_center, A.sph_center, A.sph_radius, T.prim[:n], T.t[:n],
+                T.ray[OX, :n], T.ray[OY, :n], T.ray[OZ, :n], T.b[0, :n], T.b[1, :n], T.ray[DX, :n],
+                T.ray[DY, :n], T.ray[DZ, :n], R.tri_v, A.tri_ng, A.tri_has_n, A.prim_shape,
+                A.shape_flip, A.shape_emit, A.shape_material, A.mat_twosided, A.mat_shade, A.mat_tex,
+                A.mat_rho, amb, sky, er, eg, eb, P[SP_P, :n], P[SP_P + 1, :n], P[SP_P + 2, :n],
+                P[SP_G, :n], P[SP_G + 1, :n], P[SP_G + 2, :n], P[SP_S, :n], P[SP_S + 1, :n],
+                P[SP_S + 2, :n], P[SP_V, :n], P[SP_V + 1, :n], P[SP_V + 2, :n], P[SP_RHO, :n],
+                P[SP_RHO + 1, :n], P[SP_RHO + 2, :n], P[SP_MAP, :n], T.L[0, :n], T.L[1, :n],
+                T.L[2, :n], T.active[:n], slow[:n])
 
 
 @njit(inline="always", cache=True)

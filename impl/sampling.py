@@ -92,13 +92,23 @@ def jittered_film(spp, k, s, seed, pixel, x, y, fx, fy):
     a batch: ``x[i] + offset``, ``y[i] + offset`` with :func:`pixel_sample`'s offset
     (same arithmetic, same bits) — the pixel's integer coordinates ``x``, ``y`` (float64)
     and index ``pixel`` (int64).  Every array a separate argument and no branch in the
-    loop: LLVM vectorises the hashing and the divisions over the pixels."""
+    loop: LLVM vectorises the hashing and the divisions over the pixels.  Where k is a
+    power of two, 1/k is exact and a product by it rounds as the quotient does (both are
+    the exact value scaled by a power of two), so that loop multiplies: a packed division
+    costs several times a product."""
     if spp == 1:
         for i in range(pixel.shape[0]):
             fx[i] = x[i] + 0.5
             fy[i] = y[i] + 0.5
         return
     sx, sy = s % k, s // k
+    if k & (k - 1) == 0:
+        r = 1.0 / k
+        for i in range(pixel.shape[0]):
+            h = uniform_prefix(seed, pixel[i], s)
+            fx[i] = x[i] + (sx + uniform_from(h, 0)) * r
+            fy[i] = y[i] + (sy + uniform_from(h, 1)) * r
+        return
     for i in range(pixel.shape[0]):
         h = uniform_prefix(seed, pixel[i], s)
         fx[i] = x[i] + (sx + uniform_from(h, 0)) / k

@@ -84,6 +84,35 @@ def test_index_matched_glass_scene_equals_the_scene_without_it(tmp_path):
     assert b.image.max() > 0.1
 
 
+_NOTHING = """<scene version="3.0.0">
+    <sensor type="perspective">
+        <float name="fov" value="45"/>
+        <film type="hdrfilm"><integer name="width" value="24"/><integer name="height" value="16"/></film>
+    </sensor>
+    <emitter type="constant"><rgb name="radiance" value="0.5, 0.25, 2"/></emitter>
+</scene>
+"""
+
+
+@pytest.mark.parametrize("name", ["raycast", "whitted", "distributed", "path"])
+def test_a_scene_without_shapes_shows_its_environment(tmp_path, name):
+    """A sensor and a constant environment, no shape: every eye ray escapes, so each ray
+    tracer's image is the environment's radiance at every pixel, in every precision and
+    with every pixel sampler (the batch tracers' lanes read the primitive tables at
+    clamped indices, which do not exist in a scene without primitives)."""
+    path = tmp_path / "nothing.xml"
+    path.write_text(_NOTHING)
+    scene = load_scene(path)
+    algo = registry.get(name)
+    for params in ({"spp": 4}, {"spp": 4, "precision": "float32"}, {"spp": 1, "sampler": "sobol"}):
+        if "sampler" in params and not any(p.name == "sampler" for p in algo.params):
+            continue
+        img = algo.render(scene, algo.parse_params(params), seed=1).image
+        assert img.shape == (16, 24, 3)
+        np.testing.assert_allclose(img, np.broadcast_to([0.5, 0.25, 2.0], img.shape), rtol=1e-6,
+                                   err_msg=f"{name} {params}")
+
+
 def _suite_cases():
     seen = {}
     for manifest in ("default.toml", "hard.toml"):

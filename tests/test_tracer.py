@@ -196,7 +196,7 @@ def test_jittered_film_equals_pixel_sample_bit_for_bit():
     rng = np.random.default_rng(SEED)
     pixel = rng.integers(0, 1 << 20, 300)
     x, y = (pixel % 640).astype(float), (pixel // 640).astype(float)
-    for spp, s in ((1, 0), (16, 0), (16, 7), (64, 63)):
+    for spp, s in ((1, 0), (16, 0), (16, 7), (64, 63), (9, 4), (36, 35)):   # k a power of two or not
         k = int(round(np.sqrt(spp)))
         fx, fy = np.empty(300), np.empty(300)
         jittered_film(spp, k, s, 9, pixel, x, y, fx, fy)
@@ -786,16 +786,18 @@ def _shade_ray_by_ray(A, R, amb, T):
 
 @pytest.mark.parametrize("scene", ["spheres/meshes.xml", "cornell/cornell_box.xml",
                                    "vocabulary/maps_direct.xml", "spheres/spot_directional.xml",
-                                   "vocabulary/constant_env_room.xml", "vocabulary/envmap.xml"])
+                                   "vocabulary/constant_env_room.xml", "vocabulary/envmap.xml",
+                                   "spheres/lit_sphere.xml", "spheres/sphere_grid.xml"])
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision):
-    """raycast shades the hits on plain triangles a ray per vector lane
-    (impl.raycast._plain_hits) and the others ray by ray: every eye ray's emission and
-    ambient term, whether it is lit, and its shading point are those of the ray-by-ray
-    step (impl.raycast._shade_ray) at every ray, bit for bit.  The scenes mix plain hits
-    (an emitter's among them) and escaped rays (into a constant environment or none) with
-    the others (interpolated normals, spheres, an environment map), or have no plain hit
-    (normal and bump maps)."""
+    """raycast shades the plain hits (spheres, triangles without vertex normals) a ray per
+    vector lane (impl.raycast._plain_hits) and the others ray by ray: every eye ray's
+    emission and ambient term, whether it is lit, and its shading point are those of the
+    ray-by-ray step (impl.raycast._shade_ray) at every ray, bit for bit.  The scenes mix
+    plain hits on triangles and spheres (an emitter's among them; spheres alone, triangles
+    alone, both) and escaped rays (into a constant environment or none) with the others
+    (interpolated normals, an environment map), or have no plain hit (normal and bump
+    maps)."""
     from impl import lighting
     from impl.camera import camera_params
     from impl.tracer import eye_batch, new_batch, new_film
@@ -809,19 +811,13 @@ def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision):
     cam = camera_params(sc.camera)
     film = new_film(sc.camera.film.width, sc.camera.film.height, 1, False, 0)
     rows = lighting.SP_MAP + 1
-    plain = slow = sky_seen = 0
+    plain = slow = spheres = sky_seen = 0
     for tile in range(film.packet.shape[0]):
         T = new_batch(film, R, tile, 7)
         n = T.n
         eye_batch(cam, R, T, 1, 4, 7, False, film.sampler)
         flags = np.empty(n, np.bool_)
-        P = T.pts
-        raycast._plain_hits(
-            R.sph_radius, T.prim[:n], T.b[0, :n], T.b[1, :n], *T.ray[3:6, :n], R.tri_v, A.tri_ng,
-            A.tri_has_n, A.prim_shape, A.shape_flip, A.shape_emit, A.shape_material, A.mat_twosided,
-            A.mat_shade, A.mat_tex, A.mat_rho, amb, A.env_image.shape[0] == 0,
-            *lighting.environment_radiance(A, 0.0, 0.0, 1.0), *P[:lighting.SP_N0, :n], P[lighting.SP_MAP, :n],
-            *T.L[:, :n], T.active[:n], flags)
+        raycast._lane_hits(A, R, amb, T, flags)
         lanes = (T.pts[:rows, :n].copy(), T.L[:, :n].copy(), T.active[:n].copy())
         _shade_ray_by_ray(A, R, amb, T)
         fast = ~flags
@@ -832,12 +828,16 @@ def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision):
             assert np.array_equal(lanes[0][r, lit], T.pts[r, :n][lit]), (tile, r)
         plain += fast.sum()
         slow += flags.sum()
+        spheres += (fast & (T.prim[:n] >= 0) & (T.prim[:n] < R.sph_radius.shape[0])).sum()
         sky_seen += (fast & (T.prim[:n] < 0)).sum()
-    both = {"spheres/meshes.xml": (True, True), "cornell/cornell_box.xml": (True, False),
-            "vocabulary/maps_direct.xml": (False, True), "spheres/spot_directional.xml": (True, True),
-            "vocabulary/constant_env_room.xml": (True, None), "vocabulary/envmap.xml": (None, True)}
-    expect = both[scene]
-    assert expect[0] in (None, plain > 1000) and expect[1] in (None, slow > 1000), (plain, slow)
+    # (plain hits, slow hits, plain hits on spheres) over 1000; None: either
+    expect = {"spheres/meshes.xml": (True, True, False), "cornell/cornell_box.xml": (True, False, False),
+              "vocabulary/maps_direct.xml": (False, True, False),
+              "spheres/spot_directional.xml": (True, False, True),
+              "vocabulary/constant_env_room.xml": (True, None, None), "vocabulary/envmap.xml": (None, True, None),
+              "spheres/lit_sphere.xml": (True, False, True), "spheres/sphere_grid.xml": (True, None, True)}[scene]
+    got = (plain > 1000, slow > 1000, spheres > 1000)
+    assert all(e in (None, g) for e, g in zip(expect, got)), (plain, slow, spheres)
     if scene == "vocabulary/constant_env_room.xml":     # escaped rays, in the lanes
         assert sky_seen > 1000
 
