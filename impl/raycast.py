@@ -155,8 +155,9 @@ def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, 
     ``g``, ``C``: the spheres' radii and centres in the intersection precision (``R``'s),
     ``AC``, ``AR`` in float64 (``A``'s, the normal's).  The scene's tables are read at
     clamped indices, so every lane reads memory that exists (a scene without shapes
-    leaves every ray to :func:`_shade_ray`); one loop per mix of primitives the scene has, so a scene of triangles alone does not pay the sphere's
-    square root and divisions at every lane."""
+    leaves every ray to :func:`_shade_ray`); one loop per mix of primitives the scene
+    has, so a scene of triangles alone does not pay the sphere's square root and
+    divisions at every lane."""
     ns = g.shape[0]
 
     def lane(spheres, triangles, i):

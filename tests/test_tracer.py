@@ -831,11 +831,14 @@ def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision):
         spheres += (fast & (T.prim[:n] >= 0) & (T.prim[:n] < R.sph_radius.shape[0])).sum()
         sky_seen += (fast & (T.prim[:n] < 0)).sum()
     # (plain hits, slow hits, plain hits on spheres) over 1000; None: either
-    expect = {"spheres/meshes.xml": (True, True, False), "cornell/cornell_box.xml": (True, False, False),
+    expect = {"spheres/meshes.xml": (True, True, False),
+              "cornell/cornell_box.xml": (True, False, False),
               "vocabulary/maps_direct.xml": (False, True, False),
               "spheres/spot_directional.xml": (True, False, True),
-              "vocabulary/constant_env_room.xml": (True, None, None), "vocabulary/envmap.xml": (None, True, None),
-              "spheres/lit_sphere.xml": (True, False, True), "spheres/sphere_grid.xml": (True, None, True)}[scene]
+              "vocabulary/constant_env_room.xml": (True, None, None),
+              "vocabulary/envmap.xml": (None, True, None),
+              "spheres/lit_sphere.xml": (True, False, True),
+              "spheres/sphere_grid.xml": (True, None, True)}[scene]
     got = (plain > 1000, slow > 1000, spheres > 1000)
     assert all(e in (None, g) for e, g in zip(expect, got)), (plain, slow, spheres)
     if scene == "vocabulary/constant_env_room.xml":     # escaped rays, in the lanes
