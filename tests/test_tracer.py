@@ -787,9 +787,9 @@ def _shade_ray_by_ray(A, R, amb, T):
 @pytest.mark.parametrize("scene", ["spheres/meshes.xml", "cornell/cornell_box.xml",
                                    "vocabulary/maps_direct.xml", "spheres/spot_directional.xml",
                                    "vocabulary/constant_env_room.xml", "vocabulary/envmap.xml",
-                                   "spheres/lit_sphere.xml", "spheres/sphere_grid.xml"])
+                                   "spheres/lit_sphere.xml", "spheres/sphere_grid.xml", "spheres only"])
 @pytest.mark.parametrize("precision", ["float64", "float32"])
-def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision):
+def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision, tmp_path):
     """raycast shades the plain hits (spheres, triangles without vertex normals) a ray per
     vector lane (impl.raycast._plain_hits) and the others ray by ray: every eye ray's
     emission and ambient term, whether it is lit, and its shading point are those of the
@@ -802,7 +802,16 @@ def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision):
     from impl.camera import camera_params
     from impl.tracer import eye_batch, new_batch, new_film
 
-    sc = load_scene(SUITES / scene)
+    if scene == "spheres only":         # lit_sphere with its ground a large sphere: no triangle
+        text = (SUITES / "spheres/lit_sphere.xml").read_text()
+        ground = re.search(r'<shape type="rectangle".*?</shape>', text, flags=re.S)
+        (tmp_path / "spheres.xml").write_text(text.replace(ground.group(0), (
+            '<shape type="sphere"><point name="center" value="0, -1000, 0"/>'
+            '<float name="radius" value="1000"/><bsdf type="diffuse"/></shape>')))
+        sc = load_scene(tmp_path / "spheres.xml")
+        assert len(sc.shapes) == 2 and all(s.kind == "sphere" for s in sc.shapes)
+    else:
+        sc = load_scene(SUITES / scene)
     p = registry.get("raycast").parse_params({"spp": 4, "precision": precision, "ka": 0.3,
                                               "ambient": 0.5})
     A = flatten_cached(sc)
@@ -838,7 +847,8 @@ def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision):
               "vocabulary/constant_env_room.xml": (True, None, None),
               "vocabulary/envmap.xml": (None, True, None),
               "spheres/lit_sphere.xml": (True, False, True),
-              "spheres/sphere_grid.xml": (True, None, True)}[scene]
+              "spheres/sphere_grid.xml": (True, None, True),
+              "spheres only": (True, False, True)}[scene]
     got = (plain > 1000, slow > 1000, spheres > 1000)
     assert all(e in (None, g) for e, g in zip(expect, got)), (plain, slow, spheres)
     if scene == "vocabulary/constant_env_room.xml":     # escaped rays, in the lanes
