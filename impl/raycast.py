@@ -81,7 +81,6 @@ With ``packets=true`` the eye rays of 8×8 tiles go through the tree as packets
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
@@ -92,14 +91,14 @@ from core.scene import Scene
 from core.errors import ParamError, UnsupportedError
 
 from .camera import camera_params, eye_ray
-from .intersect import closest_hit, like
+from .intersect import closest_hit
 from .kernel import batch_kernel, run_tasks, take_task
 from .lighting import (LocalModel, MAP_NONE, SP_G, SP_MAP, SP_P, SP_RHO, SP_S, SP_V, diffuse_albedo,
-                       direct_batch, environment_radiance, local_model, mapped_normal, store_point,
-                       surface_at)
+                       direct_batch, environment_radiance, local_model, mapped_normal, sphere_surface,
+                       store_point, surface_at)
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
-from .rays import RayConfig, refine
+from .rays import RayConfig, refine, refine_sphere, refine_triangle
 from .sampling import SAMPLER_PARAM, check_spp, sampler_code
 from .scene_arrays import SceneArrays, flatten_cached
 from .tracer import (accumulate, Batch, DX, DY, DZ, eye_batch, Film, film_counters, film_result,
@@ -171,30 +170,22 @@ def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, 
         px = py = pz = gx = gy = gz = 0.0
         if triangles:
             j = p - ns if tri else 0
-            c1, c2 = like(g, b1s[i]), like(g, b2s[i])
-            c0 = like(g, 1.0) - c1 - c2
-            px = float(c0 * V[j, 0, 0] + c1 * V[j, 1, 0] + c2 * V[j, 2, 0])
-            py = float(c0 * V[j, 0, 1] + c1 * V[j, 1, 1] + c2 * V[j, 2, 1])
-            pz = float(c0 * V[j, 0, 2] + c1 * V[j, 1, 2] + c2 * V[j, 2, 2])
+            px, py, pz = refine_triangle(g, V, j, b1s[i], b2s[i])
             gx, gy, gz = NG[j, 0], NG[j, 1], NG[j, 2]
             fast = fast | (tri & (not has_n[j]) & plain)
         if spheres:
             on = (not miss) & (not tri)
             k = p if on else 0
             t = ts[i]
-            cx, cy, cz, r = C[k, 0], C[k, 1], C[k, 2], g[k]
-            qx = like(g, oxs[i] + t * dxs[i]) - cx
-            qy = like(g, oys[i] + t * dys[i]) - cy
-            qz = like(g, ozs[i] + t * dzs[i]) - cz
-            f = r / math.sqrt(qx * qx + qy * qy + qz * qz)
-            sx, sy, sz = float(cx + f * qx), float(cy + f * qy), float(cz + f * qz)
-            ar = AR[k]
+            sx, sy, sz = refine_sphere(g, C, k, oxs[i] + t * dxs[i], oys[i] + t * dys[i],
+                                       ozs[i] + t * dzs[i])
+            hx, hy, hz, _, _, _ = sphere_surface(k, sx, sy, sz, AC, AR, False)
             px = sx if on else px
             py = sy if on else py
             pz = sz if on else pz
-            gx = (sx - AC[k, 0]) / ar if on else gx
-            gy = (sy - AC[k, 1]) / ar if on else gy
-            gz = (sz - AC[k, 2]) / ar if on else gz
+            gx = hx if on else gx
+            gy = hy if on else gy
+            gz = hz if on else gz
             fast = fast | (on & plain)
         slow[i] = not fast
         Px[i], Py[i], Pz[i] = px, py, pz

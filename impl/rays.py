@@ -123,7 +123,8 @@ from .intersect import SPHERE_FORMS, any_hit_form, closest_hit_form, like
 from .offset import STRATEGIES, spawn, spawn_select
 
 __all__ = ["RayConfig", "ray_config", "legacy_config", "PARAMS", "INTERSECT", "PRECISIONS",
-           "OFFSETS", "PACKET_ACCELS", "hit", "refine", "occluded", "leave", "round_ray"]
+           "OFFSETS", "PACKET_ACCELS", "hit", "refine", "refine_triangle", "refine_sphere", "occluded",
+           "leave", "round_ray"]
 
 INTERSECT = SPHERE_FORMS                       # ("algebraic", "geometric", "stable")
 PRECISIONS = ("float32", "float64")
@@ -311,16 +312,29 @@ def refine(R: RayConfig, prim, b1, b2, px, py, pz):
     g = R.sph_radius
     ns = g.shape[0]
     if prim >= ns:
-        v = R.tri_v[prim - ns]
-        c1, c2 = like(g, b1), like(g, b2)
-        c0 = like(g, 1.0) - c1 - c2
-        return (float(c0 * v[0, 0] + c1 * v[1, 0] + c2 * v[2, 0]),
-                float(c0 * v[0, 1] + c1 * v[1, 1] + c2 * v[2, 1]),
-                float(c0 * v[0, 2] + c1 * v[1, 2] + c2 * v[2, 2]))
-    cx, cy, cz, r = R.sph_center[prim, 0], R.sph_center[prim, 1], R.sph_center[prim, 2], g[prim]
+        return refine_triangle(g, R.tri_v, prim - ns, b1, b2)
+    return refine_sphere(g, R.sph_center, prim, px, py, pz)
+
+
+@njit(inline="always", cache=True)
+def refine_triangle(g, V, j, b1, b2):
+    """:func:`refine` on triangle j of the vertices ``V`` (in the precision of the array
+    ``g``): b0 v0 + b1 v1 + b2 v2."""
+    c1, c2 = like(g, b1), like(g, b2)
+    c0 = like(g, 1.0) - c1 - c2
+    return (float(c0 * V[j, 0, 0] + c1 * V[j, 1, 0] + c2 * V[j, 2, 0]),
+            float(c0 * V[j, 0, 1] + c1 * V[j, 1, 1] + c2 * V[j, 2, 1]),
+            float(c0 * V[j, 0, 2] + c1 * V[j, 1, 2] + c2 * V[j, 2, 2]))
+
+
+@njit(inline="always", cache=True)
+def refine_sphere(g, C, k, px, py, pz):
+    """:func:`refine` on sphere k (centres ``C``, radii ``g``, in their precision): p
+    projected onto it, c + r (p − c)/|p − c|."""
+    cx, cy, cz, r = C[k, 0], C[k, 1], C[k, 2], g[k]
     qx, qy, qz = like(g, px) - cx, like(g, py) - cy, like(g, pz) - cz
-    k = r / math.sqrt(qx * qx + qy * qy + qz * qz)
-    return float(cx + k * qx), float(cy + k * qy), float(cz + k * qz)
+    f = r / math.sqrt(qx * qx + qy * qy + qz * qz)
+    return float(cx + f * qx), float(cy + f * qy), float(cz + f * qz)
 
 
 @njit(inline="always", cache=True)
