@@ -45,7 +45,8 @@ segments (shadow rays) only the triangles whose plane crosses the box of the seg
 (:func:`_plane_misses_box`: in a closed room, the walls a point's shadow ray does not
 start on); a pinhole
 camera's eye rays are bounded once per tile, for all its samples, by the frustum through
-the corners of each strip of its pixel rows (:func:`_tile_candidates`).  ``accel=auto`` answers
+the corners of each of its pixel blocks, and through the wide BVH a block that keeps too
+many primitives by those of its pairs of pixel rows (:func:`_tile_candidates`).  ``accel=auto`` answers
 batch queries this way on small scenes even where its per-ray queries use the wide BVH
 (:data:`impl.rays.AUTO_BATCH_PRIMS_PER_LANE`).  Through the wide BVH, a batch goes in
 chunks of ``CHUNK`` rays: a chunk with a frustum gathers the primitives of the leaves the
@@ -140,13 +141,17 @@ class Cull(NamedTuple):
                                 # by brute force, CHUNK_CAP through the wide BVH)
     uv: np.ndarray              # (2, n) the frustum's projective coordinates of up to n rays
     bound: np.ndarray           # (_BOUND_WORDS,) the bound of a chunk (_bound)
-    raw: np.ndarray             # (_RAW_CAP,) the wide BVH's leaf primitives ((0,) by brute force)
+    raw: np.ndarray             # (_SPLIT_RAW,) the wide BVH's leaf primitives ((0,) by brute force)
 
 
 class Batch(NamedTuple):
-    """One tile's rays of one sample index, structure of arrays (column ``i`` = pixel ``i``
-    of the tile, at ``(x0 + i % nx, y0 + i // nx)``), with the scratch arrays the steps
-    reuse from sample to sample (no allocation inside the sample loop)."""
+    """One tile's rays of one sample index, structure of arrays, with the scratch arrays
+    the steps reuse from sample to sample (no allocation inside the sample loop).  Column
+    ``i`` is the pixel ``xy[:, i]`` (image index ``pixel[i]``): the tile's pixels in blocks
+    of ``BLOCK`` × ``BLOCK``, the blocks in row order and each block's pixels in row order
+    (:func:`new_batch`, :func:`pixel_block`), so that a run of columns — a block, a chunk of a
+    batch query, the shadow rays of consecutive points — covers a compact patch of the
+    image, whose rays a frustum bounds more tightly than a strip of rows."""
 
     x0: int
     y0: int
@@ -175,11 +180,12 @@ class Batch(NamedTuple):
     qp: np.ndarray              # (n,) int32 primitive (int32: the loops then vectorise in float32 too)
     film: np.ndarray            # (2, n) film positions (pixels) of the eye rays
     xy: np.ndarray              # (2, n) float64 pixel coordinates (x, y) of each column
-    cand: np.ndarray            # (strips, 2 + w) int64 the eye-ray candidates of each strip of
-                                # STRIP_ROWS pixel rows (:func:`_tile_candidates`): counts of
+    cand: np.ndarray            # (rows, 2 + w) int64 the eye-ray candidates of each pixel block,
+                                # then of the blocks' runs of SPLIT_ROWS rows
+                                # (:func:`_tile_candidates`, :func:`_cand_rows`): counts of
                                 # spheres m and triangles k, then their indices; _UNKNOWN = not
-                                # yet known, _PER_RAY = trace its rays one by one; (1, 2) for
-                                # batches not tied to a tile
+                                # yet known, _PER_RAY = trace its rays one by one, _SPLIT = see
+                                # the runs' lists; (1, 2) for batches not tied to a tile
     luv: np.ndarray             # (2, n) a light sample's two numbers per point (scratch of
                                 # impl.lighting.direct_batch)
     fh: np.ndarray              # (2, n) uint64 the Sobol film hashes of each column
@@ -263,9 +269,14 @@ def new_batch(film: Film, R: RayConfig, tile, seed):
     F = R.sph_radius.dtype
     pixel = np.empty(n, np.int64)
     xy = np.empty((2, n))
-    for i in range(n):
-        pixel[i] = (y0 + i // nx) * W + x0 + i % nx
-        xy[0, i], xy[1, i] = x0 + i % nx, y0 + i // nx
+    i = 0
+    for by in range(0, ny, BLOCK):              # the column order of Batch: see pixel_block()
+        for bx in range(0, nx, BLOCK):
+            for y in range(y0 + by, y0 + min(ny, by + BLOCK)):
+                for x in range(x0 + bx, x0 + min(nx, bx + BLOCK)):
+                    pixel[i] = y * W + x
+                    xy[0, i], xy[1, i] = x, y
+                    i += 1
     fh = np.empty((2, n if film.sampler == PIXEL_SOBOL else 0), np.uint64)
     if film.sampler == PIXEL_SOBOL:
         sobol_film_hashes(seed, xy[0], xy[1], fh[0], fh[1])
@@ -275,8 +286,29 @@ def new_batch(film: Film, R: RayConfig, tile, seed):
                  np.empty((POINT_ROWS, n)), np.zeros(n, np.bool_), np.empty((8, n)), np.empty((3, n)),
                  np.empty(n, np.int64), np.zeros(n, np.bool_), np.empty((8, n), F),
                  np.empty((3, n), F), np.empty(n, np.int32), np.empty((2, n)), xy,
-                 np.full(((ny + STRIP_ROWS - 1) // STRIP_ROWS, 2 + _cand_width(R)), _UNKNOWN,
-                         np.int64), np.empty((2, n)), fh, new_cull(R, n))
+                 np.full((_cand_rows(R, nx, ny), 2 + _cand_width(R)), _UNKNOWN, np.int64),
+                 np.empty((2, n)), fh, new_cull(R, n))
+
+
+@njit(inline="always", cache=True)
+def _cand_rows(R: RayConfig, nx, ny):
+    """Rows of a tile's eye-ray candidate lists (``Batch.cand``): one per pixel block,
+    and through the wide BVH one per run of ``SPLIT_ROWS`` rows of each block too
+    (:func:`_tile_candidates`)."""
+    nb = ((nx + BLOCK - 1) // BLOCK) * ((ny + BLOCK - 1) // BLOCK)
+    return nb if brute_force(R) else nb * (1 + _RUNS)
+
+
+@njit(inline="always", cache=True)
+def pixel_block(nx, ny, g):
+    """Pixel block ``g`` of an ``nx`` × ``ny`` tile in a batch's column order: its first
+    column, its corner (x, y) relative to the tile's, its width and height.  The blocks go
+    in row order, each a run of columns holding its pixels in row order; blocks in the
+    tile's last block row or column are cut to the tile."""
+    bxs = (nx + BLOCK - 1) // BLOCK
+    q, p = g // bxs, g % bxs
+    w, h = min(BLOCK, nx - p * BLOCK), min(BLOCK, ny - q * BLOCK)
+    return q * BLOCK * nx + p * BLOCK * h, p * BLOCK, q * BLOCK, w, h
 
 
 @njit(cache=True)
@@ -398,25 +430,23 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
         sobol_film(s, T.fh[0, :n], T.fh[1, :n], T.xy[0, :n], T.xy[1, :n], T.film[0, :n],
                    T.film[1, :n])
     else:
-        i = 0
-        for y in range(T.y0, T.y0 + T.n // T.nx):
-            for x in range(T.x0, T.x0 + T.nx):
-                fx, fy = pixel_sample(spp, k, s, seed, T.pixel[i], sampler, x, y)
-                if pinhole:                     # film position now, the rays below at once
-                    T.film[0, i], T.film[1, i] = x + fx, y + fy
+        for i in range(n):
+            x, y = np.int64(T.xy[0, i]), np.int64(T.xy[1, i])
+            fx, fy = pixel_sample(spp, k, s, seed, T.pixel[i], sampler, x, y)
+            if pinhole:                     # film position now, the rays below at once
+                T.film[0, i], T.film[1, i] = x + fx, y + fy
+            else:
+                if sensor == SENSOR_THINLENS:   # a lens point (camera_params(..., lens=True))
+                    h = uniform_prefix(seed, T.pixel[i], s)
+                    ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray_lens(
+                        cam, x + fx, y + fy, uniform_from(h, DIM_LENS), uniform_from(h, DIM_LENS + 1))
                 else:
-                    if sensor == SENSOR_THINLENS:   # a lens point (camera_params(..., lens=True))
-                        h = uniform_prefix(seed, T.pixel[i], s)
-                        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray_lens(
-                            cam, x + fx, y + fy, uniform_from(h, DIM_LENS), uniform_from(h, DIM_LENS + 1))
-                    else:
-                        ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
-                    ray[OX, i], ray[OY, i], ray[OZ, i] = (float(like(g, ox)), float(like(g, oy)),
-                                                          float(like(g, oz)))
-                    ray[DX, i], ray[DY, i], ray[DZ, i] = (float(like(g, dx)), float(like(g, dy)),
-                                                          float(like(g, dz)))
-                    ray[TMIN, i], ray[TMAX, i] = tmin, tmax
-                i += 1
+                    ox, oy, oz, dx, dy, dz, tmin, tmax, _ = eye_ray(cam, x + fx, y + fy)
+                ray[OX, i], ray[OY, i], ray[OZ, i] = (float(like(g, ox)), float(like(g, oy)),
+                                                      float(like(g, oz)))
+                ray[DX, i], ray[DY, i], ray[DZ, i] = (float(like(g, dx)), float(like(g, dy)),
+                                                      float(like(g, dz)))
+                ray[TMIN, i], ray[TMAX, i] = tmin, tmax
     if pinhole:
         pinhole_rays(cam, g, T.film[0, :n], T.film[1, :n], ray[OX, :n], ray[OY, :n], ray[OZ, :n],
                      ray[DX, :n], ray[DY, :n], ray[DZ, :n], ray[TMIN, :n], ray[TMAX, :n])
@@ -424,10 +454,16 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
         if T.cand[0, 0] == _UNKNOWN:
             _tile_candidates(cam, R, T)
         q = _query_rows(ray, n, T.q)
-        rows = STRIP_ROWS * T.nx
-        for r in range(T.cand.shape[0]):       # rays from one origin: the camera's
-            _closest_span(R, ray, q, T.qt, T.qp, r * rows, min(n, (r + 1) * rows), T.cand[r],
-                          T.t, T.prim, T.b, True)
+        ny = n // T.nx
+        nb = ((T.nx + BLOCK - 1) // BLOCK) * ((ny + BLOCK - 1) // BLOCK)
+        for j in range(nb):                    # rays from one origin: the camera's
+            c0, _, _, w, h = pixel_block(T.nx, ny, j)
+            split = T.cand[j, 0] == _SPLIT     # then a span per run of SPLIT_ROWS rows
+            step = w * SPLIT_ROWS if split else w * h
+            for a in range(c0, c0 + w * h, step):
+                _closest_span(R, ray, q, T.qt, T.qp, a, min(c0 + w * h, a + step),
+                              T.cand[nb + j * _RUNS + (a - c0) // step if split else j], T.t,
+                              T.prim, T.b, True)
     elif packets:
         packet_batch(R, T)
     else:
@@ -436,46 +472,70 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
 
 @batch_kernel(error_model="numpy")
 def _tile_candidates(cam, R: RayConfig, T: Batch):
-    """The primitives the tile's eye rays can meet, into ``T.cand``, strip by strip
-    (``STRIP_ROWS`` rows of pixels each), for every sample index at once: those inside the
-    frustum of the four rays through the strip's outer pixel corners
-    (:func:`_frustum_planes`).  A pinhole's rays share the camera's origin, and every film
-    position of the strip lies in the rectangle of those corners, so every eye ray of every
-    sample lies in that frustum (the projective map from the film to the frustum's (u, v)
-    plane keeps the rectangle's image inside the box of its corners' images).  By brute
+    """The primitives the tile's eye rays can meet, into ``T.cand``, pixel block by block
+    (:func:`pixel_block`), for every sample index at once: those inside the frustum of the four
+    rays through the block's outer pixel corners (:func:`_rect_candidates`).  By brute
     force the list is every primitive the frustum does not exclude; through the wide BVH,
-    those of the leaves it reaches (:func:`impl.accel.wide.wide_frustum_prims`), or
-    ``_PER_RAY`` when they are more than ``CHUNK_CAP``.  The corner rays go through the
-    first four columns of the scratch arrays ``T.sh_w`` (film positions), ``T.sh`` (rays),
-    ``T.q`` (in R's precision) and ``T.film`` (the frustum's coordinates; the sample's film
-    positions are used by then) and the batch queries' culling scratch ``T.cull`` (the
-    bound and the tree's raw list): the tile has at least four pixels.  Called once per
-    tile."""
+    those of the leaves it reaches, or ``_PER_RAY`` when they are more than ``CHUNK_CAP``.
+    Such a block whose frustum reaches at most ``_SPLIT_RAW`` leaf primitives is culled
+    again in runs of ``SPLIT_ROWS`` pixel rows (a block over a mesh of a few hundred
+    triangles may keep 30, its runs some 15), each run's list in the rows of ``T.cand``
+    after the blocks' (run ``j`` of block ``g`` in row ``blocks + g·_RUNS + j``), and the
+    block marked ``_SPLIT``.  Called once per tile."""
     ny = T.n // T.nx
+    nb = ((T.nx + BLOCK - 1) // BLOCK) * ((ny + BLOCK - 1) // BLOCK)
+    split = T.cand.shape[0] > nb
+    for g in range(nb):
+        _, bx, by, w, h = pixel_block(T.nx, ny, g)
+        xa, ya = T.x0 + bx, T.y0 + by
+        cand = T.cand[g]
+        k = _rect_candidates(cam, R, T, xa, xa + w, ya, ya + h, cand, _SPLIT_RAW)
+        if split and cand[0] == _PER_RAY and k >= 0:
+            for j in range((h + SPLIT_ROWS - 1) // SPLIT_ROWS):
+                y = ya + j * SPLIT_ROWS
+                _rect_candidates(cam, R, T, xa, xa + w, y, min(ya + h, y + SPLIT_ROWS),
+                                 T.cand[nb + g * _RUNS + j], _RAW_CAP)
+            cand[0] = _SPLIT
+
+
+@njit(inline="always", cache=True)
+def _rect_candidates(cam, R: RayConfig, T: Batch, xa, xb, ya, yb, cand, cap):
+    """The primitives the eye rays through the film rectangle [xa, xb] × [ya, yb] (pixels)
+    can meet, into ``cand``: those inside the frustum of the rays through its four corners
+    (:func:`_frustum_planes`).  A pinhole's rays share the camera's origin, and every film
+    position of the rectangle lies between its corners, so every eye ray of every sample
+    lies in that frustum (the projective map from the film to the frustum's (u, v) plane
+    keeps the rectangle's image inside the box of its corners' images).  By brute force
+    the list is every primitive the frustum does not exclude; through the wide BVH, those
+    of the leaves it reaches (:func:`_wide_prims`, at most ``cap`` of them).  Returns how
+    many primitives the leaves held (-1: more than ``cap``, or no frustum; 0 by brute
+    force).  The corner rays go through the first four columns of the scratch arrays
+    ``T.sh_w`` (film positions), ``T.sh`` (rays), ``T.q`` (in R's precision) and ``T.film``
+    (the frustum's coordinates; the sample's film positions are used by then) and the
+    batch queries' culling scratch ``T.cull`` (the bound and the tree's raw list): the
+    tile has at least four pixels."""
     fx, fy, c = T.sh_w[0, :4], T.sh_w[1, :4], T.sh
     bound, raw = T.cull.bound, T.cull.raw
-    for r in range(T.cand.shape[0]):
-        ya, yb = T.y0 + r * STRIP_ROWS, T.y0 + min(ny, (r + 1) * STRIP_ROWS)
-        fx[0], fy[0] = T.x0, ya
-        fx[1], fy[1] = T.x0 + T.nx, ya
-        fx[2], fy[2] = T.x0, yb
-        fx[3], fy[3] = T.x0 + T.nx, yb
-        pinhole_rays(cam, R.sph_radius, fx, fy, c[OX, :4], c[OY, :4], c[OZ, :4], c[DX, :4],
-                     c[DY, :4], c[DZ, :4], c[TMIN, :4], c[TMAX, :4])
-        _in_precision(c, 4, T.q)
-        bound[0], bound[1], bound[2] = float(T.q[OX, 0]), float(T.q[OY, 0]), float(T.q[OZ, 0])
-        bound[3], bound[16] = 0.0, math.inf          # no slack; eye rays reach any distance
-        ok = _frustum_planes(T.q, 0, 4, False, T.film, bound)
-        cand = T.cand[r]
-        if brute_force(R):
-            if ok:
-                _frustum_prims(R, bound, cand)
-            else:
-                _keep_all(R, cand)
-        elif ok:
-            _wide_prims(R, bound, raw, cand)
+    fx[0], fy[0] = xa, ya
+    fx[1], fy[1] = xb, ya
+    fx[2], fy[2] = xa, yb
+    fx[3], fy[3] = xb, yb
+    pinhole_rays(cam, R.sph_radius, fx, fy, c[OX, :4], c[OY, :4], c[OZ, :4], c[DX, :4],
+                 c[DY, :4], c[DZ, :4], c[TMIN, :4], c[TMAX, :4])
+    _in_precision(c, 4, T.q)
+    bound[0], bound[1], bound[2] = float(T.q[OX, 0]), float(T.q[OY, 0]), float(T.q[OZ, 0])
+    bound[3], bound[16] = 0.0, math.inf          # no slack; eye rays reach any distance
+    ok = _frustum_planes(T.q, 0, 4, False, T.film, bound)
+    if brute_force(R):
+        if ok:
+            _frustum_prims(R, bound, cand)
         else:
-            cand[0] = _PER_RAY
+            _keep_all(R, cand)
+        return 0
+    if ok:
+        return _wide_prims(R, bound, raw, cand, cap)
+    cand[0] = _PER_RAY
+    return -1
 
 
 @njit(inline="always", cache=True)
@@ -580,7 +640,7 @@ def new_cull(R: RayConfig, n):
     """The :class:`Cull` scratch of batch queries of up to ``n`` rays in R, uninitialised
     (each chunk's culling fills it)."""
     return Cull(np.empty(2 + _cand_width(R), np.int64), np.empty((2, n)), np.empty(_BOUND_WORDS),
-                np.empty(0 if brute_force(R) else _RAW_CAP, np.int64))
+                np.empty(0 if brute_force(R) else _SPLIT_RAW, np.int64))
 
 
 @njit(inline="always", cache=True)
@@ -748,28 +808,38 @@ def _triangle_from(sx, sy, sz, qx, qy, qz, tq, dx, dy, dz, e1x, e1y, e1z, e2x, e
     return t, b1, b2, ok
 
 
-#: Rows of pixels per strip of a tile's eye rays, each strip culled on its own
-#: (:func:`_tile_candidates`).
-STRIP_ROWS = 2
+#: Side of a pixel block: a batch's columns hold a tile's pixels block by block
+#: (:class:`Batch`), and a pinhole's eye rays are culled block by block
+#: (:func:`_tile_candidates`).  A block of 64 rays is also a chunk of the batch queries.
+BLOCK = 8
+#: Pixel rows per run of a split block (:func:`_tile_candidates`), and the runs per block.
+SPLIT_ROWS = 2
+_RUNS = (BLOCK + SPLIT_ROWS - 1) // SPLIT_ROWS
 #: Rays per chunk of a batch query through the wide BVH, each chunk bounded on its own
-#: (a batch's rays come in column order: rows of a tile's pixels, or its points' shadow
+#: (a batch's rays come in column order: a tile's pixel blocks, or its points' shadow
 #: rays in that order).
 CHUNK = 64
 #: A chunk whose bound keeps more primitives than this goes ray by ray through the wide
 #: BVH: the brute-force loops cost a few vector operations per ray and primitive, a
 #: traversal some tens per ray.
 CHUNK_CAP = 24
-#: Room for the leaves' primitives a frustum reaches in the wide BVH, before the frustum's
-#: own primitive test thins them.
+#: Room for the leaves' primitives a chunk's frustum reaches in the wide BVH, before the
+#: frustum's own primitive test thins them.
 _RAW_CAP = 2 * CHUNK_CAP
+#: A pixel block whose frustum keeps more than ``CHUNK_CAP`` primitives is culled again in
+#: runs of rows only when the frustum reaches at most this many leaf primitives (the runs
+#: then tend to keep few each; a block over a dense mesh reaches more, and its runs would
+#: go ray by ray too), so this is also the room of ``Cull.raw``.
+_SPLIT_RAW = 4 * CHUNK_CAP
 #: Words of a bound: apex, slack, four inward unit plane normals, reach (the frustum), then
 #: the low and high corners of a box holding the segments (:func:`_pyramid_box`,
 #: :func:`_shaft_box`).
 _BOUND_WORDS = 23
 #: Where the box of the segments starts in a bound.
 _SEG = 17
-#: Candidate-list states in its first word (else the number of spheres).
-_UNKNOWN, _PER_RAY = -1, -3
+#: Candidate-list states in its first word (else the number of spheres); ``_SPLIT``: a
+#: pixel block whose runs of rows have lists of their own (:func:`_tile_candidates`).
+_UNKNOWN, _PER_RAY, _SPLIT = -1, -3, -4
 #: What bounds a set of rays (:func:`_bound`).
 _NO_BOUND, _FRUSTUM, _BOX = 0, 1, 2
 
@@ -822,18 +892,19 @@ def _wide_cull(R: RayConfig, q, c0, c1, cand, uv, bound, raw):
     if c1 - c0 < _CULL_MIN_RAYS or _bound(q, c0, c1, uv, bound) != _FRUSTUM:
         cand[0] = _PER_RAY
         return
-    _wide_prims(R, bound, raw, cand)
+    _wide_prims(R, bound, raw, cand, _RAW_CAP)
 
 
 @njit(inline="always", cache=True)
-def _wide_prims(R: RayConfig, bound, raw, cand):
+def _wide_prims(R: RayConfig, bound, raw, cand, cap):
     """The primitives the frustum ``bound`` keeps among those of the wide BVH's leaves it
     reaches (:func:`impl.accel.wide.wide_frustum_prims`), in scene order, into ``cand``;
-    ``_PER_RAY`` when there are more than ``CHUNK_CAP``."""
-    k = wide_frustum_prims(R, bound, _CULL_PAD, raw, raw.shape[0])
+    ``_PER_RAY`` when the leaves hold more than ``cap`` primitives or the frustum keeps
+    more than ``CHUNK_CAP``.  Returns how many the leaves held (-1: more than ``cap``)."""
+    k = wide_frustum_prims(R, bound, _CULL_PAD, raw, cap)
     if k < 0:
         cand[0] = _PER_RAY
-        return
+        return k
     ns = R.sph_radius.shape[0]
     kept = 0
     for i in range(k):                   # the frustum's own test, in place
@@ -843,7 +914,7 @@ def _wide_prims(R: RayConfig, bound, raw, cand):
             kept += 1
     if kept > cand.shape[0] - 2:
         cand[0] = _PER_RAY
-        return
+        return k
     for i in range(1, kept):             # insertion sort: scene order, the loops' tie rule
         x = raw[i]
         j = i
@@ -857,6 +928,7 @@ def _wide_prims(R: RayConfig, bound, raw, cand):
         cand[2 + i] = p if p < ns else p - ns
         m += p < ns
     cand[0], cand[1] = m, kept - m
+    return k
 
 
 @njit(inline="always", cache=True)
@@ -1363,7 +1435,7 @@ def _welford(c, x0, x1, x2, m0, m1, m2, q0, q1, q2):
 def store(T: Batch, film: Film, spp):
     """Write the tile's mean, variance of the mean and counts into the film."""
     for i in range(T.n):
-        x, y = T.x0 + i % T.nx, T.y0 + i // T.nx
+        x, y = int(T.xy[0, i]), int(T.xy[1, i])
         for k in range(3):
             film.mean[y, x, k] = T.acc[k, i]
             film.var[y, x, k] = variance_of_mean(T.acc[3 + k, i], spp)

@@ -592,7 +592,7 @@ def _tile(cam, A: SceneArrays, S: SpecularArrays, R: RayConfig, M: LocalModel, m
         accumulate(T, s)
     store(T, film, spp)
     for i in range(T.n):
-        x, y = T.x0 + i % T.nx, T.y0 + i // T.nx
+        x, y = int(T.xy[0, i]), int(T.xy[1, i])
         cut[y, x, 0] = K.cut[i, 0] / spp
         cut[y, x, 1] = K.cut[i, 1] / spp
 

@@ -695,13 +695,17 @@ def test_wide_bvh_leaf_triangles_are_tested_in_vector_registers():
 
 
 @pytest.mark.parametrize("scene, sampler", [("cornell/cornell_box.xml", "jitter"),
-                                            ("spheres/spot_directional.xml", "sobol")])
+                                            ("spheres/spot_directional.xml", "sobol"),
+                                            ("spheres/meshes.xml", "jitter")])
 def test_tile_frustum_keeps_every_primitive_an_eye_ray_hits(scene, sampler):
     """A pinhole's eye rays are culled once per tile, for all its samples, by the
-    frustum through the corners of each strip of the tile (impl.tracer._tile_candidates):
-    every eye ray of every sample, jittered or Sobol, gets the per-ray query's answer over
-    all primitives, and the tiles' lists do cull (on the Cornell box most tiles keep few of its 34
-    triangles; on the spheres the sky tiles keep no sphere)."""
+    frustum through the corners of each pixel block of the tile
+    (impl.tracer._tile_candidates): every eye ray of every sample, jittered or Sobol, gets
+    the per-ray query's answer over all primitives, and the tiles' lists do cull (on the
+    Cornell box most blocks keep few of its 34 triangles; on the spheres the sky blocks
+    keep no sphere).  On the meshes (the wide BVH) blocks over the icosphere keep too
+    many and are split into runs of rows, each run's list within CHUNK_CAP and shorter
+    than a block's could be."""
     from impl.camera import camera_params
     from impl.sampling import sampler_code
     from impl.tracer import eye_batch, new_batch, new_film
@@ -710,12 +714,13 @@ def test_tile_frustum_keeps_every_primitive_an_eye_ray_hits(scene, sampler):
     p = registry.get("raycast").parse_params({"spp": 4, "sampler": sampler})
     A = flatten_cached(sc)
     R = tracer.ray_config_cached(sc, A, p, algorithm="raycast")
-    assert tracer.brute_force(R)
+    wide = scene.endswith("meshes.xml")
+    assert tracer.brute_force(R) != wide
     cam = camera_params(sc.camera)
     W, H = sc.camera.film.width, sc.camera.film.height
     film = new_film(W, H, 1, False, sampler_code(p))
     total = len(A.sph_radius) + len(A.tri_v)
-    kept = []
+    kept, runs, split = [], [], 0
     for tile in range(film.packet.shape[0]):
         T = new_batch(film, R, tile, 5)
         for s in range(4):
@@ -723,10 +728,52 @@ def test_tile_frustum_keeps_every_primitive_an_eye_ray_hits(scene, sampler):
             got = (T.t.copy(), T.prim.copy(), T.b.copy())
             want = _per_ray_answers(R, T.ray)[:3]
             _assert_same(got, want, err_msg=f"tile {tile} sample {s}")
-        kept.extend((T.cand[:, 0] + T.cand[:, 1]).tolist())
+        nb = -(-T.nx // tracer.BLOCK) * -(-(T.n // T.nx) // tracer.BLOCK)
+        heads = T.cand[:nb, 0]
+        kept.extend((T.cand[:nb, 0] + T.cand[:nb, 1])[heads >= 0].tolist())
+        assert set(heads[heads < 0].tolist()) <= {tracer._PER_RAY, tracer._SPLIT}
+        for g in np.flatnonzero(heads == tracer._SPLIT):
+            split += 1
+            rows = T.cand[nb + g * tracer._RUNS:nb + (g + 1) * tracer._RUNS]
+            rows = rows[rows[:, 0] != tracer._UNKNOWN]
+            runs.extend((rows[:, 0] + rows[:, 1])[rows[:, 0] >= 0].tolist())
     kept = np.array(kept)
-    assert (kept >= 0).all() and (kept <= total).all()
+    assert (kept >= 0).all() and (kept <= min(total, T.cand.shape[1] - 2)).all()
     assert np.median(kept) < total / 2, np.median(kept)
+    if wide:
+        assert split > 10 and len(runs) >= 3 * split, (split, len(runs))
+        assert max(runs) <= tracer.CHUNK_CAP < total and np.mean(runs) < 0.75 * tracer.CHUNK_CAP
+
+
+@pytest.mark.parametrize("W, H", [(37, 29), (160, 120), (3, 50)])
+def test_a_batch_holds_its_tile_block_by_block(W, H):
+    """A batch's columns are its tile's pixels, each once, in pixel blocks of
+    tracer.BLOCK (impl.tracer.pixel_block: the blocks in row order, cut at the tile's
+    edges, each a run of columns holding its pixels in row order), and store() writes
+    every pixel of the image exactly once, from the column holding it."""
+    from impl.tracer import new_batch, new_film, pixel_block, store
+
+    sc = load_scene(SUITES / "spheres/lit_sphere.xml")
+    A = flatten_cached(sc)
+    R = tracer.ray_config_cached(sc, A, registry.get("raycast").parse_params({}), algorithm="raycast")
+    film = new_film(W, H, 1, False)
+    B = tracer.BLOCK
+    for tile in range(film.packet.shape[0]):
+        T = new_batch(film, R, tile, 0)
+        ny = T.n // T.nx
+        xy = T.xy.astype(np.int64)
+        np.testing.assert_array_equal(T.pixel, xy[1] * W + xy[0])
+        c = 0
+        for g in range(-(-T.nx // B) * -(-ny // B)):
+            c0, bx, by, w, h = pixel_block(T.nx, ny, g)
+            assert c0 == c and 0 < w <= B and 0 < h <= B
+            yy, xx = np.mgrid[T.y0 + by:T.y0 + by + h, T.x0 + bx:T.x0 + bx + w]
+            np.testing.assert_array_equal(xy[:, c0:c0 + w * h], [xx.ravel(), yy.ravel()])
+            c += w * h
+        assert c == T.n
+        T.acc[:3] = T.pixel
+        store(T, film, 1)
+    np.testing.assert_array_equal(film.mean[..., 0], np.arange(W * H).reshape(H, W))
 
 
 @pytest.mark.parametrize("params", [{}, {"precision": "float32"}, {"offset": "normal"},
