@@ -145,18 +145,24 @@ def _shading_normal(j, b1, b2, gx, gy, gz, tri_n, tri_has_n, flip):
     shading normal interpolated from its vertex normals where it has them, else g; both
     negated with ``flip``."""
     if tri_has_n[j]:
-        b0 = 1.0 - b1 - b2
-        n = tri_n[j]
-        sx = b0 * n[0, 0] + b1 * n[1, 0] + b2 * n[2, 0]
-        sy = b0 * n[0, 1] + b1 * n[1, 1] + b2 * n[2, 1]
-        sz = b0 * n[0, 2] + b1 * n[1, 2] + b2 * n[2, 2]
-        inv = 1.0 / math.sqrt(sx * sx + sy * sy + sz * sz)
-        sx, sy, sz = sx * inv, sy * inv, sz * inv
+        sx, sy, sz = interpolated_normal(tri_n, j, b1, b2)
     else:
         sx, sy, sz = gx, gy, gz
     if flip:
         gx, gy, gz, sx, sy, sz = -gx, -gy, -gz, -sx, -sy, -sz
     return gx, gy, gz, sx, sy, sz
+
+
+@njit(inline="always", cache=True)
+def interpolated_normal(tri_n, j, b1, b2):
+    """Triangle j's unit shading normal at barycentrics (b1, b2): its vertex normals
+    ``tri_n[j]`` weighted by (1 − b1 − b2, b1, b2), normalised (not negated)."""
+    b0 = 1.0 - b1 - b2
+    sx = b0 * tri_n[j, 0, 0] + b1 * tri_n[j, 1, 0] + b2 * tri_n[j, 2, 0]
+    sy = b0 * tri_n[j, 0, 1] + b1 * tri_n[j, 1, 1] + b2 * tri_n[j, 2, 1]
+    sz = b0 * tri_n[j, 0, 2] + b1 * tri_n[j, 1, 2] + b2 * tri_n[j, 2, 2]
+    inv = 1.0 / math.sqrt(sx * sx + sy * sy + sz * sz)
+    return sx * inv, sy * inv, sz * inv
 
 
 @njit(inline="always", cache=True)

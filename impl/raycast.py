@@ -94,8 +94,8 @@ from .camera import camera_params, eye_ray
 from .intersect import closest_hit
 from .kernel import batch_kernel, run_tasks, take_task
 from .lighting import (LocalModel, MAP_NONE, SP_G, SP_MAP, SP_P, SP_RHO, SP_S, SP_V, diffuse_albedo,
-                       direct_batch, environment_radiance, local_model, mapped_normal, sphere_surface,
-                       store_point, surface_at)
+                       direct_batch, environment_radiance, interpolated_normal, local_model,
+                       mapped_normal, sphere_surface, store_point, surface_at)
 from .phong import PHONG_PARAMS
 from .rays import PARAMS as RAY_PARAMS
 from .rays import RayConfig, refine, refine_sphere, refine_triangle
@@ -111,7 +111,7 @@ COUNTERS = ("shadow_rays",)
 
 
 @batch_kernel
-def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx, slow):
+def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx, slow, smooth):
     """Radiance of the batch's eye rays from their closest hits into ``T.L``: a constant
     environment for escaped rays; L_e (front side) + ambient I_a k_a ρ + the Phong
     direct light of every light (:func:`impl.lighting.direct_batch`) at a hit.  A
@@ -120,13 +120,14 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx,
     perturbed normal (:func:`impl.lighting.mapped_normal`) and each light sample weighted
     as Mitsuba's adapter weights it (:func:`impl.lighting.map_weight`).
 
-    The plain hits (spheres and triangles without vertex normals, untextured, no map) and
-    the rays that escape to a constant environment (or none) (:func:`_plain_hits`) are
-    shaded a ray per vector lane; the others (interpolated normals, textures, maps, an
-    environment map) ray by ray (:func:`_shade_ray`).  ``sidx`` (n,) and ``slow`` (n,) are scratch."""
+    The plain hits (spheres and triangles, untextured, no map) and the rays that escape
+    to a constant environment (or none) (:func:`_plain_hits`) are shaded a ray per vector
+    lane; the others (textures, maps, an environment map) ray by ray
+    (:func:`_shade_ray`).  ``smooth``: some triangle of the scene has vertex normals.
+    ``sidx`` (n,) and ``slow`` (n,) are scratch."""
     n = T.n
     amb = M.ambient * M.ka
-    _lane_hits(A, R, amb, T, slow)
+    _lane_hits(A, R, amb, T, slow, smooth)
     for i in range(n):
         if slow[i]:
             _shade_ray(A, R, amb, T, i)
@@ -135,16 +136,19 @@ def _shade(A: SceneArrays, R: RayConfig, M: LocalModel, T: Batch, s, seed, sidx,
 
 
 @batch_kernel(error_model="numpy", disjoint=True)
-def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, V, NG, has_n, prim_shape,
-                shape_flip, emit, shape_mat, twosided, shade, tex, rho, amb, sky, sky_r, sky_g, sky_b, Px,
-                Py, Pz, Gx, Gy, Gz, Nx, Ny, Nz, Vx, Vy, Vz, Rr, Rg, Rb, code, Lr, Lg, Lb, active, slow):
+def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, V, NG, TN, has_n,
+                smooth, prim_shape, shape_flip, emit, shape_mat, twosided, shade, tex, rho, amb, sky,
+                sky_r, sky_g, sky_b, Px, Py, Pz, Gx, Gy, Gz, Nx, Ny, Nz, Vx, Vy, Vz, Rr, Rg, Rb, code, Lr,
+                Lg, Lb, active, slow):
     """:func:`_shade_ray`'s surface, emission and ambient term of every *plain* hit — on a
-    sphere or on a triangle without vertex normals, under an untextured diffuse BSDF
-    without a normal or bump map — a ray per vector lane: the same operations (the hit
-    point of :func:`impl.rays.refine` in the precision of ``g``: a triangle's from its
-    barycentrics, a sphere's projected onto it from o + t d; the geometric normal of
-    :func:`impl.lighting.surface_at` as the shading normal, both turned to the viewer's
-    side on a two-sided BSDF), selects for their branches, so the point rows, ``L`` and
+    sphere or a triangle under an untextured diffuse BSDF without a normal or bump map —
+    a ray per vector lane: the same operations (the hit point of :func:`impl.rays.refine`
+    in the precision of ``g``: a triangle's from its barycentrics, a sphere's projected
+    onto it from o + t d; the normals of :func:`impl.lighting.surface_at`: the geometric
+    one, and as the shading normal the vertex normals interpolated
+    (:func:`impl.lighting.interpolated_normal`) where the triangle has them, else the
+    geometric one; both turned to the viewer's side on a two-sided BSDF), selects for their
+    branches, so the point rows, ``L`` and
     ``active`` of those rays are :func:`_shade_ray`'s bit for bit.  With ``sky`` (no
     environment map), an escaped ray gets the constant radiance (``sky_r``, ``sky_g``,
     ``sky_b``) and no point, as there.  ``slow[i]``: ray i is neither (another surface, an
@@ -156,10 +160,11 @@ def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, 
     clamped indices, so every lane reads memory that exists (a scene without shapes
     leaves every ray to :func:`_shade_ray`); one loop per mix of primitives the scene
     has, so a scene of triangles alone does not pay the sphere's square root and
-    divisions at every lane."""
+    divisions at every lane, nor a scene without vertex normals (``smooth`` false) their
+    interpolation.  ``TN``: the triangles' vertex normals (float64)."""
     ns = g.shape[0]
 
-    def lane(spheres, triangles, i):
+    def lane(spheres, triangles, normals, i):
         p = prim[i]
         miss = p < 0
         tri = p >= ns
@@ -167,25 +172,40 @@ def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, 
         mat = shape_mat[shape]
         plain = (shade[mat] == 0) & (tex[mat] == 0)
         fast = miss & sky
-        px = py = pz = gx = gy = gz = 0.0
+        px = py = pz = gx = gy = gz = sx = sy = sz = 0.0
         if triangles:
             j = p - ns if tri else 0
             px, py, pz = refine_triangle(g, V, j, b1s[i], b2s[i])
             gx, gy, gz = NG[j, 0], NG[j, 1], NG[j, 2]
-            fast = fast | (tri & (not has_n[j]) & plain)
+            sx, sy, sz = gx, gy, gz
+            if normals:
+                hn = has_n[j] != 0
+                ix, iy, iz = interpolated_normal(TN, j, b1s[i], b2s[i])
+                sx = ix if hn else gx
+                sy = iy if hn else gy
+                sz = iz if hn else gz
+                fast = fast | (tri & plain)
+            else:
+                fast = fast | (tri & (not has_n[j]) & plain)
         if spheres:
             on = (not miss) & (not tri)
             k = p if on else 0
             t = ts[i]
-            sx, sy, sz = refine_sphere(g, C, k, oxs[i] + t * dxs[i], oys[i] + t * dys[i],
+            qx, qy, qz = refine_sphere(g, C, k, oxs[i] + t * dxs[i], oys[i] + t * dys[i],
                                        ozs[i] + t * dzs[i])
-            hx, hy, hz, _, _, _ = sphere_surface(k, sx, sy, sz, AC, AR, False)
-            px = sx if on else px
-            py = sy if on else py
-            pz = sz if on else pz
+            hx, hy, hz, _, _, _ = sphere_surface(k, qx, qy, qz, AC, AR, False)
+            px = qx if on else px
+            py = qy if on else py
+            pz = qz if on else pz
             gx = hx if on else gx
             gy = hy if on else gy
             gz = hz if on else gz
+            if normals:                 # (only with triangles)
+                sx = hx if on else sx
+                sy = hy if on else sy
+                sz = hz if on else sz
+            else:
+                sx, sy, sz = gx, gy, gz
             fast = fast | (on & plain)
         slow[i] = not fast
         Px[i], Py[i], Pz[i] = px, py, pz
@@ -193,9 +213,12 @@ def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, 
         gx = -gx if flip else gx
         gy = -gy if flip else gy
         gz = -gz if flip else gz
+        sx = -sx if flip else sx
+        sy = -sy if flip else sy
+        sz = -sz if flip else sz
         vx, vy, vz = -dxs[i], -dys[i], -dzs[i]
         gv = gx * vx + gy * vy + gz * vz
-        front = gv > 0.0                # L_e on the front side only
+        front = sx * vx + sy * vy + sz * vz > 0.0       # L_e on the front side only
         er = emit[shape, 0] if front else 0.0
         eg = emit[shape, 1] if front else 0.0
         eb = emit[shape, 2] if front else 0.0
@@ -203,14 +226,17 @@ def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, 
         gx = -gx if back else gx
         gy = -gy if back else gy
         gz = -gz if back else gz
-        lit = (gx * vx + gy * vy + gz * vz > 0.0) & (not miss)
+        sx = -sx if back else sx
+        sy = -sy if back else sy
+        sz = -sz if back else sz
+        lit = (sx * vx + sy * vy + sz * vz > 0.0) & (not miss)
         rr, rg, rb = rho[mat, 0], rho[mat, 1], rho[mat, 2]
         Lr[i] = sky_r if miss else (er + amb * rr if lit else er)
         Lg[i] = sky_g if miss else (eg + amb * rg if lit else eg)
         Lb[i] = sky_b if miss else (eb + amb * rb if lit else eb)
         active[i] = lit
         Gx[i], Gy[i], Gz[i] = gx, gy, gz
-        Nx[i], Ny[i], Nz[i] = gx, gy, gz
+        Nx[i], Ny[i], Nz[i] = sx, sy, sz
         Vx[i], Vy[i], Vz[i] = vx, vy, vz
         Rr[i], Rg[i], Rb[i] = rr, rg, rb
         code[i] = MAP_NONE
@@ -218,27 +244,35 @@ def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, 
     if prim_shape.shape[0] == 0:         # no shape: every ray escapes, left to _shade_ray
         for i in range(prim.shape[0]):
             slow[i] = True
+    elif ns == 0 and smooth:
+        for i in range(prim.shape[0]):
+            lane(False, True, True, i)
     elif ns == 0:
         for i in range(prim.shape[0]):
-            lane(False, True, i)
+            lane(False, True, False, i)
     elif V.shape[0] == 0:
         for i in range(prim.shape[0]):
-            lane(True, False, i)
+            lane(True, False, False, i)
+    elif smooth:
+        for i in range(prim.shape[0]):
+            lane(True, True, True, i)
     else:
         for i in range(prim.shape[0]):
-            lane(True, True, i)
+            lane(True, True, False, i)
 
 
 @njit(inline="always", cache=True)
-def _lane_hits(A: SceneArrays, R: RayConfig, amb, T: Batch, slow):
-    """:func:`_plain_hits` over the batch's eye rays (``slow`` (≥n,) gets its flags)."""
+def _lane_hits(A: SceneArrays, R: RayConfig, amb, T: Batch, slow, smooth):
+    """:func:`_plain_hits` over the batch's eye rays (``slow`` (≥n,) gets its flags;
+    ``smooth``: some triangle has vertex normals)."""
     n = T.n
     P = T.pts
     sky = A.env_image.shape[0] == 0      # escaped rays see a constant radiance (maybe 0)
     er, eg, eb = environment_radiance(A, 0.0, 0.0, 1.0) if sky else (0.0, 0.0, 0.0)
     _plain_hits(R.sph_radius, R.sph_center, A.sph_center, A.sph_radius, T.prim[:n], T.t[:n],
                 T.ray[OX, :n], T.ray[OY, :n], T.ray[OZ, :n], T.b[0, :n], T.b[1, :n], T.ray[DX, :n],
-                T.ray[DY, :n], T.ray[DZ, :n], R.tri_v, A.tri_ng, A.tri_has_n, A.prim_shape,
+                T.ray[DY, :n], T.ray[DZ, :n], R.tri_v, A.tri_ng, A.tri_n, A.tri_has_n, smooth,
+                A.prim_shape,
                 A.shape_flip, A.shape_emit, A.shape_material, A.mat_twosided, A.mat_shade, A.mat_tex,
                 A.mat_rho, amb, sky, er, eg, eb, P[SP_P, :n], P[SP_P + 1, :n], P[SP_P + 2, :n],
                 P[SP_G, :n], P[SP_G + 1, :n], P[SP_G + 2, :n], P[SP_S, :n], P[SP_S + 1, :n],
@@ -286,25 +320,27 @@ def _shade_ray(A: SceneArrays, R: RayConfig, amb, T: Batch, i):
 
 
 @njit(cache=True)
-def _tile(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, tile, spp, seed):
-    """One tile: per sample index, eye rays and hits, shading, accumulation."""
+def _tile(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, tile, spp, seed, smooth):
+    """One tile: per sample index, eye rays and hits, shading, accumulation (``smooth``:
+    some triangle has vertex normals)."""
     T = new_batch(film, R, tile, seed)
     sidx = np.empty(T.n, np.int64)
     slow = np.empty(T.n, np.bool_)
     for s in range(spp):
         eye_batch(cam, R, T, s, spp, seed, film.packets, film.sampler)
-        _shade(A, R, M, T, s, seed, sidx, slow)
+        _shade(A, R, M, T, s, seed, sidx, slow, smooth)
         accumulate(T, s)
     store(T, film, spp)
 
 
 @njit(nogil=True, cache=True)
-def _render_kernel(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, spp, seed, queue):
+def _render_kernel(cam, A: SceneArrays, R: RayConfig, M: LocalModel, film: Film, spp, seed, smooth,
+                   queue):
     """The film's tiles, taken from ``queue`` (:func:`impl.kernel.run_tasks`)."""
     n = film.order.shape[0]
     c = take_task(queue)
     while c < n:
-        _tile(cam, A, R, M, film, film.order[c], spp, seed)
+        _tile(cam, A, R, M, film, film.order[c], spp, seed, smooth)
         c = take_task(queue)
 
 
@@ -354,7 +390,8 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     packets = bool(params.get("packets", False))
     film = new_film(W, H, len(COUNTERS), packets, sampler_code(params))
     t1 = time.perf_counter()
-    run_tasks(_render_kernel, cam, A, R, local_model(params), film, spp, seed)
+    smooth = bool(A.tri_has_n.any())
+    run_tasks(_render_kernel, cam, A, R, local_model(params), film, spp, seed, smooth)
     t2 = time.perf_counter()
     counters = {"camera_rays": int(W * H * spp), **film_counters(film, COUNTERS)}
     return film_result(film, spp, counters, t0, t1, t2)

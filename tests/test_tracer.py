@@ -834,17 +834,18 @@ def _shade_ray_by_ray(A, R, amb, T):
 @pytest.mark.parametrize("scene", ["spheres/meshes.xml", "cornell/cornell_box.xml",
                                    "vocabulary/maps_direct.xml", "spheres/spot_directional.xml",
                                    "vocabulary/constant_env_room.xml", "vocabulary/envmap.xml",
-                                   "spheres/lit_sphere.xml", "spheres/sphere_grid.xml", "spheres only"])
+                                   "spheres/lit_sphere.xml", "spheres/sphere_grid.xml", "spheres only",
+                                   "meshes and a sphere"])
 @pytest.mark.parametrize("precision", ["float64", "float32"])
 def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision, tmp_path):
-    """raycast shades the plain hits (spheres, triangles without vertex normals) a ray per
-    vector lane (impl.raycast._plain_hits) and the others ray by ray: every eye ray's
-    emission and ambient term, whether it is lit, and its shading point are those of the
-    ray-by-ray step (impl.raycast._shade_ray) at every ray, bit for bit.  The scenes mix
-    plain hits on triangles and spheres (an emitter's among them; spheres alone, triangles
-    alone, both) and escaped rays (into a constant environment or none) with the others
-    (interpolated normals, an environment map), or have no plain hit (normal and bump
-    maps)."""
+    """raycast shades the plain hits (spheres, triangles with or without vertex normals) a
+    ray per vector lane (impl.raycast._plain_hits) and the others ray by ray: every eye
+    ray's emission and ambient term, whether it is lit, and its shading point are those of
+    the ray-by-ray step (impl.raycast._shade_ray) at every ray, bit for bit.  The scenes
+    mix plain hits on triangles and spheres (an emitter's among them; spheres alone,
+    triangles alone, both; triangles with interpolated normals beside flat ones, alone and
+    with a sphere) and escaped rays (into a constant environment or none) with the others
+    (an environment map), or have no plain hit (normal and bump maps)."""
     from impl import lighting
     from impl.camera import camera_params
     from impl.tracer import eye_batch, new_batch, new_film
@@ -857,6 +858,13 @@ def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision, 
             '<float name="radius" value="1000"/><bsdf type="diffuse"/></shape>')))
         sc = load_scene(tmp_path / "spheres.xml")
         assert len(sc.shapes) == 2 and all(s.kind == "sphere" for s in sc.shapes)
+    elif scene == "meshes and a sphere":  # smooth and flat meshes, a rectangle, a sphere
+        text = (SUITES / "spheres/meshes.xml").read_text()
+        text = text.replace('value="meshes/', f'value="{SUITES / "spheres/meshes"}/').replace(
+            "</scene>", '<shape type="sphere"><point name="center" value="0, 0.5, 1.5"/>'
+                        '<float name="radius" value="0.5"/><bsdf type="diffuse"/></shape></scene>')
+        (tmp_path / "mixed.xml").write_text(text)
+        sc = load_scene(tmp_path / "mixed.xml")
     else:
         sc = load_scene(SUITES / scene)
     p = registry.get("raycast").parse_params({"spp": 4, "precision": precision, "ka": 0.3,
@@ -867,13 +875,13 @@ def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision, 
     cam = camera_params(sc.camera)
     film = new_film(sc.camera.film.width, sc.camera.film.height, 1, False, 0)
     rows = lighting.SP_MAP + 1
-    plain = slow = spheres = sky_seen = 0
+    plain = slow = spheres = smooth = sky_seen = 0
     for tile in range(film.packet.shape[0]):
         T = new_batch(film, R, tile, 7)
         n = T.n
         eye_batch(cam, R, T, 1, 4, 7, False, film.sampler)
         flags = np.empty(n, np.bool_)
-        raycast._lane_hits(A, R, amb, T, flags)
+        raycast._lane_hits(A, R, amb, T, flags, bool(A.tri_has_n.any()))
         lanes = (T.pts[:rows, :n].copy(), T.L[:, :n].copy(), T.active[:n].copy())
         _shade_ray_by_ray(A, R, amb, T)
         fast = ~flags
@@ -886,18 +894,22 @@ def test_raycast_plain_hit_lanes_equal_the_ray_by_ray_shading(scene, precision, 
         slow += flags.sum()
         spheres += (fast & (T.prim[:n] >= 0) & (T.prim[:n] < R.sph_radius.shape[0])).sum()
         sky_seen += (fast & (T.prim[:n] < 0)).sum()
-    # (plain hits, slow hits, plain hits on spheres) over 1000; None: either
-    expect = {"spheres/meshes.xml": (True, True, False),
-              "cornell/cornell_box.xml": (True, False, False),
-              "vocabulary/maps_direct.xml": (False, True, False),
-              "spheres/spot_directional.xml": (True, False, True),
-              "vocabulary/constant_env_room.xml": (True, None, None),
-              "vocabulary/envmap.xml": (None, True, None),
-              "spheres/lit_sphere.xml": (True, False, True),
-              "spheres/sphere_grid.xml": (True, None, True),
-              "spheres only": (True, False, True)}[scene]
-    got = (plain > 1000, slow > 1000, spheres > 1000)
-    assert all(e in (None, g) for e, g in zip(expect, got)), (plain, slow, spheres)
+        if len(A.tri_has_n):
+            tri = np.maximum(T.prim[:n] - R.sph_radius.shape[0], 0)
+            smooth += (fast & (T.prim[:n] >= R.sph_radius.shape[0]) & (A.tri_has_n[tri] != 0)).sum()
+    # (plain hits, slow hits, plain hits on spheres, on smooth triangles) over 1000; None: either
+    expect = {"spheres/meshes.xml": (True, False, False, True),
+              "meshes and a sphere": (True, False, True, True),
+              "cornell/cornell_box.xml": (True, False, False, False),
+              "vocabulary/maps_direct.xml": (False, True, False, False),
+              "spheres/spot_directional.xml": (True, False, True, False),
+              "vocabulary/constant_env_room.xml": (True, None, None, False),
+              "vocabulary/envmap.xml": (None, True, None, None),
+              "spheres/lit_sphere.xml": (True, False, True, False),
+              "spheres/sphere_grid.xml": (True, None, True, False),
+              "spheres only": (True, False, True, False)}[scene]
+    got = (plain > 1000, slow > 1000, spheres > 1000, smooth > 1000)
+    assert all(e in (None, g) for e, g in zip(expect, got)), (plain, slow, spheres, smooth)
     if scene == "vocabulary/constant_env_room.xml":     # escaped rays, in the lanes
         assert sky_seen > 1000
 
@@ -925,7 +937,7 @@ def _lanes_against_scalar(sc, params):
         T = new_batch(film, R, tile, 7)
         sidx = np.empty(T.n, np.int64)
         eye_batch(cam, R, T, 2, 4, 7, False, film.sampler)
-        raycast._shade(A, R, M, T, 2, 7, sidx, np.empty(T.n, np.bool_))
+        raycast._shade(A, R, M, T, 2, 7, sidx, np.empty(T.n, np.bool_), bool(A.tri_has_n.any()))
         P = T.pts
         for i in np.flatnonzero(T.active[:T.n]):
             if A.shape_emit[A.prim_shape[T.prim[i]]].any():
