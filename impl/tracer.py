@@ -46,8 +46,8 @@ segments (shadow rays) only the triangles whose plane crosses the box of the seg
 start on); a pinhole
 camera's eye rays are bounded once per tile, for all its samples, by the frustum through
 the corners of each of its pixel blocks, and through the wide BVH a block that keeps too
-many primitives by those of its pairs of pixel rows (:func:`_tile_candidates`).  ``accel=auto`` answers
-batch queries this way on small scenes even where its per-ray queries use the wide BVH
+many primitives by those of its pairs of pixel rows (:func:`_tile_candidates`).
+``accel=auto`` answers batch queries this way on small scenes even where its per-ray queries use the wide BVH
 (:data:`impl.rays.AUTO_BATCH_PRIMS_PER_LANE`).  Through the wide BVH, a batch goes in
 chunks of ``CHUNK`` rays: a chunk with a frustum gathers the primitives of the leaves the
 frustum reaches (:func:`impl.accel.wide.wide_frustum_prims`) and, when at most
@@ -149,9 +149,9 @@ class Batch(NamedTuple):
     the steps reuse from sample to sample (no allocation inside the sample loop).  Column
     ``i`` is the pixel ``xy[:, i]`` (image index ``pixel[i]``): the tile's pixels in blocks
     of ``BLOCK`` × ``BLOCK``, the blocks in row order and each block's pixels in row order
-    (:func:`new_batch`, :func:`pixel_block`), so that a run of columns — a block, a chunk of a
-    batch query, the shadow rays of consecutive points — covers a compact patch of the
-    image, whose rays a frustum bounds more tightly than a strip of rows."""
+    (:func:`new_batch`, :func:`pixel_block`), so that a run of columns — a block, a chunk
+    of a batch query, the shadow rays of consecutive points — covers a compact patch of
+    the image, whose rays a frustum bounds more tightly than a strip of rows."""
 
     x0: int
     y0: int
@@ -472,16 +472,16 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
 
 @batch_kernel(error_model="numpy")
 def _tile_candidates(cam, R: RayConfig, T: Batch):
-    """The primitives the tile's eye rays can meet, into ``T.cand``, pixel block by block
-    (:func:`pixel_block`), for every sample index at once: those inside the frustum of the four
-    rays through the block's outer pixel corners (:func:`_rect_candidates`).  By brute
-    force the list is every primitive the frustum does not exclude; through the wide BVH,
-    those of the leaves it reaches, or ``_PER_RAY`` when they are more than ``CHUNK_CAP``.
-    Such a block whose frustum reaches at most ``_SPLIT_RAW`` leaf primitives is culled
-    again in runs of ``SPLIT_ROWS`` pixel rows (a block over a mesh of a few hundred
-    triangles may keep 30, its runs some 15), each run's list in the rows of ``T.cand``
-    after the blocks' (run ``j`` of block ``g`` in row ``blocks + g·_RUNS + j``), and the
-    block marked ``_SPLIT``.  Called once per tile."""
+    """The primitives the tile's eye rays can meet, into ``T.cand``, pixel block by
+    block (:func:`pixel_block`), for every sample index at once: those inside the frustum
+    of the four rays through the block's outer pixel corners (:func:`_rect_candidates`).
+    By brute force the list is every primitive the frustum does not exclude; through the
+    wide BVH, those of the leaves it reaches, or ``_PER_RAY`` when they are more than
+    ``CHUNK_CAP``.  Such a block whose frustum reaches at most ``_SPLIT_RAW`` leaf
+    primitives is culled again in runs of ``SPLIT_ROWS`` pixel rows (a block over a mesh
+    of a few hundred triangles may keep 30, its runs some 15), each run's list in the rows
+    of ``T.cand`` after the ``nb`` blocks' (run ``j`` of block ``g`` in row
+    ``nb + g·_RUNS + j``), and the block marked ``_SPLIT``.  Called once per tile."""
     ny = T.n // T.nx
     nb = ((T.nx + BLOCK - 1) // BLOCK) * ((ny + BLOCK - 1) // BLOCK)
     split = T.cand.shape[0] > nb
@@ -810,7 +810,7 @@ def _triangle_from(sx, sy, sz, qx, qy, qz, tq, dx, dy, dz, e1x, e1y, e1z, e2x, e
 
 #: Side of a pixel block: a batch's columns hold a tile's pixels block by block
 #: (:class:`Batch`), and a pinhole's eye rays are culled block by block
-#: (:func:`_tile_candidates`).  A block of 64 rays is also a chunk of the batch queries.
+#: (:func:`_tile_candidates`); ``CHUNK`` is a block's worth of rays.
 BLOCK = 8
 #: Pixel rows per run of a split block (:func:`_tile_candidates`), and the runs per block.
 SPLIT_ROWS = 2
