@@ -147,11 +147,10 @@ def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, 
     onto it from o + t d; the normals of :func:`impl.lighting.surface_at`: the geometric
     one, and as the shading normal the vertex normals interpolated
     (:func:`impl.lighting.interpolated_normal`) where the triangle has them, else the
-    geometric one; both turned to the viewer's side on a two-sided BSDF), selects for their
-    branches, so the point rows, ``L`` and
-    ``active`` of those rays are :func:`_shade_ray`'s bit for bit.  With ``sky`` (no
-    environment map), an escaped ray gets the constant radiance (``sky_r``, ``sky_g``,
-    ``sky_b``) and no point, as there.  ``slow[i]``: ray i is neither (another surface, an
+    geometric one; both turned to the viewer's side on a two-sided BSDF), selects for
+    their branches, so the point rows, ``L`` and ``active`` of those rays are
+    :func:`_shade_ray`'s bit for bit.  With ``sky`` (no environment map), an escaped ray
+    gets the constant radiance (``sky_r``, ``sky_g``, ``sky_b``) and no point, as there.  ``slow[i]``: ray i is neither (another surface, an
     escaped ray under an environment map) and is left to :func:`_shade_ray` (its other
     outputs are then meaningless).
 
@@ -272,13 +271,12 @@ def _lane_hits(A: SceneArrays, R: RayConfig, amb, T: Batch, slow, smooth):
     _plain_hits(R.sph_radius, R.sph_center, A.sph_center, A.sph_radius, T.prim[:n], T.t[:n],
                 T.ray[OX, :n], T.ray[OY, :n], T.ray[OZ, :n], T.b[0, :n], T.b[1, :n], T.ray[DX, :n],
                 T.ray[DY, :n], T.ray[DZ, :n], R.tri_v, A.tri_ng, A.tri_n, A.tri_has_n, smooth,
-                A.prim_shape,
-                A.shape_flip, A.shape_emit, A.shape_material, A.mat_twosided, A.mat_shade, A.mat_tex,
-                A.mat_rho, amb, sky, er, eg, eb, P[SP_P, :n], P[SP_P + 1, :n], P[SP_P + 2, :n],
-                P[SP_G, :n], P[SP_G + 1, :n], P[SP_G + 2, :n], P[SP_S, :n], P[SP_S + 1, :n],
-                P[SP_S + 2, :n], P[SP_V, :n], P[SP_V + 1, :n], P[SP_V + 2, :n], P[SP_RHO, :n],
-                P[SP_RHO + 1, :n], P[SP_RHO + 2, :n], P[SP_MAP, :n], T.L[0, :n], T.L[1, :n],
-                T.L[2, :n], T.active[:n], slow[:n])
+                A.prim_shape, A.shape_flip, A.shape_emit, A.shape_material, A.mat_twosided,
+                A.mat_shade, A.mat_tex, A.mat_rho, amb, sky, er, eg, eb, P[SP_P, :n],
+                P[SP_P + 1, :n], P[SP_P + 2, :n], P[SP_G, :n], P[SP_G + 1, :n], P[SP_G + 2, :n],
+                P[SP_S, :n], P[SP_S + 1, :n], P[SP_S + 2, :n], P[SP_V, :n], P[SP_V + 1, :n],
+                P[SP_V + 2, :n], P[SP_RHO, :n], P[SP_RHO + 1, :n], P[SP_RHO + 2, :n], P[SP_MAP, :n],
+                T.L[0, :n], T.L[1, :n], T.L[2, :n], T.active[:n], slow[:n])
 
 
 @njit(inline="always", cache=True)

@@ -704,8 +704,8 @@ def test_tile_frustum_keeps_every_primitive_an_eye_ray_hits(scene, sampler):
     the per-ray query's answer over all primitives, and the tiles' lists do cull (on the
     Cornell box most blocks keep few of its 34 triangles; on the spheres the sky blocks
     keep no sphere).  On the meshes (the wide BVH) blocks over the icosphere keep too
-    many and are split into runs of rows, each run's list within CHUNK_CAP and shorter
-    than a block's could be."""
+    many and are split into runs of rows, each run's list within CHUNK_CAP (on average
+    under three quarters of it)."""
     from impl.camera import camera_params
     from impl.sampling import sampler_code
     from impl.tracer import eye_batch, new_batch, new_film
