@@ -150,9 +150,9 @@ def _plain_hits(g, C, AC, AR, prim, ts, oxs, oys, ozs, b1s, b2s, dxs, dys, dzs, 
     geometric one; both turned to the viewer's side on a two-sided BSDF), selects for
     their branches, so the point rows, ``L`` and ``active`` of those rays are
     :func:`_shade_ray`'s bit for bit.  With ``sky`` (no environment map), an escaped ray
-    gets the constant radiance (``sky_r``, ``sky_g``, ``sky_b``) and no point, as there.  ``slow[i]``: ray i is neither (another surface, an
-    escaped ray under an environment map) and is left to :func:`_shade_ray` (its other
-    outputs are then meaningless).
+    gets the constant radiance (``sky_r``, ``sky_g``, ``sky_b``) and no point, as there.
+    ``slow[i]``: ray i is neither (another surface, an escaped ray under an environment
+    map) and is left to :func:`_shade_ray` (its other outputs are then meaningless).
 
     ``g``, ``C``: the spheres' radii and centres in the intersection precision (``R``'s),
     ``AC``, ``AR`` in float64 (``A``'s, the normal's).  The scene's tables are read at
@@ -387,8 +387,8 @@ def render(scene: Scene, params: dict, *, seed: int = 0) -> RenderResult:
     H, W = scene.camera.film.height, scene.camera.film.width
     packets = bool(params.get("packets", False))
     film = new_film(W, H, len(COUNTERS), packets, sampler_code(params))
+    smooth = bool(A.tri_has_n.any())     # the lanes' loops with interpolated normals
     t1 = time.perf_counter()
-    smooth = bool(A.tri_has_n.any())
     run_tasks(_render_kernel, cam, A, R, local_model(params), film, spp, seed, smooth)
     t2 = time.perf_counter()
     counters = {"camera_rays": int(W * H * spp), **film_counters(film, COUNTERS)}

@@ -47,8 +47,8 @@ start on); a pinhole
 camera's eye rays are bounded once per tile, for all its samples, by the frustum through
 the corners of each of its pixel blocks, and through the wide BVH a block that keeps too
 many primitives by those of its pairs of pixel rows (:func:`_tile_candidates`).
-``accel=auto`` answers batch queries this way on small scenes even where its per-ray queries use the wide BVH
-(:data:`impl.rays.AUTO_BATCH_PRIMS_PER_LANE`).  Through the wide BVH, a batch goes in
+``accel=auto`` answers batch queries this way on small scenes even where its per-ray
+queries use the wide BVH (:data:`impl.rays.AUTO_BATCH_PRIMS_PER_LANE`).  Through the wide BVH, a batch goes in
 chunks of ``CHUNK`` rays: a chunk with a frustum gathers the primitives of the leaves the
 frustum reaches (:func:`impl.accel.wide.wide_frustum_prims`) and, when at most
 ``CHUNK_CAP`` pass the frustum's own test, goes through the same brute-force loops; other
@@ -295,8 +295,14 @@ def _cand_rows(R: RayConfig, nx, ny):
     """Rows of a tile's eye-ray candidate lists (``Batch.cand``): one per pixel block,
     and through the wide BVH one per run of ``SPLIT_ROWS`` rows of each block too
     (:func:`_tile_candidates`)."""
-    nb = ((nx + BLOCK - 1) // BLOCK) * ((ny + BLOCK - 1) // BLOCK)
+    nb = pixel_blocks(nx, ny)
     return nb if brute_force(R) else nb * (1 + _RUNS)
+
+
+@njit(inline="always", cache=True)
+def pixel_blocks(nx, ny):
+    """How many pixel blocks (:func:`pixel_block`) an ``nx`` × ``ny`` tile has."""
+    return ((nx + BLOCK - 1) // BLOCK) * ((ny + BLOCK - 1) // BLOCK)
 
 
 @njit(inline="always", cache=True)
@@ -455,7 +461,7 @@ def eye_batch(cam, R: RayConfig, T: Batch, s, spp, seed, packets, sampler):
             _tile_candidates(cam, R, T)
         q = _query_rows(ray, n, T.q)
         ny = n // T.nx
-        nb = ((T.nx + BLOCK - 1) // BLOCK) * ((ny + BLOCK - 1) // BLOCK)
+        nb = pixel_blocks(T.nx, ny)
         for j in range(nb):                    # rays from one origin: the camera's
             c0, _, _, w, h = pixel_block(T.nx, ny, j)
             split = T.cand[j, 0] == _SPLIT     # then a span per run of SPLIT_ROWS rows
@@ -483,7 +489,7 @@ def _tile_candidates(cam, R: RayConfig, T: Batch):
     of ``T.cand`` after the ``nb`` blocks' (run ``j`` of block ``g`` in row
     ``nb + g·_RUNS + j``), and the block marked ``_SPLIT``.  Called once per tile."""
     ny = T.n // T.nx
-    nb = ((T.nx + BLOCK - 1) // BLOCK) * ((ny + BLOCK - 1) // BLOCK)
+    nb = pixel_blocks(T.nx, ny)
     split = T.cand.shape[0] > nb
     for g in range(nb):
         _, bx, by, w, h = pixel_block(T.nx, ny, g)

@@ -728,7 +728,7 @@ def test_tile_frustum_keeps_every_primitive_an_eye_ray_hits(scene, sampler):
             got = (T.t.copy(), T.prim.copy(), T.b.copy())
             want = _per_ray_answers(R, T.ray)[:3]
             _assert_same(got, want, err_msg=f"tile {tile} sample {s}")
-        nb = -(-T.nx // tracer.BLOCK) * -(-(T.n // T.nx) // tracer.BLOCK)
+        nb = tracer.pixel_blocks(T.nx, T.n // T.nx)
         heads = T.cand[:nb, 0]
         kept.extend((T.cand[:nb, 0] + T.cand[:nb, 1])[heads >= 0].tolist())
         assert set(heads[heads < 0].tolist()) <= {tracer._PER_RAY, tracer._SPLIT}
